@@ -1,0 +1,1 @@
+"""ddgjax (package init is finalised by the lead once all subpackages exist)."""

@@ -1,0 +1,49 @@
+"""Exceptions raised on structurally bad input (DESIGN.md, Errors and bad input)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class DDGInputError(ValueError):
+    """Malformed input: wrong shape or dtype, out-of-range index, NaN/inf, too few elements."""
+
+
+class MeshDataError(ValueError):
+    """A well-formed mesh whose data an operator cannot handle (non-manifold, non-orientable, ...)."""
+
+
+def first_indices(mask: np.ndarray, limit: int = 10) -> str:
+    """The first `limit` indices where `mask` is true (rows, for 2-D masks), for error messages."""
+    idx = np.flatnonzero(np.asarray(mask).reshape(mask.shape[0], -1).any(axis=1)) if mask.ndim > 1 else np.flatnonzero(mask)
+    shown = ", ".join(str(int(i)) for i in idx[:limit])
+    more = f", ... ({idx.size} in all)" if idx.size > limit else f" ({idx.size} in all)"
+    return f"[{shown}]{more}"
+
+
+def check_finite(name: str, array: np.ndarray) -> None:
+    """Refuse NaN or inf entries, naming the first offending rows."""
+    bad = ~np.isfinite(array)
+    if bad.any():
+        raise DDGInputError(f"{name}: expected finite coordinates, got NaN/inf at rows {first_indices(bad)}")
+
+
+def check_float_array(name: str, array, trailing: tuple[int, ...], min_rows: int = 1) -> np.ndarray:
+    """Host copy of a float array of shape `(n, *trailing)`, refusing bad shape, dtype, NaN/inf."""
+    host = np.asarray(array)
+    expected = "(n, " + ", ".join(map(str, trailing)) + ")"
+    if host.ndim != 1 + len(trailing) or host.shape[1:] != trailing:
+        raise DDGInputError(f"{name}: expected shape {expected}, got {host.shape}")
+    if not (np.issubdtype(host.dtype, np.floating) or np.issubdtype(host.dtype, np.integer)):
+        raise DDGInputError(f"{name}: expected a real floating-point array, got dtype {host.dtype}")
+    if host.shape[0] < min_rows:
+        raise DDGInputError(f"{name}: expected at least {min_rows} rows, got {host.shape[0]}")
+    check_finite(name, host)
+    return host
+
+
+def is_traced(array) -> bool:
+    """True for JAX tracers (inside jit / grad / vmap), whose values cannot be checked on the host."""
+    import jax
+
+    return isinstance(array, jax.core.Tracer)

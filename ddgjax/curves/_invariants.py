@@ -1,0 +1,129 @@
+"""Global quantities the curve-shortening flows keep or change: centroids, area, roundness, simplicity.
+
+Length, total curvature and turning number live with the curvatures (`_curvature.py`). Area-type
+quantities (`enclosed_area`, `area_centroid`, `isoperimetric_ratio`) treat an open
+curve as closed by the chord from its last point back to its first.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from .._numerics import cross2, safe_div, safe_norm
+from ._curvature import _edge_lengths
+from ._curve import Curve
+
+
+def centroid(curve: Curve) -> Float[Array, "2"]:
+    """Vertex centroid `(1/n) sum_i p_i`, `(2,)`: the centre of mass the reading report's B-flow keeps.
+
+    Equivalent: `curvey.Curve.center`.
+    """
+    return jnp.mean(curve.points, axis=0)
+
+
+def _shoelace_terms(points: Float[Array, "n 2"]):
+    """Points relative to their mean (less cancellation), and `p_i x p_{i+1}` for every closing-cyclic edge."""
+    origin = jnp.mean(points, axis=0)
+    relative = points - origin
+    following = jnp.roll(relative, -1, axis=0)
+    return origin, relative, following, cross2(relative, following)
+
+
+def enclosed_area(curve: Curve) -> Float[Array, ""]:
+    """Signed enclosed area by the shoelace formula, `A = (1/2) sum_i p_i x p_{i+1}`.
+
+    Positive for counterclockwise curves; for a self-intersecting curve, the sum over regions of
+    area times winding number. Translation invariant (computed relative to the vertex centroid).
+    Open curves are closed by their chord. Equivalent: `curvey.Curve.signed_area`.
+    """
+    return 0.5 * jnp.sum(_shoelace_terms(curve.points)[3])
+
+
+def area_centroid(curve: Curve) -> Float[Array, "2"]:
+    """Centre of mass of the enclosed region, `(2,)`: `(1 / 6A) sum_i (p_i + p_{i+1}) (p_i x p_{i+1})`.
+
+    Falls back to the vertex centroid when the signed area is exactly 0 (finite gradients there).
+    Open curves are closed by their chord. Equivalent: `curvey.Curve.centroid`.
+    """
+    origin, relative, following, cross = _shoelace_terms(curve.points)
+    moment = jnp.sum((relative + following) * cross[:, None], axis=0) / 6
+    return origin + safe_div(moment, 0.5 * jnp.sum(cross))
+
+
+def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
+    """Isoperimetric ratio `4 pi |A| / L^2`: 1 for a circle, `pi / (n tan(pi / n))` for a regular n-gon, less otherwise.
+
+    `A` is `enclosed_area`, `L` the perimeter; an open curve is closed by its chord (in both).
+    Scale and rigid-motion invariant. The inverse of `curvey.Curve.roundness`.
+    """
+    perimeter = jnp.sum(_edge_lengths(curve.points, closed=True))
+    return safe_div(4 * jnp.pi * jnp.abs(enclosed_area(curve)), perimeter**2)
+
+
+def cyclic_residual(curve: Curve) -> Float[Array, ""]:
+    """How far the vertices are from lying on one circle: `std_i |p_i - c| / mean_i |p_i - c|`.
+
+    `c` is the centre of the algebraic least-squares circle (Kasa fit), which minimises
+    `sum_i (|p_i - c|^2 - r^2)^2` over `c` and `r` and, with the points taken relative to their
+    mean `m`, solves the 2x2 system `S (c - m) = (1/2) sum_i q_i |q_i|^2` (`q_i = p_i - m`,
+    `S = sum_i q_i q_i^T`). 0 exactly for a cyclic polygon (all vertices on one circle), scale and
+    rigid-motion invariant. Collinear points (`det S = 0`) use `c = m`.
+
+    Reference: I. Kasa, "A circle fitting procedure and its error analysis", IEEE Trans. Instrum.
+    Meas. 1976.
+    """
+    points = curve.points
+    mean = jnp.mean(points, axis=0)
+    q = points - mean
+    sxx, syy, sxy = jnp.sum(q[:, 0] ** 2), jnp.sum(q[:, 1] ** 2), jnp.sum(q[:, 0] * q[:, 1])
+    rhs = 0.5 * jnp.sum(q * jnp.sum(q * q, axis=1, keepdims=True), axis=0)
+    det = sxx * syy - sxy**2
+    centre = safe_div(jnp.stack([syy * rhs[0] - sxy * rhs[1], sxx * rhs[1] - sxy * rhs[0]]), det)
+    distances = safe_norm(q - centre)
+    return safe_div(jnp.std(distances), jnp.mean(distances))
+
+
+def _segments_intersect(a0, a1, b0, b1) -> Bool[Array, "..."]:
+    """Closed segments `a0 a1` and `b0 b1` share a point (proper crossing, touching or collinear overlap)."""
+    da, db = a1 - a0, b1 - b0
+    o1, o2 = cross2(da, b0 - a0), cross2(da, b1 - a0)
+    o3, o4 = cross2(db, a0 - b0), cross2(db, a1 - b0)
+    straddle = (o1 * o2 <= 0) & (o3 * o4 <= 0)
+    # All four orientations vanish only for collinear segments; those meet iff their boxes overlap.
+    boxes = jnp.all(
+        (jnp.minimum(a0, a1) <= jnp.maximum(b0, b1)) & (jnp.minimum(b0, b1) <= jnp.maximum(a0, a1)), axis=-1
+    )
+    collinear = (o1 == 0) & (o2 == 0)
+    return jnp.where(collinear, boxes, straddle)
+
+
+def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
+    """True when the curve does not intersect or touch itself (boolean scalar, jit-compatible).
+
+    Every pair of non-adjacent edges is tested with exact orientation signs (crossings, touching
+    points and collinear overlaps all count); adjacent edges, which share an endpoint, count as
+    intersecting only when they fold back onto each other (turning angle exactly `pi`). Coincident
+    vertices therefore make a curve non-simple. O(n^2) work in blocks of `block` edges against all
+    edges (O(block * n) memory). Equivalent: `curvey.Curve.is_simple` (shapely).
+    """
+    points = curve.points
+    starts = points if curve.closed else points[:-1]
+    ends = jnp.roll(points, -1, axis=0)[: starts.shape[0]]
+    m = starts.shape[0]
+    index = jnp.arange(m)
+
+    def row(i):
+        cross = _segments_intersect(starts[i], ends[i], starts, ends)
+        gap = jnp.abs(index - i)
+        adjacent = (gap == 1) | (curve.closed & (gap == m - 1))
+        folded = (cross2(ends[i] - starts[i], ends - starts) == 0) & (
+            jnp.sum((ends[i] - starts[i]) * (ends - starts), axis=-1) < 0
+        )
+        hits = jnp.where(adjacent, folded, cross) & (index > i)
+        return jnp.any(hits)
+
+    return ~jnp.any(jax.lax.map(row, index, batch_size=min(block, m)))
+

@@ -1,0 +1,49 @@
+"""Discrete exterior calculus on triangle meshes.
+
+Discrete k-forms are arrays of integrals over k-simplices: 0-forms `(nv,)` on vertices, 1-forms
+`(ne,)` on the edges of `mesh.edges` (run from the lower to the higher vertex index), 2-forms `(nf,)`
+on faces (oriented by the face's vertex order). `d0`, `d1` and the diagonal Hodge stars are fixed-
+pattern `SparseMatrix`es whose values re-assemble under jit for moved vertices; everything else is a
+pure function of the vertex positions (jit, grad, vmap).
+
+Which mesh each operator accepts (`MeshDataError` otherwise, naming the operator and the first
+offending edges):
+
+- any triangle mesh (non-manifold, non-orientable, with unreferenced vertices): `d0`, `hodge0`,
+  `hodge1`, `integrate_0form`, `integrate_1form`, `flat`, `sharp`, `hat_function_gradients`,
+  `gradient`, `divergence`, `codifferential(degree=1)`, `hodge_laplacian0`. These only use edges with
+  their global low -> high orientation, or per-face quantities that do not depend on the face order.
+- consistently oriented faces (edge-manifold, every interior edge run in opposite directions by its
+  two faces; boundaries allowed): everything that produces or consumes 2-forms or a sense of
+  rotation: `d1`, `hodge2`, `integrate_2form`, `curl`, `codifferential(degree=2)`,
+  `hodge_laplacian1`, `hodge_laplacian2`.
+
+Sign conventions (DESIGN.md): `(d0 u)_e = u[head] - u[tail]`; `d0^T *1 d0 = L`, the PSD cotan
+Laplacian; the codifferential is the adjoint of `d` (`delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`), so the
+Hodge Laplacians are PSD; `divergence(gradient(u)) = -L u`. Degenerate (zero-area) faces contribute
+nothing and keep values and gradients finite; zero star entries invert to zero.
+
+Reference: Crane, de Goes, Desbrun, Schroeder, *Digital Geometry Processing with Discrete Exterior
+Calculus* (SIGGRAPH course 2013); Desbrun, Hirani, Leok, Marsden, *Discrete Exterior Calculus* (2005).
+"""
+
+from ._forms import flat as flat
+from ._forms import integrate_0form as integrate_0form
+from ._forms import integrate_1form as integrate_1form
+from ._forms import integrate_2form as integrate_2form
+from ._forms import sharp as sharp
+from ._hodge import edge_dual_length_ratios as edge_dual_length_ratios
+from ._hodge import hodge0 as hodge0
+from ._hodge import hodge1 as hodge1
+from ._hodge import hodge2 as hodge2
+from ._hodge import hodge_star_entries as hodge_star_entries
+from ._operators import d0 as d0
+from ._operators import d1 as d1
+from ._vector_calculus import codifferential as codifferential
+from ._vector_calculus import curl as curl
+from ._vector_calculus import divergence as divergence
+from ._vector_calculus import gradient as gradient
+from ._vector_calculus import hat_function_gradients as hat_function_gradients
+from ._vector_calculus import hodge_laplacian0 as hodge_laplacian0
+from ._vector_calculus import hodge_laplacian1 as hodge_laplacian1
+from ._vector_calculus import hodge_laplacian2 as hodge_laplacian2

@@ -1,0 +1,132 @@
+"""Diagonal Hodge stars `*0`, `*1`, `*2` on the circumcentric or barycentric dual, and their inverses.
+
+Each star maps primal k-forms (integrated over k-simplices) to dual (2-k)-forms (integrated over the
+dual cells) by the ratio `|dual cell| / |primal simplex|`:
+
+- `*0`: vertex dual area (`|v| = 1`);
+- `*1`: dual edge length over primal edge length;
+- `*2`: one over the face area (the dual of a face is a point).
+
+Inverses (`inverse=True`) take the reciprocal of each diagonal entry, with one policy everywhere:
+**an exactly zero entry inverts to zero** (the Moore-Penrose pseudo-inverse of a diagonal matrix).
+Zero entries are not rare: a circumcentric `*1` vanishes on every edge whose opposite angles sum to
+pi (the diagonals of a right-triangle grid), and degenerate faces give zero areas. Negative entries
+(circumcentric `*1` on non-Delaunay edges, circumcentric `*0` next to obtuse faces) are inverted as
+they are. `*2` of a zero-area face is likewise 0 (its pseudo-inverse), consistent with the geometry
+policy that degenerate faces contribute nothing; values and gradients stay finite.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._errors import DDGInputError
+from .._numerics import safe_div, safe_norm
+from ..mesh._geometry import edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
+from ..mesh._mesh import Mesh
+from ..sparse import SparseMatrix, SparsityPattern
+
+Dual = Literal["circumcentric", "barycentric", "voronoi"]
+_DUALS = ("circumcentric", "barycentric", "voronoi")
+
+
+def _check_dual(dual: str, allowed: tuple[str, ...] = _DUALS) -> None:
+    if dual not in allowed:
+        raise DDGInputError(f"dual: expected one of {allowed}, got {dual!r}")
+
+
+def edge_dual_length_ratios(mesh: Mesh, *, dual: Literal["circumcentric", "barycentric"] = "circumcentric") -> Float[Array, " ne"]:
+    """`|e*| / |e|` per edge, `(ne,)`: the diagonal of `*1`.
+
+    - `"circumcentric"`: the dual edge joins the circumcentres of the adjacent faces, so
+      `|e*| / |e| = (cot a + cot b) / 2` (`edge_cotan_weights`; one term on a boundary edge). Negative
+      on non-Delaunay edges, zero where `a + b = pi`.
+    - `"barycentric"`: the dual edge is the polyline from each adjacent face's barycentre to the edge
+      midpoint (two segments on an interior edge, one on a boundary edge), so
+      `|e*| = sum_f |c_f - m_e|`; always >= 0 (0 on a zero-length edge).
+
+    Non-manifold edges get one term per face (`*1` itself needs no orientation).
+    """
+    _check_dual(dual, ("circumcentric", "barycentric"))
+    if dual == "circumcentric":
+        return edge_cotan_weights(mesh)
+    barycentres = jnp.mean(face_vertex_positions(mesh), axis=1)
+    midpoints = 0.5 * (mesh.vertices[mesh.edges[:, 0]] + mesh.vertices[mesh.edges[:, 1]])
+    present = mesh.edge_faces >= 0
+    segments = barycentres[jnp.where(present, mesh.edge_faces, 0)] - midpoints[:, None, :]
+    dual_lengths = jnp.sum(jnp.where(present, safe_norm(segments), 0.0), axis=-1)
+    return safe_div(dual_lengths, edge_lengths(mesh))
+
+
+def hodge_star_entries(mesh: Mesh, degree: int, *, dual: Dual = "circumcentric", inverse: bool = False) -> Float[Array, " n"]:
+    """Diagonal of the Hodge star `*_k` (or of its inverse) on primal `degree`-forms, as a vector.
+
+    `degree` 0: vertex dual areas `(nv,)`; 1: `|e*| / |e|` `(ne,)`; 2: `1 / area` `(nf,)`. `dual` picks
+    the dual mesh: `"circumcentric"`, `"barycentric"`, or `"voronoi"` (mixed areas for `*0`; `*1` is
+    then the circumcentric one, the pairing of libigl's cotan Laplacian with its Voronoi mass matrix).
+    `*2` does not depend on `dual`. Zero entries invert to zero (module docstring). See `hodge0`,
+    `hodge1`, `hodge2` for the matrices and the orientation requirement of `*2`.
+    """
+    _check_dual(dual)
+    if degree == 0:
+        entries = vertex_dual_areas(mesh, dual)
+    elif degree == 1:
+        entries = edge_dual_length_ratios(mesh, dual="barycentric" if dual == "barycentric" else "circumcentric")
+    elif degree == 2:
+        mesh.topology.require_oriented("ddgjax.dec.hodge2")
+        areas = face_areas(mesh)
+        return areas if inverse else safe_div(1.0, areas)
+    else:
+        raise DDGInputError(f"degree: expected 0, 1 or 2 (forms on a triangle mesh), got {degree!r}")
+    return safe_div(1.0, entries) if inverse else entries
+
+
+def _diagonal(values: Float[Array, " n"]) -> SparseMatrix:
+    """`SparseMatrix` with `values` on its diagonal (pattern `(i, i)`, trivially in CSR order)."""
+    n = values.shape[0]
+    index = jnp.arange(n, dtype=jnp.int32)
+    pattern = SparsityPattern(rows=index, cols=index, indptr=jnp.arange(n + 1, dtype=jnp.int32), shape=(n, n))
+    return SparseMatrix(values=values, pattern=pattern)
+
+
+def hodge0(mesh: Mesh, *, dual: Dual = "circumcentric", inverse: bool = False) -> SparseMatrix:
+    """Hodge star on primal 0-forms, diagonal `(nv, nv)` with entries `|v*|`, the vertex dual areas.
+
+    `dual` picks the dual cell (`ddgjax.mesh.vertex_dual_areas`): `"circumcentric"` (the DEC dual of
+    Desbrun et al. 2005; negative shares on obtuse faces, so an entry can be <= 0), `"barycentric"`
+    (a third of each incident face: the DDG exercises' `hodge0`, gpytoolbox `dec_h0`) or `"voronoi"`
+    (mixed area, Meyer et al. 2003; always >= 0; libigl's Voronoi mass matrix). Unreferenced vertices
+    get 0 (and 0 in the inverse). Works on every mesh. `inverse=True` gives `*0^{-1}`, zero entries
+    staying zero (module docstring). Reference: Crane et al., *Digital Geometry Processing with
+    Discrete Exterior Calculus* (2013), section 3.8.
+    """
+    return _diagonal(hodge_star_entries(mesh, 0, dual=dual, inverse=inverse))
+
+
+def hodge1(mesh: Mesh, *, dual: Dual = "circumcentric", inverse: bool = False) -> SparseMatrix:
+    """Hodge star on primal 1-forms, diagonal `(ne, ne)` with entries `|e*| / |e|`.
+
+    Circumcentric (default; also used for `dual="voronoi"`): `(*1)_ee = (cot a_e + cot b_e) / 2`, the
+    cotan weight, so that the PSD cotan Laplacian is `L = d0^T *1 d0` (DESIGN.md). Barycentric: the
+    dual edge runs through the adjacent face barycentres and the edge midpoint (see
+    `edge_dual_length_ratios`). `inverse=True` gives `*1^{-1}`, zero entries staying zero (module
+    docstring). Works on every mesh. Reference: Crane et al. 2013, section 3.8; Desbrun et al.,
+    *Discrete Exterior Calculus* (2005). DDG exercises: `DEC::buildHodgeStar1Form`; gpytoolbox:
+    `dec_h1` (circumcentric, its own edge order).
+    """
+    return _diagonal(hodge_star_entries(mesh, 1, dual=dual, inverse=inverse))
+
+
+def hodge2(mesh: Mesh, *, inverse: bool = False) -> SparseMatrix:
+    """Hodge star on primal 2-forms, diagonal `(nf, nf)` with entries `1 / area_f`.
+
+    The dual of a face is a point, so `*2` turns a face integral into a point value (the mean
+    density). Zero-area faces get 0 (pseudo-inverse, module docstring); `inverse=True` gives the face
+    areas. Needs consistently oriented faces, since the sign of a 2-form on a face is relative to the
+    face's orientation (raises `MeshDataError` otherwise). DDG exercises: `DEC::buildHodgeStar2Form`;
+    gpytoolbox: `dec_h2`.
+    """
+    return _diagonal(hodge_star_entries(mesh, 2, inverse=inverse))

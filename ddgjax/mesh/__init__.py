@@ -1,0 +1,40 @@
+"""Triangle meshes: the `Mesh` type, its NumPy-built topology and differentiable per-element geometry."""
+
+from ._geometry import (
+    corner_angles as corner_angles,
+    corner_angles_from_lengths_sq as corner_angles_from_lengths_sq,
+    corner_cotangents as corner_cotangents,
+    corner_cotangents_from_lengths_sq as corner_cotangents_from_lengths_sq,
+    corner_dual_areas as corner_dual_areas,
+    corner_dual_areas_from_lengths_sq as corner_dual_areas_from_lengths_sq,
+    edge_cotan_weights as edge_cotan_weights,
+    edge_dihedral_angles as edge_dihedral_angles,
+    edge_cotan_weights_from_corner_cotangents as edge_cotan_weights_from_corner_cotangents,
+    edge_lengths as edge_lengths,
+    enclosed_volume as enclosed_volume,
+    face_area_vectors as face_area_vectors,
+    face_areas as face_areas,
+    face_areas_from_lengths_sq as face_areas_from_lengths_sq,
+    face_edge_lengths_sq as face_edge_lengths_sq,
+    face_edge_vectors as face_edge_vectors,
+    face_normals as face_normals,
+    face_vertex_positions as face_vertex_positions,
+    scatter_corners_to_vertices as scatter_corners_to_vertices,
+    total_area as total_area,
+    vertex_dual_areas as vertex_dual_areas,
+    vertex_normals as vertex_normals,
+)
+from ._curvature import (
+    gaussian_curvature as gaussian_curvature,
+    mean_curvature as mean_curvature,
+    mean_curvature_normal as mean_curvature_normal,
+    principal_curvatures as principal_curvatures,
+    total_mean_curvature as total_mean_curvature,
+    vertex_angle_defects as vertex_angle_defects,
+    vertex_gauss_curvature_normals as vertex_gauss_curvature_normals,
+    vertex_mean_curvature_normals as vertex_mean_curvature_normals,
+    vertex_mean_curvatures as vertex_mean_curvatures,
+)
+from ._mesh import Mesh as Mesh
+from ._shapes import disk as disk, grid as grid, icosphere as icosphere, torus as torus, uv_sphere as uv_sphere
+from ._topology import MeshTopology as MeshTopology, build_topology as build_topology

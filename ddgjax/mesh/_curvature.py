@@ -1,0 +1,139 @@
+"""Discrete curvatures of triangle meshes: angle defects, mean curvature (normals and scalar), principal curvatures.
+
+Conventions (DESIGN.md): every function says whether it is **integrated** (a sum over the vertex's
+dual cell, scale-invariant for Gaussian curvature) or **pointwise** (the integrated value divided by
+the vertex dual area, `vertex_dual_areas(mesh, kind)`, Voronoi by default). Mean curvature is
+`H = (k1 + k2) / 2`, positive on a sphere with outward normals; the smooth identities behind the
+discrete ones are `Delta x = -2 H N` and `K = k1 k2`.
+
+References: K. Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), "Discrete
+curvature I and II"; M. Meyer, M. Desbrun, P. Schroeder, A. Barr, "Discrete differential-geometry
+operators for triangulated 2-manifolds" (2003).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._numerics import safe_div, safe_norm, safe_sqrt
+from ._geometry import DualAreaKind, corner_angles, edge_dihedral_angles, edge_lengths, scatter_corners_to_vertices, vertex_dual_areas
+from ._mesh import Mesh
+
+
+def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
+    """Integrated Gaussian curvature: the angle defect at each vertex, `(nv,)`.
+
+    `K_i = 2 pi - sum_{corners at i} theta` at interior vertices and `pi - sum theta` at boundary
+    vertices. In general `K_i = 2 pi - sum theta - pi/2 sum_{edges e at i} (2 - c_e)`, with `c_e` the
+    number of faces of edge `e`: the same on manifolds (a boundary vertex has two one-face edges) and
+    it makes discrete Gauss-Bonnet, `sum_i K_i = 2 pi chi` (`chi = V - E + F`, referenced vertices),
+    an identity on **every** triangle mesh, non-manifold included. Unreferenced vertices get 0.
+    Since the total is topological, its gradient with respect to the vertices is 0.
+
+    Converters: `igl.gaussian_curvature(V, F)` is `2 pi - sum theta` everywhere, so it equals this on
+    interior vertices and this minus `pi` on boundary vertices; `gpytoolbox.angle_defect(V, F)` is
+    this on interior vertices and 0 on boundary vertices
+    (`jnp.where(boundary, 0, vertex_angle_defects(mesh))`). Pointwise: `gaussian_curvature`.
+    """
+    angle_sums = scatter_corners_to_vertices(mesh, corner_angles(mesh))
+    dtype = angle_sums.dtype
+    face_counts = jnp.sum(mesh.edge_faces >= 0, axis=-1).astype(dtype)
+    ends = mesh.edges.reshape(-1)
+    # (pi / 2)(2 - c_e) per edge endpoint; 0 on interior manifold edges.
+    edge_terms = jnp.repeat(0.5 * jnp.pi * (2.0 - face_counts), 2)
+    corrections = jax.ops.segment_sum(edge_terms, ends, num_segments=mesh.n_vertices)
+    referenced = jax.ops.segment_sum(jnp.ones(mesh.faces.size, dtype), mesh.faces.reshape(-1), num_segments=mesh.n_vertices) > 0
+    return jnp.where(referenced, 2.0 * jnp.pi - angle_sums - corrections, 0.0)
+
+
+def gaussian_curvature(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, " nv"]:
+    """Pointwise Gaussian curvature, `(nv,)`: `vertex_angle_defects / vertex_dual_areas(mesh, kind)`.
+
+    0 where the dual area is 0 (unreferenced vertices). libigl tutorial:
+    `igl.gaussian_curvature(V, F) / igl.massmatrix(V, F, VORONOI).diagonal()` (interior vertices).
+    """
+    return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, kind))
+
+
+def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
+    """Integrated mean curvature normal `H N A_i`, `(nv, 3)`: half the cotan Laplacian of the positions.
+
+    `(H N)_i = (L V)_i / 2 = 1/4 sum_j (cot a_ij + cot b_ij)(f_i - f_j)`, the discrete form of
+    `Delta x = -2 H N` with `L` the PSD weak Laplacian (DESIGN.md). It points outward on convex
+    surfaces with outward normals and equals half the gradient of the total area. At a boundary
+    vertex it also contains the boundary's geodesic curvature term and is not a surface normal.
+    libigl: `-igl.cotmatrix(V, F) @ V / 2` (the libigl tutorial's `HN = -Minv L V` is the pointwise
+    `2 H N` with the opposite sign of `L`).
+    """
+    from ..laplacian import laplacian_apply
+
+    return 0.5 * laplacian_apply(mesh, mesh.vertices)
+
+
+def mean_curvature_normal(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, "nv 3"]:
+    """Pointwise mean curvature normal `H N`, `(nv, 3)`: `vertex_mean_curvature_normals / dual area`.
+
+    Its length is `|H|` (tending to `1/r` on a sphere of radius r). 0 where the dual area is 0.
+    """
+    return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, kind)[:, None])
+
+
+def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
+    """Integrated scalar mean curvature from dihedral angles, `(nv,)`.
+
+    Each edge carries the integrated mean curvature `1/2 l_e theta_e` (`theta_e` the signed
+    dihedral angle of `edge_dihedral_angles`: positive where convex); it is split equally between
+    its two endpoints, so `H_i = 1/4 sum_{e at i} l_e theta_e` and `sum_i H_i = 1/2 sum_e l_e theta_e`
+    (`total_mean_curvature`). On a cylinder of radius r this gives `integral H dA` with
+    `H = 1/(2r)` exactly. Boundary and non-manifold edges carry 0. Pointwise: `mean_curvature`.
+    """
+    edge_terms = 0.25 * edge_lengths(mesh) * edge_dihedral_angles(mesh)
+    return jax.ops.segment_sum(jnp.repeat(edge_terms, 2), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
+
+
+def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
+    """Total mean curvature `1/2 sum_e l_e theta_e` (integral of `H` over the surface; `4 pi r` on a sphere).
+
+    On a closed mesh its gradient is the Gauss curvature normal (`vertex_gauss_curvature_normals`):
+    by Schlaefli's formula `sum_e l_e d(theta_e) = 0`, only the edge lengths' variation remains.
+    """
+    return 0.5 * jnp.sum(edge_lengths(mesh) * edge_dihedral_angles(mesh))
+
+
+def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
+    """Integrated Gauss curvature normal `K N A_i`, `(nv, 3)`: `1/2 sum_j theta_ij (f_i - f_j) / l_ij`.
+
+    The gradient of `total_mean_curvature` on a closed mesh (Steiner / Schlaefli). It points outward
+    on convex surfaces with outward normals. Crane's notes write `1/2 sum_j theta_ij e_ij / l_ij`
+    with `e_ij = f_j - f_i` and state `grad H = K N` under the opposite sign of the edge vector; this
+    function follows the gradient. Zero-length edges contribute 0.
+    """
+    vectors = mesh.vertices[mesh.edges[:, 0]] - mesh.vertices[mesh.edges[:, 1]]
+    terms = 0.5 * safe_div(edge_dihedral_angles(mesh), safe_norm(vectors))[:, None] * vectors
+    n = mesh.n_vertices
+    return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(terms, mesh.edges[:, 1], num_segments=n)
+
+
+def mean_curvature(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, " nv"]:
+    """Pointwise signed mean curvature, `(nv,)`: `vertex_mean_curvatures / vertex_dual_areas(mesh, kind)`.
+
+    `H = (k1 + k2) / 2`, `1/r` on a sphere of radius r with outward normals. 0 where the dual area
+    is 0. libigl's tutorial computes the unsigned `|H N|` from `L V` instead (see
+    `mean_curvature_normal`).
+    """
+    return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, kind))
+
+
+def principal_curvatures(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, "nv 2"]:
+    """Pointwise principal curvatures `(k1, k2)`, `(nv, 2)`, `k1 >= k2`, from `K` and `H`.
+
+    `k1,2 = H +- sqrt(max(H^2 - K, 0))` with the pointwise `mean_curvature` and `gaussian_curvature`
+    (same dual areas). The discrete `H^2 - K` can be slightly negative (umbilic points: a sphere);
+    it is clamped to 0 there. Reference: Meyer et al. 2003, Section 6. libigl's
+    `principal_curvature` fits quadrics instead (and also returns directions).
+    """
+    h = mean_curvature(mesh, kind=kind)
+    root = safe_sqrt(h * h - gaussian_curvature(mesh, kind=kind))
+    return jnp.stack([h + root, h - root], axis=-1)

@@ -1,0 +1,299 @@
+"""Per-element geometry of a triangle mesh: lengths, areas, angles, cotangents, normals, dual areas.
+
+Intrinsic core, extrinsic wrapper (DESIGN.md): what depends only on edge lengths has a
+`*_from_lengths_sq` core; the mesh version measures the embedding and calls it. Per-face triples
+follow the libigl order: entry `k` belongs to the edge opposite corner `k`.
+
+Degenerate faces (zero area, collinear corners) have no defined cotangent; their cotangents are set
+to 0, so such a face contributes nothing to the cotan Laplacian or the circumcentric dual, and every
+value and gradient stays finite (libigl returns inf / NaN there). See DESIGN.md, Numerics.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from .._errors import DDGInputError
+
+from .._numerics import safe_div, safe_norm, safe_normalize, safe_sqrt, safe_atan2
+from ._mesh import Mesh
+
+
+def face_vertex_positions(mesh: Mesh) -> Float[Array, "nf 3 3"]:
+    """`(nf, 3, 3)` corner positions `V[F]` (one gather; everything per face starts here)."""
+    return mesh.vertices[mesh.faces]
+
+
+def face_edge_vectors(mesh: Mesh) -> Float[Array, "nf 3 3"]:
+    """Edge vectors per face: entry `k` is `V[F[k+2]] - V[F[k+1]]`, the edge opposite corner `k`."""
+    corners = face_vertex_positions(mesh)
+    return jnp.roll(corners, -2, axis=1) - jnp.roll(corners, -1, axis=1)
+
+
+def face_edge_lengths_sq(mesh: Mesh) -> Float[Array, "nf 3"]:
+    """Squared length of the edge opposite each corner, `(nf, 3)` (libigl `squared_edge_lengths`)."""
+    vectors = face_edge_vectors(mesh)
+    return jnp.sum(vectors * vectors, axis=-1)
+
+
+def edge_lengths(mesh: Mesh) -> Float[Array, " ne"]:
+    """Length of each global edge, `(ne,)`, in `mesh.edges` order."""
+    return safe_norm(mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]])
+
+
+def face_area_vectors(mesh: Mesh) -> Float[Array, "nf 3"]:
+    """`(V1 - V0) x (V2 - V0) / 2`: normal times area, pointing by the right-hand rule of the face order."""
+    corners = face_vertex_positions(mesh)
+    return 0.5 * jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+
+
+def face_areas(mesh: Mesh) -> Float[Array, " nf"]:
+    """Area of each face, `|(V1 - V0) x (V2 - V0)| / 2` (libigl `doublearea / 2`)."""
+    return safe_norm(face_area_vectors(mesh))
+
+
+def face_normals(mesh: Mesh) -> Float[Array, "nf 3"]:
+    """Unit face normals (right-hand rule of the face order); the zero vector on zero-area faces."""
+    return safe_normalize(face_area_vectors(mesh))
+
+
+def face_areas_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Array, " nf"]:
+    """Triangle area from its squared edge lengths, by Kahan's stable form of Heron's formula.
+
+    `A = 1/4 sqrt((a + (b + c)) (c - (a - b)) (c + (a - b)) (a + (b - c)))` with `a >= b >= c` the
+    sorted lengths; accurate for needle and cap triangles where plain Heron cancels. Violations of the
+    triangle inequality give area 0. Reference: W. Kahan, "Miscalculating area and angles of a
+    needle-like triangle" (2014). libigl: `doublearea(l) / 2`.
+    """
+    lengths = safe_sqrt(lengths_sq)
+    a = jnp.max(lengths, axis=-1)
+    c = jnp.min(lengths, axis=-1)
+    b = jnp.sum(lengths, axis=-1) - a - c
+    product = (a + (b + c)) * (c - (a - b)) * (c + (a - b)) * (a + (b - c))
+    return 0.25 * safe_sqrt(product)
+
+
+def corner_cotangents_from_lengths_sq(
+    lengths_sq: Float[Array, "nf 3"], areas: Float[Array, " nf"] | None = None
+) -> Float[Array, "nf 3"]:
+    """Cotangent of each corner angle from the squared lengths of the opposite edges.
+
+    `cot(alpha_k) = (l_{k+1}^2 + l_{k+2}^2 - l_k^2) / (4 A)` (law of cosines over twice the area).
+    `areas` defaults to Kahan's formula; the extrinsic wrapper passes the cross-product area.
+    Zero-area faces get cotangent 0 (module policy). libigl: `cotmatrix_entries` (times 2).
+    """
+    if areas is None:
+        areas = face_areas_from_lengths_sq(lengths_sq)
+    numerators = jnp.roll(lengths_sq, -1, axis=-1) + jnp.roll(lengths_sq, -2, axis=-1) - lengths_sq
+    return safe_div(numerators, 4.0 * areas[:, None])
+
+
+def corner_cotangents(mesh: Mesh) -> Float[Array, "nf 3"]:
+    """Cotangent of each corner angle, `(nf, 3)` (extrinsic lengths and area; see the core)."""
+    return corner_cotangents_from_lengths_sq(face_edge_lengths_sq(mesh), face_areas(mesh))
+
+
+def corner_angles_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Array, "nf 3"]:
+    """Interior angle at each corner from squared edge lengths, `atan2(4A, l_{k+1}^2 + l_{k+2}^2 - l_k^2)`.
+
+    Uses `atan2` of (twice the doubled area, law-of-cosines numerator), never `arccos`, so it is exact
+    near 0 and pi with finite gradients. libigl: `internal_angles_using_squared_edge_lengths`.
+    """
+    areas = face_areas_from_lengths_sq(lengths_sq)
+    numerators = jnp.roll(lengths_sq, -1, axis=-1) + jnp.roll(lengths_sq, -2, axis=-1) - lengths_sq
+    return safe_atan2(jnp.broadcast_to(4.0 * areas[:, None], numerators.shape), numerators)
+
+
+def corner_angles(mesh: Mesh) -> Float[Array, "nf 3"]:
+    """Interior angle at each corner, `(nf, 3)`, as `atan2(|a x b|, a . b)` of the two incident edges.
+
+    libigl: `internal_angles`; gpytoolbox: `tip_angles`.
+    """
+    corners = face_vertex_positions(mesh)
+    to_next = jnp.roll(corners, -1, axis=1) - corners
+    to_prev = jnp.roll(corners, -2, axis=1) - corners
+    return safe_atan2(safe_norm(jnp.cross(to_next, to_prev)), jnp.sum(to_next * to_prev, axis=-1))
+
+
+def edge_cotan_weights_from_corner_cotangents(mesh: Mesh, cotangents: Float[Array, "nf 3"]) -> Float[Array, " ne"]:
+    """`w_ij = 1/2 sum cot(opposite angles)` per global edge, gathered (no scatter) from corners.
+
+    A boundary edge has one term, a non-manifold edge one per face.
+    """
+    flat = cotangents.reshape(-1)
+    slots = mesh.edge_faces * 3 + mesh.edge_face_corners
+    present = mesh.edge_faces >= 0
+    return 0.5 * jnp.sum(jnp.where(present, flat[jnp.where(present, slots, 0)], 0.0), axis=-1)
+
+
+def edge_cotan_weights(mesh: Mesh) -> Float[Array, " ne"]:
+    """Cotan weight `w_ij = (cot a_ij + cot b_ij) / 2` of each edge, `(ne,)`.
+
+    Equals the circumcentric dual/primal length ratio `|e*| / |e|` (the diagonal of the DEC Hodge star
+    on 1-forms) and minus the off-diagonal entry of libigl's `cotmatrix`. Reference: Pinkall &
+    Polthier 1993.
+    """
+    return edge_cotan_weights_from_corner_cotangents(mesh, corner_cotangents(mesh))
+
+
+def scatter_corners_to_vertices(mesh: Mesh, corner_values: Float[Array, "nf 3"]) -> Float[Array, " nv"]:
+    """Sum per-corner values into their vertices, `(nv,)` (unreferenced vertices get 0)."""
+    return jax.ops.segment_sum(corner_values.reshape(-1), mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
+
+
+DualAreaKind = Literal["voronoi", "barycentric", "circumcentric"]
+_DUAL_AREA_KINDS = ("voronoi", "barycentric", "circumcentric")
+
+
+def corner_dual_areas_from_lengths_sq(
+    lengths_sq: Float[Array, "nf 3"], *, kind: DualAreaKind = "voronoi", areas: Float[Array, " nf"] | None = None
+) -> Float[Array, "nf 3"]:
+    """Share of each face's area assigned to each of its corners, `(nf, 3)` (intrinsic core).
+
+    With `l_k` the length of the edge opposite corner `k`, `A` the face area and
+    `t_k = l_k^2 cot(alpha_k) / 8` (the area between edge `k` and the circumcentre, halved to each of
+    its endpoints):
+
+    - `"barycentric"`: `A / 3` per corner.
+    - `"circumcentric"`: corner `i` gets `sum_{k != i} t_k` = `(l_j^2 cot a_j + l_k^2 cot a_k) / 8`,
+      the part of the face closer to corner `i` than to the others when the circumcentre lies inside.
+      For an obtuse face the circumcentre lies outside and the share of a corner next to the obtuse
+      one is **negative**; the per-corner shares still sum to `A`.
+    - `"voronoi"` (mixed area, Meyer et al. 2003): circumcentric on faces without an obtuse angle;
+      on a face with an obtuse corner, `A / 2` to that corner and `A / 4` to the two others. Always
+      nonnegative. Exactly libigl's `massmatrix(..., MASSMATRIX_TYPE_VORONOI)` rule (a right angle
+      counts as non-obtuse; both rules agree there).
+
+    `areas` defaults to Kahan's formula from the lengths. Zero-area faces give 0 shares (every kind).
+
+    Args:
+        lengths_sq: `(nf, 3)` squared length of the edge opposite each corner.
+        kind: one of `"voronoi"`, `"barycentric"`, `"circumcentric"` (keyword-only, static).
+        areas: optional `(nf,)` face areas.
+
+    Returns:
+        `(nf, 3)` corner dual areas (each row sums to the face area).
+
+    Reference: M. Meyer, M. Desbrun, P. Schroeder, A. Barr, "Discrete differential-geometry operators
+    for triangulated 2-manifolds" (2003), Section 3.3 and Fig. 4.
+    """
+    if kind not in _DUAL_AREA_KINDS:
+        raise DDGInputError(f"kind: expected one of {_DUAL_AREA_KINDS}, got {kind!r}")
+    if areas is None:
+        areas = face_areas_from_lengths_sq(lengths_sq)
+    if kind == "barycentric":
+        return jnp.broadcast_to(areas[:, None] / 3.0, lengths_sq.shape)
+    # l_k^2 cot(alpha_k) / 8 = l_k^2 (l_{k+1}^2 + l_{k+2}^2 - l_k^2) / (32 A): the law-of-cosines
+    # numerator is also the (sign of the) cosine, so the obtuse test needs no extra work.
+    cosine_numerators = jnp.roll(lengths_sq, -1, axis=-1) + jnp.roll(lengths_sq, -2, axis=-1) - lengths_sq
+    halves = safe_div(lengths_sq * cosine_numerators, 32.0 * areas[:, None])
+    circumcentric = jnp.sum(halves, axis=-1, keepdims=True) - halves
+    if kind == "circumcentric":
+        return circumcentric
+    obtuse = cosine_numerators < 0
+    has_obtuse = jnp.any(obtuse, axis=-1, keepdims=True)
+    split = jnp.where(obtuse, 0.5, 0.25) * areas[:, None]
+    return jnp.where(has_obtuse, split, circumcentric)
+
+
+def corner_dual_areas(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, "nf 3"]:
+    """Per-corner dual areas, `(nf, 3)`, from the embedding (see `corner_dual_areas_from_lengths_sq`)."""
+    return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), kind=kind, areas=face_areas(mesh))
+
+
+def vertex_dual_areas(mesh: Mesh, kind: DualAreaKind = "voronoi") -> Float[Array, " nv"]:
+    """Area of the dual cell of each vertex, `(nv,)`: the corner shares of its faces, summed.
+
+    `"voronoi"` (default) is the mixed area of Meyer et al. 2003, `"barycentric"` a third of each
+    incident face, `"circumcentric"` the (possibly negative, on obtuse meshes) circumcentric dual
+    cell; see `corner_dual_areas_from_lengths_sq` for the formulas. Every kind sums to the total
+    surface area. Unreferenced vertices get 0. Dividing an integrated quantity (e.g. the angle
+    defect) by these areas gives the pointwise one.
+
+    Equivalents: `igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI / _BARYCENTRIC).diagonal()`;
+    gpytoolbox `massmatrix(V, F, type="voronoi" / "barycentric").diagonal()`. The circumcentric
+    kind is the diagonal of the DEC Hodge star on 0-forms (Desbrun et al. 2005).
+    """
+    return scatter_corners_to_vertices(mesh, corner_dual_areas(mesh, kind=kind))
+
+
+NormalWeighting = Literal["area", "angle", "uniform"]
+_NORMAL_WEIGHTINGS = ("area", "angle", "uniform")
+
+
+def vertex_normals(mesh: Mesh, *, weighting: NormalWeighting = "area", normalize: bool = True) -> Float[Array, "nv 3"]:
+    """Vertex normals, `(nv, 3)`: a weighted sum of the unit normals `N_f` of the incident faces.
+
+    `n_i = sum_{f ni i} w_f N_f`, with `w_f` the face area `A_f` (`"area"`, default), the corner angle
+    of `f` at `i` (`"angle"`, Thuermer & Wuethrich 1998) or 1 (`"uniform"`); then normalised to unit
+    length unless `normalize=False`. The unnormalised area-weighted sum `sum_f A_f N_f` is the
+    gradient of the enclosed volume times 3 (see `enclosed_volume`). Zero-area faces contribute
+    nothing; vertices with a zero sum (unreferenced, or cancelling normals) get the zero vector.
+
+    Equivalent: `igl.per_vertex_normals(V, F, igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA / _ANGLE /
+    _UNIFORM)` (libigl returns NaN or an arbitrary vector where the sum vanishes).
+    """
+    if weighting not in _NORMAL_WEIGHTINGS:
+        raise DDGInputError(f"weighting: expected one of {_NORMAL_WEIGHTINGS}, got {weighting!r}")
+    area_vectors = face_area_vectors(mesh)
+    if weighting == "area":
+        corner_vectors = jnp.broadcast_to(area_vectors[:, None, :], (mesh.n_faces, 3, 3))
+    else:
+        unit = safe_normalize(area_vectors)
+        weights = corner_angles(mesh) if weighting == "angle" else jnp.ones(mesh.faces.shape, unit.dtype)
+        corner_vectors = weights[:, :, None] * unit[:, None, :]
+    sums = jax.ops.segment_sum(corner_vectors.reshape(-1, 3), mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
+    return safe_normalize(sums) if normalize else sums
+
+
+def edge_dihedral_angles(mesh: Mesh) -> Float[Array, " ne"]:
+    """Signed dihedral angle of each edge, `(ne,)`: the angle between the normals of its two faces.
+
+    For an edge `ij` with faces `ijk` (which traverses it `i -> j`) and `jil`,
+    `theta_ij = atan2(e_ij / l_ij . (N_ijk x N_jil), N_ijk . N_jil)`, in `(-pi, pi]`: positive where
+    the surface bends away from its normals (convex, as everywhere on a sphere with outward normals),
+    negative on saddle-like concave edges, 0 on flat ones. It is the exterior angle: 0 for a flat
+    pair, not pi. Boundary and non-manifold edges get 0; on an inconsistently oriented edge the sign
+    follows the first face's orientation and means nothing. Computed with `atan2` of area-weighted
+    normals, so it is exact near 0 and pi, with finite gradients on degenerate faces (value 0 there).
+
+    Reference: K. Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), "Discrete
+    curvature II" (dihedral angle). libigl has no signed per-edge equivalent.
+    """
+    area_vectors = face_area_vectors(mesh)
+    first, second = mesh.edge_faces[:, 0], mesh.edge_faces[:, 1]
+    two_faces = second >= 0
+    if mesh.edge_faces.shape[1] > 2:
+        # Only non-manifold meshes pad wider; an edge with 3+ faces has no single dihedral angle.
+        two_faces = two_faces & (mesh.edge_faces[:, 2] < 0)
+    n0 = area_vectors[first]
+    n1 = area_vectors[jnp.where(two_faces, second, first)]
+    direction = mesh.face_edge_signs[first, mesh.edge_face_corners[:, 0]].astype(n0.dtype)
+    edge_vectors = mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]]
+    unit_edges = direction[:, None] * safe_normalize(edge_vectors)
+    angles = safe_atan2(jnp.sum(unit_edges * jnp.cross(n0, n1), axis=-1), jnp.sum(n0 * n1, axis=-1))
+    return jnp.where(two_faces, angles, 0.0)
+
+
+def total_area(mesh: Mesh) -> Float[Array, ""]:
+    """Surface area, `sum_f A_f`. Its gradient with respect to the vertices is `L V` (the cotan
+    Laplacian applied to the positions; Pinkall & Polthier 1993)."""
+    return jnp.sum(face_areas(mesh))
+
+
+def enclosed_volume(mesh: Mesh) -> Float[Array, ""]:
+    """Signed volume enclosed by a closed, oriented mesh, `1/6 sum_f (V0 . (V1 x V2))` (divergence theorem).
+
+    Positive for outward-oriented faces. Computed relative to the vertex centroid (held constant
+    under differentiation), which leaves the value and gradient of a closed mesh unchanged and avoids
+    cancellation far from the origin. On a mesh with boundary the value depends on that reference
+    point and is not a volume. Its gradient is `1/3 sum_{f ni i} A_f N_f`, i.e.
+    `vertex_normals(mesh, weighting="area", normalize=False) / 3`. libigl: `igl.volume` summed
+    (tetrahedra to the origin).
+    """
+    corners = face_vertex_positions(mesh) - jax.lax.stop_gradient(jnp.mean(mesh.vertices, axis=0))
+    return jnp.sum(corners[:, 0] * jnp.cross(corners[:, 1], corners[:, 2])) / 6.0

@@ -1,0 +1,120 @@
+"""The `Mesh` pytree: vertex positions plus integer connectivity built once in NumPy."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .._errors import DDGInputError, check_float_array, is_traced
+from ..sparse._pattern import SparsityPattern
+from ._topology import MeshTopology, build_topology, validate_faces
+
+
+class Mesh(eqx.Module):
+    """A triangle mesh: vertex positions (differentiable) and connectivity (fixed).
+
+    Make one with `Mesh.from_arrays(vertices, faces)` or `ddgjax.io.load_mesh(path)`. Every geometric
+    quantity in ddgjax is a pure JAX function of `mesh.vertices`; differentiate with
+
+        jax.grad(lambda V: energy(mesh.with_vertices(V)))(mesh.vertices)
+
+    Integer arrays are pytree leaves (so large meshes are jit arguments, not baked-in constants);
+    `topology` (NumPy, static, hashed by identity) holds the rest of the connectivity and the checks,
+    so moving vertices never triggers recompilation.
+
+    Attributes:
+        vertices: `(nv, 3)` positions, in the caller's float dtype.
+        faces: `(nf, 3)` int32 vertex indices (counterclockwise seen from outside, for oriented meshes).
+        edges: `(ne, 2)` int32, oriented low -> high, sorted.
+        face_edges: `(nf, 3)` edge opposite each corner (libigl / gpytoolbox order).
+        face_edge_signs: `(nf, 3)` int32 +1 / -1: does the face traverse that edge low -> high.
+        edge_faces, edge_face_corners: `(ne, m)` faces of each edge and the corner opposite it, -1 padded.
+        vertex_pattern: CSR sparsity pattern of vertex-vertex operators (diagonal plus edges), shared by
+            the cotan Laplacian and the Galerkin mass matrix.
+        vertex_pattern_source: `(nnz,)` for each CSR slot, its index in the list
+            `[diagonal (nv) | edges low->high (ne) | edges high->low (ne)]`, so operator values assemble
+            with one gather.
+        topology: `MeshTopology` (static).
+    """
+
+    vertices: Float[Array, "nv 3"]
+    faces: Int[Array, "nf 3"]
+    edges: Int[Array, "ne 2"]
+    face_edges: Int[Array, "nf 3"]
+    face_edge_signs: Int[Array, "nf 3"]
+    edge_faces: Int[Array, "ne m"]
+    edge_face_corners: Int[Array, "ne m"]
+    vertex_pattern: SparsityPattern
+    vertex_pattern_source: Int[Array, " nnz"]
+    topology: MeshTopology = eqx.field(static=True)
+
+    @classmethod
+    def from_arrays(cls, vertices, faces) -> "Mesh":
+        """Build a mesh from `(nv, 3)` vertex positions and `(nf, 3)` integer faces.
+
+        Raises `DDGInputError` on bad shapes or dtypes, NaN/inf coordinates, an empty mesh, face
+        indices out of range and faces repeating a vertex. Data problems (non-manifold, inconsistent
+        orientation, unreferenced vertices, zero-area faces) are accepted and reported by
+        `ddgjax.mesh.check_mesh`; operators that cannot handle them refuse with `MeshDataError`.
+        """
+        if is_traced(vertices):
+            raise DDGInputError(
+                "vertices: Mesh.from_arrays builds topology on the host and needs concrete arrays; inside "
+                "jit use mesh.with_vertices(V) on a mesh made outside"
+            )
+        host_vertices = check_float_array("vertices", vertices, (3,))
+        topology = build_topology(validate_faces(faces, host_vertices.shape[0]), host_vertices.shape[0])
+        return cls.from_topology(_as_float_array(vertices), topology)
+
+    @classmethod
+    def from_topology(cls, vertices: Float[Array, "nv 3"], topology: MeshTopology) -> "Mesh":
+        """A mesh with the given (already built) topology and vertex positions."""
+        nv, ne = topology.n_vertices, topology.n_edges
+        e0, e1 = topology.edges[:, 0], topology.edges[:, 1]
+        diagonal = np.arange(nv)
+        pattern, slot = SparsityPattern.from_coo(
+            np.concatenate([diagonal, e0, e1]), np.concatenate([diagonal, e1, e0]), (nv, nv)
+        )
+        source = np.empty(nv + 2 * ne, dtype=np.int32)
+        source[slot] = np.arange(nv + 2 * ne, dtype=np.int32)
+        return cls(
+            vertices=vertices,
+            faces=jnp.asarray(topology.faces),
+            edges=jnp.asarray(topology.edges),
+            face_edges=jnp.asarray(topology.face_edges),
+            face_edge_signs=jnp.asarray(topology.face_edge_signs, dtype=jnp.int32),
+            edge_faces=jnp.asarray(topology.edge_faces),
+            edge_face_corners=jnp.asarray(topology.edge_face_corners, dtype=jnp.int32),
+            vertex_pattern=pattern,
+            vertex_pattern_source=jnp.asarray(source),
+            topology=topology,
+        )
+
+    def with_vertices(self, vertices: Float[Array, "nv 3"]) -> "Mesh":
+        """The same connectivity with new vertex positions (works under jit, grad and vmap)."""
+        if not is_traced(vertices) and np.shape(vertices) != (self.topology.n_vertices, 3):
+            raise DDGInputError(
+                f"vertices: expected shape ({self.topology.n_vertices}, 3), got {np.shape(vertices)}"
+            )
+        return eqx.tree_at(lambda mesh: mesh.vertices, self, vertices)
+
+    @property
+    def n_vertices(self) -> int:
+        return self.topology.n_vertices
+
+    @property
+    def n_faces(self) -> int:
+        return self.topology.n_faces
+
+    @property
+    def n_edges(self) -> int:
+        return self.topology.n_edges
+
+
+def _as_float_array(vertices) -> Float[Array, "nv 3"]:
+    array = jnp.asarray(vertices)
+    if not jnp.issubdtype(array.dtype, jnp.floating):
+        array = array.astype(jnp.result_type(float))
+    return array

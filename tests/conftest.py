@@ -1,0 +1,23 @@
+"""Test configuration: float64 everywhere, and helpers to locate `../shared`."""
+
+from __future__ import annotations
+
+import pathlib
+
+import jax
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+MESHES = SHARED / "meshes"
+EXERCISES = SHARED / "reference" / "ddg-exercises"
+
+
+def shared_path(*parts: str) -> pathlib.Path:
+    """Path inside `../shared`; skips the calling test with a clear reason when it is absent."""
+    path = SHARED.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"shared test data not found: {path} (tests that read ../shared need it beside the repo)")
+    return path

@@ -1,0 +1,114 @@
+"""The `Curve` pytree: validation of concrete input, dtype handling, pytree behaviour."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ddgjax._errors import DDGInputError
+from ddgjax.curves import Curve, length
+
+SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+
+
+def test_points_and_flags_are_kept():
+    curve = Curve(SQUARE)
+    assert curve.closed and curve.n_points == 4 and curve.n_edges == 4
+    np.testing.assert_array_equal(curve.points, SQUARE)
+    assert Curve(SQUARE, closed=False).n_edges == 3
+
+
+def test_dtype_is_kept_and_integers_become_default_float():
+    assert Curve(SQUARE.astype(np.float32)).points.dtype == jnp.float32
+    assert Curve(SQUARE.astype(np.int64)).points.dtype == jnp.result_type(float)
+
+
+@pytest.mark.parametrize(
+    ("points", "closed", "match"),
+    [
+        (np.zeros((4, 3)), True, r"shape \(n, 2\)"),
+        (np.zeros(8), True, r"shape \(n, 2\)"),
+        (SQUARE.astype(np.complex128), True, "floating-point"),
+        (SQUARE.astype(bool), True, "floating-point"),
+        (SQUARE[:2], True, "closed curve needs at least 3 points, got 2"),
+        (SQUARE[:1], False, "open curve needs at least 2 points, got 1"),
+        (np.where(np.arange(4)[:, None] == 2, np.nan, SQUARE), True, r"NaN/inf at rows \[2\]"),
+        (np.where(np.arange(4)[:, None] == 1, np.inf, SQUARE), True, r"NaN/inf at rows \[1\]"),
+        (SQUARE[[0, 1, 1, 2, 3]], True, r"at i = \[1\]"),
+        (np.vstack([SQUARE, SQUARE[:1]]), True, r"\(mod n\) at i = \[4\]"),
+    ],
+)
+def test_bad_input_is_refused_with_a_clear_message(points, closed, match):
+    with pytest.raises(DDGInputError, match=match):
+        Curve(points, closed=closed)
+
+
+def test_open_curve_may_end_where_it_starts():
+    # Only consecutive points must differ; an open curve returning to its start is legitimate.
+    Curve(np.vstack([SQUARE, SQUARE[:1]]), closed=False)
+
+
+def test_closed_must_be_a_bool():
+    # Under the suite's run-time type checking the annotation catches it first (a TypeError).
+    with pytest.raises((DDGInputError, TypeError), match="closed"):
+        Curve(SQUARE, closed="yes")
+
+
+def test_pytree_has_one_leaf_and_closed_is_static():
+    leaves, treedef = jax.tree.flatten(Curve(SQUARE, closed=False))
+    assert len(leaves) == 1
+    rebuilt = jax.tree.unflatten(treedef, [leaves[0] * 2])
+    assert not rebuilt.closed
+    np.testing.assert_array_equal(rebuilt.points, 2 * SQUARE)
+
+
+def test_traced_points_are_not_checked():
+    # Inside jit the coincident points cannot be seen; the functions must stay finite instead.
+    duplicated = SQUARE[[0, 1, 1, 2, 3]]
+    value = jax.jit(lambda P: length(Curve(P)))(duplicated)
+    assert value == pytest.approx(4.0, abs=1e-15)
+
+
+def test_with_points_checks_shape_only():
+    curve = Curve(SQUARE)
+    moved = curve.with_points(SQUARE + 1)
+    np.testing.assert_array_equal(moved.points, SQUARE + 1)
+    assert moved.closed
+    degenerate = curve.with_points(np.zeros((4, 2)))  # flows may hand back degenerate curves
+    assert float(length(degenerate)) == 0.0
+    with pytest.raises(DDGInputError, match=r"expected shape \(4, 2\), got \(3, 2\)"):
+        curve.with_points(SQUARE[:3])
+
+
+def test_vmap_over_curves():
+    batch = np.stack([SQUARE, 2 * SQUARE, 3 * SQUARE])
+    np.testing.assert_allclose(jax.vmap(lambda P: length(Curve(P)))(batch), [4.0, 8.0, 12.0], rtol=1e-15)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    n=st.integers(3, 12),
+    row=st.integers(0, 11),
+    bad=st.sampled_from([np.nan, np.inf, -np.inf]),
+    column=st.integers(0, 1),
+)
+def test_property_any_nonfinite_coordinate_is_named(n, row, bad, column):
+    row = row % n
+    points = np.stack([np.cos(np.arange(n)), np.sin(np.arange(n)) + np.arange(n)], axis=1)
+    points[row, column] = bad
+    with pytest.raises(DDGInputError, match=rf"rows \[{row}\]"):
+        Curve(points)
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(3, 12), row=st.integers(0, 11))
+def test_property_any_repeated_consecutive_point_is_named(n, row):
+    row = row % n
+    points = np.stack([np.cos(np.arange(n) * 0.5), np.sin(np.arange(n) * 0.5)], axis=1) * (1 + np.arange(n))[:, None]
+    points[(row + 1) % n] = points[row]
+    with pytest.raises(DDGInputError, match=rf"at i = \[{row}\]"):
+        Curve(points)
