@@ -116,32 +116,40 @@ def _format_of(path: pathlib.Path) -> str:
 
 def _read_obj(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     """Positions and fan-triangulated faces of an OBJ file, by position index only."""
-    coordinates: list[str] = []
-    n_vertices = 0
-    triangles: list[tuple[int, int, int]] = []
     with open(path, encoding="utf-8", errors="replace") as handle:
-        for number, line in enumerate(handle, start=1):
-            if line.startswith("v "):
-                fields = line.split()
-                if len(fields) < 4:
-                    raise DDGInputError(f"path: {str(path)!r} line {number}: a vertex needs three coordinates, got {line.strip()!r}")
-                coordinates.extend(fields[1:4])
-                n_vertices += 1
-            elif line.startswith("f "):
-                try:
-                    corners = [int(token.split("/", 1)[0]) for token in line.split()[1:]]
-                except ValueError:
-                    raise DDGInputError(f"path: {str(path)!r} line {number}: unreadable face {line.strip()!r}") from None
-                if len(corners) < 3:
-                    raise DDGInputError(f"path: {str(path)!r} line {number}: a face needs at least three corners, got {line.strip()!r}")
-                # OBJ is 1-based; a negative index counts back from the vertices read so far.
-                indices = [c - 1 if c > 0 else n_vertices + c for c in corners]
-                triangles.extend((indices[0], indices[k], indices[k + 1]) for k in range(1, len(indices) - 1))
+        lines = handle.read().splitlines()
+    vertex_fields = [line.split()[1:4] for line in lines if line.startswith("v ")]
+    face_lines = [number for number, line in enumerate(lines, start=1) if line.startswith("f ")]
+    face_fields = [lines[number - 1].split()[1:] for number in face_lines]
+    short = [k for k, fields in enumerate(vertex_fields) if len(fields) < 3]
+    if short:
+        raise DDGInputError(f"path: {str(path)!r}: vertex {short[0] + 1} has fewer than three coordinates")
     try:
-        vertices = np.array(coordinates, dtype=np.float64).reshape(n_vertices, 3)
+        vertices = np.array(vertex_fields, dtype=np.float64).reshape(len(vertex_fields), 3)
     except ValueError:
         raise DDGInputError(f"path: {str(path)!r} has unreadable vertex coordinates") from None
-    faces = np.array(triangles, dtype=np.int64).reshape(-1, 3)
+    counts = np.fromiter(map(len, face_fields), dtype=np.int64, count=len(face_fields))
+    if counts.size and counts.min() < 3:
+        line = face_lines[int(np.argmin(counts))]
+        raise DDGInputError(f"path: {str(path)!r} line {line}: a face needs at least three corners")
+    try:
+        # Corner tokens are `v`, `v/vt`, `v//vn` or `v/vt/vn`; only the position index `v` is used.
+        corners = np.array([token.split("/", 1)[0] for fields in face_fields for token in fields], dtype=np.int64)
+    except ValueError:
+        raise DDGInputError(f"path: {str(path)!r} has an unreadable face index") from None
+    # OBJ is 1-based; a negative index counts back from the vertices read so far.
+    if np.any(corners < 0):
+        is_vertex = np.fromiter((line.startswith("v ") for line in lines), dtype=bool, count=len(lines))
+        vertices_before = np.cumsum(is_vertex)[np.asarray(face_lines) - 1]
+        corners = np.where(corners > 0, corners - 1, np.repeat(vertices_before, counts) + corners)
+    else:
+        corners = corners - 1
+    # Fan triangulation (0, k, k+1) of each polygon, vectorised over all faces.
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    n_triangles = counts - 2
+    first = np.repeat(starts, n_triangles)
+    k = np.arange(n_triangles.sum()) - np.repeat(np.cumsum(n_triangles) - n_triangles, n_triangles) + 1
+    faces = np.stack([corners[first], corners[first + k], corners[first + k + 1]], axis=1) if first.size else np.zeros((0, 3), np.int64)
     return vertices, faces
 
 

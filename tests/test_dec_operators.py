@@ -1,5 +1,8 @@
 """d0, d1 and the Hodge stars: exact identities, orientation refusals, the DDG reference solution,
-gpytoolbox's `dec_*` and libigl's cotan / mass matrices."""
+gpytoolbox's `dec_*` and libigl's cotan / mass matrices.
+
+Compile time dominates on small meshes, so each mesh's operators are built by one jitted call.
+"""
 
 from __future__ import annotations
 
@@ -9,16 +12,19 @@ import gpytoolbox
 import igl
 import jax
 import jax.numpy as jnp
+import jax.test_util
 import numpy as np
 import pytest
-from conftest import EXERCISES, MESHES, shared_path
+from conftest import shared_path
 
 import ddgjax.dec as dec
 from ddgjax._errors import DDGInputError, MeshDataError
 from ddgjax.mesh._geometry import edge_cotan_weights, face_areas
 from ddgjax.mesh._mesh import Mesh
 
-ORIENTED = ["tet.obj", "small_disk.obj", "sphere_small.ply", "bob_small.ply", "hourglass_ico.obj"]
+ORIENTED = ["small_disk.obj", "bob_small.ply", "hourglass_ico.obj"]
+ANY = ["small_disk.obj", "bob_small.ply", "hourglass_ico.obj", "moebius.obj", "triple_vierbein.obj"]
+VERTEX_DUALS = ("circumcentric", "barycentric", "voronoi")
 
 
 @functools.cache
@@ -27,57 +33,60 @@ def load(name: str) -> Mesh:
     return Mesh.from_arrays(V, F)
 
 
-def host(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
-    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+@functools.cache
+def operators(name: str) -> dict:
+    """Every operator of `name`'s mesh as host arrays, from one compiled function."""
+    mesh = load(name)
+    oriented = mesh.topology.is_oriented
+
+    @jax.jit
+    def build(mesh):
+        out = {"d0": dec.d0(mesh), "cotan": edge_cotan_weights(mesh), "area": jnp.sum(face_areas(mesh))}
+        for dual in VERTEX_DUALS:
+            out[f"h0 {dual}"] = dec.hodge0(mesh, dual=dual).diagonal()
+            out[f"h0inv {dual}"] = dec.hodge0(mesh, dual=dual, inverse=True).diagonal()
+        for dual in ("circumcentric", "barycentric"):
+            out[f"h1 {dual}"] = dec.hodge1(mesh, dual=dual).diagonal()
+            out[f"h1inv {dual}"] = dec.hodge1(mesh, dual=dual, inverse=True).diagonal()
+        if oriented:
+            out["d1"] = dec.d1(mesh)
+            out["h2"] = dec.hodge2(mesh).diagonal()
+            out["h2inv"] = dec.hodge2(mesh, inverse=True).diagonal()
+        return out
+
+    return jax.tree.map(np.asarray, build(mesh))
 
 
-def is_csr_sorted(matrix) -> bool:
-    cols, indptr = np.asarray(matrix.pattern.cols), np.asarray(matrix.pattern.indptr)
-    row_start = np.zeros(cols.size, dtype=bool)
-    row_start[indptr[:-1][indptr[:-1] < cols.size]] = True
-    return bool(np.all((np.diff(cols) > 0) | row_start[1:]))
+def to_scipy(matrix):
+    return matrix.to_scipy() if hasattr(matrix, "to_scipy") else matrix
 
 
 @pytest.mark.parametrize("name", ORIENTED)
 def test_d0_d1_form_an_exact_complex(name):
-    mesh = load(name)
-    D0, D1 = dec.d0(mesh), dec.d1(mesh)
+    mesh, ops = load(name), operators(name)
+    D0, D1 = ops["d0"].to_scipy(), ops["d1"].to_scipy()
     assert D0.shape == (mesh.n_edges, mesh.n_vertices) and D1.shape == (mesh.n_faces, mesh.n_edges)
-    assert is_csr_sorted(D0) and is_csr_sorted(D1)
-    u = np.random.default_rng(0).standard_normal(mesh.n_vertices)
-    edges = np.asarray(mesh.edges)
-    np.testing.assert_array_equal(np.asarray(D0 @ u), u[edges[:, 1]] - u[edges[:, 0]])
-    # Row f of d1 holds the signed face-edge incidence.
-    dense_d1 = np.asarray(D1.todense())
-    rows = np.arange(mesh.n_faces)[:, None]
-    np.testing.assert_array_equal(dense_d1[rows, mesh.topology.face_edges], mesh.topology.face_edge_signs)
-    assert np.count_nonzero(dense_d1) == 3 * mesh.n_faces
-    # d1 d0 = 0 exactly: as a matrix product and on integer-valued 0-forms.
-    assert (D1.to_scipy() @ D0.to_scipy()).count_nonzero() == 0
-    integers = jnp.asarray(np.random.default_rng(1).integers(-1000, 1000, mesh.n_vertices), jnp.float64)
-    assert np.all(np.asarray(D1 @ (D0 @ integers)) == 0.0)
+    # The patterns are already CSR (sorted columns in every row): scipy reads them as they are.
+    assert D0.has_canonical_format and D1.has_canonical_format
+    edges = mesh.topology.edges
+    expected_d0 = np.zeros(D0.shape)
+    expected_d0[np.arange(mesh.n_edges), edges[:, 0]] = -1
+    expected_d0[np.arange(mesh.n_edges), edges[:, 1]] = 1
+    np.testing.assert_array_equal(D0.toarray(), expected_d0)
+    expected_d1 = np.zeros(D1.shape)
+    expected_d1[np.arange(mesh.n_faces)[:, None], mesh.topology.face_edges] = mesh.topology.face_edge_signs
+    np.testing.assert_array_equal(D1.toarray(), expected_d1)
+    # d1 d0 = 0 exactly, in integer arithmetic.
+    product = D1.astype(np.int64) @ D0.astype(np.int64)
+    product.eliminate_zeros()
+    assert product.nnz == 0
 
 
-def test_d1_pattern_is_traced_not_baked_in():
-    """The patterns come from the mesh's integer leaves, so a jit trace holds no mesh-sized constants."""
+def test_patterns_are_traced_not_baked_in():
+    """d0 / d1 patterns come from the mesh's integer leaves: a jit trace holds no mesh-sized constants."""
     mesh = load("bob_small.ply")
     jaxpr = jax.make_jaxpr(lambda m: (dec.d1(m).pattern.cols, dec.d0(m).pattern.cols, dec.hodge1(m).values))(mesh)
     assert all(np.size(c) < 16 for c in jaxpr.consts)
-    jitted = jax.jit(lambda m: dec.d1(m).pattern.cols)(mesh)
-    np.testing.assert_array_equal(np.asarray(jitted), np.asarray(dec.d1(mesh).pattern.cols))
-
-
-def _refusal_calls(mesh):
-    ne, nf = mesh.n_edges, mesh.n_faces
-    return {
-        "ddgjax.dec.d1": lambda: dec.d1(mesh),
-        "ddgjax.dec.hodge2": lambda: dec.hodge2(mesh),
-        "ddgjax.dec.curl": lambda: dec.curl(mesh, jnp.zeros((nf, 3))),
-        "ddgjax.dec.integrate_2form": lambda: dec.integrate_2form(mesh, lambda p: p),
-        "codifferential": lambda: dec.codifferential(mesh, jnp.zeros(nf), degree=2),
-        "laplacian1": lambda: dec.hodge_laplacian1(mesh, jnp.zeros(ne)),
-        "laplacian2": lambda: dec.hodge_laplacian2(mesh, jnp.zeros(nf)),
-    }
 
 
 @pytest.mark.parametrize(
@@ -86,28 +95,33 @@ def _refusal_calls(mesh):
 )
 def test_orientation_policy(name, reason):
     mesh = load(name)
-    for operation, call in _refusal_calls(mesh).items():
+    ne, nf = mesh.n_edges, mesh.n_faces
+    refused = {
+        "d1": lambda: dec.d1(mesh),
+        "hodge2": lambda: dec.hodge2(mesh),
+        "curl": lambda: dec.curl(mesh, jnp.zeros((nf, 3))),
+        "integrate_2form": lambda: dec.integrate_2form(mesh, lambda p: p),
+        "codifferential(degree=2)": lambda: dec.codifferential(mesh, jnp.zeros(nf), degree=2),
+        "hodge_laplacian1": lambda: dec.hodge_laplacian1(mesh, jnp.zeros(ne)),
+        "hodge_laplacian2": lambda: dec.hodge_laplacian2(mesh, jnp.zeros(nf)),
+    }
+    for operation, call in refused.items():
         with pytest.raises(MeshDataError, match=reason) as info:
             call()
-        assert "ddgjax.dec." in str(info.value) and "edges [" in str(info.value), operation
-    # What needs no face orientation works (and d1 d0 on the rest is not defined, so just shapes).
-    u = jnp.ones(mesh.n_vertices)
-    assert dec.d0(mesh).shape == (mesh.n_edges, mesh.n_vertices)
-    for matrix in (dec.hodge0(mesh), dec.hodge1(mesh), dec.hodge1(mesh, dual="barycentric")):
-        assert np.all(np.isfinite(np.asarray(matrix.values)))
-    assert np.allclose(np.asarray(dec.hodge_laplacian0(mesh, u)), 0.0)
-    alpha = dec.d0(mesh) @ jnp.asarray(np.asarray(mesh.vertices)[:, 0])
-    assert np.asarray(dec.sharp(mesh, alpha)).shape == (mesh.n_faces, 3)
-    assert np.asarray(dec.codifferential(mesh, alpha, degree=1)).shape == (mesh.n_vertices,)
+        assert f"ddgjax.dec.{operation} needs" in str(info.value) and "edges [" in str(info.value)
+    # Everything that needs no face orientation works (operators() built d0, *0, *1 on this mesh).
+    ops = operators(name)
+    assert all(np.all(np.isfinite(ops[key])) for key in ops if key.startswith("h"))
+    assert ops["d0"].shape == (ne, mesh.n_vertices)
 
 
 def test_bad_arguments():
     mesh = load("tet.obj")
-    with pytest.raises(DDGInputError, match="dual"):
+    with pytest.raises(DDGInputError, match="dual: expected one of"):
         dec.hodge0(mesh, dual="dual")
-    with pytest.raises(DDGInputError, match="dual"):
+    with pytest.raises(DDGInputError, match="dual: expected one of"):
         dec.edge_dual_length_ratios(mesh, dual="voronoi")
-    with pytest.raises(DDGInputError, match="degree"):
+    with pytest.raises(DDGInputError, match="degree: expected 0, 1 or 2"):
         dec.hodge_star_entries(mesh, 3)
 
 
@@ -128,7 +142,7 @@ def ddg_reference():
     low, high = half_edges.min(axis=1), half_edges.max(axis=1)
     _, first = np.unique(low * len(V) + high, return_index=True)
     first = np.sort(first)
-    ours = np.asarray(mesh.edges)
+    ours = mesh.topology.edges.astype(np.int64)
     index = np.searchsorted(ours[:, 0] * len(V) + ours[:, 1], low[first] * len(V) + high[first])
     sign = np.where(half_edges[first, 0] < half_edges[first, 1], 1.0, -1.0)
     return mesh, values, index, sign
@@ -137,127 +151,149 @@ def ddg_reference():
 def test_ddg_reference_solution(ddg_reference):
     mesh, ref, index, sign = ddg_reference
     assert (mesh.n_vertices, mesh.n_faces, mesh.n_edges, mesh.topology.genus) == (3070, 6144, 9216, 2)
-    # The file's stars agree with ours (float64) to ~1e-6 relative only: our float32 evaluation is 10x
-    # closer to ours than the file is, so its values came from slightly different positions than the
-    # printed (float32-exact) ones. Measured: hodge0 6.2e-7 rel, hodge1 3.9e-6 abs (entries to 2.2,
-    # some near 0), hodge2 1.3e-6 rel. The course's own tolerance is 1e-5 (1e-4 for hodge1).
-    np.testing.assert_allclose(np.asarray(dec.hodge0(mesh, dual="barycentric").values), ref["hodge0"], rtol=2e-6)
-    np.testing.assert_allclose(np.asarray(dec.hodge1(mesh).values)[index], ref["hodge1"], rtol=0, atol=1e-5)
-    np.testing.assert_allclose(np.asarray(dec.hodge2(mesh).values), ref["hodge2"], rtol=3e-6)
+    stars = jax.jit(
+        lambda m: (dec.hodge0(m, dual="barycentric").diagonal(), dec.hodge1(m).diagonal(), dec.hodge2(m).diagonal())
+    )(mesh)
+    # The file's stars agree with ours to ~1e-6 relative only: evaluating ours in float32 moves them
+    # 10x less than that, so the file's values came from slightly different positions than the
+    # printed (float32-exact) ones. Measured: hodge0 6.2e-7 rel, hodge1 3.9e-6 abs (entries up to 2.2,
+    # some near 0), hodge2 1.3e-6 rel. The course's own tests allow 1e-5 (1e-4 for hodge1).
+    np.testing.assert_allclose(stars[0], ref["hodge0"], rtol=2e-6)
+    np.testing.assert_allclose(np.asarray(stars[1])[index], ref["hodge1"], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(stars[2], ref["hodge2"], rtol=3e-6)
     # d0 and d1 are exact; the file's d0 has the opposite global sign.
-    d_phi = sign * np.asarray(dec.d0(mesh) @ ref["phi"])[index]
-    np.testing.assert_allclose(-d_phi, ref["dPhi"], rtol=0, atol=1e-15)
+    D0, D1 = dec.d0(mesh).to_scipy(), dec.d1(mesh).to_scipy()
+    np.testing.assert_array_equal(-sign * (D0 @ ref["phi"])[index], ref["dPhi"])
     omega = np.zeros(mesh.n_edges)
     omega[index] = sign * ref["omega"]
-    np.testing.assert_allclose(np.asarray(dec.d1(mesh) @ omega), ref["dOmega"], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(D1 @ omega, ref["dOmega"], rtol=0, atol=1e-16)
 
 
 @pytest.mark.parametrize("name", ["bob_small.ply", "small_disk.obj"])
 def test_against_gpytoolbox_dec(name):
-    mesh = load(name)
-    V, F = host(mesh)
+    mesh, ops = load(name), operators(name)
+    V, F = np.asarray(mesh.vertices), mesh.topology.faces
     _, E, _, _ = gpytoolbox.halfedge_edge_map(F)
-    index = np.searchsorted(
-        mesh.topology.edges[:, 0] * len(V) + mesh.topology.edges[:, 1], E.min(axis=1) * len(V) + E.max(axis=1)
-    )
+    ours = mesh.topology.edges.astype(np.int64)
+    index = np.searchsorted(ours[:, 0] * len(V) + ours[:, 1], E.min(axis=1) * len(V) + E.max(axis=1))
     sign = np.where(E[:, 0] < E[:, 1], 1.0, -1.0)
-    u = np.random.default_rng(2).standard_normal(len(V))
-    # gpytoolbox's d0 is u[E0] - u[E1]: minus ours on its own orientation.
-    np.testing.assert_array_equal(gpytoolbox.dec_d0(F) @ u, -sign * np.asarray(dec.d0(mesh) @ u)[index])
-    alpha = np.random.default_rng(3).standard_normal(len(E))
-    ours_alpha = np.zeros(mesh.n_edges)
-    ours_alpha[index] = sign * alpha
-    np.testing.assert_allclose(gpytoolbox.dec_d1(F) @ alpha, np.asarray(dec.d1(mesh) @ ours_alpha), rtol=0, atol=1e-15)
-    np.testing.assert_allclose(dec.hodge0(mesh, dual="barycentric").values, gpytoolbox.dec_h0(V, F).diagonal(), rtol=1e-13)
-    np.testing.assert_allclose(dec.hodge1(mesh).values[index], gpytoolbox.dec_h1(V, F).diagonal(), rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(dec.hodge2(mesh).values, gpytoolbox.dec_h2(V, F).diagonal(), rtol=1e-13)
-    np.testing.assert_allclose(dec.hodge1(mesh, inverse=True).values[index], gpytoolbox.dec_h1inv(V, F).diagonal(), rtol=1e-12)
+    # gpytoolbox orients edge e as E[e] and its d0 is u[E0] - u[E1]: minus ours on that orientation.
+    permute = np.zeros((len(E), mesh.n_edges))
+    permute[np.arange(len(E)), index] = sign
+    np.testing.assert_array_equal(gpytoolbox.dec_d0(F).toarray(), -permute @ ops["d0"].to_scipy().toarray())
+    np.testing.assert_array_equal(gpytoolbox.dec_d1(F).toarray(), ops["d1"].to_scipy().toarray() @ permute.T)
+    np.testing.assert_allclose(ops["h0 barycentric"], gpytoolbox.dec_h0(V, F).diagonal(), rtol=1e-13)
+    h1 = gpytoolbox.dec_h1(V, F).diagonal()
+    np.testing.assert_allclose(ops["h1 circumcentric"][index], h1, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(ops["h1inv circumcentric"][index], gpytoolbox.dec_h1inv(V, F).diagonal(), rtol=1e-12)
+    # gpytoolbox's dec_h2 is the face area, i.e. our *2^{-1}.
+    np.testing.assert_allclose(ops["h2inv"], gpytoolbox.dec_h2(V, F).diagonal(), rtol=1e-13)
+    np.testing.assert_allclose(ops["h2"], gpytoolbox.dec_h2inv(V, F).diagonal(), rtol=1e-13)
 
 
-@pytest.mark.parametrize("name", ["small_disk.obj", "bob_small.ply", "hourglass_ico.obj", "moebius.obj", "triple_vierbein.obj"])
+@pytest.mark.parametrize("name", ANY)
 def test_dec_laplacian_and_mass_match_libigl(name):
     """`d0^T *1 d0 = -igl.cotmatrix` and `*0` = libigl's lumped mass matrices, on any mesh."""
-    mesh = load(name)
-    V, F = host(mesh)
-    D0 = dec.d0(mesh).to_scipy()
-    L = (D0.T @ dec.hodge1(mesh).to_scipy() @ D0).toarray()
+    mesh, ops = load(name), operators(name)
+    V, F = np.asarray(mesh.vertices), mesh.topology.faces
+    D0 = ops["d0"].to_scipy()
+    L = (D0.T @ (ops["h1 circumcentric"][:, None] * D0.toarray()))
     expected = -igl.cotmatrix(V, F).toarray()
     np.testing.assert_allclose(L, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
-    np.testing.assert_array_equal(np.asarray(dec.hodge1(mesh).values), np.asarray(edge_cotan_weights(mesh)))
+    np.testing.assert_array_equal(ops["h1 circumcentric"], ops["cotan"])
     for dual, kind in (("voronoi", igl.MASSMATRIX_TYPE_VORONOI), ("barycentric", igl.MASSMATRIX_TYPE_BARYCENTRIC)):
-        np.testing.assert_allclose(dec.hodge0(mesh, dual=dual).values, igl.massmatrix(V, F, kind).diagonal(), rtol=1e-13)
-    total = float(jnp.sum(face_areas(mesh)))
-    assert float(jnp.sum(dec.hodge0(mesh).values)) == pytest.approx(total, rel=1e-13)
+        np.testing.assert_allclose(ops[f"h0 {dual}"], igl.massmatrix(V, F, kind).diagonal(), rtol=1e-13)
+    for dual in VERTEX_DUALS:
+        assert ops[f"h0 {dual}"].sum() == pytest.approx(float(ops["area"]), rel=1e-13)
+
+
+@pytest.mark.parametrize("name", ["bob_small.ply", "small_disk.obj"])
+def test_inverse_policy(name):
+    ops = operators(name)
+    for key in [k for k in ops if k.startswith("h") and "inv" not in k]:
+        entries, inverse = ops[key], ops[key.replace(key.split()[0], key.split()[0] + "inv")]
+        nonzero = entries != 0
+        np.testing.assert_allclose(entries[nonzero] * inverse[nonzero], 1.0, rtol=1e-14, err_msg=key)
+        assert np.all(inverse[~nonzero] == 0), key
+    # Non-Delaunay edges have negative circumcentric weights, inverted as they are.
+    assert np.any(operators("bob_small.ply")["h1inv circumcentric"] < 0)
 
 
 def test_single_right_triangle_closed_forms():
     """Right isosceles triangle (0,0), (1,0), (0,1): every star entry by hand, and the inverse policy."""
     mesh = Mesh.from_arrays(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
-    # Edges (0,1), (0,2), (1,2): opposite angles 45, 45, 90 degrees.
-    np.testing.assert_allclose(dec.hodge1(mesh).values, [0.5, 0.5, 0.0], atol=1e-16)
-    np.testing.assert_allclose(dec.hodge1(mesh, inverse=True).values, [2.0, 2.0, 0.0], atol=1e-15)
+    values = jax.jit(
+        lambda m: {
+            "h1": dec.hodge1(m).diagonal(),
+            "h1inv": dec.hodge1(m, inverse=True).diagonal(),
+            "h1 bary": dec.hodge1(m, dual="barycentric").diagonal(),
+            "h0 bary": dec.hodge0(m, dual="barycentric").diagonal(),
+            "h0": dec.hodge0(m).diagonal(),
+            "h2": dec.hodge2(m).diagonal(),
+            "h2inv": dec.hodge2(m, inverse=True).diagonal(),
+        }
+    )(mesh)
+    # Edges (0,1), (0,2), (1,2): opposite angles 45, 45, 90 degrees; the zero weight inverts to 0.
+    np.testing.assert_allclose(values["h1"], [0.5, 0.5, 0.0], atol=1e-16)
+    np.testing.assert_allclose(values["h1inv"], [2.0, 2.0, 0.0], atol=1e-15)
     # Barycentre (1/3, 1/3) to the midpoints: sqrt(5)/6, sqrt(5)/6, sqrt(2)/6; lengths 1, 1, sqrt(2).
-    np.testing.assert_allclose(
-        dec.hodge1(mesh, dual="barycentric").values, [np.sqrt(5) / 6, np.sqrt(5) / 6, 1 / 6], rtol=1e-15
-    )
-    np.testing.assert_allclose(dec.hodge0(mesh, dual="barycentric").values, [1 / 6] * 3, rtol=1e-15)
+    np.testing.assert_allclose(values["h1 bary"], [np.sqrt(5) / 6, np.sqrt(5) / 6, 1 / 6], rtol=1e-15)
+    np.testing.assert_allclose(values["h0 bary"], [1 / 6] * 3, rtol=1e-15)
     # Circumcentre at the hypotenuse midpoint: the right-angle corner gets 1/4, the others 1/8.
-    np.testing.assert_allclose(dec.hodge0(mesh).values, [0.25, 0.125, 0.125], rtol=1e-15)
-    np.testing.assert_allclose(dec.hodge2(mesh).values, [2.0], rtol=1e-15)
-    np.testing.assert_allclose(dec.hodge2(mesh, inverse=True).values, [0.5], rtol=1e-15)
+    np.testing.assert_allclose(values["h0"], [0.25, 0.125, 0.125], rtol=1e-15)
+    np.testing.assert_allclose(values["h2"], [2.0], rtol=1e-15)
+    np.testing.assert_allclose(values["h2inv"], [0.5], rtol=1e-15)
 
 
-def test_inverse_policy_on_an_obtuse_mesh():
-    mesh = load("bob_small.ply")
-    for k, dual in ((0, "circumcentric"), (1, "circumcentric"), (1, "barycentric"), (2, "circumcentric")):
-        entries = np.asarray(dec.hodge_star_entries(mesh, k, dual=dual))
-        inverse = np.asarray(dec.hodge_star_entries(mesh, k, dual=dual, inverse=True))
-        np.testing.assert_allclose(entries * inverse, 1.0, rtol=1e-14)
-    # Non-Delaunay edges have negative circumcentric weights, inverted as they are.
-    assert np.any(np.asarray(dec.hodge1(mesh).values) < 0)
-
-
-@pytest.fixture(scope="module")
-def degenerate_mesh():
-    """A quad split so that one face is exactly collinear (zero area) and one is a needle."""
+def test_degenerate_faces_give_finite_values_and_gradients():
+    """One exactly collinear (zero-area) face and one needle: finite stars and finite gradients."""
     V = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0], [1, 1e-9, 0]])
-    F = np.array([[0, 1, 3], [1, 2, 3], [0, 2, 1], [0, 4, 2]])
-    return Mesh.from_arrays(V, F)
+    mesh = Mesh.from_arrays(V, np.array([[0, 1, 3], [1, 2, 3], [0, 2, 1], [0, 4, 2]]))
 
-
-def test_degenerate_faces_give_finite_values_and_gradients(degenerate_mesh):
-    mesh = degenerate_mesh
-    weights = np.random.default_rng(4).standard_normal(64)
-
-    def energy(V):
+    def stars(V):
         moved = mesh.with_vertices(V)
-        values = [dec.hodge_star_entries(moved, k, dual=dual, inverse=inv) for k in (0, 1)
-                  for dual in ("circumcentric", "barycentric", "voronoi") for inv in (False, True)]
-        values.append(dec.hodge_star_entries(moved, 2))
-        flat = jnp.concatenate(values)
-        return jnp.sum(weights[: flat.size] * jnp.tanh(flat))
+        # (*0 barycentric and *1 circumcentric are a third of the areas and the cotan weights, whose
+        # degenerate cases the mesh tests cover.)
+        values = [
+            dec.hodge_star_entries(moved, 0, dual="circumcentric"),
+            dec.hodge_star_entries(moved, 0, dual="voronoi"),
+            dec.hodge_star_entries(moved, 1, dual="barycentric"),
+            dec.hodge_star_entries(moved, 1, dual="barycentric", inverse=True),
+            dec.hodge_star_entries(moved, 1, inverse=True),
+        ]
+        values += [dec.hodge_star_entries(moved, 2), dec.hodge_star_entries(moved, 2, inverse=True)]
+        return jnp.concatenate(values)
 
-    assert np.isfinite(float(energy(mesh.vertices)))
-    assert np.all(np.isfinite(np.asarray(jax.grad(energy)(mesh.vertices))))
-    assert float(dec.hodge2(mesh).values[2]) == 0.0  # the zero-area face: pseudo-inverse
+    values, pullback = jax.vjp(jax.jit(stars), mesh.vertices)
+    weights = jnp.asarray(np.random.default_rng(4).standard_normal(values.shape[0]))
+    assert np.all(np.isfinite(np.asarray(values)))
+    assert np.all(np.isfinite(np.asarray(pullback(weights)[0])))
+    # *2 of the zero-area face 2 and its inverse (the last 2 x 4 entries): zero, the pseudo-inverse.
+    assert float(values[-6]) == 0.0 and float(values[-2]) == 0.0
 
 
 def test_jit_vmap_grad_over_vertex_positions():
-    mesh = load("sphere_small.ply")
-    batch = mesh.vertices[None] * jnp.asarray([1.0, 2.0, 0.5])[:, None, None]
-    star = jax.jit(lambda V: dec.hodge1(mesh.with_vertices(V), dual="barycentric").values)
-    np.testing.assert_allclose(star(mesh.vertices), dec.hodge1(mesh, dual="barycentric").values, rtol=1e-15)
-    # hodge1 is scale-invariant, hodge0 scales with the square, hodge2 with the inverse square.
-    stacked = jax.vmap(star)(batch)
-    np.testing.assert_allclose(stacked[1], stacked[0], rtol=1e-13)
-    areas = jax.vmap(lambda V: dec.hodge0(mesh.with_vertices(V)).values)(batch)
-    np.testing.assert_allclose(areas[2], 0.25 * areas[0], rtol=1e-13)
-    small = load("tet.obj")
-    w = jnp.asarray(np.random.default_rng(5).standard_normal(small.n_edges))
+    mesh = load("tet.obj")
+    scales = jnp.asarray([1.0, 2.0, 0.5])[:, None, None]
+
+    def stars(V):
+        moved = mesh.with_vertices(V)
+        h1 = dec.hodge1(moved, dual="barycentric").diagonal()
+        return dec.hodge0(moved).diagonal(), h1, dec.hodge2(moved).diagonal()
+
+    h0, h1, h2 = jax.jit(jax.vmap(stars))(mesh.vertices[None] * scales)
+    eager = jax.jit(stars)(mesh.vertices)
+    for batched, single in zip((h0, h1, h2), eager, strict=True):
+        np.testing.assert_allclose(batched[0], single, rtol=1e-15)
+    # *1 is scale-invariant, *0 scales with the square of lengths, *2 with the inverse square.
+    np.testing.assert_allclose(h1[1], h1[0], rtol=1e-14)
+    np.testing.assert_allclose(h0[2], 0.25 * h0[0], rtol=1e-14)
+    np.testing.assert_allclose(h2[1], 0.25 * h2[0], rtol=1e-14)
+    w = jnp.asarray(np.random.default_rng(5).standard_normal(mesh.n_edges))
+    perturbed = mesh.vertices + 0.1 * jnp.sqrt(jnp.arange(12.0).reshape(4, 3))
     jax.test_util.check_grads(
-        lambda V: jnp.sum(w * dec.hodge1(small.with_vertices(V), dual="barycentric").values)
-        + jnp.sum(dec.hodge0(small.with_vertices(V)).values ** 2),
-        (small.vertices + 0.1 * jnp.arange(12.0).reshape(4, 3) ** 0.5,),
-        order=2,
+        jax.jit(lambda V: jnp.sum(w * dec.hodge1(mesh.with_vertices(V), dual="barycentric").diagonal())),
+        (perturbed,),
+        order=1,
         modes=("rev",),
     )

@@ -26,7 +26,9 @@ def kernel_name(tmp_path_factory):
     name = "ddgjax-test-python"
     kernelspec.install(kernel_name=name, prefix=str(prefix))
     patch = pytest.MonkeyPatch()
-    patch.setenv("JUPYTER_PATH", os.pathsep.join(filter(None, [str(prefix / "share" / "jupyter"), os.environ.get("JUPYTER_PATH")])))
+    patch.setenv(
+        "JUPYTER_PATH", os.pathsep.join(filter(None, [str(prefix / "share" / "jupyter"), os.environ.get("JUPYTER_PATH")]))
+    )
     patch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
     yield name
     patch.undo()

@@ -15,11 +15,19 @@ import math
 import os
 import sys
 import time
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
 from .._errors import DDGInputError
+from . import _shapes
+from ._curvature import curvature, edge_lengths, length
+from ._curve import Curve
+from ._flow import CurveFlowResult, curve_shortening_flow
+from ._invariants import enclosed_area
 
 SHAPES = ("figure3", "flower", "star", "random", "regular")
 # One colour per kind, the same in every panel.
@@ -64,7 +72,10 @@ def add_flow_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of --shape random")
     parser.add_argument(
-        "--kinds", type=_kinds, default="A,B,D", help="flows to run, comma-separated among A (theta), B (2 sin(theta/2)), C (2 tan(theta/2)), D (1/R)"
+        "--kinds",
+        type=_kinds,
+        default="A,B,D",
+        help="flows to run, comma-separated among A (theta), B (2 sin(theta/2)), C (2 tan(theta/2)), D (1/R)",
     )
     parser.add_argument(
         "--tau",
@@ -77,7 +88,10 @@ def add_flow_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--steps", type=_positive(int), default=3000, help="number of time steps of every flow")
     parser.add_argument(
-        "--save-every", type=_positive(int), default=None, help="save the state every this many steps (must divide --steps); default: about 100 saved states"
+        "--save-every",
+        type=_positive(int),
+        default=None,
+        help="save the state every this many steps (must divide --steps); default: about 100 saved states",
     )
     parser.add_argument(
         "--method",
@@ -95,16 +109,14 @@ def add_flow_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--snapshots", type=_positive(int), default=6, help="snapshots overlaid in each flow's panel")
     parser.add_argument("--output", "-o", default="ddgjax_flow.png", help="PNG file to write the figure to")
     parser.add_argument("--no-plot", action="store_true", help="print the table only, write no figure")
+    parser.add_argument("--progress", action="store_true", help="show a progress bar over the steps of each flow (for long runs)")
     parser.set_defaults(run=run_flow)
 
 
 def _initial_curve(args):
     """The polygon named by `--shape`, counterclockwise, with a description for the title."""
-    from . import _shapes
-    from ._invariants import enclosed_area
-
     builders = {
-        "figure3": lambda: _shapes.figure3_polygon(),
+        "figure3": _shapes.figure3_polygon,
         "flower": lambda: _shapes.flower(args.vertices),
         "star": lambda: _shapes.star(subdivisions=max(1, round(args.vertices / 10))),
         "random": lambda: _shapes.random_polygon(args.vertices, seed=args.seed),
@@ -127,9 +139,6 @@ def _initial_curve(args):
 
 def _time_step(curve, args) -> float:
     """`--tau`, or the default documented in its help."""
-    from ._curvature import edge_lengths
-    from ._invariants import enclosed_area
-
     if args.tau is not None:
         return args.tau
     tau = float(edge_lengths(curve).min()) ** 2 / 4
@@ -148,7 +157,7 @@ def _save_every(args) -> int:
 class FlowRun(NamedTuple):
     """One flow of the demo: the library's result and what the table and figure derive from it."""
 
-    result: Any  # CurveFlowResult
+    result: CurveFlowResult
     own_total_curvature: np.ndarray  # (s,) sum of this kind's integrated curvature
     tau: float  # the step handed to curve_shortening_flow
     times: np.ndarray  # (s,) shared flow time (steps x the D-flow step)
@@ -156,22 +165,11 @@ class FlowRun(NamedTuple):
 
 def _own_total_curvature(points, kind: str) -> np.ndarray:
     """Integrated total curvature `sum_i kappa^kind_i` of every saved state (`kind`'s own, not `sum theta`)."""
-    import jax
-    import jax.numpy as jnp
-
-    from ._curvature import curvature
-    from ._curve import Curve
-
     return np.asarray(jax.vmap(lambda p: jnp.sum(curvature(Curve(p), kind, pointwise=False)))(points))
 
 
 def _run_flows(curve, kinds, tau, args):
     """Run every flow; returns `{kind: FlowRun}` and the wall time in seconds."""
-    from tqdm.auto import tqdm
-
-    from ._curvature import length
-    from ._flow import curve_shortening_flow
-
     mean_edge = float(length(curve)) / curve.n_points
     save_every = _save_every(args)
     rescale = None if args.rescale == "none" else args.rescale
@@ -182,14 +180,21 @@ def _run_flows(curve, kinds, tau, args):
         # their steps move the curve as far as the pointwise kappa^D step, so all share one flow time.
         kind_tau = tau if kind == "D" else tau / mean_edge
         result = curve_shortening_flow(
-            curve, kind=kind, tau=kind_tau, steps=args.steps, save_every=save_every, method=args.method, rescale=rescale
+            curve,
+            kind=kind,
+            tau=kind_tau,
+            steps=args.steps,
+            save_every=save_every,
+            method=args.method,
+            rescale=rescale,
+            progress=args.progress,
         )
         times = tau * np.asarray(result.steps, dtype=float)
         runs[kind] = FlowRun(result, _own_total_curvature(result.points, kind), kind_tau, times)
     return runs, time.perf_counter() - start
 
 
-def _table(runs, tau) -> list[str]:
+def _table(runs) -> list[str]:
     """Lines of the start / end table of every invariant of every flow."""
     header = f"{'flow':<5}{'tau':>10}  {'quantity':<26}{'start':>22}{'end':>22}{'change':>12}"
     lines = [header, "-" * len(header)]
@@ -235,7 +240,9 @@ def _warnings(runs) -> tuple[list[str], bool]:
             diverged = True
             messages.append(f"flow {kind}: non-finite points by step {nonfinite}: lower --tau or use --method semi-implicit")
         elif nonsimple >= 0:
-            messages.append(f"flow {kind}: the curve self-intersected by step {nonsimple} (none of the flows guarantees simplicity)")
+            messages.append(
+                f"flow {kind}: the curve self-intersected by step {nonsimple} (none of the flows guarantees simplicity)"
+            )
     return messages, diverged
 
 
@@ -246,6 +253,7 @@ def _closed(points):
 
 def _figure(runs, name, args, tau):
     """The Figure 3 reproduction: snapshot panels on top, invariant panels below."""
+    # Imported here: matplotlib is only needed when a figure is written (not for --no-plot or --help).
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import to_rgb
     from matplotlib.figure import Figure
@@ -288,11 +296,23 @@ def _figure(runs, name, args, tau):
         (
             r"centroid drift $|c(t) - c(0)|$",
             True,
-            lambda kind: np.linalg.norm(np.asarray(runs[kind].result.centroid) - np.asarray(runs[kind].result.centroid)[0], axis=1),
+            lambda kind: np.linalg.norm(
+                np.asarray(runs[kind].result.centroid) - np.asarray(runs[kind].result.centroid)[0], axis=1
+            ),
             "B keeps the vertex centroid",
         ),
-        (r"cyclic residual $\mathrm{std}_i |p_i - c| \,/\, \mathrm{mean}_i |p_i - c|$", True, lambda kind: np.asarray(runs[kind].result.cyclic_residual), "D tends to a cyclic polygon"),
-        (r"isoperimetric ratio $4\pi |A| / L^2$", False, lambda kind: np.asarray(runs[kind].result.isoperimetric_ratio), "1 for a circle"),
+        (
+            r"cyclic residual $\mathrm{std}_i |p_i - c| \,/\, \mathrm{mean}_i |p_i - c|$",
+            True,
+            lambda kind: np.asarray(runs[kind].result.cyclic_residual),
+            "D tends to a cyclic polygon",
+        ),
+        (
+            r"isoperimetric ratio $4\pi |A| / L^2$",
+            False,
+            lambda kind: np.asarray(runs[kind].result.isoperimetric_ratio),
+            "1 for a circle",
+        ),
     ]
     for column, (label, logarithmic, values, note) in enumerate(panels):
         axes = figure.add_subplot(grid[1, 3 * column : 3 * column + 3])
@@ -300,7 +320,9 @@ def _figure(runs, name, args, tau):
             series = values(kind)
             if logarithmic:
                 series = np.maximum(series, LOG_FLOOR)
-            axes.plot(times[1:] if logarithmic else times, series[1:] if logarithmic else series, color=COLORS[kind], label=kind, lw=1.6)
+            axes.plot(
+                times[1:] if logarithmic else times, series[1:] if logarithmic else series, color=COLORS[kind], label=kind, lw=1.6
+            )
         if logarithmic:
             axes.set_yscale("log")
         axes.set_title(f"{label}\n({note})", fontsize=10)
@@ -333,7 +355,7 @@ def run_flow(args: argparse.Namespace) -> int:
         f"{name}, {curve.n_points} vertices: {args.steps} {args.method} steps of flow time {tau:.3g} "
         f"(t = {tau * args.steps:.3g}), {rescale}; flows ran in {seconds:.2f} s (compilation included)"
     )
-    print("\n".join(_table(runs, tau)))
+    print("\n".join(_table(runs)))
     messages, diverged = _warnings(runs)
     for message in messages:
         print(f"warning: {message}")

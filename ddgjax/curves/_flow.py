@@ -149,6 +149,11 @@ def _first_quadrant_atan2(y: Float[Array, "..."], x: Float[Array, "..."]) -> Flo
     return jnp.where(swap, jnp.pi / 2 - angle, angle)
 
 
+def _reciprocal(x: Float[Array, "..."]) -> Float[Array, "..."]:
+    """`1 / x`, 0 where `x == 0` (coincident points), finite gradients."""
+    return safe_div(jnp.ones_like(x), x)
+
+
 def _flow_weights(edges: Float[Array, "n 2"], closed: bool, kind: str):
     """Weights `alpha, beta` with `kappa_i N_i = alpha_i (p_{i-1} - p_i) + beta_i (p_{i+1} - p_i)` (module docstring).
 
@@ -157,19 +162,19 @@ def _flow_weights(edges: Float[Array, "n 2"], closed: bool, kind: str):
     `|t_u + t_v| = 2 cos(theta/2)`: one square root per edge, no float64 transcendental but the
     A-flow's arctangent.
     """
-    inverse = safe_div(1.0, safe_norm(edges))
+    inverse = _reciprocal(safe_norm(edges))
     unit_v = edges * inverse[:, None]
     unit_u, inverse_u = jnp.roll(unit_v, 1, axis=0), jnp.roll(inverse, 1)
     if kind == "D":
         chord = edges + jnp.roll(edges, 1, axis=0)  # p_{i+1} - p_{i-1}
-        scale = safe_div(2.0, jnp.sum(chord * chord, axis=-1))
+        scale = 2 * _reciprocal(jnp.sum(chord * chord, axis=-1))
         alpha = scale * jnp.sum(unit_u * chord, axis=-1) * inverse_u
         beta = scale * jnp.sum(unit_v * chord, axis=-1) * inverse
     else:
         if kind == "B":
             ratio = 1.0
         elif kind == "C":
-            ratio = safe_div(2.0, safe_norm(unit_u + unit_v))  # 1 / cos(theta / 2)
+            ratio = 2 * _reciprocal(safe_norm(unit_u + unit_v))  # 1 / cos(theta / 2)
         else:
             sine, cosine = 0.5 * safe_norm(unit_v - unit_u), 0.5 * safe_norm(unit_u + unit_v)
             # (theta/2) / sin(theta/2); its series 1 + s^2/6 below 1e-4, where the quotient loses digits.

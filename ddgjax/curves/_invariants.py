@@ -7,6 +7,8 @@ curve as closed by the chord from its last point back to its first.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
@@ -16,6 +18,7 @@ from ._curvature import _edge_lengths
 from ._curve import Curve
 
 
+@jax.jit
 def centroid(curve: Curve) -> Float[Array, "2"]:
     """Vertex centroid `(1/n) sum_i p_i`, `(2,)`: the centre of mass the reading report's B-flow keeps.
 
@@ -32,6 +35,7 @@ def _shoelace_terms(points: Float[Array, "n 2"]):
     return origin, relative, following, cross2(relative, following)
 
 
+@jax.jit
 def enclosed_area(curve: Curve) -> Float[Array, ""]:
     """Signed enclosed area by the shoelace formula, `A = (1/2) sum_i p_i x p_{i+1}`.
 
@@ -42,6 +46,7 @@ def enclosed_area(curve: Curve) -> Float[Array, ""]:
     return 0.5 * jnp.sum(_shoelace_terms(curve.points)[3])
 
 
+@jax.jit
 def area_centroid(curve: Curve) -> Float[Array, "2"]:
     """Centre of mass of the enclosed region, `(2,)`: `(1 / 6A) sum_i (p_i + p_{i+1}) (p_i x p_{i+1})`.
 
@@ -53,6 +58,7 @@ def area_centroid(curve: Curve) -> Float[Array, "2"]:
     return origin + safe_div(moment, 0.5 * jnp.sum(cross))
 
 
+@jax.jit
 def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     """Isoperimetric ratio `4 pi |A| / L^2`: 1 for a circle, `pi / (n tan(pi / n))` for a regular n-gon, less otherwise.
 
@@ -63,6 +69,7 @@ def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     return safe_div(4 * jnp.pi * jnp.abs(enclosed_area(curve)), perimeter**2)
 
 
+@jax.jit
 def cyclic_residual(curve: Curve) -> Float[Array, ""]:
     """How far the vertices are from lying on one circle: `std_i |p_i - c| / mean_i |p_i - c|`.
 
@@ -100,6 +107,7 @@ def _segments_intersect(a0, a1, b0, b1) -> Bool[Array, "..."]:
     return jnp.where(collinear, boxes, straddle)
 
 
+@functools.partial(jax.jit, static_argnames=("block",))
 def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
     """True when the curve does not intersect or touch itself (boolean scalar, jit-compatible).
 

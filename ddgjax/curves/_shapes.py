@@ -60,6 +60,9 @@ def regular_polygon(n: int, radius: float = 1.0, center: tuple[float, float] = (
 
     Returns:
         A closed `Curve` with points of shape `(n, 2)`.
+
+    Equivalent: `gpytoolbox.regular_circle_polyline(n + 1)[0][:-1]` for the unit circle (gpytoolbox
+    repeats the first vertex at the end).
     """
     n = _check_count("n", n, 3)
     radius = _check_positive("radius", radius)
@@ -121,9 +124,7 @@ def star(tips: int = 5, inner_radius: float = 0.5, outer_radius: float = 1.0, su
     return Curve(jnp.asarray(points.reshape(-1, 2)), closed=True)
 
 
-def random_polygon(
-    n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4
-) -> Curve:
+def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4) -> Curve:
     """Random simple, generally non-convex polygon: a random radial function sampled at jittered angles.
 
     `r(phi) = 1 + sum_{m=2}^{modes} (a_m cos(m phi) + b_m sin(m phi))` with Gaussian `a_m, b_m`
@@ -208,7 +209,9 @@ def load_polygon(path: str | os.PathLike) -> Curve:
     if points.shape[0] > 1 and np.array_equal(points[0], points[-1]):
         points = points[:-1]
     if points.shape[0] < 3:
-        raise DDGInputError(f"points in {path!r}: expected at least 3 distinct points for a closed polygon, got {points.shape[0]}")
+        raise DDGInputError(
+            f"points in {path!r}: expected at least 3 distinct points for a closed polygon, got {points.shape[0]}"
+        )
     return Curve(jnp.asarray(points), closed=True)
 
 

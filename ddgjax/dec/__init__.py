@@ -10,8 +10,8 @@ Which mesh each operator accepts (`MeshDataError` otherwise, naming the operator
 offending edges):
 
 - any triangle mesh (non-manifold, non-orientable, with unreferenced vertices): `d0`, `hodge0`,
-  `hodge1`, `integrate_0form`, `integrate_1form`, `flat`, `sharp`, `hat_function_gradients`,
-  `gradient`, `divergence`, `codifferential(degree=1)`, `hodge_laplacian0`. These only use edges with
+  `hodge1`, `integrate_0form`, `integrate_1form`, `flat`, `sharp`, `gradient`, `divergence`,
+  `codifferential(degree=1)`, `hodge_laplacian0`. These only use edges with
   their global low -> high orientation, or per-face quantities that do not depend on the face order.
 - consistently oriented faces (edge-manifold, every interior edge run in opposite directions by its
   two faces; boundaries allowed): everything that produces or consumes 2-forms or a sense of
@@ -20,8 +20,9 @@ offending edges):
 
 Sign conventions (DESIGN.md): `(d0 u)_e = u[head] - u[tail]`; `d0^T *1 d0 = L`, the PSD cotan
 Laplacian; the codifferential is the adjoint of `d` (`delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`), so the
-Hodge Laplacians are PSD; `divergence(gradient(u)) = -L u`. Degenerate (zero-area) faces contribute
-nothing and keep values and gradients finite; zero star entries invert to zero.
+weak Hodge Laplacians are symmetric, and PSD wherever the stars are positive (always for the
+barycentric dual; for the circumcentric one on Delaunay meshes); `divergence(gradient(u)) = -L u`.
+Degenerate (zero-area) faces contribute nothing and keep values and gradients finite; zero star entries invert to zero.
 
 Reference: Crane, de Goes, Desbrun, Schroeder, *Digital Geometry Processing with Discrete Exterior
 Calculus* (SIGGRAPH course 2013); Desbrun, Hirani, Leok, Marsden, *Discrete Exterior Calculus* (2005).
@@ -43,7 +44,6 @@ from ._vector_calculus import codifferential as codifferential
 from ._vector_calculus import curl as curl
 from ._vector_calculus import divergence as divergence
 from ._vector_calculus import gradient as gradient
-from ._vector_calculus import hat_function_gradients as hat_function_gradients
 from ._vector_calculus import hodge_laplacian0 as hodge_laplacian0
 from ._vector_calculus import hodge_laplacian1 as hodge_laplacian1
 from ._vector_calculus import hodge_laplacian2 as hodge_laplacian2

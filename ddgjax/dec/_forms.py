@@ -22,17 +22,16 @@ orientation); `integrate_2form` needs consistently oriented faces, like `d1` and
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Literal
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError
-from ..mesh._geometry import face_edge_vectors, face_vertex_positions
+from ..laplacian._cotan import face_hat_gradients
+from ..mesh._geometry import face_vertex_positions
 from ..mesh._mesh import Mesh
-from ._vector_calculus import _check_length, hat_function_gradients
+from ._vector_calculus import _as_array
 
 
 def _gauss_legendre(n_points: int, dtype) -> tuple[Float[Array, " q"], Float[Array, " q"]]:
@@ -107,7 +106,7 @@ def integrate_2form(
 
 
 def flat(
-    mesh: Mesh, field: Float[Array, "n 3"], *, at: Literal["faces", "vertices"] = "faces"
+    mesh: Mesh, field: Float[ArrayLike, "n 3"], *, at: str = "faces"
 ) -> Float[Array, " ne"]:
     """Flat of a discrete vector field: the 1-form `X^flat` on the edges, `(ne,)`.
 
@@ -124,16 +123,16 @@ def flat(
         raise DDGInputError(f"at: expected 'faces' or 'vertices', got {at!r}")
     edge_vectors = mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]]
     if at == "vertices":
-        _check_length("field", field, mesh.n_vertices, "nv")
+        field = _as_array("field", field, mesh.n_vertices, "nv")
         mean_field = 0.5 * (field[mesh.edges[:, 0]] + field[mesh.edges[:, 1]])
         return jnp.sum(mean_field * edge_vectors, axis=-1)
-    _check_length("field", field, mesh.n_faces, "nf")
+    field = _as_array("field", field, mesh.n_faces, "nf")
     present = mesh.edge_faces >= 0
     per_face = jnp.einsum("emd,ed->em", field[jnp.where(present, mesh.edge_faces, 0)], edge_vectors)
     return jnp.sum(jnp.where(present, per_face, 0.0), axis=-1) / jnp.sum(present, axis=-1)
 
 
-def sharp(mesh: Mesh, alpha: Float[Array, " ne"]) -> Float[Array, "nf 3"]:
+def sharp(mesh: Mesh, alpha: Float[ArrayLike, " ne"]) -> Float[Array, "nf 3"]:
     """Sharp of a discrete 1-form: its Whitney interpolant at each face barycentre, `(nf, 3)`.
 
     The Whitney 1-form `sum_{ij} alpha_ij (phi_i grad phi_j - phi_j grad phi_i)` (over the face's edges
@@ -145,8 +144,8 @@ def sharp(mesh: Mesh, alpha: Float[Array, " ne"]) -> Float[Array, "nf 3"]:
     Independent of the face orientation: works on any mesh. Reference: Whitney, *Geometric
     Integration Theory* (1957); Crane et al. 2013, section 7.4.
     """
-    _check_length("alpha", alpha, mesh.n_edges, "ne")
-    gradients = hat_function_gradients(mesh)
+    alpha = _as_array("alpha", alpha, mesh.n_edges, "ne")
+    gradients = face_hat_gradients(mesh)
     # Edge k of a face runs p_{k+1} -> p_{k+2}; the face-order value is the global one times its sign.
     along = mesh.face_edge_signs.astype(alpha.dtype) * alpha[mesh.face_edges]
     differences = jnp.roll(gradients, -2, axis=1) - jnp.roll(gradients, -1, axis=1)

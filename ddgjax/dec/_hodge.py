@@ -18,8 +18,6 @@ policy that degenerate faces contribute nothing; values and gradients stay finit
 
 from __future__ import annotations
 
-from typing import Literal
-
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -27,9 +25,8 @@ from .._errors import DDGInputError
 from .._numerics import safe_div, safe_norm
 from ..mesh._geometry import edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
 from ..mesh._mesh import Mesh
-from ..sparse import SparseMatrix, SparsityPattern
+from ..sparse import SparseMatrix, diagonal_matrix
 
-Dual = Literal["circumcentric", "barycentric", "voronoi"]
 _DUALS = ("circumcentric", "barycentric", "voronoi")
 
 
@@ -38,7 +35,7 @@ def _check_dual(dual: str, allowed: tuple[str, ...] = _DUALS) -> None:
         raise DDGInputError(f"dual: expected one of {allowed}, got {dual!r}")
 
 
-def edge_dual_length_ratios(mesh: Mesh, *, dual: Literal["circumcentric", "barycentric"] = "circumcentric") -> Float[Array, " ne"]:
+def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "circumcentric") -> Float[Array, " ne"]:
     """`|e*| / |e|` per edge, `(ne,)`: the diagonal of `*1`.
 
     - `"circumcentric"`: the dual edge joins the circumcentres of the adjacent faces, so
@@ -61,7 +58,9 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: Literal["circumcentric", "baryc
     return safe_div(dual_lengths, edge_lengths(mesh))
 
 
-def hodge_star_entries(mesh: Mesh, degree: int, *, dual: Dual = "circumcentric", inverse: bool = False) -> Float[Array, " n"]:
+def hodge_star_entries(
+    mesh: Mesh, degree: int, *, dual: str = "circumcentric", inverse: bool = False
+) -> Float[Array, " n"]:
     """Diagonal of the Hodge star `*_k` (or of its inverse) on primal `degree`-forms, as a vector.
 
     `degree` 0: vertex dual areas `(nv,)`; 1: `|e*| / |e|` `(ne,)`; 2: `1 / area` `(nf,)`. `dual` picks
@@ -78,21 +77,13 @@ def hodge_star_entries(mesh: Mesh, degree: int, *, dual: Dual = "circumcentric",
     elif degree == 2:
         mesh.topology.require_oriented("ddgjax.dec.hodge2")
         areas = face_areas(mesh)
-        return areas if inverse else safe_div(1.0, areas)
+        return areas if inverse else safe_div(jnp.ones_like(areas), areas)
     else:
         raise DDGInputError(f"degree: expected 0, 1 or 2 (forms on a triangle mesh), got {degree!r}")
-    return safe_div(1.0, entries) if inverse else entries
+    return safe_div(jnp.ones_like(entries), entries) if inverse else entries
 
 
-def _diagonal(values: Float[Array, " n"]) -> SparseMatrix:
-    """`SparseMatrix` with `values` on its diagonal (pattern `(i, i)`, trivially in CSR order)."""
-    n = values.shape[0]
-    index = jnp.arange(n, dtype=jnp.int32)
-    pattern = SparsityPattern(rows=index, cols=index, indptr=jnp.arange(n + 1, dtype=jnp.int32), shape=(n, n))
-    return SparseMatrix(values=values, pattern=pattern)
-
-
-def hodge0(mesh: Mesh, *, dual: Dual = "circumcentric", inverse: bool = False) -> SparseMatrix:
+def hodge0(mesh: Mesh, *, dual: str = "circumcentric", inverse: bool = False) -> SparseMatrix:
     """Hodge star on primal 0-forms, diagonal `(nv, nv)` with entries `|v*|`, the vertex dual areas.
 
     `dual` picks the dual cell (`ddgjax.mesh.vertex_dual_areas`): `"circumcentric"` (the DEC dual of
@@ -103,10 +94,10 @@ def hodge0(mesh: Mesh, *, dual: Dual = "circumcentric", inverse: bool = False) -
     staying zero (module docstring). Reference: Crane et al., *Digital Geometry Processing with
     Discrete Exterior Calculus* (2013), section 3.8.
     """
-    return _diagonal(hodge_star_entries(mesh, 0, dual=dual, inverse=inverse))
+    return diagonal_matrix(hodge_star_entries(mesh, 0, dual=dual, inverse=inverse))
 
 
-def hodge1(mesh: Mesh, *, dual: Dual = "circumcentric", inverse: bool = False) -> SparseMatrix:
+def hodge1(mesh: Mesh, *, dual: str = "circumcentric", inverse: bool = False) -> SparseMatrix:
     """Hodge star on primal 1-forms, diagonal `(ne, ne)` with entries `|e*| / |e|`.
 
     Circumcentric (default; also used for `dual="voronoi"`): `(*1)_ee = (cot a_e + cot b_e) / 2`, the
@@ -117,7 +108,7 @@ def hodge1(mesh: Mesh, *, dual: Dual = "circumcentric", inverse: bool = False) -
     *Discrete Exterior Calculus* (2005). DDG exercises: `DEC::buildHodgeStar1Form`; gpytoolbox:
     `dec_h1` (circumcentric, its own edge order).
     """
-    return _diagonal(hodge_star_entries(mesh, 1, dual=dual, inverse=inverse))
+    return diagonal_matrix(hodge_star_entries(mesh, 1, dual=dual, inverse=inverse))
 
 
 def hodge2(mesh: Mesh, *, inverse: bool = False) -> SparseMatrix:
@@ -126,7 +117,7 @@ def hodge2(mesh: Mesh, *, inverse: bool = False) -> SparseMatrix:
     The dual of a face is a point, so `*2` turns a face integral into a point value (the mean
     density). Zero-area faces get 0 (pseudo-inverse, module docstring); `inverse=True` gives the face
     areas. Needs consistently oriented faces, since the sign of a 2-form on a face is relative to the
-    face's orientation (raises `MeshDataError` otherwise). DDG exercises: `DEC::buildHodgeStar2Form`;
-    gpytoolbox: `dec_h2`.
+    face's orientation (raises `MeshDataError` otherwise). DDG exercises: `DEC::buildHodgeStar2Form`.
+    gpytoolbox's `dec_h2` is the face area, i.e. `hodge2(mesh, inverse=True)` (and `dec_h2inv` is ours).
     """
-    return _diagonal(hodge_star_entries(mesh, 2, inverse=inverse))
+    return diagonal_matrix(hodge_star_entries(mesh, 2, inverse=inverse))

@@ -13,7 +13,8 @@ Conventions (DESIGN.md):
   (source) field and the curl of a counterclockwise rotation are positive.
 - The codifferential is the adjoint of `d` for the inner products `<a, b>_k = a^T *_k b`:
   `delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`, and the Hodge Laplacian `Delta_k = d delta + delta d` is
-  positive semidefinite (`Delta_0 = *0^{-1} L`, minus the Laplace-Beltrami operator).
+  self-adjoint and positive semidefinite where the stars are positive (`Delta_0 = *0^{-1} L`, minus
+  the Laplace-Beltrami operator; circumcentric stars turn negative on non-Delaunay meshes).
 
 Orientation: `gradient`, `divergence`, `codifferential(degree=1)` and `hodge_laplacian0` work on any
 mesh; `curl` (which needs a sense of rotation), `codifferential(degree=2)`, `hodge_laplacian1` and
@@ -25,44 +26,29 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError
-from .._numerics import safe_div
-from ..mesh._geometry import corner_cotangents, face_edge_vectors, face_vertex_positions, scatter_corners_to_vertices
+from ..laplacian._cotan import face_hat_gradients
+from ..mesh._geometry import corner_cotangents, face_edge_vectors, scatter_corners_to_vertices
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix
-from ._hodge import Dual, _check_dual, hodge_star_entries
+from ._hodge import _check_dual, hodge_star_entries
 from ._operators import d0, d1
 
 
-def hat_function_gradients(mesh: Mesh) -> Float[Array, "nf 3 3"]:
-    """Gradient of each corner's hat function on each face, `(nf, 3, 3)`: `[f, k]` is `grad phi_k`.
-
-    `grad phi_k = N x e_k / |N|^2` with `N = (p1 - p0) x (p2 - p0)` (twice the area times the unit
-    normal) and `e_k = p_{k+2} - p_{k+1}` the edge opposite corner `k`: the vector perpendicular to
-    `e_k`, pointing at corner `k`, of length `1 / height`. Independent of the face orientation. Zero on
-    zero-area faces (finite values and gradients). libigl / gpytoolbox: rows of `grad(V, F)`.
-    """
-    corners = face_vertex_positions(mesh)
-    normals = jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    edges = face_edge_vectors(mesh)
-    norms_sq = jnp.sum(normals * normals, axis=-1)
-    return safe_div(jnp.cross(normals[:, None, :], edges), norms_sq[:, None, None])
-
-
-def gradient(mesh: Mesh, u: Float[Array, " nv"]) -> Float[Array, "nf 3"]:
+def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"]) -> Float[Array, "nf 3"]:
     """Gradient of the piecewise-linear interpolant of `u`, one tangent vector per face, `(nf, 3)`.
 
-    `(grad u)_f = sum_k u[F[f, k]] grad phi_k` (see `hat_function_gradients`). Works on any mesh.
+    `(grad u)_f = sum_k u[F[f, k]] grad phi_k` (`ddgjax.laplacian.face_hat_gradients`). Any mesh.
     libigl: `igl.grad(V, F) @ u` reshaped `(3, nf).T`; gpytoolbox: `grad(V, F) @ u`, likewise.
     Reference: Crane et al., *The heat method for distance computation* (2017), eq. (2).
     """
-    _check_length("u", u, mesh.n_vertices, "nv")
-    return jnp.einsum("fk,fkd->fd", u[mesh.faces], hat_function_gradients(mesh))
+    u = _as_array("u", u, mesh.n_vertices, "nv")
+    return jnp.einsum("fk,fkd->fd", u[mesh.faces], face_hat_gradients(mesh))
 
 
-def divergence(mesh: Mesh, field: Float[Array, "nf 3"]) -> Float[Array, " nv"]:
+def divergence(mesh: Mesh, field: Float[ArrayLike, "nf 3"]) -> Float[Array, " nv"]:
     """Integrated divergence of a face vector field at each vertex, `(nv,)`.
 
     `(div X)_i = 1/2 sum_{f ni i} (cot theta_1 (e_1 . X_f) + cot theta_2 (e_2 . X_f))`, with `e_1, e_2`
@@ -73,13 +59,13 @@ def divergence(mesh: Mesh, field: Float[Array, "nf 3"]) -> Float[Array, " nv"]:
     contribute 0). Reference: Crane et al. 2017 (heat method), section 3.2.1; the DDG exercises' `div`
     in `test-heat-soln.txt` is `-divergence`.
     """
-    _check_length("field", field, mesh.n_faces, "nf")
+    field = _as_array("field", field, mesh.n_faces, "nf")
     edge_terms = 0.5 * corner_cotangents(mesh) * jnp.sum(face_edge_vectors(mesh) * field[:, None, :], axis=-1)
     # Corner j leaves along e_{j+2} (to p_{j+1}) and against e_{j+1} (to p_{j+2}).
     return scatter_corners_to_vertices(mesh, jnp.roll(edge_terms, 1, axis=1) - jnp.roll(edge_terms, -1, axis=1))
 
 
-def curl(mesh: Mesh, field: Float[Array, "nf 3"]) -> Float[Array, " nv"]:
+def curl(mesh: Mesh, field: Float[ArrayLike, "nf 3"]) -> Float[Array, " nv"]:
     """Integrated curl (vorticity) of a face vector field at each vertex, `(nv,)`.
 
     `(curl X)_i = 1/2 sum_{f ni i} X_f . e_i^f`, with `e_i^f` the edge of `f` opposite `i`, run in
@@ -92,13 +78,16 @@ def curl(mesh: Mesh, field: Float[Array, "nf 3"]) -> Float[Array, " nv"]:
     *Identifying vector field singularities using a discrete Hodge decomposition* (2003).
     """
     mesh.topology.require_oriented("ddgjax.dec.curl")
-    _check_length("field", field, mesh.n_faces, "nf")
+    field = _as_array("field", field, mesh.n_faces, "nf")
     return scatter_corners_to_vertices(mesh, 0.5 * jnp.sum(face_edge_vectors(mesh) * field[:, None, :], axis=-1))
 
 
-def _check_length(name: str, array, n: int, symbol: str) -> None:
+def _as_array(name: str, array, n: int, symbol: str) -> Array:
+    """`array` as a JAX array whose leading dimension is `n`, else `DDGInputError` naming `name`."""
+    array = jnp.asarray(array)
     if array.shape[:1] != (n,):
         raise DDGInputError(f"{name}: expected leading dimension {symbol} = {n}, got shape {array.shape}")
+    return array
 
 
 def _scale(entries: Float[Array, " n"], x: Float[Array, "n *batch"]) -> Float[Array, "n *batch"]:
@@ -119,19 +108,20 @@ def _form_size(mesh: Mesh, degree: int) -> tuple[int, str]:
     return ((mesh.n_vertices, "nv"), (mesh.n_edges, "ne"), (mesh.n_faces, "nf"))[degree]
 
 
-def _check_form(mesh: Mesh, form, degree: int) -> None:
+def _as_form(name: str, mesh: Mesh, form, degree: int) -> Array:
     n, symbol = _form_size(mesh, degree)
-    _check_length("form", form, n, symbol)
+    return _as_array(name, form, n, symbol)
 
 
-def _codifferential(mesh: Mesh, form, degree: int, dual: Dual):
+def _codifferential(mesh: Mesh, form, degree: int, dual: str):
+    d = _exterior_derivative(mesh, degree - 1)
     star_inverse = hodge_star_entries(mesh, degree - 1, dual=dual, inverse=True)
     star = hodge_star_entries(mesh, degree, dual=dual)
-    return _scale(star_inverse, _transpose_apply(_exterior_derivative(mesh, degree - 1), _scale(star, form)))
+    return _scale(star_inverse, _transpose_apply(d, _scale(star, form)))
 
 
 def codifferential(
-    mesh: Mesh, form: Float[Array, "n *batch"], *, degree: int, dual: Dual = "circumcentric"
+    mesh: Mesh, form: Float[ArrayLike, "n *batch"], *, degree: int, dual: str = "circumcentric"
 ) -> Float[Array, "m *batch"]:
     """Codifferential `delta_k` of a primal `degree`-form (`degree` 1 or 2), a primal (k-1)-form.
 
@@ -146,13 +136,16 @@ def codifferential(
     _check_dual(dual)
     if degree not in (1, 2):
         raise DDGInputError(f"degree: the codifferential acts on 1- or 2-forms, got degree {degree!r}")
-    _check_form(mesh, form, degree)
-    return _codifferential(mesh, form, degree, dual)
+    if degree == 2:
+        mesh.topology.require_oriented("ddgjax.dec.codifferential(degree=2)")
+    return _codifferential(mesh, _as_form("form", mesh, form, degree), degree, dual)
 
 
-def _hodge_laplacian(mesh: Mesh, form, degree: int, dual: Dual, weak: bool):
+def _hodge_laplacian(mesh: Mesh, name: str, form, degree: int, dual: str, weak: bool):
+    if degree > 0:
+        mesh.topology.require_oriented(f"ddgjax.dec.hodge_laplacian{degree}")
     _check_dual(dual)
-    _check_form(mesh, form, degree)
+    form = _as_form(name, mesh, form, degree)
     result = jnp.zeros_like(form)
     if degree < 2:
         d = _exterior_derivative(mesh, degree)
@@ -165,7 +158,7 @@ def _hodge_laplacian(mesh: Mesh, form, degree: int, dual: Dual, weak: bool):
 
 
 def hodge_laplacian0(
-    mesh: Mesh, u: Float[Array, "nv *batch"], *, dual: Dual = "circumcentric", weak: bool = False
+    mesh: Mesh, u: Float[ArrayLike, "nv *batch"], *, dual: str = "circumcentric", weak: bool = False
 ) -> Float[Array, "nv *batch"]:
     """Hodge Laplacian on 0-forms, `Delta_0 u = delta_1 d0 u = *0^{-1} d0^T *1 d0 u`, `(nv, *batch)`.
 
@@ -174,28 +167,28 @@ def hodge_laplacian0(
     Laplace-Beltrami operator. `weak=True` returns the symmetric `*0 Delta_0 u = d0^T *1 d0 u` (no
     division by dual areas). Works on any mesh; vertices with zero dual area get 0 (pseudo-inverse).
     """
-    return _hodge_laplacian(mesh, u, 0, dual, weak)
+    return _hodge_laplacian(mesh, "u", u, 0, dual, weak)
 
 
 def hodge_laplacian1(
-    mesh: Mesh, alpha: Float[Array, "ne *batch"], *, dual: Dual = "circumcentric", weak: bool = False
+    mesh: Mesh, alpha: Float[ArrayLike, "ne *batch"], *, dual: str = "circumcentric", weak: bool = False
 ) -> Float[Array, "ne *batch"]:
     """Hodge Laplacian on 1-forms, `Delta_1 = d0 delta_1 + delta_2 d1`, `(ne, *batch)`.
 
-    `Delta_1 alpha = d0 *0^{-1} d0^T *1 alpha + *1^{-1} d1^T *2 d1 alpha` (PSD). `weak=True` returns the
-    symmetric `*1 Delta_1 alpha = *1 d0 *0^{-1} d0^T *1 alpha + d1^T *2 d1 alpha` (the second term then
-    needs no `*1^{-1}`, so it is exact where `*1` has zero entries). Its kernel is the harmonic 1-forms
-    (dimension `2 * genus` on a closed surface). Needs consistently oriented faces. Reference:
-    Desbrun et al. 2005; Crane et al. 2013, section 6.
+    `Delta_1 alpha = d0 *0^{-1} d0^T *1 alpha + *1^{-1} d1^T *2 d1 alpha` (PSD for positive stars).
+    `weak=True` returns the symmetric `*1 Delta_1 alpha = *1 d0 *0^{-1} d0^T *1 alpha + d1^T *2 d1 alpha`
+    (its second term needs no `*1^{-1}`, so it is exact where `*1` has zero entries). The kernel is
+    the harmonic 1-forms (dimension `2 * genus` on a closed surface, for positive stars). Needs
+    consistently oriented faces. Reference: Desbrun et al. 2005; Crane et al. 2013, section 6.
     """
-    return _hodge_laplacian(mesh, alpha, 1, dual, weak)
+    return _hodge_laplacian(mesh, "alpha", alpha, 1, dual, weak)
 
 
 def hodge_laplacian2(
-    mesh: Mesh, omega: Float[Array, "nf *batch"], *, dual: Dual = "circumcentric", weak: bool = False
+    mesh: Mesh, omega: Float[ArrayLike, "nf *batch"], *, dual: str = "circumcentric", weak: bool = False
 ) -> Float[Array, "nf *batch"]:
-    """Hodge Laplacian on 2-forms, `Delta_2 = d1 delta_2 = d1 *1^{-1} d1^T *2`, `(nf, *batch)` (PSD).
+    """Hodge Laplacian on 2-forms, `Delta_2 = d1 delta_2 = d1 *1^{-1} d1^T *2`, `(nf, *batch)`.
 
     `weak=True` returns the symmetric `*2 d1 *1^{-1} d1^T *2 omega`. Needs consistently oriented faces.
     """
-    return _hodge_laplacian(mesh, omega, 2, dual, weak)
+    return _hodge_laplacian(mesh, "omega", omega, 2, dual, weak)

@@ -1,10 +1,17 @@
-"""The cotan Laplacian (FEM and DEC routes), mass matrices and the Dirichlet energy.
+"""The cotan Laplacian (FEM and DEC routes), mass matrices, the Dirichlet energy and converters.
 
 Conventions (DESIGN.md): `L` is the positive semidefinite weak (integrated) cotan Laplacian,
 `(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`, so `L == -igl.cotmatrix(V, F)` and
 `L == gpytoolbox.cotangent_laplacian(V, F)`; the pointwise Laplace-Beltrami operator is `-M^{-1} L`.
 """
 
+from ._convert import from_pytorch3d_cot_laplacian as from_pytorch3d_cot_laplacian
+from ._convert import to_gpytoolbox_cotangent_laplacian as to_gpytoolbox_cotangent_laplacian
+from ._convert import to_igl_cotmatrix as to_igl_cotmatrix
+from ._convert import to_pytorch3d_cot_laplacian as to_pytorch3d_cot_laplacian
 from ._cotan import cotan_laplacian as cotan_laplacian
+from ._cotan import dirichlet_energy as dirichlet_energy
+from ._cotan import edge_stiffness_weights as edge_stiffness_weights
+from ._cotan import face_hat_gradients as face_hat_gradients
 from ._cotan import laplacian_apply as laplacian_apply
 from ._mass import mass_matrix as mass_matrix

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._numerics import safe_div, safe_norm, safe_sqrt
-from ._geometry import DualAreaKind, corner_angles, edge_dihedral_angles, edge_lengths, scatter_corners_to_vertices, vertex_dual_areas
+from ._geometry import corner_angles, edge_dihedral_angles, edge_lengths, scatter_corners_to_vertices, vertex_dual_areas
 from ._mesh import Mesh
 
 
@@ -48,7 +48,7 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     return jnp.where(referenced, 2.0 * jnp.pi - angle_sums - corrections, 0.0)
 
 
-def gaussian_curvature(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, " nv"]:
+def gaussian_curvature(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise Gaussian curvature, `(nv,)`: `vertex_angle_defects / vertex_dual_areas(mesh, kind)`.
 
     0 where the dual area is 0 (unreferenced vertices). libigl tutorial:
@@ -72,7 +72,7 @@ def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     return 0.5 * laplacian_apply(mesh, mesh.vertices)
 
 
-def mean_curvature_normal(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, "nv 3"]:
+def mean_curvature_normal(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 3"]:
     """Pointwise mean curvature normal `H N`, `(nv, 3)`: `vertex_mean_curvature_normals / dual area`.
 
     Its length is `|H|` (tending to `1/r` on a sphere of radius r). 0 where the dual area is 0.
@@ -116,7 +116,7 @@ def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(terms, mesh.edges[:, 1], num_segments=n)
 
 
-def mean_curvature(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, " nv"]:
+def mean_curvature(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise signed mean curvature, `(nv,)`: `vertex_mean_curvatures / vertex_dual_areas(mesh, kind)`.
 
     `H = (k1 + k2) / 2`, `1/r` on a sphere of radius r with outward normals. 0 where the dual area
@@ -126,7 +126,7 @@ def mean_curvature(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array
     return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, kind))
 
 
-def principal_curvatures(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, "nv 2"]:
+def principal_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 2"]:
     """Pointwise principal curvatures `(k1, k2)`, `(nv, 2)`, `k1 >= k2`, from `K` and `H`.
 
     `k1,2 = H +- sqrt(max(H^2 - K, 0))` with the pointwise `mean_curvature` and `gaussian_curvature`

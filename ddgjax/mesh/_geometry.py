@@ -11,8 +11,6 @@ value and gradient stays finite (libigl returns inf / NaN there). See DESIGN.md,
 
 from __future__ import annotations
 
-from typing import Literal
-
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -145,12 +143,11 @@ def scatter_corners_to_vertices(mesh: Mesh, corner_values: Float[Array, "nf 3"])
     return jax.ops.segment_sum(corner_values.reshape(-1), mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
 
 
-DualAreaKind = Literal["voronoi", "barycentric", "circumcentric"]
 _DUAL_AREA_KINDS = ("voronoi", "barycentric", "circumcentric")
 
 
 def corner_dual_areas_from_lengths_sq(
-    lengths_sq: Float[Array, "nf 3"], *, kind: DualAreaKind = "voronoi", areas: Float[Array, " nf"] | None = None
+    lengths_sq: Float[Array, "nf 3"], *, kind: str = "voronoi", areas: Float[Array, " nf"] | None = None
 ) -> Float[Array, "nf 3"]:
     """Share of each face's area assigned to each of its corners, `(nf, 3)` (intrinsic core).
 
@@ -200,12 +197,12 @@ def corner_dual_areas_from_lengths_sq(
     return jnp.where(has_obtuse, split, circumcentric)
 
 
-def corner_dual_areas(mesh: Mesh, *, kind: DualAreaKind = "voronoi") -> Float[Array, "nf 3"]:
+def corner_dual_areas(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nf 3"]:
     """Per-corner dual areas, `(nf, 3)`, from the embedding (see `corner_dual_areas_from_lengths_sq`)."""
     return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), kind=kind, areas=face_areas(mesh))
 
 
-def vertex_dual_areas(mesh: Mesh, kind: DualAreaKind = "voronoi") -> Float[Array, " nv"]:
+def vertex_dual_areas(mesh: Mesh, kind: str = "voronoi") -> Float[Array, " nv"]:
     """Area of the dual cell of each vertex, `(nv,)`: the corner shares of its faces, summed.
 
     `"voronoi"` (default) is the mixed area of Meyer et al. 2003, `"barycentric"` a third of each
@@ -221,11 +218,10 @@ def vertex_dual_areas(mesh: Mesh, kind: DualAreaKind = "voronoi") -> Float[Array
     return scatter_corners_to_vertices(mesh, corner_dual_areas(mesh, kind=kind))
 
 
-NormalWeighting = Literal["area", "angle", "uniform"]
 _NORMAL_WEIGHTINGS = ("area", "angle", "uniform")
 
 
-def vertex_normals(mesh: Mesh, *, weighting: NormalWeighting = "area", normalize: bool = True) -> Float[Array, "nv 3"]:
+def vertex_normals(mesh: Mesh, *, weighting: str = "area", normalize: bool = True) -> Float[Array, "nv 3"]:
     """Vertex normals, `(nv, 3)`: a weighted sum of the unit normals `N_f` of the incident faces.
 
     `n_i = sum_{f ni i} w_f N_f`, with `w_f` the face area `A_f` (`"area"`, default), the corner angle

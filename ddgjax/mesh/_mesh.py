@@ -31,11 +31,12 @@ class Mesh(eqx.Module):
         face_edges: `(nf, 3)` edge opposite each corner (libigl / gpytoolbox order).
         face_edge_signs: `(nf, 3)` int32 +1 / -1: does the face traverse that edge low -> high.
         edge_faces, edge_face_corners: `(ne, m)` faces of each edge and the corner opposite it, -1 padded.
-        vertex_pattern: CSR sparsity pattern of vertex-vertex operators (diagonal plus edges), shared by
-            the cotan Laplacian and the Galerkin mass matrix.
-        vertex_pattern_source: `(nnz,)` for each CSR slot, its index in the list
-            `[diagonal (nv) | edges low->high (ne) | edges high->low (ne)]`, so operator values assemble
-            with one gather.
+        vertex_pattern: sparsity pattern of vertex-vertex operators (diagonal plus edges; ELL storage,
+            symmetric), shared by the cotan Laplacian and the Galerkin mass matrix.
+        vertex_pattern_source: `(nnz,)` for each storage slot, its index in the list
+            `[diagonal (nv) | edges low->high (ne) | edges high->low (ne)]`, or `nv + 2 ne` for an ELL
+            padding slot, so operator values assemble with one gather:
+            `jnp.take(entries, vertex_pattern_source, mode="fill", fill_value=0)`.
         topology: `MeshTopology` (static).
     """
 
@@ -71,14 +72,7 @@ class Mesh(eqx.Module):
     @classmethod
     def from_topology(cls, vertices: Float[Array, "nv 3"], topology: MeshTopology) -> "Mesh":
         """A mesh with the given (already built) topology and vertex positions."""
-        nv, ne = topology.n_vertices, topology.n_edges
-        e0, e1 = topology.edges[:, 0], topology.edges[:, 1]
-        diagonal = np.arange(nv)
-        pattern, slot = SparsityPattern.from_coo(
-            np.concatenate([diagonal, e0, e1]), np.concatenate([diagonal, e1, e0]), (nv, nv)
-        )
-        source = np.empty(nv + 2 * ne, dtype=np.int32)
-        source[slot] = np.arange(nv + 2 * ne, dtype=np.int32)
+        pattern, source = SparsityPattern.from_edges(topology.edges, topology.n_vertices)
         return cls(
             vertices=vertices,
             faces=jnp.asarray(topology.faces),
@@ -92,13 +86,16 @@ class Mesh(eqx.Module):
             topology=topology,
         )
 
-    def with_vertices(self, vertices: Float[Array, "nv 3"]) -> "Mesh":
-        """The same connectivity with new vertex positions (works under jit, grad and vmap)."""
+    def with_vertices(self, vertices: Float[Array, "nv 3"] | Float[np.ndarray, "nv 3"]) -> "Mesh":
+        """The same connectivity with new vertex positions (works under jit, grad and vmap).
+
+        NumPy arrays are accepted and converted (e.g. from `jax.test_util.check_grads`).
+        """
         if not is_traced(vertices) and np.shape(vertices) != (self.topology.n_vertices, 3):
             raise DDGInputError(
                 f"vertices: expected shape ({self.topology.n_vertices}, 3), got {np.shape(vertices)}"
             )
-        return eqx.tree_at(lambda mesh: mesh.vertices, self, vertices)
+        return eqx.tree_at(lambda mesh: mesh.vertices, self, jnp.asarray(vertices))
 
     @property
     def n_vertices(self) -> int:

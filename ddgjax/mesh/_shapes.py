@@ -134,7 +134,8 @@ def disk(n_rings: int = 8, radius: float = 1.0, *, dtype=None) -> Mesh:
     angle = 2.0 * np.pi * slot / counts[ring_of]
     rho = radius * ring_of / n_rings
     vertices = np.stack([rho * np.cos(angle), rho * np.sin(angle), np.zeros_like(rho)], axis=1)
-    faces = np.concatenate([_zip_rings(starts[k - 1], counts[k - 1], starts[k], counts[k]) for k in range(1, n_rings + 1)])
+    rings = [(int(starts[k]), int(counts[k])) for k in range(n_rings + 1)]
+    faces = np.concatenate([_zip_rings(*rings[k - 1], *rings[k]) for k in range(1, n_rings + 1)])
     return _mesh(vertices, faces, dtype)
 
 

@@ -1,4 +1,9 @@
 """Fixed-pattern sparse matrices: assembly under jit, products, export to SciPy / BCOO, lineax operators."""
 
 from ._matrix import SparseMatrix as SparseMatrix
+from ._matrix import diagonal_matrix as diagonal_matrix
+from ._matrix import from_scipy as from_scipy
 from ._pattern import SparsityPattern as SparsityPattern
+from ._pattern import gather_index as gather_index
+from ._products import congruence as congruence
+from ._products import find_slots as find_slots

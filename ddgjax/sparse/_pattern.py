@@ -1,10 +1,25 @@
 """Fixed sparsity patterns: built once in NumPy, then reused under jit for any values.
 
-A `SparsityPattern` is the set of structurally nonzero positions of a matrix, stored in CSR order
-(sorted by row, then column, no duplicates). Operators whose values change with the geometry (the
-cotan Laplacian, mass matrices, Hodge stars) keep their pattern and re-assemble only the values, with
-gathers and one precomputed permutation: no sorting or deduplication happens inside jit
-(DESIGN.md, Architecture).
+A `SparsityPattern` is the set of structurally nonzero positions of a matrix plus the *storage
+order* of its values. Operators whose values change with the geometry (the cotan Laplacian, mass
+matrices, Hodge stars) keep their pattern and re-assemble only the values with one gather: no
+sorting or deduplication happens inside jit (DESIGN.md, Architecture).
+
+Two storage layouts:
+
+- `"csr"`: values in CSR order (sorted by row, then column). Any code may build one directly from
+  JAX arrays, also inside jit. Products use a sorted `segment_sum`.
+- `"ell"`: built on the host by `from_coo` / `from_edges` / `diagonal`. Slots `k * n_rows + i`
+  (`k < width`) hold the `k`-th entry of row `i` (column-major padded ELLPACK; for a square pattern
+  with a full diagonal, `k = 0` is the diagonal); rows longer than `width` put their remaining
+  entries in a COO tail after the ELL block, sorted by row. A padding slot sits at a position that
+  row already holds (its diagonal or first entry; `(i, 0)` for an empty row) and always has value 0,
+  so exports merge it away. `width` minimises `n_rows * width + 3 * tail` (the tail costs about three
+  ELL slots). `A @ x` is then `width` contiguous multiply-adds with gathers of `x`, at the speed of
+  SciPy's CSR product on CPU (a flat gather-and-`segment_sum` is 3x slower; DESIGN.md, measured facts).
+
+Host-built patterns also carry their transpose: a symmetric pattern the permutation of its own slots
+(`(i, j) -> (j, i)`), any other its transposed pattern and the slot each transposed entry reads.
 """
 
 from __future__ import annotations
@@ -14,24 +29,44 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
+from .._errors import DDGInputError
+
+# Cost of one COO-tail entry relative to one ELL slot (scatter vs contiguous multiply-add).
+_TAIL_COST = 3
+
 
 class SparsityPattern(eqx.Module):
-    """Positions of the structural nonzeros of an `(n_rows, n_cols)` matrix, in CSR order.
+    """Positions of the stored entries of an `(n_rows, n_cols)` matrix, and their storage order.
 
     Attributes:
-        rows: `(nnz,)` row index of each stored entry (non-decreasing).
-        cols: `(nnz,)` column index of each stored entry (increasing within a row).
-        indptr: `(n_rows + 1,)` CSR row pointer: row `i` is `rows[indptr[i]:indptr[i + 1]]`.
+        rows: `(nnz,)` row of each storage slot (`nnz` counts ELL padding slots too).
+        cols: `(nnz,)` column of each storage slot.
+        indptr: `(n_rows + 1,)` CSR row pointer of the distinct entries (the storage for `"csr"`).
         shape: `(n_rows, n_cols)`, static.
+        layout: `"csr"` or `"ell"` (module docstring), static.
+        width: ELL width (0 for `"csr"`), static.
+        diagonal_first: ELL slot block 0 is the diagonal, static.
+        symmetric: the pattern equals its transpose, static.
+        transpose_slot: for each storage slot of the transpose, the slot of this pattern it reads
+            (`nnz` for a padding slot: read as 0); `None` where unknown (patterns built under jit) or
+            the identity (a diagonal pattern).
+        transpose_pattern: the transposed pattern of a non-symmetric host-built pattern, else `None`.
     """
 
     rows: Int[Array, " nnz"]
     cols: Int[Array, " nnz"]
     indptr: Int[Array, " n_rows_plus_1"]
     shape: tuple[int, int] = eqx.field(static=True)
+    layout: str = eqx.field(static=True, default="csr")
+    width: int = eqx.field(static=True, default=0)
+    diagonal_first: bool = eqx.field(static=True, default=False)
+    symmetric: bool = eqx.field(static=True, default=False)
+    transpose_slot: Int[Array, " nnz_t"] | None = None
+    transpose_pattern: "SparsityPattern | None" = None
 
     @property
     def nnz(self) -> int:
+        """Number of storage slots (the length of a matrix's `values`)."""
         return int(self.rows.shape[0])
 
     @classmethod
@@ -45,20 +80,183 @@ class SparsityPattern(eqx.Module):
             shape: `(n_rows, n_cols)`.
 
         Returns:
-            `(pattern, slot)`: `slot[k]` is the index in `pattern` that entry `k` is summed into.
+            `(pattern, slot)`: `slot[k]` is the storage slot that entry `k` is summed into; values for
+            the pattern are `jax.ops.segment_sum(entries, slot, pattern.nnz)`, or, when no position
+            repeats, the gather `jnp.take(entries, gather_index(pattern, slot), mode="fill", fill_value=0)`.
         """
-        rows = np.asarray(rows, dtype=np.int64)
-        cols = np.asarray(cols, dtype=np.int64)
+        rows = np.asarray(rows, dtype=np.int64).reshape(-1)
+        cols = np.asarray(cols, dtype=np.int64).reshape(-1)
         n_rows, n_cols = int(shape[0]), int(shape[1])
-        keys = rows * n_cols + cols
-        unique_keys, slot = np.unique(keys, return_inverse=True)
-        unique_rows = (unique_keys // n_cols).astype(np.int32)
-        unique_cols = (unique_keys % n_cols).astype(np.int32)
-        indptr = np.searchsorted(unique_rows, np.arange(n_rows + 1)).astype(np.int32)
-        pattern = cls(
-            rows=jnp.asarray(unique_rows),
-            cols=jnp.asarray(unique_cols),
-            indptr=jnp.asarray(indptr),
-            shape=(n_rows, n_cols),
+        if rows.shape != cols.shape:
+            raise DDGInputError(f"rows, cols: expected equal lengths, got {rows.shape[0]} and {cols.shape[0]}")
+        outside = (rows < 0) | (rows >= n_rows) | (cols < 0) | (cols >= n_cols)
+        if outside.any():
+            raise DDGInputError(
+                f"rows, cols: positions must lie inside shape {shape}; entry {int(np.flatnonzero(outside)[0])} does not"
+            )
+        unique_keys, inverse = np.unique(rows * n_cols + cols, return_inverse=True)
+        csr_rows, csr_cols = unique_keys // n_cols, unique_keys % n_cols
+        transposed_keys = csr_cols * n_rows + csr_rows
+        symmetric = n_rows == n_cols and _is_permutation_of(transposed_keys, unique_keys)
+        csr_transpose = np.searchsorted(unique_keys, transposed_keys) if symmetric else None
+        pattern, storage_of_csr = _ell_pattern(csr_rows, csr_cols, (n_rows, n_cols), csr_transpose)
+        return pattern, storage_of_csr[inverse.reshape(-1)].astype(np.int32)
+
+    @classmethod
+    def from_edges(cls, edges: np.ndarray, n: int) -> tuple["SparsityPattern", np.ndarray]:
+        """Vertex-vertex pattern (diagonal plus both directions of every edge), without any sort of `nnz` keys.
+
+        Args:
+            edges: `(ne, 2)` distinct edges with `edges[:, 0] < edges[:, 1]`, sorted lexicographically
+                (as `Mesh.edges`).
+            n: number of vertices.
+
+        Returns:
+            `(pattern, source)`: `source[s]` is the index of storage slot `s` in the list
+            `[diagonal (n) | edges low->high (ne) | edges high->low (ne)]`, or `n + 2 ne` for padding,
+            so values assemble with `jnp.take(entries, source, mode="fill", fill_value=0)`.
+        """
+        low = np.asarray(edges[:, 0], dtype=np.int64)
+        high = np.asarray(edges[:, 1], dtype=np.int64)
+        ne = low.shape[0]
+        n_below = np.bincount(high, minlength=n)  # entries left of the diagonal in each row
+        n_above = np.bincount(low, minlength=n)
+        indptr = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(n_below + n_above + 1, out=indptr[1:])
+        # Row i is [lows of edges (., i), ascending | i | highs of edges (i, .), ascending]. Edges are
+        # sorted by (low, high), so a stable sort by `high` keeps the lows ascending.
+        by_high = np.argsort(high, kind="stable")
+        first_below = indptr[:-1]
+        rank_below = np.empty(ne, dtype=np.int64)
+        rank_below[by_high] = np.arange(ne) - np.repeat(np.cumsum(n_below) - n_below, n_below)
+        pos_high_low = first_below[high] + rank_below
+        diagonal_pos = first_below + n_below
+        rank_above = np.arange(ne) - np.repeat(np.cumsum(n_above) - n_above, n_above)
+        pos_low_high = diagonal_pos[low] + 1 + rank_above
+        csr_source = np.empty(n + 2 * ne, dtype=np.int64)
+        csr_source[diagonal_pos] = np.arange(n)
+        csr_source[pos_low_high] = n + np.arange(ne)
+        csr_source[pos_high_low] = n + ne + np.arange(ne)
+        nnz = n + 2 * ne
+        csr_rows = np.repeat(np.arange(n), np.diff(indptr))
+        entry_cols = np.concatenate([np.arange(n), high, low])
+        csr_cols = entry_cols[csr_source]
+        # Transpose of an entry: the diagonal maps to itself, an edge to its other direction.
+        partner = np.concatenate([np.arange(n), n + ne + np.arange(ne), n + np.arange(ne)])
+        csr_of_source = np.empty(nnz, dtype=np.int64)
+        csr_of_source[csr_source] = np.arange(nnz)
+        csr_transpose = csr_of_source[partner[csr_source]]
+        pattern, storage_of_csr = _ell_pattern(csr_rows, csr_cols, (n, n), csr_transpose)
+        source = np.full(pattern.nnz, nnz, dtype=np.int32)
+        source[storage_of_csr] = csr_source
+        return pattern, source
+
+    @classmethod
+    def diagonal(cls, n: int) -> "SparsityPattern":
+        """The `(n, n)` diagonal pattern (values are the diagonal; `A @ x` is `values * x`)."""
+        index = jnp.arange(n, dtype=jnp.int32)
+        return cls(
+            rows=index,
+            cols=index,
+            indptr=jnp.arange(n + 1, dtype=jnp.int32),
+            shape=(n, n),
+            layout="ell",
+            width=1,
+            diagonal_first=True,
+            symmetric=True,
         )
-        return pattern, slot.reshape(-1).astype(np.int32)
+
+
+def gather_index(pattern: SparsityPattern, slot: np.ndarray) -> np.ndarray:
+    """Inverse of an injective `slot` map from `from_coo`: entry index per storage slot (`len(slot)` for padding)."""
+    index = np.full(pattern.nnz, slot.shape[0], dtype=np.int32)
+    index[slot] = np.arange(slot.shape[0], dtype=np.int32)
+    return index
+
+
+def _is_permutation_of(keys: np.ndarray, sorted_keys: np.ndarray) -> bool:
+    position = np.searchsorted(sorted_keys, keys)
+    position = np.minimum(position, sorted_keys.shape[0] - 1)
+    return bool(np.all(sorted_keys[position] == keys))
+
+
+def _ell_width(counts: np.ndarray) -> int:
+    """Width minimising `n_rows * width + _TAIL_COST * (entries beyond width)`."""
+    if counts.size == 0 or counts.max() == 0:
+        return 1
+    histogram = np.bincount(counts)
+    longer = counts.size - np.cumsum(histogram)  # rows with more than w entries, for w = 0..max
+    tail = np.cumsum(longer[::-1])[::-1] - longer  # entries beyond width w
+    widths = np.arange(histogram.size)
+    cost = counts.size * widths + _TAIL_COST * (tail + longer)
+    return max(1, int(np.argmin(cost[1:]) + 1))
+
+
+def _ell_pattern(
+    csr_rows: np.ndarray,
+    csr_cols: np.ndarray,
+    shape: tuple[int, int],
+    csr_transpose: np.ndarray | None,
+    with_transpose: bool = True,
+) -> tuple[SparsityPattern, np.ndarray]:
+    """ELL(+COO tail) pattern of distinct CSR-ordered entries, and the storage slot of each entry.
+
+    `csr_transpose[k]` is the CSR index of the mirror entry of a symmetric pattern; for a
+    non-symmetric pattern (`None`) the transposed pattern is built too, unless `with_transpose` is
+    False (the transposed pattern itself: one level, not an endless chain).
+    """
+    n_rows, n_cols = shape
+    nnz = csr_rows.shape[0]
+    counts = np.bincount(csr_rows, minlength=n_rows)
+    indptr = np.zeros(n_rows + 1, dtype=np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    position = np.arange(nnz) - indptr[csr_rows]
+    is_diagonal = csr_rows == csr_cols
+    diagonal_first = n_rows == n_cols and int(is_diagonal.sum()) == n_rows
+    if diagonal_first:
+        diagonal_position = position[is_diagonal][csr_rows]
+        position = np.where(is_diagonal, 0, np.where(position < diagonal_position, position + 1, position))
+    width = _ell_width(counts)
+    in_ell = position < width
+    n_tail = nnz - int(in_ell.sum())
+    storage_of_csr = np.where(in_ell, position * n_rows + csr_rows, 0)
+    storage_of_csr[~in_ell] = n_rows * width + np.arange(n_tail)
+    n_storage = n_rows * width + n_tail
+    storage_rows = np.empty(n_storage, dtype=np.int32)
+    storage_cols = np.empty(n_storage, dtype=np.int32)
+    # Padding: the row's diagonal / first entry (an existing position), or column 0 for an empty row.
+    ell_rows = np.tile(np.arange(n_rows, dtype=np.int32), width)
+    first_cols = csr_cols[np.minimum(indptr[:-1], nnz - 1)] if nnz else np.zeros(n_rows, dtype=np.int64)
+    pad_cols = np.where(counts > 0, first_cols, 0)
+    storage_rows[: n_rows * width] = ell_rows
+    storage_cols[: n_rows * width] = np.tile(pad_cols.astype(np.int32), width)
+    storage_rows[storage_of_csr] = csr_rows
+    storage_cols[storage_of_csr] = csr_cols
+    csr_of_storage = np.full(n_storage, nnz, dtype=np.int64)
+    csr_of_storage[storage_of_csr] = np.arange(nnz)
+    transposed = transpose_slot = None
+    if csr_transpose is not None:
+        # Padding reads itself (value 0).
+        transpose_slot = np.arange(n_storage)
+        real = csr_of_storage < nnz
+        transpose_slot[real] = storage_of_csr[csr_transpose[csr_of_storage[real]]]
+    elif with_transpose:
+        by_col = np.lexsort((csr_rows, csr_cols))
+        transposed, t_storage_of_t_csr = _ell_pattern(
+            csr_cols[by_col], csr_rows[by_col], (n_cols, n_rows), None, with_transpose=False
+        )
+        transpose_slot = np.full(transposed.nnz, n_storage, dtype=np.int64)
+        transpose_slot[t_storage_of_t_csr] = storage_of_csr[by_col]
+    pattern = SparsityPattern(
+        rows=jnp.asarray(storage_rows),
+        cols=jnp.asarray(storage_cols),
+        indptr=jnp.asarray(indptr.astype(np.int32)),
+        shape=(n_rows, n_cols),
+        layout="ell",
+        width=width,
+        diagonal_first=diagonal_first,
+        symmetric=csr_transpose is not None,
+        transpose_slot=None if transpose_slot is None else jnp.asarray(transpose_slot.astype(np.int32)),
+        transpose_pattern=transposed,
+    )
+    return pattern, storage_of_csr.astype(np.int64)

@@ -1,0 +1,163 @@
+"""Cotan Laplacian: ddgjax against libigl, gpytoolbox, robust_laplacian and triangulax, in one process.
+
+For each mesh (icospheres of growing size, `../shared/meshes/armadillo_loop1.ply`) it times
+
+- **build**: the Laplacian from a new `(V, F)`: ddgjax's NumPy topology + `Mesh.from_arrays` and the
+  jitted assembly (compile reported separately; a new topology object is a new jit cache entry);
+- **re-assembly** for moved vertices with the topology kept (jitted), against libigl's full build;
+- **`L @ x`** against SciPy's CSR product on the same matrix;
+- **gradient** of the Dirichlet energy `u^T L u / 2` w.r.t. the vertices, against the energy itself.
+
+Times are min / median over repeats, in ms. Run: `python benchmarks/laplacian.py [--max-faces N]`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import platform
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import gpytoolbox  # noqa: E402
+import igl  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import robust_laplacian  # noqa: E402
+
+from ddgjax.laplacian import cotan_laplacian, dirichlet_energy  # noqa: E402
+from ddgjax.mesh import Mesh, icosphere  # noqa: E402
+
+try:
+    import triangulax.linops as tx_linops
+    import triangulax.mesh as tx_mesh
+except ImportError:  # optional peer
+    tx_linops = tx_mesh = None
+
+SHARED = pathlib.Path(__file__).resolve().parents[2] / "shared" / "meshes"
+
+
+def timed(fn, *args, repeats=5):
+    """(min, median) wall time in ms of `fn(*args)` (results blocked on), and the last result."""
+    times, result = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = jax.block_until_ready(fn(*args))
+        times.append(1e3 * (time.perf_counter() - start))
+    return (min(times), float(np.median(times))), result
+
+
+def first_call(fn, *args):
+    """Wall time in ms of the first (compiling) call."""
+    start = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    return 1e3 * (time.perf_counter() - start)
+
+
+def fmt(t):
+    return f"{t[0]:.1f} / {t[1]:.1f}"
+
+
+def bench_mesh(name, V, F, repeats, run_robust):
+    nv, nf = V.shape[0], F.shape[0]
+    rows = {}
+    # --- build from a new mesh -------------------------------------------------------------
+    rows["igl.cotmatrix"] = timed(igl.cotmatrix, V, F, repeats=repeats)[0]
+    rows["gpytoolbox.cotangent_laplacian"] = timed(gpytoolbox.cotangent_laplacian, V, F, repeats=repeats)[0]
+    if run_robust:
+        rows["robust_laplacian.mesh_laplacian"] = timed(robust_laplacian.mesh_laplacian, V, F, repeats=1)[0]
+    rows["ddgjax topology (Mesh.from_arrays)"], mesh = timed(Mesh.from_arrays, V, F, repeats=repeats)
+    assemble = jax.jit(lambda m: cotan_laplacian(m).values)
+    compile_ms = first_call(assemble, mesh)
+    rows["ddgjax assembly (jitted run)"] = timed(assemble, mesh, repeats=repeats)[0]
+    build = tuple(a + b for a, b in zip(rows["ddgjax topology (Mesh.from_arrays)"], rows["ddgjax assembly (jitted run)"]))
+    rows["ddgjax build = topology + assembly"] = build
+    if tx_mesh is not None:
+        try:
+            def tx_build(V, F):
+                hemesh = tx_mesh.HeMesh.from_triangles(nv, jnp.asarray(F))
+                return tx_linops.cotan_laplace_sparse(jnp.asarray(V), hemesh).data
+
+            rows["triangulax HeMesh + cotan_laplace_sparse (eager)"] = timed(tx_build, V, F, repeats=max(1, repeats // 2))[0]
+        except Exception as error:  # report, do not abort the whole table
+            rows["triangulax build"] = f"failed: {type(error).__name__}"
+    # --- re-assembly for moved vertices --------------------------------------------------------
+    # The mesh is a jit argument (its integer arrays are leaves), never a baked-in constant.
+    reassemble = jax.jit(lambda m, W: cotan_laplacian(m.with_vertices(W)).values)
+    moved = jnp.asarray(V * 1.01)
+    reassemble_compile = first_call(reassemble, mesh, moved)
+    rows["ddgjax re-assembly (moved vertices, jitted)"] = timed(reassemble, mesh, moved, repeats=repeats)[0]
+    # --- L @ x -------------------------------------------------------------------------------
+    L = cotan_laplacian(mesh)
+    csr = L.to_scipy()
+    x = np.random.default_rng(0).standard_normal(nv)
+    rows["scipy CSR L @ x"] = timed(csr.dot, x, repeats=4 * repeats)[0]
+    matvec = jax.jit(lambda A, x: A @ x)
+    xj = jnp.asarray(x)
+    matvec_compile = first_call(matvec, L, xj)
+    rows["ddgjax L @ x (jitted)"] = timed(matvec, L, xj, repeats=4 * repeats)[0]
+    X3 = np.random.default_rng(1).standard_normal((nv, 3))
+    rows["scipy CSR L @ X (k=3)"] = timed(csr.dot, X3, repeats=2 * repeats)[0]
+    rows["ddgjax L @ X (k=3)"] = timed(matvec, L, jnp.asarray(X3), repeats=2 * repeats)[0]
+    # --- Dirichlet energy and its gradient w.r.t. the vertices ----------------------------------
+    u = jnp.asarray(np.random.default_rng(2).standard_normal(nv))
+    energy = jax.jit(lambda m, W: dirichlet_energy(m.with_vertices(W), u))
+    gradient = jax.jit(jax.grad(lambda m, W: dirichlet_energy(m.with_vertices(W), u), argnums=1))
+    first_call(energy, mesh, moved)
+    gradient_compile = first_call(gradient, mesh, moved)
+    rows["ddgjax energy u^T L u / 2 (jitted)"] = timed(energy, mesh, moved, repeats=repeats)[0]
+    rows["ddgjax grad_V energy (jitted)"] = timed(gradient, mesh, moved, repeats=repeats)[0]
+    if tx_linops is not None:
+        hemesh = tx_mesh.HeMesh.from_triangles(nv, jnp.asarray(F))
+        tx_apply = jax.jit(lambda h, W, u: tx_linops.compute_cotan_laplace(W, h, u))
+        first_call(tx_apply, hemesh, moved, u)
+        rows["triangulax matrix-free L u (jitted, incl. geometry)"] = timed(tx_apply, hemesh, moved, u, repeats=repeats)[0]
+        tx_grad = jax.jit(jax.grad(lambda h, W: -0.5 * u @ tx_linops.compute_cotan_laplace(W, h, u), argnums=1))
+        first_call(tx_grad, hemesh, moved)
+        rows["triangulax grad_V energy (jitted)"] = timed(tx_grad, hemesh, moved, repeats=repeats)[0]
+    compiles = {"assembly": compile_ms, "re-assembly": reassemble_compile, "L @ x": matvec_compile, "grad": gradient_compile}
+    return nv, nf, rows, compiles
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--max-faces", type=int, default=1_310_720, help="skip meshes with more faces")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--robust-max-faces", type=int, default=400_000, help="robust_laplacian is slow; skip beyond")
+    args = parser.parse_args(argv)
+    print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+          f"python {platform.python_version()}, jax {jax.__version__} ({jax.default_backend()}), float64")
+    meshes = []
+    for s in range(4, 9):
+        if 20 * 4**s <= args.max_faces:
+            ico = icosphere(s)
+            meshes.append((f"icosphere({s})", np.asarray(ico.vertices), np.asarray(ico.faces)))
+    armadillo = SHARED / "armadillo_loop1.ply"
+    if armadillo.exists():
+        V, F = igl.read_triangle_mesh(str(armadillo))
+        if F.shape[0] <= args.max_faces:
+            meshes.append(("armadillo_loop1", V, F))
+    for name, V, F in meshes:
+        nv, nf, rows, compiles = bench_mesh(name, V, F, args.repeats, F.shape[0] <= args.robust_max_faces)
+        print(f"\n## {name}: {nv} vertices, {nf} faces  (min / median ms)")
+        for key, value in rows.items():
+            print(f"  {key:55s} {value if isinstance(value, str) else fmt(value)}")
+        print("  compile (first call, ms): " + ", ".join(f"{k} {v:.0f}" for k, v in compiles.items()))
+        igl_ms = rows["igl.cotmatrix"][0]
+        ratios = {
+            "build / igl": rows["ddgjax build = topology + assembly"][0] / igl_ms,
+            "igl / re-assembly": igl_ms / rows["ddgjax re-assembly (moved vertices, jitted)"][0],
+            "L@x / scipy": rows["ddgjax L @ x (jitted)"][0] / rows["scipy CSR L @ x"][0],
+            "L@X(k=3) / scipy": rows["ddgjax L @ X (k=3)"][0] / rows["scipy CSR L @ X (k=3)"][0],
+            "grad / energy": rows["ddgjax grad_V energy (jitted)"][0] / rows["ddgjax energy u^T L u / 2 (jitted)"][0],
+        }
+        print("  ratios (min times): " + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

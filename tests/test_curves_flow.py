@@ -1,0 +1,233 @@
+"""Curve-shortening flows: the reading report's claims (Figure 3) as measurements, plus solver properties."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ddgjax._errors import DDGInputError
+from ddgjax.curves import (
+    Curve,
+    curvature_vectors,
+    curve_shortening_flow,
+    enclosed_area,
+    length,
+    random_polygon,
+    star,
+)
+from ddgjax.curves._flow import _explicit_step, _flow_weights, _semi_implicit_step
+
+
+@pytest.fixture(scope="module")
+def polygon():
+    """Non-convex, unevenly spaced random polygon (40 vertices, shortest edge ~0.06)."""
+    return random_polygon(40, seed=1)
+
+
+@pytest.fixture(scope="module")
+def runs(polygon):
+    """The report's three flows to their limit shapes, rescaled to the initial area so they do not collapse.
+
+    Rescaling is about the vertex centroid, so it changes neither the centroid nor the total curvature
+    nor the cyclic residual: every conservation law below is the flow's own.
+    """
+    settings = {"A": (2e-3, 4000), "B": (2e-3, 4000), "D": (2e-4, 20000)}  # explicit stability: tau < l/2, l^2/4
+    return {
+        kind: curve_shortening_flow(polygon, kind=kind, tau=tau, steps=steps, save_every=steps // 10, rescale="area")
+        for kind, (tau, steps) in settings.items()
+    }
+
+
+def test_saved_states_and_times(runs, polygon):
+    result = runs["A"]
+    assert result.points.shape == (11, 40, 2)
+    np.testing.assert_array_equal(result.steps, 400 * np.arange(11))
+    np.testing.assert_allclose(result.times, 2e-3 * 400 * np.arange(11), rtol=1e-15)
+    np.testing.assert_array_equal(result.points[0], polygon.points)
+    for run in runs.values():
+        assert not bool(run.self_intersected) and int(run.first_nonfinite_step) == -1
+        assert np.all(np.asarray(run.is_simple)) and float(run.first_nonsimple_time) == np.inf
+        # rescale="area" holds |A| at its initial value; the length falls (curve shortening)
+        np.testing.assert_allclose(run.area, run.area[0], rtol=1e-12)
+        assert float(run.length[-1]) < 0.9 * float(run.length[0])
+
+
+def test_a_flow_keeps_total_curvature(runs):
+    np.testing.assert_allclose(runs["A"].total_curvature, 2 * np.pi, rtol=1e-14)
+
+
+def test_b_flow_keeps_the_vertex_centroid(runs):
+    drift = np.abs(np.asarray(runs["B"].centroid) - np.asarray(runs["B"].centroid[0])).max()
+    assert drift < 1e-13  # round-off over 4,000 steps
+
+
+def test_d_flow_tends_to_a_cyclic_polygon(runs):
+    residual = np.asarray(runs["D"].cyclic_residual)
+    assert residual[-1] < 1e-3 * residual[0]  # measured: 0.20 -> 1.3e-5
+    assert np.all(np.diff(residual) < 0)  # monotone along the saved states
+
+
+def test_no_flow_keeps_all_three(runs):
+    def drift(run):
+        return np.abs(np.asarray(run.centroid[-1]) - np.asarray(run.centroid[0])).max()
+
+    # A: keeps the turning number but moves the centroid (unequal spacing) and does not become cyclic
+    # (drifts are ~1e-3 and ~1e-2, ten orders above the B-flow's round-off)
+    assert drift(runs["A"]) > 1e-3 and float(runs["A"].cyclic_residual[-1]) > 0.05
+    # B: keeps the centroid but its limit is not cyclic
+    assert float(runs["B"].cyclic_residual[-1]) > 100 * float(runs["D"].cyclic_residual[-1])
+    # D: becomes cyclic but moves the centroid
+    assert drift(runs["D"]) > 1e-3
+
+
+@jax.jit
+def _one_step_each(points):
+    """Explicit and semi-implicit steps of every kind, from one compiled program."""
+    return {
+        (kind, method): step(points, 1e-3, True, kind)
+        for kind in "ABCD"
+        for method, step in (("explicit", _explicit_step), ("semi-implicit", _semi_implicit_step))
+    }
+
+
+def test_one_step_is_the_reports_iteration(polygon):
+    # the public path for one kind, the step function for all four
+    np.testing.assert_allclose(
+        curve_shortening_flow(polygon, kind="A", tau=1e-3, steps=1).points[-1],
+        polygon.points + 1e-3 * curvature_vectors(polygon, "A"),
+        rtol=1e-14,
+        atol=1e-15,
+    )
+    steps = _one_step_each(polygon.points)
+    for kind in "ABCD":
+        expected = polygon.points + 1e-3 * curvature_vectors(polygon, kind)
+        np.testing.assert_allclose(steps[kind, "explicit"], expected, rtol=1e-14, atol=1e-15)
+
+
+def test_self_intersection_is_reported():
+    curve = star(5, inner_radius=0.3, subdivisions=2)  # sharp tips; tau far above the explicit limit
+    saved = curve_shortening_flow(curve, kind="A", tau=0.4, steps=20, save_every=5)
+    every = curve_shortening_flow(curve, kind="A", tau=0.4, steps=20, save_every=5, check_simple="every_step")
+    assert bool(saved.self_intersected) and bool(every.self_intersected)
+    first_saved = int(np.argmin(np.asarray(saved.is_simple)))
+    assert int(saved.first_nonsimple_step) == int(saved.steps[first_saved])
+    # the exact step lies after the last simple saved state and no later than the first non-simple one
+    assert int(saved.steps[first_saved - 1]) < int(every.first_nonsimple_step) <= int(saved.first_nonsimple_step)
+    assert float(every.first_nonsimple_time) == pytest.approx(0.4 * int(every.first_nonsimple_step))
+
+
+def test_semi_implicit_solves_the_linearly_implicit_system(polygon):
+    steps = _one_step_each(polygon.points)
+    for kind in "ABCD":
+        tau = 1e-3
+        new = steps[kind, "semi-implicit"]
+        alpha, beta = _flow_weights(jnp.roll(polygon.points, -1, 0) - polygon.points, True, kind)
+        n = polygon.n_points
+        operator = np.diag(-(alpha + beta)) + np.diag(beta[:-1], 1) + np.diag(alpha[1:], -1)
+        operator[0, -1], operator[-1, 0] = alpha[0], beta[-1]
+        residual = (np.eye(n) - tau * operator) @ np.asarray(new) - np.asarray(polygon.points)
+        assert np.abs(residual).max() < 1e-13, kind
+
+
+def test_semi_implicit_is_stable_far_beyond_the_explicit_limit(polygon):
+    tau = 0.5  # ~16x the shortest edge: explicit B is unstable
+    explicit = curve_shortening_flow(polygon, kind="B", tau=tau, steps=20, save_every=2)
+    implicit = curve_shortening_flow(polygon, kind="B", tau=tau, steps=20, save_every=2, method="semi-implicit")
+    assert bool(explicit.self_intersected)
+    assert not bool(implicit.self_intersected) and int(implicit.first_nonfinite_step) == -1
+    assert np.all(np.diff(np.asarray(implicit.length)) < 0)
+    np.testing.assert_allclose(implicit.total_curvature, 2 * np.pi, rtol=1e-14)
+
+
+def test_semi_implicit_agrees_with_explicit_to_first_order(polygon):
+    errors = []
+    for tau in (4e-4, 2e-4):
+        explicit = curve_shortening_flow(polygon, kind="D", tau=tau, steps=1).points[-1]
+        implicit = curve_shortening_flow(polygon, kind="D", tau=tau, steps=1, method="semi-implicit").points[-1]
+        errors.append(float(jnp.abs(explicit - implicit).max()))
+    assert errors[0] / errors[1] == pytest.approx(4.0, rel=0.05)  # one step differs by O(tau^2)
+
+
+def test_rescale_length_keeps_the_length(polygon):
+    result = curve_shortening_flow(polygon, kind="B", tau=2e-3, steps=200, save_every=50, rescale="length")
+    np.testing.assert_allclose(result.length, length(polygon), rtol=1e-13)
+    assert float(result.isoperimetric_ratio[-1]) > float(result.isoperimetric_ratio[0])
+
+
+def test_open_curve_keeps_its_endpoints(polygon):
+    curve = Curve(polygon.points[:15], closed=False)
+    result = curve_shortening_flow(curve, kind="B", tau=2e-3, steps=300, save_every=100)
+    ends = np.asarray(result.points)[:, [0, -1]]
+    np.testing.assert_array_equal(ends, np.broadcast_to(np.asarray(curve.points)[[0, -1]], (4, 2, 2)))
+    assert np.all(np.diff(np.asarray(result.length)) < 0)
+
+
+@pytest.fixture(scope="module")
+def small():
+    return random_polygon(10, seed=4)
+
+
+def _loss(points, tau, method):
+    final = curve_shortening_flow(Curve(points), kind="A", tau=tau, steps=40, method=method).points[-1]
+    return jnp.sum(final[:, 0] ** 2 + 0.3 * final[:, 1]) + enclosed_area(Curve(final))
+
+
+@pytest.mark.parametrize("method", ["explicit", "semi-implicit"])
+def test_gradient_through_the_whole_flow_matches_finite_differences(small, method):
+    loss = jax.jit(lambda P, tau: _loss(P, tau, method))
+    gradient = jax.jit(jax.grad(lambda P, tau: _loss(P, tau, method), argnums=(0, 1)))
+    P, tau = small.points, jnp.asarray(0.01)
+    g_points, g_tau = gradient(P, tau)
+    v = jnp.asarray(np.random.default_rng(0).normal(size=P.shape))
+    eps = 1e-6
+    numeric = (loss(P + eps * v, tau) - loss(P - eps * v, tau)) / (2 * eps)
+    # central differences: error ~eps^2 + ulp/eps ~1e-10 relative
+    np.testing.assert_allclose(jnp.sum(g_points * v), numeric, rtol=1e-7)
+    numeric_tau = (loss(P, tau + eps * 1e-2) - loss(P, tau - eps * 1e-2)) / (2 * eps * 1e-2)
+    np.testing.assert_allclose(g_tau, numeric_tau, rtol=1e-6)  # step 1e-8 on tau: round-off ~1e-8 relative
+
+
+def test_vmap_and_jit_match_single_runs(small):
+    batch = jnp.stack([small.points, 1.5 * small.points, small.points[::-1]])
+    run = lambda P: curve_shortening_flow(Curve(P), kind="D", tau=1e-3, steps=30, save_every=10).cyclic_residual  # noqa: E731
+    batched = jax.vmap(run)(batch)
+    jitted = jax.jit(run)
+    for row, points in zip(batched, batch):
+        np.testing.assert_allclose(row, run(points), rtol=1e-13, atol=1e-16)
+        np.testing.assert_allclose(jitted(points), run(points), rtol=1e-13, atol=1e-16)
+
+
+def test_progress_bar_path_matches_the_pure_path(small, capsys):
+    pure = curve_shortening_flow(small, kind="B", tau=1e-3, steps=30, save_every=10)
+    shown = curve_shortening_flow(small, kind="B", tau=1e-3, steps=30, save_every=10, progress=True)
+    np.testing.assert_array_equal(shown.points, pure.points)
+    np.testing.assert_array_equal(shown.is_simple, pure.is_simple)
+    assert "curve-shortening flow B" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"kind": "E"}, "kind: expected one of"),
+        ({"method": "implicit"}, "method: expected one of"),
+        ({"rescale": "volume"}, "rescale: expected one of"),
+        ({"check_simple": "never"}, "check_simple: expected one of"),
+        ({"steps": 0}, "steps: expected an integer >= 1, got 0"),
+        ({"steps": 10, "save_every": 3}, "save_every: expected a divisor of steps = 10, got 3"),
+        ({"tau": -1.0}, "tau: expected a finite time step > 0"),
+        ({"tau": float("nan")}, "tau: expected a finite time step > 0"),
+    ],
+)
+def test_bad_arguments(small, kwargs, match):
+    arguments = {"kind": "A", "tau": 1e-3, "steps": 10} | kwargs
+    with pytest.raises(DDGInputError, match=match):
+        curve_shortening_flow(small, **arguments)
+
+
+def test_bad_combinations(small):
+    with pytest.raises(DDGInputError, match="rescale: expected None for an open curve"):
+        curve_shortening_flow(Curve(small.points, closed=False), kind="A", tau=1e-3, steps=2, rescale="length")
+    with pytest.raises(DDGInputError, match="progress: expected concrete points"):
+        jax.jit(lambda P: curve_shortening_flow(Curve(P), kind="A", tau=1e-3, steps=2, progress=True).points)(small.points)

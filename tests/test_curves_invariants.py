@@ -1,0 +1,163 @@
+"""Centroids, enclosed area, isoperimetric ratio, cyclic residual and simplicity (ddgjax.curves._invariants)."""
+
+from __future__ import annotations
+
+import curvey
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ddgjax.curves import (
+    Curve,
+    area_centroid,
+    centroid,
+    cyclic_residual,
+    enclosed_area,
+    is_simple,
+    isoperimetric_ratio,
+    random_polygon,
+    regular_polygon,
+)
+
+
+@jax.jit
+def invariants(curve):
+    """All invariants from one compiled program per shape."""
+    return {
+        "centroid": centroid(curve),
+        "area_centroid": area_centroid(curve),
+        "area": enclosed_area(curve),
+        "ratio": isoperimetric_ratio(curve),
+        "residual": cyclic_residual(curve),
+        "simple": is_simple(curve),
+    }
+
+
+@pytest.fixture(scope="module")
+def wobbly():
+    return random_polygon(24, seed=7)
+
+
+def test_regular_polygon_closed_forms():
+    n, r = 9, 1.3
+    values = invariants(regular_polygon(n, radius=r, center=(2.0, -1.0)))
+    np.testing.assert_allclose(values["area"], 0.5 * n * r**2 * np.sin(2 * np.pi / n), rtol=1e-14)
+    np.testing.assert_allclose(values["ratio"], np.pi / (n * np.tan(np.pi / n)), rtol=1e-14)
+    np.testing.assert_allclose(values["centroid"], [2.0, -1.0], rtol=1e-15)
+    np.testing.assert_allclose(values["area_centroid"], [2.0, -1.0], rtol=1e-14)
+    assert float(values["residual"]) < 1e-15 and bool(values["simple"])
+
+
+def test_against_curvey(wobbly):
+    reference = curvey.Curve(np.asarray(wobbly.points))
+    values = invariants(wobbly)
+    np.testing.assert_allclose(values["area"], reference.signed_area, rtol=1e-14)
+    np.testing.assert_allclose(values["area_centroid"], reference.centroid, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(values["centroid"], reference.center, rtol=1e-14, atol=1e-16)
+    np.testing.assert_allclose(values["ratio"], 1 / reference.roundness, rtol=1e-14)
+    assert bool(values["simple"]) == reference.is_simple is True
+
+
+def test_orientation_sign_and_motions(wobbly):
+    P = np.asarray(wobbly.points)
+    base = invariants(wobbly)
+    rotation = np.array([[np.cos(1.1), -np.sin(1.1)], [np.sin(1.1), np.cos(1.1)]])
+    moved = invariants(Curve(2.5 * P @ rotation.T + np.array([10.0, 4.0])))
+    np.testing.assert_allclose(moved["area"], 2.5**2 * base["area"], rtol=1e-13)
+    for key in ("ratio", "residual"):  # scale and rigid-motion invariant
+        np.testing.assert_allclose(moved[key], base[key], rtol=1e-12)
+    np.testing.assert_allclose(moved["area_centroid"], 2.5 * rotation @ np.asarray(base["area_centroid"]) + [10.0, 4.0], rtol=1e-13)
+    flipped = invariants(Curve(P[::-1]))
+    np.testing.assert_allclose(flipped["area"], -base["area"], rtol=1e-14)
+    np.testing.assert_allclose(flipped["ratio"], base["ratio"], rtol=1e-14)
+
+
+def test_cyclic_residual_zero_on_a_circle_positive_elsewhere(wobbly):
+    angles = np.sort(np.random.default_rng(3).uniform(0, 2 * np.pi, 24))  # uneven: cyclic, not regular
+    cyclic = Curve(np.array([5.0, -3.0]) + 0.01 * np.stack([np.cos(angles), np.sin(angles)], axis=1))
+    values = invariants(cyclic)
+    assert float(values["residual"]) < 1e-12  # relative to radius 0.01 at centre distance 5.8: ~1e-13 cancellation
+    assert float(invariants(wobbly)["residual"]) > 0.05
+    half_circle = Curve(np.stack([np.cos(angles / 2), np.sin(angles / 2)], axis=1), closed=False)
+    assert float(cyclic_residual(half_circle)) < 1e-14  # a fit to an arc finds the whole circle
+
+
+def test_open_curves_are_closed_by_their_chord(wobbly):
+    curve = Curve(wobbly.points, closed=False)
+    values = invariants(curve)
+    closed = invariants(wobbly)
+    for key in ("area", "area_centroid", "ratio"):
+        np.testing.assert_allclose(values[key], closed[key], rtol=1e-14)
+    square = Curve(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]), closed=False)
+    assert float(enclosed_area(square)) == pytest.approx(1.0, rel=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("points", "closed", "simple"),
+    [
+        ([[0, 0], [1, 0], [1, 1], [0, 1]], True, True),
+        ([[0, 0], [1, 1], [1, 0], [0, 1]], True, False),  # bow tie
+        ([[0, 0], [1, 1], [1, 0], [0, 1]], False, False),
+        ([[0, 0], [1, 0], [1, 1], [0, 1]], False, True),
+        ([[0, 0], [2, 0], [2, 1], [1, 0], [0, 1]], True, False),  # vertex touching an edge
+        ([[0, 0], [2, 0], [1, 0], [1, 1]], True, False),  # folds back along itself
+        ([[0, 0], [1, 0], [1, 1], [0, 0], [-1, 1], [-1, 0]], True, False),  # repeated vertex, non-adjacent
+        ([[0, 0], [1, 0], [2, 0], [1, 1]], True, True),  # collinear consecutive edges are fine
+        ([[0, 0], [1, 0], [0.5, 1]], True, True),
+    ],
+)
+def test_is_simple_cases(points, closed, simple):
+    assert bool(is_simple(Curve(np.asarray(points, dtype=float), closed=closed))) is simple
+
+
+def test_is_simple_agrees_with_shapely_on_random_polygons():
+    rng = np.random.default_rng(11)
+    simple_fn = jax.jit(jax.vmap(lambda P: is_simple(Curve(P))))
+    batch = rng.normal(size=(200, 7, 2))
+    batch[:100] = np.asarray(random_polygon(7, seed=1).points) + 0.15 * rng.normal(size=(100, 7, 2))
+    ours = np.asarray(simple_fn(batch))
+    reference = np.array([curvey.Curve(P).is_simple for P in batch])
+    np.testing.assert_array_equal(ours, reference)
+    assert 0 < ours.sum() < len(ours)  # both outcomes are exercised
+
+
+def test_degenerate_input_is_finite_with_finite_gradients_under_jit(wobbly):
+    P = np.asarray(wobbly.points)
+
+    def total(points):
+        values = invariants(Curve(points))
+        return sum(jnp.sum(v) for k, v in values.items() if k != "simple")
+
+    value_and_grad = jax.jit(jax.value_and_grad(total))
+    # a repeated point, all points coincident (zero area, zero length), all points collinear
+    for points in (np.insert(P, 3, P[3], axis=0), np.zeros((25, 2)), np.stack([np.arange(25.0), np.zeros(25)], axis=1)):
+        value, gradient = value_and_grad(jnp.asarray(points))
+        assert np.isfinite(float(value)) and np.isfinite(np.asarray(gradient)).all()
+
+
+def test_gradients_against_closed_forms(wobbly):
+    P = np.asarray(wobbly.points)
+    # d(area)/dp_i = (1/2) J^T (p_{i+1} - p_{i-1}) with J the 90-degree rotation
+    chord = np.roll(P, -1, 0) - np.roll(P, 1, 0)
+    np.testing.assert_allclose(jax.grad(lambda Q: enclosed_area(Curve(Q)))(wobbly.points), 0.5 * np.stack([chord[:, 1], -chord[:, 0]], 1), rtol=1e-14, atol=1e-16)
+    np.testing.assert_allclose(jax.grad(lambda Q: centroid(Curve(Q))[0])(wobbly.points), np.stack([np.full(24, 1 / 24), np.zeros(24)], 1), rtol=1e-15)
+    # the cyclic residual is differentiable: compare a directional derivative with central differences
+    f = jax.jit(lambda Q: cyclic_residual(Curve(Q)) + isoperimetric_ratio(Curve(Q)) + jnp.sum(area_centroid(Curve(Q))))
+    v = jnp.asarray(np.random.default_rng(0).normal(size=P.shape))
+    numeric = (f(wobbly.points + 1e-6 * v) - f(wobbly.points - 1e-6 * v)) / 2e-6
+    np.testing.assert_allclose(jnp.sum(jax.jit(jax.grad(f))(wobbly.points) * v), numeric, rtol=1e-7)  # central differences: ~1e-10
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), scale=st.floats(1e-3, 1e3), angle=st.floats(0, 2 * np.pi))
+def test_property_invariance(seed, scale, angle):
+    P = np.random.default_rng(seed).normal(size=(9, 2))
+    rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    base, moved = invariants(Curve(P)), invariants(Curve(scale * P @ rotation.T + 3.0))
+    np.testing.assert_allclose(moved["area"], scale**2 * base["area"], rtol=1e-11, atol=1e-12 * scale**2)
+    np.testing.assert_allclose(moved["ratio"], base["ratio"], rtol=1e-10, atol=1e-12)  # 1e3 x rotation round-off
+    np.testing.assert_allclose(moved["residual"], base["residual"], rtol=1e-9, atol=1e-12)
+    assert bool(moved["simple"]) == bool(base["simple"])

@@ -1,0 +1,269 @@
+"""Tests for ddgjax.laplacian: cotan Laplacian (FEM and DEC), mass matrices, energy, converters."""
+
+from __future__ import annotations
+
+import gpytoolbox
+import igl
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import robust_laplacian
+import scipy.sparse as sp
+from jax.test_util import check_grads
+
+from conftest import MESHES, shared_path
+from ddgjax._errors import DDGInputError
+from ddgjax.laplacian import (
+    cotan_laplacian,
+    dirichlet_energy,
+    from_pytorch3d_cot_laplacian,
+    laplacian_apply,
+    mass_matrix,
+    to_gpytoolbox_cotangent_laplacian,
+    to_igl_cotmatrix,
+    to_pytorch3d_cot_laplacian,
+)
+from ddgjax.mesh import Mesh, grid, icosphere
+
+REAL_MESHES = ["beetle.off", "nefertiti.obj", "stanford-bunny.obj", "camelhead.off"]
+MASS_TYPES = {"voronoi": igl.MASSMATRIX_TYPE_VORONOI, "barycentric": igl.MASSMATRIX_TYPE_BARYCENTRIC}
+
+
+def _load(name):
+    V, F = igl.read_triangle_mesh(str(shared_path("meshes", name)))  # keeps vertex order and unreferenced vertices
+    return V, F, Mesh.from_arrays(V, F)
+
+
+def _relative(a: sp.spmatrix, b: sp.spmatrix) -> float:
+    return abs(a - b).max() / abs(b).max()
+
+
+@pytest.fixture(scope="module", params=REAL_MESHES)
+def real(request):
+    return _load(request.param)
+
+
+def test_matches_libigl_and_gpytoolbox(real):
+    V, F, mesh = real
+    expected = -igl.cotmatrix(V, F)
+    L = cotan_laplacian(mesh)
+    # nefertiti has angles up to 179.6 degrees: libigl's cotangent formula and ours round differently
+    # on those slivers by ~1e-11 of the largest entry; everything else agrees to ~3e-13.
+    assert _relative(L.to_scipy(), expected) < 1e-10
+    assert _relative(to_igl_cotmatrix(L), igl.cotmatrix(V, F)) < 1e-10
+    assert _relative(to_gpytoolbox_cotangent_laplacian(L), gpytoolbox.cotangent_laplacian(V, F)) < 1e-10
+    for kind, igl_type in MASS_TYPES.items():
+        assert _relative(mass_matrix(mesh, kind=kind).to_scipy(), igl.massmatrix(V, F, igl_type)) < 1e-12
+    galerkin = mass_matrix(mesh, kind="galerkin").to_scipy()
+    assert _relative(galerkin, igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_FULL)) < 1e-12
+    assert _relative(galerkin, gpytoolbox.massmatrix(V, F, type="full")) < 1e-12
+
+
+def test_fem_equals_dec_on_every_shared_mesh():
+    names = sorted(p.name for p in shared_path("meshes").iterdir() if p.suffix in (".obj", ".off", ".ply"))
+    names = [n for n in names if n != "armadillo_loop1.ply"]  # 346k faces: the benchmark mesh, too slow here
+    assert len(names) >= 20
+    # One disjoint union of all meshes (its Laplacian is block diagonal): one compilation, not 23.
+    vertices, faces, owner, offset = [], [], [], 0
+    for k, name in enumerate(names):
+        V, F = igl.read_triangle_mesh(str(shared_path("meshes", name)))
+        vertices.append(V)
+        faces.append(F + offset)
+        owner.append(np.full(V.shape[0], k))
+        offset += V.shape[0]
+    union = Mesh.from_arrays(np.concatenate(vertices), np.concatenate(faces))
+    owner = np.concatenate(owner)
+    fem = np.asarray(jax.jit(lambda m: cotan_laplacian(m, method="fem").values)(union))
+    dec = np.asarray(jax.jit(lambda m: cotan_laplacian(m, method="dec").values)(union))
+    rows = np.asarray(union.vertex_pattern.rows)
+    scale = np.zeros(len(names))
+    np.maximum.at(scale, owner[rows], np.abs(fem))
+    error = np.zeros(len(names))
+    np.maximum.at(error, owner[rows], np.abs(dec - fem))
+    # Both routes sum the same cotangents in a different order (the diagonal: row sums vs scatter).
+    worst = int(np.argmax(error / scale))
+    assert error[worst] <= 1e-12 * scale[worst], names[worst]
+
+
+def test_fem_equals_dec_on_builtin_shapes_and_under_jit():
+    for mesh in (icosphere(2), grid(4, 5)):
+        fem = jax.jit(lambda m: cotan_laplacian(m, method="fem").values)(mesh)
+        dec = jax.jit(lambda m: cotan_laplacian(m, method="dec").values)(mesh)
+        np.testing.assert_allclose(dec, fem, rtol=0, atol=1e-13)
+
+
+def test_robust_laplacian_on_delaunay_meshes():
+    # The equilateral hexagon mesh and an icosphere are Delaunay: robust_laplacian's intrinsic
+    # Delaunay Laplacian equals the cotan one (its mass is the barycentric lumped one).
+    for V, F, mesh in (_load("hexagon.obj"), (*_arrays(icosphere(2)), icosphere(2))):
+        L_robust, M_robust = robust_laplacian.mesh_laplacian(np.asarray(V, float), np.asarray(F))
+        # robust_laplacian re-derives lengths through its intrinsic mollification (1e-12 relative).
+        assert _relative(cotan_laplacian(mesh).to_scipy(), L_robust) < 1e-9
+        assert _relative(mass_matrix(mesh, kind="barycentric").to_scipy(), M_robust) < 1e-9
+    V, F, mesh = _load("hexagon.obj")
+    weights = -cotan_laplacian(mesh).to_scipy()
+    interior = np.setdiff1d(np.arange(V.shape[0]), igl.boundary_loop(F))
+    interior_weights = weights[interior][:, interior]
+    off_diagonal = interior_weights[interior_weights.nonzero()]
+    off_diagonal = np.asarray(off_diagonal).ravel()
+    off_diagonal = off_diagonal[off_diagonal > 0]
+    # hexagon.obj is a *nearly* equilateral triangulation (angles within ~0.01 degree of 60): weights
+    # within 1e-3 of the equilateral 2 cot(60) / 2 = 1/sqrt(3).
+    np.testing.assert_allclose(off_diagonal, 1 / np.sqrt(3), rtol=1e-3)
+
+
+def _arrays(mesh):
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces)
+
+
+def _single(V, F):
+    return Mesh.from_arrays(np.asarray(V, float), np.asarray(F))
+
+
+RIGHT = ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
+EQUILATERAL = ([[0, 0, 0], [1, 0, 0], [0.5, np.sqrt(3) / 2, 0]], [[0, 1, 2]])
+TETRAHEDRON = (
+    [[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]],
+    [[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]],
+)
+CUBE_V = [[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+CUBE_F = [
+    [0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
+    [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5],
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("scale", [1e-8, 1.0, 1e8])
+def test_single_element_closed_forms(scale):
+    s3 = np.sqrt(3)
+    right = _single(np.asarray(RIGHT[0]) * scale, RIGHT[1])
+    np.testing.assert_allclose(cotan_laplacian(right).todense(), [[1, -0.5, -0.5], [-0.5, 0.5, 0], [-0.5, 0, 0.5]], atol=1e-15)
+    area = 0.5 * scale**2
+    # Right triangle: circumcentre at the hypotenuse midpoint, so the right-angle corner gets A/2.
+    np.testing.assert_allclose(mass_matrix(right).diagonal(), area * np.array([0.5, 0.25, 0.25]), rtol=1e-14)
+    np.testing.assert_allclose(mass_matrix(right, kind="barycentric").diagonal(), np.full(3, area / 3), rtol=1e-14)
+    galerkin = area / 12 * (np.ones((3, 3)) + np.eye(3))
+    np.testing.assert_allclose(mass_matrix(right, kind="galerkin").todense(), galerkin, rtol=1e-14)
+
+    equilateral = _single(np.asarray(EQUILATERAL[0]) * scale, EQUILATERAL[1])
+    expected = (3 * np.eye(3) - np.ones((3, 3))) / (2 * s3)
+    np.testing.assert_allclose(cotan_laplacian(equilateral).todense(), expected, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(mass_matrix(equilateral).diagonal(), np.full(3, s3 / 12 * scale**2), rtol=1e-14)
+
+    tetrahedron = _single(np.asarray(TETRAHEDRON[0]) * scale, TETRAHEDRON[1])
+    # Edge length 2 sqrt(2) scale; every edge sees two 60-degree angles: w = 1/sqrt(3).
+    np.testing.assert_allclose(cotan_laplacian(tetrahedron).todense(), (4 * np.eye(4) - np.ones((4, 4))) / s3, rtol=1e-14, atol=1e-15)
+    face_area = s3 / 4 * 8 * scale**2
+    np.testing.assert_allclose(mass_matrix(tetrahedron).diagonal(), np.full(4, face_area), rtol=1e-14)
+
+    cube = _single(np.asarray(CUBE_V) * scale, CUBE_F)
+    # Each cube edge sees two 45-degree angles (w = 1); each face diagonal two right angles (w = 0).
+    graph = np.zeros((8, 8))
+    for i in range(8):
+        for j in range(8):
+            if sum(a != b for a, b in zip(CUBE_V[i], CUBE_V[j])) == 1:
+                graph[i, j] = 1
+    np.testing.assert_allclose(cotan_laplacian(cube).todense(), np.diag(graph.sum(1)) - graph, atol=1e-14)
+    np.testing.assert_allclose(jnp.sum(mass_matrix(cube).diagonal()), 6 * scale**2, rtol=1e-14)
+
+
+@pytest.fixture(scope="module")
+def small_meshes():
+    return [_load(name)[2] for name in ("tet.obj", "small_disk.obj", "hourglass_ico.obj", "moebius.obj", "triple_vierbein.obj")]
+
+
+def test_identities_symmetry_and_psd(small_meshes):
+    for mesh in small_meshes:
+        dense = np.asarray(cotan_laplacian(mesh).todense())
+        scale = np.abs(dense).max()
+        np.testing.assert_allclose(dense @ np.ones(mesh.n_vertices), 0, atol=1e-14 * scale)
+        np.testing.assert_array_equal(dense, dense.T)
+        assert np.linalg.eigvalsh(dense).min() >= -1e-12 * scale
+        galerkin = np.asarray(mass_matrix(mesh, kind="galerkin").todense())
+        np.testing.assert_array_equal(galerkin, galerkin.T)
+        assert np.linalg.eigvalsh(galerkin).min() > 0
+
+
+def test_linear_precision_on_flat_meshes():
+    for mesh in (_load("disk.obj")[2], _load("small_disk.obj")[2], grid(6, 7)):
+        V = np.asarray(mesh.vertices)
+        u = 0.3 * V[:, 0] - 1.7 * V[:, 1] + 2.0
+        boundary = mesh.topology.boundary_vertices
+        interior = np.setdiff1d(np.arange(mesh.n_vertices), boundary)
+        result = np.asarray(laplacian_apply(mesh, jnp.asarray(u)))
+        assert np.abs(result[interior]).max() < 1e-12 * np.abs(u).max()
+
+
+def test_unreferenced_vertices_have_empty_rows():
+    _, _, mesh = _load("stanford-bunny.obj")
+    unreferenced = mesh.topology.unreferenced_vertices
+    assert unreferenced.size > 0
+    L = cotan_laplacian(mesh).to_scipy()
+    assert abs(L[unreferenced]).max() == 0
+    assert np.all(np.asarray(mass_matrix(mesh).diagonal())[unreferenced] == 0)
+
+
+DEGENERATE_V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [1, 1, 0], [1, 0, 0.5]]
+DEGENERATE_F = [[0, 1, 2], [1, 4, 2], [0, 3, 1], [1, 3, 4], [1, 5, 4]]  # face 2 is collinear (zero area)
+
+
+def test_degenerate_faces_contribute_nothing_with_finite_gradients():
+    V = jnp.asarray(DEGENERATE_V, dtype=float)
+    mesh = Mesh.from_arrays(V, DEGENERATE_F)
+    without = Mesh.from_arrays(V, [f for k, f in enumerate(DEGENERATE_F) if k != 2])
+    L = cotan_laplacian(mesh).todense()
+    assert np.all(np.isfinite(L))
+    # Edge (0, 3) exists only in the zero-area face: its weight is 0; the rest matches the mesh without it.
+    dense_without = np.asarray(cotan_laplacian(without).todense())
+    np.testing.assert_allclose(L, dense_without, atol=1e-15)
+    u = jnp.arange(6.0)
+    for m in (mesh, Mesh.from_arrays(V.at[5].set(V[1]), DEGENERATE_F)):  # also a collapsed (zero-length) edge
+        grad = jax.grad(lambda W: dirichlet_energy(m.with_vertices(W), u))(m.vertices)
+        assert np.all(np.isfinite(grad))
+        for kind in ("voronoi", "barycentric", "galerkin"):
+            g = jax.grad(lambda W: jnp.sum(mass_matrix(m.with_vertices(W), kind=kind) @ u))(m.vertices)
+            assert np.all(np.isfinite(g))
+
+
+def test_jit_vmap_and_gradients():
+    mesh = icosphere(1)
+    V = mesh.vertices
+    rng = np.random.default_rng(0)
+    batch = V[None] * (1 + 0.1 * jnp.asarray(rng.random((3, 1, 1)))) + 0.01 * jnp.asarray(rng.standard_normal((3,) + V.shape))
+    assemble = jax.jit(lambda W: cotan_laplacian(mesh.with_vertices(W)).values)
+    batched = jax.vmap(assemble)(batch)
+    for k in range(3):
+        eager = cotan_laplacian(mesh.with_vertices(batch[k])).values
+        np.testing.assert_allclose(batched[k], eager, rtol=1e-14, atol=1e-15)  # fusion order: round-off
+    u = jnp.asarray(rng.standard_normal((mesh.n_vertices, 2)))
+    energy = jax.jit(lambda W: dirichlet_energy(mesh.with_vertices(W), u))
+    check_grads(energy, (batch[0],), order=1, modes=("fwd", "rev"))
+    # grad_u of the energy is L u.
+    np.testing.assert_allclose(
+        jax.grad(lambda w: dirichlet_energy(mesh, w))(u), laplacian_apply(mesh, u), rtol=1e-13, atol=1e-14
+    )
+    # Dirichlet energy = 1/2 int |grad u|^2 from the hat gradients: exact for linear u on a flat grid.
+    flat = grid(3, 3, size=2.0)
+    linear = 2.0 * flat.vertices[:, 0] + 3.0 * flat.vertices[:, 1]
+    np.testing.assert_allclose(dirichlet_energy(flat, linear), 0.5 * 13.0 * 4.0, rtol=1e-13)
+
+
+def test_converters_pytorch3d_by_hand():
+    # Two triangles sharing edge (1, 2): unit right triangles forming the unit square.
+    mesh = _single([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]])
+    # PyTorch3D: W_ij = cot a + cot b, zero diagonal. Edge (1,2) is opposite two right angles: 0;
+    # the four sides each see one 45-degree angle: 1.
+    expected = np.array([[0, 1, 1, 0], [1, 0, 0, 1], [1, 0, 0, 1], [0, 1, 1, 0]], dtype=float)
+    W = to_pytorch3d_cot_laplacian(cotan_laplacian(mesh))
+    np.testing.assert_allclose(W.toarray(), expected, atol=1e-15)
+    assert W.diagonal().max() == 0
+    np.testing.assert_allclose(from_pytorch3d_cot_laplacian(W).toarray(), cotan_laplacian(mesh).todense(), atol=1e-15)
+
+
+def test_bad_arguments():
+    mesh = icosphere(0)
+    with pytest.raises(DDGInputError, match="method"):
+        cotan_laplacian(mesh, method="graph")
+    with pytest.raises(DDGInputError, match="kind"):
+        mass_matrix(mesh, kind="lumped")
