@@ -1,1 +1,28 @@
-"""ddgjax (package init is finalised by the lead once all subpackages exist)."""
+"""ddgjax: discrete differential geometry in JAX, differentiable end to end.
+
+Subpackages: `ddgjax.curves` (plane curves, four discrete curvatures, curve-shortening flows),
+`ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes), `ddgjax.dec` (discrete exterior
+calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices), `ddgjax.sparse` (fixed-pattern sparse
+matrices), `ddgjax.io` (mesh files). Conventions: see DESIGN.md and the README.
+
+Importing ddgjax never changes `jax.config`; enable float64 yourself
+(`jax.config.update("jax_enable_x64", True)`) for geometry work.
+"""
+
+from importlib.metadata import PackageNotFoundError, version as _version
+
+from . import curves as curves
+from . import dec as dec
+from . import io as io
+from . import laplacian as laplacian
+from . import mesh as mesh
+from . import sparse as sparse
+from ._errors import DDGInputError as DDGInputError
+from ._errors import MeshDataError as MeshDataError
+from .curves import Curve as Curve
+from .mesh import Mesh as Mesh
+
+try:
+    __version__ = _version("ddgjax")
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0.1.0"

@@ -64,3 +64,41 @@ def unsigned_angle(a: Float[Array, "... d"], b: Float[Array, "... d"]) -> Float[
     else:
         sin_part = safe_norm(jnp.cross(a, b))
     return safe_atan2(sin_part, jnp.sum(a * b, axis=-1))
+
+
+# Cephes `atan` (S. Moshier, cephes/double/atan.c): `atan(z) ~ z + z^3 P(z^2) / Q(z^2)` on
+# |z| <= 0.66, relative error ~2e-16.
+_ATAN_P = (-8.750608600031904122785e-1, -1.615753718733365076637e1, -7.500855792314704667340e1,
+           -1.228866684490136173410e2, -6.485021904942025371773e1)
+_ATAN_Q = (1.0, 2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668951e2,
+           4.853903996359136964868e2, 1.945506571482613964425e2)
+
+
+def _polynomial(coefficients: tuple[float, ...], x: Float[Array, "..."]) -> Float[Array, "..."]:
+    """Horner evaluation, highest degree first."""
+    result = jnp.full_like(x, coefficients[0])
+    for c in coefficients[1:]:
+        result = result * x + c
+    return result
+
+
+def first_quadrant_atan2(y: Float[Array, "..."], x: Float[Array, "..."]) -> Float[Array, "..."]:
+    """`atan2(y, x)` for `x, y >= 0`, an angle in `[0, pi/2]`, from multiply-adds only (fast on CPU).
+
+    XLA lowers float64 `atan2` to a scalar libm call (~17 ns per element on CPU, 8x NumPy); this
+    vectorises. With `r = min(x, y) / max(x, y)` in `[0, 1]`: `atan(r)` from Cephes' rational
+    approximation `z + z^3 P(z^2) / Q(z^2)`, directly for `r <= 0.66` and as
+    `pi/4 + atan((r - 1) / (r + 1))` above; then `pi/2 - atan(r)` when `y > x`. Error within a few
+    ulps of `jnp.arctan2` on the whole quadrant. Returns 0 with a zero gradient at `x = y = 0`
+    (like `safe_atan2`). Negative inputs are outside its domain (use `safe_atan2`).
+
+    Reference: S. L. Moshier, Cephes Math Library, `atan.c`.
+    """
+    swap = y > x
+    ratio = safe_div(jnp.where(swap, x, y), jnp.where(swap, y, x))  # in [0, 1]
+    shifted = ratio > 0.66
+    z = jnp.where(shifted, (ratio - 1) / (ratio + 1), ratio)
+    z2 = z * z
+    angle = z + z * z2 * _polynomial(_ATAN_P, z2) / _polynomial(_ATAN_Q, z2)
+    angle = jnp.where(shifted, jnp.pi / 4 + angle, angle)
+    return jnp.where(swap, jnp.pi / 2 - angle, angle)

@@ -128,8 +128,10 @@ def _read_obj(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
         vertices = np.array(vertex_fields, dtype=np.float64).reshape(len(vertex_fields), 3)
     except ValueError:
         raise DDGInputError(f"path: {str(path)!r} has unreadable vertex coordinates") from None
+    if not face_fields:
+        return vertices, np.zeros((0, 3), dtype=np.int64)
     counts = np.fromiter(map(len, face_fields), dtype=np.int64, count=len(face_fields))
-    if counts.size and counts.min() < 3:
+    if counts.min() < 3:
         line = face_lines[int(np.argmin(counts))]
         raise DDGInputError(f"path: {str(path)!r} line {line}: a face needs at least three corners")
     try:
@@ -149,8 +151,7 @@ def _read_obj(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     n_triangles = counts - 2
     first = np.repeat(starts, n_triangles)
     k = np.arange(n_triangles.sum()) - np.repeat(np.cumsum(n_triangles) - n_triangles, n_triangles) + 1
-    faces = np.stack([corners[first], corners[first + k], corners[first + k + 1]], axis=1) if first.size else np.zeros((0, 3), np.int64)
-    return vertices, faces
+    return vertices, np.stack([corners[first], corners[first + k], corners[first + k + 1]], axis=1)
 
 
 def _read_with_trimesh(path: pathlib.Path, fmt: str) -> tuple[np.ndarray, np.ndarray]:

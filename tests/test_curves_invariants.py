@@ -20,6 +20,7 @@ from ddgjax.curves import (
     isoperimetric_ratio,
     random_polygon,
     regular_polygon,
+    star,
 )
 
 
@@ -107,10 +108,26 @@ def test_open_curves_are_closed_by_their_chord(wobbly):
         ([[0, 0], [1, 0], [1, 1], [0, 0], [-1, 1], [-1, 0]], True, False),  # repeated vertex, non-adjacent
         ([[0, 0], [1, 0], [2, 0], [1, 1]], True, True),  # collinear consecutive edges are fine
         ([[0, 0], [1, 0], [0.5, 1]], True, True),
+        # vertex on a diagonal edge, up to the rounding of 1/3: touching (exact predicates would miss it)
+        ([[0, 0], [3, 1], [3, 2], [1, 1 / 3], [0, 2]], True, False),
     ],
 )
 def test_is_simple_cases(points, closed, simple):
     assert bool(is_simple(Curve(np.asarray(points, dtype=float), closed=closed))) is simple
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"tips": 7, "inner_radius": 0.2, "outer_radius": 3.0, "subdivisions": 16}])
+def test_is_simple_on_straight_sides_with_rounding(kwargs):
+    # Regression: disjoint edges on one straight side of star() (e.g. edges 16 and 23 of the
+    # default star) are collinear only up to rounding, so the exact orientation products had tiny
+    # opposite signs and the pair was reported as crossing.
+    curve = star(**kwargs)
+    assert bool(is_simple(curve))
+    # the same side with its last vertex pushed onto an earlier edge of that side: touching
+    points = np.asarray(curve.points).copy()
+    side = points[16:25].copy()
+    points[23] = 0.5 * (side[1] + side[2])
+    assert not bool(is_simple(Curve(points)))
 
 
 def test_is_simple_agrees_with_shapely_on_random_polygons():

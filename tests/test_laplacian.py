@@ -26,6 +26,13 @@ from ddgjax.laplacian import (
 )
 from ddgjax.mesh import Mesh, grid, icosphere
 
+# Jitted once per mesh topology: eager dispatch of every small op (recompiled for each new shape)
+# would dominate the test time.
+_laplacian = jax.jit(lambda m: cotan_laplacian(m))
+_dense_laplacian = jax.jit(lambda m: cotan_laplacian(m).todense())
+_mass = jax.jit(mass_matrix, static_argnames="kind")
+_apply = jax.jit(laplacian_apply)
+
 REAL_MESHES = ["beetle.off", "nefertiti.obj", "stanford-bunny.obj", "camelhead.off"]
 MASS_TYPES = {"voronoi": igl.MASSMATRIX_TYPE_VORONOI, "barycentric": igl.MASSMATRIX_TYPE_BARYCENTRIC}
 
@@ -47,15 +54,15 @@ def real(request):
 def test_matches_libigl_and_gpytoolbox(real):
     V, F, mesh = real
     expected = -igl.cotmatrix(V, F)
-    L = cotan_laplacian(mesh)
+    L = _laplacian(mesh)
     # nefertiti has angles up to 179.6 degrees: libigl's cotangent formula and ours round differently
     # on those slivers by ~1e-11 of the largest entry; everything else agrees to ~3e-13.
     assert _relative(L.to_scipy(), expected) < 1e-10
     assert _relative(to_igl_cotmatrix(L), igl.cotmatrix(V, F)) < 1e-10
     assert _relative(to_gpytoolbox_cotangent_laplacian(L), gpytoolbox.cotangent_laplacian(V, F)) < 1e-10
     for kind, igl_type in MASS_TYPES.items():
-        assert _relative(mass_matrix(mesh, kind=kind).to_scipy(), igl.massmatrix(V, F, igl_type)) < 1e-12
-    galerkin = mass_matrix(mesh, kind="galerkin").to_scipy()
+        assert _relative(_mass(mesh, kind=kind).to_scipy(), igl.massmatrix(V, F, igl_type)) < 1e-12
+    galerkin = _mass(mesh, kind="galerkin").to_scipy()
     assert _relative(galerkin, igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_FULL)) < 1e-12
     assert _relative(galerkin, gpytoolbox.massmatrix(V, F, type="full")) < 1e-12
 
@@ -96,13 +103,12 @@ def test_fem_equals_dec_on_builtin_shapes_and_under_jit():
 def test_robust_laplacian_on_delaunay_meshes():
     # The equilateral hexagon mesh and an icosphere are Delaunay: robust_laplacian's intrinsic
     # Delaunay Laplacian equals the cotan one (its mass is the barycentric lumped one).
-    for V, F, mesh in (_load("hexagon.obj"), (*_arrays(icosphere(2)), icosphere(2))):
+    for V, F, mesh in ((*_arrays(icosphere(2)), icosphere(2)), _load("hexagon.obj")):
         L_robust, M_robust = robust_laplacian.mesh_laplacian(np.asarray(V, float), np.asarray(F))
         # robust_laplacian re-derives lengths through its intrinsic mollification (1e-12 relative).
-        assert _relative(cotan_laplacian(mesh).to_scipy(), L_robust) < 1e-9
-        assert _relative(mass_matrix(mesh, kind="barycentric").to_scipy(), M_robust) < 1e-9
-    V, F, mesh = _load("hexagon.obj")
-    weights = -cotan_laplacian(mesh).to_scipy()
+        assert _relative(_laplacian(mesh).to_scipy(), L_robust) < 1e-9
+        assert _relative(_mass(mesh, kind="barycentric").to_scipy(), M_robust) < 1e-9
+    weights = -_laplacian(mesh).to_scipy()
     interior = np.setdiff1d(np.arange(V.shape[0]), igl.boundary_loop(F))
     interior_weights = weights[interior][:, interior]
     off_diagonal = interior_weights[interior_weights.nonzero()]
@@ -134,38 +140,46 @@ CUBE_F = [
 ]  # fmt: skip
 
 
+@pytest.fixture(scope="module")
+def elements():
+    return {name: _single(*data) for name, data in {"right": RIGHT, "equilateral": EQUILATERAL, "tetrahedron": TETRAHEDRON, "cube": (CUBE_V, CUBE_F)}.items()}
+
+
+def _closed_forms(mesh, scale):
+    """Dense L and the three mass matrices of `mesh` scaled by `scale` (same topology: one compilation)."""
+    scaled = mesh.with_vertices(mesh.vertices * scale)
+    return (
+        np.asarray(_dense_laplacian(scaled)),
+        *(np.asarray(_mass(scaled, kind=kind).todense()) for kind in ("voronoi", "barycentric", "galerkin")),
+    )
+
+
 @pytest.mark.parametrize("scale", [1e-8, 1.0, 1e8])
-def test_single_element_closed_forms(scale):
+def test_single_element_closed_forms(elements, scale):
     s3 = np.sqrt(3)
-    right = _single(np.asarray(RIGHT[0]) * scale, RIGHT[1])
-    np.testing.assert_allclose(cotan_laplacian(right).todense(), [[1, -0.5, -0.5], [-0.5, 0.5, 0], [-0.5, 0, 0.5]], atol=1e-15)
+    L, voronoi, barycentric, galerkin = _closed_forms(elements["right"], scale)
+    np.testing.assert_allclose(L, [[1, -0.5, -0.5], [-0.5, 0.5, 0], [-0.5, 0, 0.5]], atol=1e-15)
     area = 0.5 * scale**2
     # Right triangle: circumcentre at the hypotenuse midpoint, so the right-angle corner gets A/2.
-    np.testing.assert_allclose(mass_matrix(right).diagonal(), area * np.array([0.5, 0.25, 0.25]), rtol=1e-14)
-    np.testing.assert_allclose(mass_matrix(right, kind="barycentric").diagonal(), np.full(3, area / 3), rtol=1e-14)
-    galerkin = area / 12 * (np.ones((3, 3)) + np.eye(3))
-    np.testing.assert_allclose(mass_matrix(right, kind="galerkin").todense(), galerkin, rtol=1e-14)
+    np.testing.assert_allclose(np.diag(voronoi), area * np.array([0.5, 0.25, 0.25]), rtol=1e-14)
+    np.testing.assert_allclose(np.diag(barycentric), np.full(3, area / 3), rtol=1e-14)
+    np.testing.assert_allclose(galerkin, area / 12 * (np.ones((3, 3)) + np.eye(3)), rtol=1e-14)
 
-    equilateral = _single(np.asarray(EQUILATERAL[0]) * scale, EQUILATERAL[1])
-    expected = (3 * np.eye(3) - np.ones((3, 3))) / (2 * s3)
-    np.testing.assert_allclose(cotan_laplacian(equilateral).todense(), expected, rtol=1e-14, atol=1e-15)
-    np.testing.assert_allclose(mass_matrix(equilateral).diagonal(), np.full(3, s3 / 12 * scale**2), rtol=1e-14)
+    L, voronoi, _, _ = _closed_forms(elements["equilateral"], scale)
+    np.testing.assert_allclose(L, (3 * np.eye(3) - np.ones((3, 3))) / (2 * s3), rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(np.diag(voronoi), np.full(3, s3 / 12 * scale**2), rtol=1e-14)
 
-    tetrahedron = _single(np.asarray(TETRAHEDRON[0]) * scale, TETRAHEDRON[1])
+    L, voronoi, _, _ = _closed_forms(elements["tetrahedron"], scale)
     # Edge length 2 sqrt(2) scale; every edge sees two 60-degree angles: w = 1/sqrt(3).
-    np.testing.assert_allclose(cotan_laplacian(tetrahedron).todense(), (4 * np.eye(4) - np.ones((4, 4))) / s3, rtol=1e-14, atol=1e-15)
-    face_area = s3 / 4 * 8 * scale**2
-    np.testing.assert_allclose(mass_matrix(tetrahedron).diagonal(), np.full(4, face_area), rtol=1e-14)
+    np.testing.assert_allclose(L, (4 * np.eye(4) - np.ones((4, 4))) / s3, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(np.diag(voronoi), np.full(4, s3 / 4 * 8 * scale**2), rtol=1e-14)
 
-    cube = _single(np.asarray(CUBE_V) * scale, CUBE_F)
+    L, voronoi, _, galerkin = _closed_forms(elements["cube"], scale)
     # Each cube edge sees two 45-degree angles (w = 1); each face diagonal two right angles (w = 0).
-    graph = np.zeros((8, 8))
-    for i in range(8):
-        for j in range(8):
-            if sum(a != b for a, b in zip(CUBE_V[i], CUBE_V[j])) == 1:
-                graph[i, j] = 1
-    np.testing.assert_allclose(cotan_laplacian(cube).todense(), np.diag(graph.sum(1)) - graph, atol=1e-14)
-    np.testing.assert_allclose(jnp.sum(mass_matrix(cube).diagonal()), 6 * scale**2, rtol=1e-14)
+    graph = np.array([[float(sum(a != b for a, b in zip(p, q)) == 1) for q in CUBE_V] for p in CUBE_V])
+    np.testing.assert_allclose(L, np.diag(graph.sum(1)) - graph, atol=1e-14)
+    np.testing.assert_allclose(np.trace(voronoi), 6 * scale**2, rtol=1e-14)
+    np.testing.assert_allclose(galerkin.sum(), 6 * scale**2, rtol=1e-14)
 
 
 @pytest.fixture(scope="module")
@@ -175,12 +189,12 @@ def small_meshes():
 
 def test_identities_symmetry_and_psd(small_meshes):
     for mesh in small_meshes:
-        dense = np.asarray(cotan_laplacian(mesh).todense())
+        dense = np.asarray(_dense_laplacian(mesh))
         scale = np.abs(dense).max()
         np.testing.assert_allclose(dense @ np.ones(mesh.n_vertices), 0, atol=1e-14 * scale)
         np.testing.assert_array_equal(dense, dense.T)
         assert np.linalg.eigvalsh(dense).min() >= -1e-12 * scale
-        galerkin = np.asarray(mass_matrix(mesh, kind="galerkin").todense())
+        galerkin = np.asarray(_mass(mesh, kind="galerkin").todense())
         np.testing.assert_array_equal(galerkin, galerkin.T)
         assert np.linalg.eigvalsh(galerkin).min() > 0
 
@@ -191,7 +205,7 @@ def test_linear_precision_on_flat_meshes():
         u = 0.3 * V[:, 0] - 1.7 * V[:, 1] + 2.0
         boundary = mesh.topology.boundary_vertices
         interior = np.setdiff1d(np.arange(mesh.n_vertices), boundary)
-        result = np.asarray(laplacian_apply(mesh, jnp.asarray(u)))
+        result = np.asarray(_apply(mesh, jnp.asarray(u)))
         assert np.abs(result[interior]).max() < 1e-12 * np.abs(u).max()
 
 
@@ -199,9 +213,9 @@ def test_unreferenced_vertices_have_empty_rows():
     _, _, mesh = _load("stanford-bunny.obj")
     unreferenced = mesh.topology.unreferenced_vertices
     assert unreferenced.size > 0
-    L = cotan_laplacian(mesh).to_scipy()
+    L = _laplacian(mesh).to_scipy()
     assert abs(L[unreferenced]).max() == 0
-    assert np.all(np.asarray(mass_matrix(mesh).diagonal())[unreferenced] == 0)
+    assert np.all(np.asarray(_mass(mesh, kind="voronoi").diagonal())[unreferenced] == 0)
 
 
 DEGENERATE_V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [1, 1, 0], [1, 0, 0.5]]
@@ -212,18 +226,20 @@ def test_degenerate_faces_contribute_nothing_with_finite_gradients():
     V = jnp.asarray(DEGENERATE_V, dtype=float)
     mesh = Mesh.from_arrays(V, DEGENERATE_F)
     without = Mesh.from_arrays(V, [f for k, f in enumerate(DEGENERATE_F) if k != 2])
-    L = cotan_laplacian(mesh).todense()
+    L = _dense_laplacian(mesh)
     assert np.all(np.isfinite(L))
     # Edge (0, 3) exists only in the zero-area face: its weight is 0; the rest matches the mesh without it.
-    dense_without = np.asarray(cotan_laplacian(without).todense())
+    dense_without = np.asarray(_dense_laplacian(without))
     np.testing.assert_allclose(L, dense_without, atol=1e-15)
     u = jnp.arange(6.0)
-    for m in (mesh, Mesh.from_arrays(V.at[5].set(V[1]), DEGENERATE_F)):  # also a collapsed (zero-length) edge
-        grad = jax.grad(lambda W: dirichlet_energy(m.with_vertices(W), u))(m.vertices)
-        assert np.all(np.isfinite(grad))
-        for kind in ("voronoi", "barycentric", "galerkin"):
-            g = jax.grad(lambda W: jnp.sum(mass_matrix(m.with_vertices(W), kind=kind) @ u))(m.vertices)
-            assert np.all(np.isfinite(g))
+
+    def energies(W):
+        moved = mesh.with_vertices(W)
+        return jnp.stack([dirichlet_energy(moved, u)] + [jnp.sum(mass_matrix(moved, kind=k) @ u) for k in ("voronoi", "barycentric", "galerkin")])
+
+    jacobian = jax.jit(jax.jacrev(energies))
+    for W in (V, V.at[5].set(V[1])):  # also a collapsed (zero-length) edge
+        assert np.all(np.isfinite(jacobian(W)))
 
 
 def test_jit_vmap_and_gradients():
@@ -233,20 +249,21 @@ def test_jit_vmap_and_gradients():
     batch = V[None] * (1 + 0.1 * jnp.asarray(rng.random((3, 1, 1)))) + 0.01 * jnp.asarray(rng.standard_normal((3,) + V.shape))
     assemble = jax.jit(lambda W: cotan_laplacian(mesh.with_vertices(W)).values)
     batched = jax.vmap(assemble)(batch)
-    for k in range(3):
-        eager = cotan_laplacian(mesh.with_vertices(batch[k])).values
-        np.testing.assert_allclose(batched[k], eager, rtol=1e-14, atol=1e-15)  # fusion order: round-off
+    eager = cotan_laplacian(mesh.with_vertices(batch[1])).values
+    np.testing.assert_allclose(batched[1], eager, rtol=1e-14, atol=1e-15)  # fusion order: round-off
+    np.testing.assert_allclose(batched[2], assemble(batch[2]), rtol=1e-14, atol=1e-15)
     u = jnp.asarray(rng.standard_normal((mesh.n_vertices, 2)))
     energy = jax.jit(lambda W: dirichlet_energy(mesh.with_vertices(W), u))
-    check_grads(energy, (batch[0],), order=1, modes=("fwd", "rev"))
+    # Reverse mode is what shape optimisation uses; forward mode of the product is tested in test_sparse.
+    check_grads(energy, (batch[0],), order=1, modes=("rev",))
     # grad_u of the energy is L u.
     np.testing.assert_allclose(
-        jax.grad(lambda w: dirichlet_energy(mesh, w))(u), laplacian_apply(mesh, u), rtol=1e-13, atol=1e-14
+        jax.jit(jax.grad(lambda w: dirichlet_energy(mesh, w)))(u), _apply(mesh, u), rtol=1e-13, atol=1e-14
     )
     # Dirichlet energy = 1/2 int |grad u|^2 from the hat gradients: exact for linear u on a flat grid.
     flat = grid(3, 3, size=2.0)
     linear = 2.0 * flat.vertices[:, 0] + 3.0 * flat.vertices[:, 1]
-    np.testing.assert_allclose(dirichlet_energy(flat, linear), 0.5 * 13.0 * 4.0, rtol=1e-13)
+    np.testing.assert_allclose(jax.jit(dirichlet_energy)(flat, linear), 0.5 * 13.0 * 4.0, rtol=1e-13)
 
 
 def test_converters_pytorch3d_by_hand():

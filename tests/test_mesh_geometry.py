@@ -1,8 +1,10 @@
-"""Per-element geometry: dual areas, normals, dihedral angles, area and volume (ddgjax.mesh._geometry)."""
+"""Per-element geometry: dual areas, normals, dihedral angles, area and volume (ddgjax.mesh._geometry).
+
+Real meshes are joined into one disjoint union (tests/mesh_union.py) and evaluated by one compiled
+call; so are the synthetic cases. Compiling, not running, dominates these tests' time.
+"""
 
 from __future__ import annotations
-
-import functools
 
 import igl
 import jax
@@ -26,12 +28,12 @@ from ddgjax.mesh import (
     vertex_dual_areas,
     vertex_normals,
 )
+from mesh_union import disjoint_union
 
 
 @jax.jit
 def geometry(mesh: Mesh) -> dict:
-    """Every quantity of the module in one compiled call: one compilation per mesh size keeps the
-    suite fast (compiling, not running, dominates on these meshes)."""
+    """Every quantity of the module in one compiled call."""
     return {
         "voronoi": vertex_dual_areas(mesh, "voronoi"),
         "barycentric": vertex_dual_areas(mesh, "barycentric"),
@@ -47,64 +49,94 @@ def geometry(mesh: Mesh) -> dict:
     }
 
 
-@functools.lru_cache(maxsize=None)
-def real_mesh(name: str):
-    mesh = load_mesh(shared_path("meshes", name))
-    return mesh, np.asarray(mesh.vertices), np.asarray(mesh.faces)
-
-
 def relative_error(got, expected) -> float:
     return float(np.max(np.abs(np.asarray(got) - expected)) / np.max(np.abs(expected)))
 
 
-# One triangle mesh, re-positioned with `with_vertices` (a new Mesh object would compile anew: its
-# topology is a static, identity-hashed part of the pytree).
-TRIANGLE = Mesh.from_arrays(np.eye(3), np.array([[0, 1, 2]]))
+REAL_NAMES = ["beetle.off", "nefertiti.obj", "camelhead.off", "stanford-bunny.obj"]
 
 
-def single_triangle(points) -> Mesh:
-    return TRIANGLE.with_vertices(jnp.asarray(points, dtype=jnp.float64))
+@pytest.fixture(scope="module")
+def real():
+    """The four real meshes as one union, their arrays, and every geometric quantity of the union."""
+    meshes = [load_mesh(shared_path("meshes", name)) for name in REAL_NAMES]
+    arrays = {name: (np.asarray(m.vertices), np.asarray(m.faces)) for name, m in zip(REAL_NAMES, meshes)}
+    union = disjoint_union(list(arrays.values()))
+    values = jax.tree_util.tree_map(np.asarray, geometry(union.mesh))
+    return {"union": union, "arrays": arrays, "values": values, "meshes": dict(zip(REAL_NAMES, meshes))}
+
+
+def part(real, name: str, key: str) -> np.ndarray:
+    """The values of `key` restricted to the mesh `name` of the union."""
+    union, k = real["union"], REAL_NAMES.index(name)
+    value = real["values"][key]
+    if key in ("face_normals", "face_areas"):
+        return value[union.faces_of(k)]
+    if key == "dihedral":
+        return value[union.edges_of(k)]
+    return value[union.vertices_of(k)]
+
+
+# Synthetic cases, also one union: a level-2 icosphere (largest angle ~72 degrees) and one triangle
+# that the closed-form tests re-position with `with_vertices` (no recompilation).
+SPHERE = icosphere(2)
+SYNTHETIC = disjoint_union([(np.asarray(SPHERE.vertices), np.asarray(SPHERE.faces)), (np.eye(3), np.array([[0, 1, 2]]))])
+TRIANGLE_VERTICES = SYNTHETIC.vertices_of(1)
+
+
+def synthetic(triangle_points=np.eye(3), scale=(1.0, 1.0, 1.0)) -> dict:
+    V = np.asarray(SYNTHETIC.mesh.vertices).copy() * np.asarray(scale)
+    V[TRIANGLE_VERTICES] = triangle_points
+    return jax.tree_util.tree_map(np.asarray, geometry(SYNTHETIC.mesh.with_vertices(V)))
+
+
+def triangle_dual_areas(points) -> dict:
+    values = synthetic(np.asarray(points, dtype=np.float64))
+    return {key: values[key][TRIANGLE_VERTICES] for key in ("voronoi", "circumcentric", "barycentric")} | {
+        "area": values["face_areas"][-1]
+    }
 
 
 # A closed, bumpy icosahedron (no symmetry to hide sign errors) for jit / vmap / gradient checks, and
 # the same connectivity with degenerate positions: vertex 11 moved onto vertex 0 (faces 0 and 4 get
 # zero area, edge 0-11 zero length) and vertex 4 onto the midpoint of 3-9 (face 10 collinear, a
 # 180-degree corner). Sharing the connectivity shares the compiled functions.
-SMALL = icosphere(0)
-SMALL = SMALL.with_vertices(SMALL.vertices * jnp.array([1.0, 1.3, 0.7]) + 0.1 * jnp.sin(3.0 * SMALL.vertices))
-SPHERE = icosphere(2)
+ICOSAHEDRON = icosphere(0)
+SMALL = ICOSAHEDRON.with_vertices(ICOSAHEDRON.vertices * jnp.array([1.0, 1.3, 0.7]) + 0.1 * jnp.sin(3.0 * ICOSAHEDRON.vertices))
 DEGENERATE_VERTICES = SMALL.vertices.at[11].set(SMALL.vertices[0]).at[4].set(0.5 * (SMALL.vertices[3] + SMALL.vertices[9]))
 
 
 # ---------------------------------------------------------------- dual areas
 
-@pytest.mark.parametrize("name", ["beetle.off", "nefertiti.obj", "camelhead.off", "stanford-bunny.obj"])
+@pytest.mark.parametrize("name", REAL_NAMES)
 @pytest.mark.parametrize("kind", ["voronoi", "barycentric"])
-def test_dual_areas_match_libigl_massmatrix(name, kind):
-    mesh, V, F = real_mesh(name)
+def test_dual_areas_match_libigl_massmatrix(real, name, kind):
+    V, F = real["arrays"][name]
     igl_kind = igl.MASSMATRIX_TYPE_VORONOI if kind == "voronoi" else igl.MASSMATRIX_TYPE_BARYCENTRIC
     expected = igl.massmatrix(V, F, igl_kind).diagonal()
-    got = np.asarray(geometry(mesh)[kind])
+    got = part(real, name, kind)
     assert relative_error(got, expected) < 1e-10
     # Entrywise too (slivers to 179.6 degrees on nefertiti): the per-vertex relative error stays at round-off.
     referenced = expected > 0
     assert np.max(np.abs(got[referenced] - expected[referenced]) / expected[referenced]) < 1e-10
-    assert np.all(got[mesh.topology.unreferenced_vertices] == 0.0)
+    assert np.all(got[real["meshes"][name].topology.unreferenced_vertices] == 0.0)
 
 
-def test_dual_areas_all_kinds_sum_to_total_area():
-    mesh, V, F = real_mesh("beetle.off")
+def test_dual_areas_all_kinds_sum_to_total_area(real):
+    V, F = real["arrays"]["beetle.off"]
     area = igl.doublearea(V, F).sum() / 2
-    values = geometry(mesh)
-    assert abs(float(values["area"]) - area) < 1e-13 * area
+    assert abs(part(real, "beetle.off", "face_areas").sum() - area) < 1e-13 * area
     for kind in ("voronoi", "barycentric", "circumcentric"):
-        assert abs(float(jnp.sum(values[kind])) - area) < 1e-12 * area
+        assert abs(part(real, "beetle.off", kind).sum() - area) < 1e-12 * area
+    total = sum(igl.doublearea(V, F).sum() / 2 for V, F in real["arrays"].values())
+    assert abs(float(real["values"]["area"]) - total) < 1e-12 * total
 
 
 def test_circumcentric_equals_voronoi_without_obtuse_triangles():
     # A level-2 icosphere's largest angle is ~72 degrees, so the mixed area is purely circumcentric.
-    values = geometry(SPHERE)
-    np.testing.assert_allclose(values["circumcentric"], values["voronoi"], rtol=1e-13)
+    values = synthetic()
+    sphere = SYNTHETIC.vertices_of(0)
+    np.testing.assert_allclose(values["circumcentric"][sphere], values["voronoi"][sphere], rtol=1e-13)
 
 
 @pytest.mark.parametrize(
@@ -120,29 +152,28 @@ def test_circumcentric_equals_voronoi_without_obtuse_triangles():
     ],
 )
 def test_corner_dual_areas_closed_form(points, voronoi, circumcentric):
-    values = geometry(single_triangle(points))
-    area = float(values["area"])
+    values = triangle_dual_areas(points)
     for kind, expected in [("voronoi", voronoi), ("circumcentric", circumcentric), ("barycentric", [1 / 3] * 3)]:
-        np.testing.assert_allclose(values[kind], area * np.asarray(expected), rtol=1e-13, atol=1e-16)
+        np.testing.assert_allclose(values[kind], values["area"] * np.asarray(expected), rtol=1e-13, atol=1e-16)
 
 
 def test_circumcentric_share_is_negative_beyond_ninety_degrees():
     # Corner 0 at 150 degrees: circumcentre far outside, the far corners' shares go negative.
     angle = np.radians(150)
-    values = geometry(single_triangle([[0, 0, 0], [1, 0, 0], [np.cos(angle), np.sin(angle), 0]]))
-    shares = np.asarray(values["circumcentric"])
+    values = triangle_dual_areas([[0, 0, 0], [1, 0, 0], [np.cos(angle), np.sin(angle), 0]])
+    shares = values["circumcentric"]
     assert shares[1] < 0 and shares[2] < 0
-    assert abs(shares.sum() - float(values["area"])) < 1e-15
+    assert abs(shares.sum() - values["area"]) < 1e-15
 
 
-def test_dual_areas_intrinsic_core_matches_extrinsic():
-    mesh, V, F = real_mesh("camelhead.off")
+def test_dual_areas_intrinsic_core_matches_extrinsic(real):
+    V, F = real["arrays"]["camelhead.off"]
     l2 = np.stack([np.sum((V[F[:, (k + 2) % 3]] - V[F[:, (k + 1) % 3]]) ** 2, axis=1) for k in range(3)], axis=1)
     intrinsic = jax.jit(lambda l2: {kind: corner_dual_areas_from_lengths_sq(l2, kind=kind) for kind in ("voronoi", "circumcentric")})(l2)
     for kind, corners in intrinsic.items():
         summed = np.bincount(F.ravel(), weights=np.asarray(corners).ravel(), minlength=V.shape[0])
         # Kahan's area vs the cross-product area on camelhead's 0.55-degree slivers: agree to ~1e-12.
-        assert relative_error(summed, np.asarray(geometry(mesh)[kind])) < 1e-11
+        assert relative_error(summed, part(real, "camelhead.off", kind)) < 1e-11
 
 
 def test_dual_areas_reject_unknown_kind():
@@ -153,25 +184,25 @@ def test_dual_areas_reject_unknown_kind():
 # ---------------------------------------------------------------- normals
 
 @pytest.mark.parametrize("name", ["beetle.off", "stanford-bunny.obj"])
-def test_vertex_normals_match_libigl(name):
-    mesh, V, F = real_mesh(name)
+def test_vertex_normals_match_libigl(real, name):
+    V, F = real["arrays"][name]
     referenced = np.ones(V.shape[0], dtype=bool)
-    referenced[mesh.topology.unreferenced_vertices] = False
+    referenced[real["meshes"][name].topology.unreferenced_vertices] = False
     for weighting, igl_kind in [
         ("area", igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA),
         ("angle", igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_ANGLE),
         ("uniform", igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_UNIFORM),
     ]:
-        got = np.asarray(geometry(mesh)[f"normals_{weighting}"])
+        got = part(real, name, f"normals_{weighting}")
         expected = igl.per_vertex_normals(V, F, igl_kind)
         np.testing.assert_allclose(got[referenced], expected[referenced], atol=1e-13)
         # libigl gives NaN at unreferenced vertices; ddgjax the zero vector.
         assert np.all(got[~referenced] == 0.0)
 
 
-def test_face_normals_match_libigl_and_are_unit():
-    mesh, V, F = real_mesh("camelhead.off")
-    normals = np.asarray(geometry(mesh)["face_normals"])
+def test_face_normals_match_libigl_and_are_unit(real):
+    V, F = real["arrays"]["camelhead.off"]
+    normals = part(real, "camelhead.off", "face_normals")
     np.testing.assert_allclose(normals, igl.per_face_normals(V, F, np.zeros(3)), atol=1e-12)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-14)
 
@@ -182,25 +213,21 @@ def test_vertex_normals_reject_unknown_weighting():
 
 
 def test_vertex_normals_point_outward_on_sphere():
-    values = geometry(SPHERE)
+    values = synthetic()
+    sphere = SYNTHETIC.vertices_of(0)
     for weighting in ("area", "angle", "uniform"):
-        normals = np.asarray(values[f"normals_{weighting}"])
+        normals = values[f"normals_{weighting}"][sphere]
         # Within 2 degrees of the radial direction at every vertex of a level-2 icosphere (measured: 1.4).
         assert np.all(np.sum(normals * np.asarray(SPHERE.vertices), axis=1) > np.cos(np.radians(2)))
 
 
-# ---------------------------------------------------------------- dihedral angles
+# ---------------------------------------------------------------- dihedral angles, area, volume
 
-def test_dihedral_angles_of_regular_tetrahedron():
-    mesh, _, _ = real_mesh("tet.obj")
-    # Exterior dihedral angle of the regular tetrahedron: pi - arccos(1/3) (the file is rounded to ~1e-6).
-    np.testing.assert_allclose(geometry(mesh)["dihedral"], np.pi - np.arccos(1 / 3), atol=1e-5)
-
-
-def test_dihedral_angles_match_normal_angles_and_sign():
-    mesh, V, F = real_mesh("beetle.off")
+def test_dihedral_angles_match_normal_angles_and_sign(real):
+    mesh = real["meshes"]["beetle.off"]
+    V, F = real["arrays"]["beetle.off"]
     topology = mesh.topology
-    theta = np.asarray(geometry(mesh)["dihedral"])
+    theta = part(real, "beetle.off", "dihedral")
     normals = igl.per_face_normals(V, F, np.zeros(3))
     interior = topology.edge_face_counts == 2
     n0, n1 = normals[topology.edge_faces[interior, 0]], normals[topology.edge_faces[interior, 1]]
@@ -208,34 +235,38 @@ def test_dihedral_angles_match_normal_angles_and_sign():
     np.testing.assert_allclose(np.abs(theta[interior]), unsigned, atol=1e-12)
     assert np.all(theta[topology.boundary_edges] == 0.0)
     # Convex sphere: all positive. A mirror image reverses the orientation and flips every sign.
-    theta = np.asarray(geometry(SPHERE)["dihedral"])
-    assert np.all(theta > 0)
-    mirrored = SPHERE.with_vertices(SPHERE.vertices * jnp.array([-1.0, 1.0, 1.0]))
-    np.testing.assert_allclose(geometry(mirrored)["dihedral"], -theta, atol=1e-14)
+    values, mirrored = synthetic(), synthetic(scale=(-1.0, 1.0, 1.0))
+    sphere = SYNTHETIC.edges_of(0)
+    assert np.all(values["dihedral"][sphere] > 0)
+    np.testing.assert_allclose(mirrored["dihedral"], -values["dihedral"], atol=1e-14)
 
 
-# ---------------------------------------------------------------- area and volume
+def test_regular_icosahedron_closed_forms():
+    values = jax.tree_util.tree_map(np.asarray, geometry(ICOSAHEDRON))
+    edge = 1 / np.sin(2 * np.pi / 5)  # unit circumradius
+    # Exterior dihedral angle pi - arccos(-sqrt(5)/3), area 5 sqrt(3) a^2, volume 5/12 (3 + sqrt 5) a^3.
+    np.testing.assert_allclose(values["dihedral"], np.pi - np.arccos(-np.sqrt(5) / 3), rtol=1e-14)
+    np.testing.assert_allclose(values["area"], 5 * np.sqrt(3) * edge**2, rtol=1e-14)
+    np.testing.assert_allclose(values["volume"], 5 / 12 * (3 + np.sqrt(5)) * edge**3, rtol=1e-14)
+    np.testing.assert_allclose(values["voronoi"], values["area"] / 12, rtol=1e-14)
 
-def test_total_area_and_enclosed_volume_against_references():
+
+def test_enclosed_volume_against_trimesh():
     import trimesh
 
-    mesh, V, F = real_mesh("nefertiti.obj")
-    values = geometry(mesh)
-    volume = trimesh.Trimesh(V, F, process=False).volume
-    # Coordinates ~200 and volume ~1e7: trimesh sums tetrahedra to the origin, so its own round-off is ~1e-12.
-    assert abs(float(values["volume"]) - volume) < 1e-11 * volume
-    # Regular tetrahedron with edge sqrt(8/3) (tet.obj, unit circumradius): a^3 / (6 sqrt 2), file rounding ~1e-6.
-    tet, _, _ = real_mesh("tet.obj")
-    assert abs(float(geometry(tet)["volume"]) - np.sqrt(8 / 3) ** 3 / (6 * np.sqrt(2))) < 1e-5
-    assert abs(float(geometry(tet)["area"]) - np.sqrt(3) * 8 / 3) < 1e-5
+    V, F = np.asarray(SMALL.vertices), np.asarray(SMALL.faces)
+    expected = trimesh.Trimesh(V, F, process=False).volume
+    assert abs(float(geometry(SMALL)["volume"]) - expected) < 1e-14 * expected
 
 
 # ---------------------------------------------------------------- jit, vmap, gradients
 
 def weighted_outputs(V):
-    """One random weighting of every output: a wrong (or non-finite) gradient of any of them shows."""
+    """A fixed random weighting of every output of `geometry`: a wrong or non-finite gradient of any
+    of them shows (weights from the host: random numbers generated inside jit compile the RNG)."""
     outputs = geometry(SMALL.with_vertices(V))
-    return sum(jnp.sum(jax.random.normal(jax.random.key(k), jnp.shape(outputs[name])) * outputs[name]) for k, name in enumerate(sorted(outputs)))
+    rng = np.random.default_rng(0)
+    return sum(jnp.sum(rng.normal(size=jnp.shape(outputs[name])) * outputs[name]) for name in sorted(outputs))
 
 
 WEIGHTED_OUTPUTS = jax.jit(weighted_outputs)
@@ -244,10 +275,10 @@ WEIGHTED_OUTPUTS = jax.jit(weighted_outputs)
 def test_jit_and_vmap_equal_eager():
     batch = jnp.stack([SMALL.vertices, 1.5 * SMALL.vertices, SMALL.vertices + 0.3])
     batched = jax.vmap(lambda V: geometry(SMALL.with_vertices(V)))(batch)
+    # Eager (op-by-op) evaluation compiles every primitive separately, so only a representative set is
+    # compared: the mixed dual area (contains the circumcentric path), dihedral angles, the volume.
     eager_functions = {
         "voronoi": lambda m: vertex_dual_areas(m, "voronoi"),
-        "circumcentric": lambda m: vertex_dual_areas(m, "circumcentric"),
-        "normals_angle": lambda m: vertex_normals(m, weighting="angle"),
         "dihedral": edge_dihedral_angles,
         "volume": enclosed_volume,
     }
@@ -275,4 +306,4 @@ def test_degenerate_faces_give_finite_values_and_gradients():
         assert np.all(np.isfinite(np.asarray(value))), name
     # The same reverse pass as check_grads above (compiled once); a NaN in any output's gradient propagates.
     _, pullback = jax.vjp(WEIGHTED_OUTPUTS, DEGENERATE_VERTICES)
-    assert np.all(np.isfinite(np.asarray(pullback(1.0)[0])))
+    assert np.all(np.isfinite(np.asarray(pullback(jnp.ones(()))[0])))

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 from jax.test_util import check_grads
 
 from ddgjax._errors import DDGInputError
-from ddgjax.sparse import SparseMatrix, SparsityPattern, congruence, diagonal_matrix, find_slots, from_scipy
+from ddgjax.sparse import SparseMatrix, SparsityPattern, congruence, diagonal_matrix, find_slots, from_scipy, gather_sum
 
 
 def _random(shape, density, seed, dense_row=None):
@@ -201,3 +201,18 @@ def _as_csr_layout(reference: sp.csr_matrix) -> SparseMatrix:
         shape=reference.shape,
     )
     return SparseMatrix(jnp.asarray(reference.data), pattern)
+
+
+def test_gather_sum_reverse_mode_is_the_transposed_gather():
+    # y[s] = sum_k x[index[s, k]]; index 6 (out of range) pads. transpose_index lists, per x entry,
+    # the outputs reading it (pad 4 = n outputs).
+    index = jnp.array([[0, 3], [2, 6], [3, 5], [1, 1]])
+    transpose_index = jnp.array([[0, 4], [3, 3], [1, 4], [0, 2], [4, 4], [2, 4]])
+    x = jnp.linspace(0.5, 2.0, 6)
+    weights = jnp.array([1.0, -2.0, 0.5, 3.0])
+    plain = lambda x: jnp.sum(weights * jnp.sin(jnp.take(x, index, mode="fill", fill_value=0).sum(1)))
+    custom = jax.jit(lambda x: jnp.sum(weights * jnp.sin(gather_sum(x, index, transpose_index))))
+    np.testing.assert_allclose(custom(x), plain(x), rtol=1e-15)
+    np.testing.assert_allclose(jax.grad(custom)(x), jax.grad(plain)(x), rtol=1e-14)
+    batched = jax.vmap(jax.grad(custom))(jnp.stack([x, 2 * x]))
+    np.testing.assert_allclose(batched[1], jax.grad(plain)(2 * x), rtol=1e-14)

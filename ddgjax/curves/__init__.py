@@ -4,33 +4,28 @@ Every function is a pure JAX function of `curve.points` (jit, grad, vmap). Conve
 Plane curves, and the docstring of `ddgjax.curves._curvature`.
 """
 
-from ._curvature import (
-    curvature as curvature,
-    curvature_normals as curvature_normals,
-    curvature_vectors as curvature_vectors,
-    edge_lengths as edge_lengths,
-    interior_vertex_mask as interior_vertex_mask,
-    length as length,
-    total_curvature as total_curvature,
-    turning_angles as turning_angles,
-    turning_number as turning_number,
-    vertex_dual_lengths as vertex_dual_lengths,
-)
+from ._curvature import curvature as curvature
+from ._curvature import curvature_normals as curvature_normals
+from ._curvature import curvature_vectors as curvature_vectors
+from ._curvature import edge_lengths as edge_lengths
+from ._curvature import interior_vertex_mask as interior_vertex_mask
+from ._curvature import length as length
+from ._curvature import total_curvature as total_curvature
+from ._curvature import turning_angles as turning_angles
+from ._curvature import turning_number as turning_number
+from ._curvature import vertex_dual_lengths as vertex_dual_lengths
 from ._curve import Curve as Curve
-from ._flow import CurveFlowResult as CurveFlowResult, curve_shortening_flow as curve_shortening_flow
-from ._invariants import (
-    area_centroid as area_centroid,
-    centroid as centroid,
-    cyclic_residual as cyclic_residual,
-    enclosed_area as enclosed_area,
-    is_simple as is_simple,
-    isoperimetric_ratio as isoperimetric_ratio,
-)
-from ._shapes import (
-    figure3_polygon as figure3_polygon,
-    flower as flower,
-    load_polygon as load_polygon,
-    random_polygon as random_polygon,
-    regular_polygon as regular_polygon,
-    star as star,
-)
+from ._flow import CurveFlowResult as CurveFlowResult
+from ._flow import curve_shortening_flow as curve_shortening_flow
+from ._invariants import area_centroid as area_centroid
+from ._invariants import centroid as centroid
+from ._invariants import cyclic_residual as cyclic_residual
+from ._invariants import enclosed_area as enclosed_area
+from ._invariants import is_simple as is_simple
+from ._invariants import isoperimetric_ratio as isoperimetric_ratio
+from ._shapes import figure3_polygon as figure3_polygon
+from ._shapes import flower as flower
+from ._shapes import load_polygon as load_polygon
+from ._shapes import random_polygon as random_polygon
+from ._shapes import regular_polygon as regular_polygon
+from ._shapes import star as star

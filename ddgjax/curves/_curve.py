@@ -51,7 +51,7 @@ class Curve(eqx.Module):
         self.points = array
         self.closed = closed
 
-    def with_points(self, points: ArrayLike) -> "Curve":
+    def with_points(self, points: ArrayLike) -> Curve:
         """The same kind of curve (open / closed) through new points of the same shape.
 
         Only the shape is checked (as `Mesh.with_vertices` does), not the values: this is how a flow

@@ -21,11 +21,12 @@ smooth through collinear vertices.) With `L(p)` the matrix of these weights (`(L
 - `method="explicit"`: `p <- p + tau L(p) p`, exactly the report's iteration.
 - `method="semi-implicit"`: `(I - tau L(p)) p_new = p` with the weights frozen at the current curve
   (a linearly implicit / backward Euler step), one cyclic tridiagonal solve per step. For B the
-  matrix is `I + tau L_w` with `L_w` the graph Laplacian of weights `1 / |edge|` (the Hessian-free
-  part of the length gradient, curvey's `Curve.laplacian`); it is an M-matrix whenever the weights
-  are positive (always for A, B, C; for D at vertices where neither edge turns back past the other),
-  so the step is stable for any `tau`. It discretises the same curvature as the explicit step
-  (`kappa_i N_i` of `kind`, natural form), with the curvature taken implicitly in the positions.
+  matrix is `I + tau L_w` with `L_w` the graph Laplacian of weights `1 / |edge|` (`L_w p` is the
+  length gradient; curvey's `Curve.laplacian`). `I - tau L(p)` is diagonally dominant with
+  non-positive off-diagonals whenever the weights are positive (always for A, B, C; for D unless an
+  edge turns back past its neighbour, `u.(u+v) < 0`), so each step is a stable implicit average for
+  any `tau`. It discretises the same curvature as the explicit step (`kappa_i N_i` of `kind`,
+  natural form), with the weights lagged and the positions implicit.
 
 Curvature is in the report's natural form: integrated for A, B, C (`kappa ~ curvature x dual
 length`), pointwise for D. So the A, B, C flows move a vertex by `tau` times an angle: their time
@@ -52,7 +53,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._errors import DDGInputError, is_traced
-from .._numerics import safe_div, safe_norm
+from .._numerics import first_quadrant_atan2, safe_div, safe_norm
 from ._curvature import _interior_mask, check_kind, length, total_curvature
 from ._curve import Curve, unchecked_curve
 from ._invariants import centroid, cyclic_residual, enclosed_area, is_simple, isoperimetric_ratio
@@ -121,34 +122,6 @@ class CurveFlowResult(eqx.Module):
         return unchecked_curve(self.points[index], self.closed)
 
 
-# Cephes `atan` (S. Moshier): `atan(z) ~ z + z^3 P(z^2) / Q(z^2)` on |z| <= 0.66, relative error
-# ~2e-16. XLA's float64 atan2 is a scalar libm call (~17 ns per element on CPU, 8x NumPy's); these
-# few multiply-adds vectorise, which is what makes the A-flow fast.
-_ATAN_P = (-8.750608600031904122785e-1, -1.615753718733365076637e1, -7.500855792314704667340e1,
-           -1.228866684490136173410e2, -6.485021904942025371773e1)
-_ATAN_Q = (1.0, 2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668951e2,
-           4.853903996359136964868e2, 1.945506571482613964425e2)
-
-
-def _polynomial(coefficients, x):
-    result = jnp.full_like(x, coefficients[0])
-    for c in coefficients[1:]:
-        result = result * x + c
-    return result
-
-
-def _first_quadrant_atan2(y: Float[Array, "..."], x: Float[Array, "..."]) -> Float[Array, "..."]:
-    """`atan2(y, x)` for `x, y >= 0` (an angle in `[0, pi/2]`), vectorisable; 0 at `x = y = 0`."""
-    swap = y > x
-    ratio = safe_div(jnp.where(swap, x, y), jnp.where(swap, y, x))  # in [0, 1]
-    shifted = ratio > 0.66
-    z = jnp.where(shifted, (ratio - 1) / (ratio + 1), ratio)
-    z2 = z * z
-    angle = z + z * z2 * _polynomial(_ATAN_P, z2) / _polynomial(_ATAN_Q, z2)
-    angle = jnp.where(shifted, jnp.pi / 4 + angle, angle)
-    return jnp.where(swap, jnp.pi / 2 - angle, angle)
-
-
 def _reciprocal(x: Float[Array, "..."]) -> Float[Array, "..."]:
     """`1 / x`, 0 where `x == 0` (coincident points), finite gradients."""
     return safe_div(jnp.ones_like(x), x)
@@ -180,7 +153,7 @@ def _flow_weights(edges: Float[Array, "n 2"], closed: bool, kind: str):
             # (theta/2) / sin(theta/2); its series 1 + s^2/6 below 1e-4, where the quotient loses digits.
             small = sine < 1e-4
             ratio = jnp.where(
-                small, 1 + sine**2 / 6, _first_quadrant_atan2(sine, cosine) / jnp.where(small, 1.0, sine)
+                small, 1 + sine**2 / 6, first_quadrant_atan2(sine, cosine) / jnp.where(small, 1.0, sine)
             )
         alpha, beta = ratio * inverse_u, ratio * inverse
     if not closed:
@@ -245,6 +218,10 @@ def _advance(points, step, first_nonsimple, tau, target, *, closed, kind, method
     """`count` steps from `points` at step number `step`; tracks the first non-simple step if `every_step`."""
     update = _explicit_step if method == "explicit" else _semi_implicit_step
 
+    # Checkpointing each step makes reverse mode store only the positions per step and recompute
+    # the step's internals: 3x faster gradients here than storing every intermediate (measured,
+    # benchmarks/README.md), and O(steps * n) memory.
+    @jax.checkpoint
     def body(carry, _):
         p, k, bad = carry
         p = update(p, tau, closed, kind)
@@ -279,7 +256,7 @@ def _frame_invariants(frames, closed):
 @functools.partial(jax.jit, static_argnames=("closed", "kind", "method", "rescale", "steps", "save_every", "every_step"))
 def _run(points, tau, *, closed, kind, method, rescale, steps, save_every, every_step):
     """The whole flow as one scan over saved chunks (each an inner scan of `save_every` steps)."""
-    settings = dict(closed=closed, kind=kind, method=method, rescale=rescale, count=save_every, every_step=every_step)
+    settings = {"closed": closed, "kind": kind, "method": method, "rescale": rescale, "count": save_every, "every_step": every_step}
     target = _size(points, closed, rescale) if rescale is not None else jnp.zeros((), points.dtype)
 
     def chunk(carry, _):
@@ -407,29 +384,32 @@ def _run_with_progress(points, tau, *, closed, kind, method, rescale, steps, sav
     return jnp.stack(frames), carry[2]
 
 
-@functools.partial(jax.jit, static_argnames=("save_every", "closed", "kind", "method", "rescale"))
-def _result(frames, first_nonsimple, tau, save_every, *, closed, kind, method, rescale) -> CurveFlowResult:
+@functools.partial(jax.jit, static_argnames=("closed",))
+def _saved_invariants(frames, first_nonsimple, tau, save_every, *, closed) -> dict:
+    """The invariant fields of `CurveFlowResult` (one compiled program per shape, whatever the kind / method / rescale)."""
     total, middle, size, area, ratio, residual, simple, finite = _frame_invariants(frames, closed)
     steps = save_every * jnp.arange(frames.shape[0], dtype=jnp.int32)
     never = jnp.iinfo(jnp.int32).max
     first_saved_nonsimple = jnp.where(jnp.any(~simple), steps[jnp.argmax(~simple)], never)
     first_nonsimple = jnp.minimum(first_saved_nonsimple, jnp.where(first_nonsimple >= 0, first_nonsimple, never))
-    return CurveFlowResult(
-        points=frames,
-        times=steps * tau,
-        steps=steps,
-        total_curvature=total,
-        centroid=middle,
-        length=size,
-        area=area,
-        isoperimetric_ratio=ratio,
-        cyclic_residual=residual,
-        is_simple=simple,
-        first_nonsimple_step=jnp.where(first_nonsimple < never, first_nonsimple, -1),
-        first_nonfinite_step=jnp.where(jnp.any(~finite), steps[jnp.argmax(~finite)], -1),
-        tau=tau,
-        kind=kind,
-        method=method,
-        rescale=rescale,
-        closed=closed,
-    )
+    return {
+        "points": frames,
+        "times": steps * tau,
+        "steps": steps,
+        "total_curvature": total,
+        "centroid": middle,
+        "length": size,
+        "area": area,
+        "isoperimetric_ratio": ratio,
+        "cyclic_residual": residual,
+        "is_simple": simple,
+        "first_nonsimple_step": jnp.where(first_nonsimple < never, first_nonsimple, -1),
+        "first_nonfinite_step": jnp.where(jnp.any(~finite), steps[jnp.argmax(~finite)], -1),
+        "tau": tau,
+    }
+
+
+def _result(frames, first_nonsimple, tau, save_every, *, closed, kind, method, rescale) -> CurveFlowResult:
+    # save_every goes in as an array: a new value does not recompile.
+    fields = _saved_invariants(frames, first_nonsimple, tau, jnp.asarray(save_every, jnp.int32), closed=closed)
+    return CurveFlowResult(**fields, kind=kind, method=method, rescale=rescale, closed=closed)

@@ -93,45 +93,70 @@ def cyclic_residual(curve: Curve) -> Float[Array, ""]:
     return safe_div(jnp.std(distances), jnp.mean(distances))
 
 
-def _segments_intersect(a0, a1, b0, b1) -> Bool[Array, "..."]:
-    """Closed segments `a0 a1` and `b0 b1` share a point (proper crossing, touching or collinear overlap)."""
+def _sides(d, w, tolerance):
+    """Whether the point `a0 + w` lies strictly left of / strictly right of the line through `a0` along `d`.
+
+    "Strictly" means by more than the rounding error of `d x w` when the coordinates carry an
+    absolute error of about `eps max|coordinate|`: `tolerance (|d|_1 + |w|_1)` with
+    `tolerance = 16 eps max|coordinate|`; a point within it counts as on the line.
+    """
+    o = cross2(d, w)
+    slack = tolerance * (jnp.abs(d[..., 0]) + jnp.abs(d[..., 1]) + jnp.abs(w[..., 0]) + jnp.abs(w[..., 1]))
+    return o > slack, o < -slack
+
+
+def _segments_intersect(a0, a1, b0, b1, tolerance) -> Bool[Array, "..."]:
+    """Closed segments `a0 a1` and `b0 b1` share a point (proper crossing, touching or collinear overlap), up to rounding.
+
+    Orientations within their rounding error (`_sides`) count as 0, so a point within rounding of a
+    segment touches it, and nearly collinear segments are classified as collinear, not by the
+    signs of their rounding errors.
+    """
     da, db = a1 - a0, b1 - b0
-    o1, o2 = cross2(da, b0 - a0), cross2(da, b1 - a0)
-    o3, o4 = cross2(db, a0 - b0), cross2(db, a1 - b0)
-    straddle = (o1 * o2 <= 0) & (o3 * o4 <= 0)
-    # All four orientations vanish only for collinear segments; those meet iff their boxes overlap.
+    left1, right1 = _sides(da, b0 - a0, tolerance)
+    left2, right2 = _sides(da, b1 - a0, tolerance)
+    left3, right3 = _sides(db, a0 - b0, tolerance)
+    left4, right4 = _sides(db, a1 - b0, tolerance)
+    apart = (left1 & left2) | (right1 & right2) | (left3 & left4) | (right3 & right4)
+    # Collinear segments (every endpoint on the other's line) meet iff their boxes overlap.
+    collinear = ~(left1 | right1 | left2 | right2 | left3 | right3 | left4 | right4)
     boxes = jnp.all(
-        (jnp.minimum(a0, a1) <= jnp.maximum(b0, b1)) & (jnp.minimum(b0, b1) <= jnp.maximum(a0, a1)), axis=-1
+        (jnp.minimum(a0, a1) <= jnp.maximum(b0, b1) + tolerance) & (jnp.minimum(b0, b1) <= jnp.maximum(a0, a1) + tolerance),
+        axis=-1,
     )
-    collinear = (o1 == 0) & (o2 == 0)
-    return jnp.where(collinear, boxes, straddle)
+    return jnp.where(collinear, boxes, ~apart)
 
 
 @functools.partial(jax.jit, static_argnames=("block",))
 def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
     """True when the curve does not intersect or touch itself (boolean scalar, jit-compatible).
 
-    Every pair of non-adjacent edges is tested with exact orientation signs (crossings, touching
-    points and collinear overlaps all count); adjacent edges, which share an endpoint, count as
-    intersecting only when they fold back onto each other (turning angle exactly `pi`). Coincident
-    vertices therefore make a curve non-simple. O(n^2) work in blocks of `block` edges against all
-    edges (O(block * n) memory). Equivalent: `curvey.Curve.is_simple` (shapely).
+    Every pair of non-adjacent edges is tested with orientation signs (crossings, touching points
+    and collinear overlaps all count); adjacent edges, which share an endpoint, count as
+    intersecting only when they fold back onto each other (turning angle `pi`). Coincident vertices
+    therefore make a curve non-simple. An orientation `d x w` counts as 0 when it is within its
+    rounding error, `16 eps max|coordinate| (|d|_1 + |w|_1)` (`eps` of the points' dtype): points
+    on a straight side of a polygon that rounding moved off it by a few ulps stay collinear (exact
+    signs would see crossings there), and gaps below about
+    `16 eps max|coordinate| (1 + |w| / |d|)` count as touching. O(n^2) work in blocks of
+    `block` edges against all edges (O(block * n) memory). Equivalent: `curvey.Curve.is_simple`
+    (shapely, which uses exact predicates on the rounded coordinates).
     """
     points = curve.points
     starts = points if curve.closed else points[:-1]
     ends = jnp.roll(points, -1, axis=0)[: starts.shape[0]]
     m = starts.shape[0]
     index = jnp.arange(m)
+    tolerance = 16 * jnp.finfo(points.dtype).eps * jnp.max(jnp.abs(points))
+    directions = ends - starts
 
     def row(i):
-        cross = _segments_intersect(starts[i], ends[i], starts, ends)
+        cross = _segments_intersect(starts[i], ends[i], starts, ends, tolerance)
         gap = jnp.abs(index - i)
         adjacent = (gap == 1) | (curve.closed & (gap == m - 1))
-        folded = (cross2(ends[i] - starts[i], ends - starts) == 0) & (
-            jnp.sum((ends[i] - starts[i]) * (ends - starts), axis=-1) < 0
-        )
+        left, right = _sides(directions[i], directions, tolerance)
+        folded = ~left & ~right & (jnp.sum(directions[i] * directions, axis=-1) < 0)
         hits = jnp.where(adjacent, folded, cross) & (index > i)
         return jnp.any(hits)
 
     return ~jnp.any(jax.lax.map(row, index, batch_size=min(block, m)))
-

@@ -35,8 +35,9 @@ def d0(mesh: Mesh) -> SparseMatrix:
     `(d0 u)_e = u[head] - u[tail]` for edge `e = (tail, head)` of `mesh.edges` (oriented low -> high).
     Works on every mesh (non-manifold or non-orientable too): it needs only the edges. Values are
     `-1, +1` in the vertex dtype. Reference: Crane et al., *Digital Geometry Processing with Discrete
-    Exterior Calculus* (SIGGRAPH course 2013), section 3.6. gpytoolbox: none with this edge order
-    (`gpytoolbox.edges` + `scipy.sparse`); DDG exercises: `DEC::buildExteriorDerivative0Form`.
+    Exterior Calculus* (SIGGRAPH course 2013), section 3.6. DDG exercises:
+    `DEC::buildExteriorDerivative0Form` (opposite global sign). gpytoolbox: `dec_d0`, on its own edge
+    order and orientation `E` (`halfedge_edge_map`) and with the opposite sign, `u[E0] - u[E1]`.
     """
     values = jnp.broadcast_to(jnp.asarray([-1.0, 1.0], mesh.vertices.dtype), mesh.edges.shape)
     return _row_blocks(mesh.edges, values, mesh.n_vertices)
@@ -49,7 +50,8 @@ def d1(mesh: Mesh) -> SparseMatrix:
     face `f` in its own vertex order, each edge counted with +1 where the face runs it low -> high.
     `d1 @ d0 == 0` exactly. Needs consistently oriented faces (raises `MeshDataError` otherwise, via
     `topology.require_oriented`): on a non-orientable or inconsistently oriented mesh the result would
-    depend on an arbitrary choice per face. DDG exercises: `DEC::buildExteriorDerivative1Form`.
+    depend on an arbitrary choice per face. DDG exercises: `DEC::buildExteriorDerivative1Form`;
+    gpytoolbox: `dec_d1` (on its own edge order and orientation).
     """
     mesh.topology.require_oriented("ddgjax.dec.d1")
     edges = mesh.face_edges

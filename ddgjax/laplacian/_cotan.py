@@ -24,7 +24,7 @@ from .._errors import DDGInputError
 from .._numerics import safe_div, safe_norm
 from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_area_vectors, face_edge_vectors
 from ..mesh._mesh import Mesh
-from ..sparse import SparseMatrix, congruence
+from ..sparse import SparseMatrix, congruence, gather_sum
 
 def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     """The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on `mesh.vertex_pattern`.
@@ -33,8 +33,16 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
 
     - `method="fem"` (default, the fast one): Galerkin stiffness matrix of piecewise-linear hat
       functions, `L_ij = sum_f A_f <grad phi_i, grad phi_j>` with `grad phi_k = (N x e_k) / (2 A_f)`
-      (`e_k` the edge opposite corner `k`, `N` the unit normal), which equals the cotan formula since
-      `2 A_f <grad phi_i, grad phi_j> = -cot(angle at the third corner)`.
+      (`e_k` the edge vector opposite corner `k`, `N` the unit normal; `face_hat_gradients`). A
+      rotation by 90 degrees in the face plane keeps dot products, so the per-face product simplifies
+      to `A_f <grad phi_i, grad phi_j> = <e_i, e_j> / (4 A_f)` with `4 A_f = 2 |e_i x e_j|`: two dot
+      products and one cross product per face, no normal or gradient is formed. It equals the cotan
+      formula since `<e_i, e_j> / (2 A_f) = -cot(angle at the third corner)`. The per-corner values are
+      gathered straight into the pattern's storage order (`Mesh.vertex_pattern_corners`) and the
+      diagonal is minus the ELL row sum; reverse mode runs through `ddgjax.sparse.gather_sum`, whose
+      transpose is a gather (no scatter-add), so `jax.grad` of an energy costs a few energy
+      evaluations. Forward mode (`jax.jvp` / `jax.jacfwd` over the vertices) does not pass through
+      that custom reverse rule: use `method="dec"` for it.
     - `method="dec"`: `d0^T *1 d0` from `ddgjax.dec.d0` and the circumcentric `ddgjax.dec.hodge1`,
       summed by `ddgjax.sparse.congruence` (slower; a cross-check of the derivation).
 
@@ -53,13 +61,26 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     libigl `cotmatrix` (negated); gpytoolbox `cotangent_laplacian`.
     """
     if method == "fem":
-        return _from_edge_weights(mesh, edge_stiffness_weights(mesh))
+        return _fem_stiffness(mesh)
     if method == "dec":
         # Import here: ddgjax.dec builds on ddgjax.mesh and ddgjax.sparse, and may import this module.
         from ..dec import d0, hodge1
 
         return congruence(d0(mesh), hodge1(mesh).diagonal(), mesh.vertex_pattern)
     raise DDGInputError(f"method: expected 'fem' or 'dec', got {method!r}")
+
+
+def _fem_stiffness(mesh: Mesh) -> SparseMatrix:
+    """The FEM stiffness on `mesh.vertex_pattern`, values computed in storage order (see `cotan_laplacian`)."""
+    corners = mesh.vertices[mesh.faces]
+    p0, p1, p2 = corners[:, 0], corners[:, 1], corners[:, 2]
+    e0, e1, e2 = p2 - p1, p0 - p2, p1 - p0  # edge opposite corner k
+    dots = jnp.stack([jnp.sum(e1 * e2, axis=-1), jnp.sum(e2 * e0, axis=-1), jnp.sum(e0 * e1, axis=-1)], axis=1)
+    # <e_i, e_j> / (4 A) per corner (the entry of the edge opposite it); 0 on zero-area faces.
+    entries = safe_div(dots, 2.0 * safe_norm(jnp.cross(e1, e2))[:, None])
+    off_diagonal = gather_sum(entries.reshape(-1), mesh.vertex_pattern_corners, mesh.corner_pattern_slots)
+    rows_off = SparseMatrix(jnp.concatenate([jnp.zeros(mesh.n_vertices, entries.dtype), off_diagonal]), mesh.vertex_pattern)
+    return _with_diagonal(rows_off, -rows_off.row_sums())
 
 
 def face_hat_gradients(mesh: Mesh) -> Float[Array, "nf 3 3"]:
@@ -86,12 +107,6 @@ def edge_stiffness_weights(mesh: Mesh) -> Float[Array, " ne"]:
     products = jnp.sum(jnp.roll(gradients, -1, axis=1) * jnp.roll(gradients, -2, axis=1), axis=-1)
     # -2 A <grad phi_{k+1}, grad phi_{k+2}> = cot(alpha_k): the edge gather takes corner cotangents.
     return edge_cotan_weights_from_corner_cotangents(mesh, -double_areas[:, None] * products)
-
-
-def _from_edge_weights(mesh: Mesh, weights: Float[Array, " ne"]) -> SparseMatrix:
-    """`L` on the vertex pattern with off-diagonal `-w` and the diagonal making rows sum to zero."""
-    off_diagonal = vertex_operator(mesh, -weights)
-    return _with_diagonal(off_diagonal, -off_diagonal.row_sums())
 
 
 def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatrix:

@@ -1,4 +1,13 @@
-"""Triangle meshes: the `Mesh` type, its NumPy-built topology and differentiable per-element geometry."""
+"""Triangle meshes: the `Mesh` type, its NumPy-built topology, differentiable geometry and curvature.
+
+- `Mesh`, `MeshTopology`: vertices (differentiable) plus connectivity built once in NumPy.
+- Geometry (jit / grad / vmap over `mesh.vertices`): edge lengths, face areas and normals, corner
+  angles and cotangents, cotan weights, vertex normals, dual areas, dihedral angles, area, volume.
+- Curvature: angle defects (integrated K), Gaussian / mean / principal curvature (pointwise), mean
+  curvature normals, Gauss curvature normals, total mean curvature.
+- Built-in shapes: `icosphere`, `uv_sphere`, `torus`, `disk`, `grid`.
+- Checks: `check_mesh` -> `MeshReport`.
+"""
 
 from ._geometry import (
     corner_angles as corner_angles,
@@ -24,6 +33,7 @@ from ._geometry import (
     vertex_dual_areas as vertex_dual_areas,
     vertex_normals as vertex_normals,
 )
+from ._check import MeshReport as MeshReport, check_mesh as check_mesh
 from ._curvature import (
     gaussian_curvature as gaussian_curvature,
     mean_curvature as mean_curvature,

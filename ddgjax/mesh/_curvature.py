@@ -67,6 +67,7 @@ def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     libigl: `-igl.cotmatrix(V, F) @ V / 2` (the libigl tutorial's `HN = -Minv L V` is the pointwise
     `2 H N` with the opposite sign of `L`).
     """
+    # Import here: ddgjax.laplacian is built on ddgjax.mesh (a module-level import would be circular).
     from ..laplacian import laplacian_apply
 
     return 0.5 * laplacian_apply(mesh, mesh.vertices)
@@ -131,7 +132,8 @@ def principal_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "
 
     `k1,2 = H +- sqrt(max(H^2 - K, 0))` with the pointwise `mean_curvature` and `gaussian_curvature`
     (same dual areas). The discrete `H^2 - K` can be slightly negative (umbilic points: a sphere);
-    it is clamped to 0 there. Reference: Meyer et al. 2003, Section 6. libigl's
+    it is clamped to 0 there. Away from umbilics `k1, k2` inherit the `O(h^2)` accuracy of `K` and
+    `H` on regular meshes; at umbilics the square root makes it `O(h)`. Reference: Meyer et al. 2003, Section 6. libigl's
     `principal_curvature` fits quadrics instead (and also returns directions).
     """
     h = mean_curvature(mesh, kind=kind)

@@ -178,8 +178,7 @@ def corner_dual_areas_from_lengths_sq(
     Reference: M. Meyer, M. Desbrun, P. Schroeder, A. Barr, "Discrete differential-geometry operators
     for triangulated 2-manifolds" (2003), Section 3.3 and Fig. 4.
     """
-    if kind not in _DUAL_AREA_KINDS:
-        raise DDGInputError(f"kind: expected one of {_DUAL_AREA_KINDS}, got {kind!r}")
+    _check_dual_area_kind(kind)
     if areas is None:
         areas = face_areas_from_lengths_sq(lengths_sq)
     if kind == "barycentric":
@@ -197,8 +196,14 @@ def corner_dual_areas_from_lengths_sq(
     return jnp.where(has_obtuse, split, circumcentric)
 
 
+def _check_dual_area_kind(kind: str) -> None:
+    if kind not in _DUAL_AREA_KINDS:
+        raise DDGInputError(f"kind: expected one of {_DUAL_AREA_KINDS}, got {kind!r}")
+
+
 def corner_dual_areas(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nf 3"]:
     """Per-corner dual areas, `(nf, 3)`, from the embedding (see `corner_dual_areas_from_lengths_sq`)."""
+    _check_dual_area_kind(kind)
     return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), kind=kind, areas=face_areas(mesh))
 
 

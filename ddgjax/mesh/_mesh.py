@@ -37,6 +37,11 @@ class Mesh(eqx.Module):
             `[diagonal (nv) | edges low->high (ne) | edges high->low (ne)]`, or `nv + 2 ne` for an ELL
             padding slot, so operator values assemble with one gather:
             `jnp.take(entries, vertex_pattern_source, mode="fill", fill_value=0)`.
+        vertex_pattern_corners: `(nnz - nv, m)` for each off-diagonal storage slot `nv + s`, the flat
+            corners `3 f + k` opposite its edge (`3 nf` pads), so per-corner values (cotangents) land
+            in storage order with one gather; `corner_pattern_slots` `(3 nf, 2)` is its transpose (the
+            two off-diagonal slots of each corner's edge), for a scatter-free reverse pass
+            (`ddgjax.sparse.gather_sum`).
         topology: `MeshTopology` (static).
     """
 
@@ -49,6 +54,8 @@ class Mesh(eqx.Module):
     edge_face_corners: Int[Array, "ne m"]
     vertex_pattern: SparsityPattern
     vertex_pattern_source: Int[Array, " nnz"]
+    vertex_pattern_corners: Int[Array, "n_off m"]
+    corner_pattern_slots: Int[Array, "n_corners 2"]
     topology: MeshTopology = eqx.field(static=True)
 
     @classmethod
@@ -73,6 +80,7 @@ class Mesh(eqx.Module):
     def from_topology(cls, vertices: Float[Array, "nv 3"], topology: MeshTopology) -> "Mesh":
         """A mesh with the given (already built) topology and vertex positions."""
         pattern, source = SparsityPattern.from_edges(topology.edges, topology.n_vertices)
+        slot_corners, corner_slots = _pattern_corner_maps(topology, source)
         return cls(
             vertices=vertices,
             faces=jnp.asarray(topology.faces),
@@ -83,6 +91,8 @@ class Mesh(eqx.Module):
             edge_face_corners=jnp.asarray(topology.edge_face_corners, dtype=jnp.int32),
             vertex_pattern=pattern,
             vertex_pattern_source=jnp.asarray(source),
+            vertex_pattern_corners=jnp.asarray(slot_corners),
+            corner_pattern_slots=jnp.asarray(corner_slots),
             topology=topology,
         )
 
@@ -108,6 +118,23 @@ class Mesh(eqx.Module):
     @property
     def n_edges(self) -> int:
         return self.topology.n_edges
+
+
+def _pattern_corner_maps(topology: MeshTopology, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Off-diagonal storage slot -> corners opposite its edge, and corner -> its edge's two slots."""
+    nv, ne, nf = topology.n_vertices, topology.n_edges, topology.n_faces
+    # Storage slots 0..nv-1 are the diagonal (the vertex pattern is diagonal-first ELL).
+    off_source = source[nv:].astype(np.int64)
+    edge = np.where(off_source < nv + ne, off_source - nv, off_source - nv - ne)
+    padding = off_source >= nv + 2 * ne
+    present = topology.edge_faces >= 0
+    edge_corners = np.where(present, 3 * topology.edge_faces.astype(np.int64) + topology.edge_face_corners, 3 * nf)
+    slot_corners = np.where(padding[:, None], 3 * nf, edge_corners[np.where(padding, 0, edge)])
+    slot_of_source = np.empty(nv + 2 * ne + 1, dtype=np.int64)
+    slot_of_source[off_source] = np.arange(off_source.size)
+    corner_edges = topology.face_edges.reshape(-1).astype(np.int64)
+    corner_slots = np.stack([slot_of_source[nv + corner_edges], slot_of_source[nv + ne + corner_edges]], axis=1)
+    return slot_corners.astype(np.int32), corner_slots.astype(np.int32)
 
 
 def _as_float_array(vertices) -> Float[Array, "nv 3"]:

@@ -3,7 +3,8 @@
 Each is deterministic, manifold and consistently oriented; closed shapes have outward normals, flat
 ones lie in the plane `z = 0` with normals `+z` (faces counterclockwise seen from above). Topology is
 built with vectorised NumPy (no per-element Python loops, so a 1.3 M-face icosphere takes about a
-second); vertices come back as a JAX array in JAX's default float dtype unless `dtype` is given.
+second); vertices come back as a JAX array in JAX's default float dtype unless `dtype` is given. Counts are
+integers (Python or NumPy) and sizes positive numbers; anything else raises `DDGInputError`.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from .._errors import DDGInputError
 from ._mesh import Mesh
 
 
-def icosphere(subdivisions: int = 3, radius: float = 1.0, *, dtype=None) -> Mesh:
+def icosphere(subdivisions=3, radius=1.0, *, dtype=None) -> Mesh:
     """Geodesic sphere: an icosahedron, each face split into four `subdivisions` times.
 
     Every new vertex is the midpoint of an edge pushed onto the sphere, so all vertices lie on it.
@@ -65,7 +66,7 @@ def _split_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
     return np.concatenate([vertices, midpoints]), new_faces
 
 
-def uv_sphere(n_lat: int = 16, n_lon: int = 32, radius: float = 1.0, *, dtype=None) -> Mesh:
+def uv_sphere(n_lat=16, n_lon=32, radius=1.0, *, dtype=None) -> Mesh:
     """Latitude-longitude sphere: two poles and `n_lat - 1` rings of `n_lon` vertices.
 
     `(n_lat - 1) n_lon + 2` vertices and `2 (n_lat - 1) n_lon` faces (fans at the poles, each band of
@@ -90,7 +91,7 @@ def uv_sphere(n_lat: int = 16, n_lon: int = 32, radius: float = 1.0, *, dtype=No
     return _mesh(radius * vertices, np.concatenate([top, band, bottom]), dtype)
 
 
-def torus(R: float = 1.0, r: float = 0.25, n_major: int = 48, n_minor: int = 16, *, dtype=None) -> Mesh:
+def torus(R=1.0, r=0.25, n_major=48, n_minor=16, *, dtype=None) -> Mesh:
     """Torus of revolution about the z axis: tube radius `r` around a circle of radius `R` in z = 0.
 
     Vertex `(i, j)` (index `i * n_minor + j`) sits at `((R + r cos v) cos u, (R + r cos v) sin u,
@@ -116,7 +117,7 @@ def torus(R: float = 1.0, r: float = 0.25, n_major: int = 48, n_minor: int = 16,
     return _mesh(vertices, faces, dtype)
 
 
-def disk(n_rings: int = 8, radius: float = 1.0, *, dtype=None) -> Mesh:
+def disk(n_rings=8, radius=1.0, *, dtype=None) -> Mesh:
     """Flat disk in z = 0: a centre vertex and `n_rings` concentric rings, ring `k` with `6k` vertices.
 
     Ring `k` has radius `k r / n_rings`; consecutive rings are zipped together by angle, giving nearly
@@ -157,7 +158,7 @@ def _zip_rings(inner_start: int, m_inner: int, outer_start: int, m_outer: int) -
     return np.stack([inner, outer, third], axis=1)
 
 
-def grid(nx: int = 8, ny: int = 8, size: float = 1.0, *, dtype=None) -> Mesh:
+def grid(nx=8, ny=8, size=1.0, *, dtype=None) -> Mesh:
     """Flat square `[-size/2, size/2]^2` in z = 0, split into `nx` by `ny` cells of two triangles each.
 
     Vertex `(i, j)` (index `j * (nx + 1) + i`) is at `(-size/2 + i size/nx, -size/2 + j size/ny, 0)`;

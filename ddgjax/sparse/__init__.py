@@ -3,6 +3,7 @@
 from ._matrix import SparseMatrix as SparseMatrix
 from ._matrix import diagonal_matrix as diagonal_matrix
 from ._matrix import from_scipy as from_scipy
+from ._gather import gather_sum as gather_sum
 from ._pattern import SparsityPattern as SparsityPattern
 from ._pattern import gather_index as gather_index
 from ._products import congruence as congruence

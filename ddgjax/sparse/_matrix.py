@@ -192,7 +192,11 @@ def _broadcast(values: Float[Array, " m"], x: Float[Array, "n *batch"]) -> Float
 
 
 def _coo_transpose(matrix: SparseMatrix) -> SparseMatrix:
-    """Transpose of a pattern built without host data: swap rows and columns, products scatter."""
+    """Transpose of a `"csr"` pattern built without host data (e.g. inside jit): swap rows and columns.
+
+    The only place a sort runs inside jit (a stable argsort of the column indices); host-built
+    patterns carry their transpose instead (`SparsityPattern.transpose_slot`).
+    """
     pattern = matrix.pattern
     n_rows, n_cols = pattern.shape
     counts = jnp.zeros(n_cols + 1, pattern.indptr.dtype).at[pattern.cols + 1].add(1)

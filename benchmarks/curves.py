@@ -1,0 +1,161 @@
+"""Curve-shortening flow benchmark: ddgjax against a plain NumPy loop and curvey, side by side.
+
+Run from the repository root:
+
+    python benchmarks/curves.py            # full sizes (a few minutes on 2 CPU cores)
+    python benchmarks/curves.py --quick    # smaller sizes, for a smoke test
+
+Reports compile time and run time (min / median over repeats) separately, and ratios:
+1. 10,000 explicit steps on a 1,000-vertex curve, each kind A, B, C, D: ddgjax's
+   `curve_shortening_flow` (one `lax.scan`, plus the invariants of the two saved states) against a
+   plain NumPy loop of the same iteration (the reading report's formulas, vectorised per step),
+   and the jitted scan alone ("steps only", without the invariants). Target: >= 20x.
+2. curvey's `CurveShorteningFlow` (explicit, resampling off, curvey's own finite-difference normals
+   with the B curvature plugged in): per step, extrapolated to 10,000 steps.
+3. A batch of curves under `jax.vmap`: vertex-steps per second.
+4. The gradient of a loss on the final curve through 1,000 steps, against the forward run.
+   Target: <= 3x.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+from ddgjax.curves import Curve, curve_shortening_flow, flower
+from ddgjax.curves._flow import _run
+
+
+def timed(function, repeats):
+    """(first call seconds, min, median over `repeats` further calls)."""
+    start = time.perf_counter()
+    jax.block_until_ready(function())
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(function())
+        times.append(time.perf_counter() - start)
+    return first, min(times), statistics.median(times)
+
+
+def numpy_flow(points, kind, tau, steps):
+    """The report's iteration `p <- p + tau kappa N`, one vectorised NumPy pass per step."""
+    P = np.array(points, dtype=np.float64)
+    for _ in range(steps):
+        v = np.roll(P, -1, axis=0) - P  # p_{i+1} - p_i
+        u = np.roll(v, 1, axis=0)  # p_i - p_{i-1}
+        lu, lv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
+        theta = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], np.sum(u * v, axis=1))
+        if kind == "D":
+            kappa = 2 * np.sin(theta) / np.linalg.norm(u + v, axis=1)
+            tangent = (lv**2)[:, None] * u + (lu**2)[:, None] * v
+        else:
+            kappa = {"A": theta, "B": 2 * np.sin(theta / 2), "C": 2 * np.tan(theta / 2)}[kind]
+            tangent = u / lu[:, None] + v / lv[:, None]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.linalg.norm(tangent, axis=1)[:, None]
+        P += tau * kappa[:, None] * normal
+    return P
+
+
+def curvey_seconds_per_step(points, tau, steps):
+    import curvey
+    from curvey.flow import CurveShorteningFlow
+
+    def kappa_b(curve):
+        return 2 * np.sin(curve.turning_angle / 2)
+
+    flow = CurveShorteningFlow(resample_mode=None, curvature_fn=kappa_b)
+    solver = flow.solver(curvey.Curve(np.asarray(points)), timestep=tau, max_step=steps, history=False)
+    start = time.perf_counter()
+    solver.run()
+    return (time.perf_counter() - start) / steps
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes, for a smoke test")
+    args = parser.parse_args()
+    n, steps, repeats = (200, 1000, 2) if args.quick else (1000, 10_000, 5)
+    batch, batch_n, batch_steps = (64, 64, 100) if args.quick else (1024, 128, 1000)
+    grad_steps = 100 if args.quick else 1000
+    curve = flower(n)
+    taus = {"A": 1e-4, "B": 1e-4, "C": 1e-4, "D": 1e-6}  # below the explicit limits (edge ~6e-3)
+
+    print(f"# ddgjax curve benchmarks: {platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, "
+          f"jax {jax.__version__} ({jax.devices()[0].platform}), float64")
+    print(f"\n## Explicit flow: {n} vertices x {steps} steps (flower curve)\n")
+    print("| kind | ddgjax compile (s) | ddgjax run min / median (ms) | NumPy loop (ms) | speed-up "
+          "| steps only (ms) | speed-up, steps only | max |diff| |")
+    print("|---|---|---|---|---|---|---|---|")
+    for kind, tau in taus.items():
+        def run(kind=kind, tau=tau):
+            return curve_shortening_flow(curve, kind=kind, tau=tau, steps=steps).points
+
+        def scan_only(kind=kind, tau=tau):
+            # the steps alone, without the invariants of the saved states (an O(n^2) simplicity test among them)
+            return _run(curve.points, jnp.asarray(tau), closed=True, kind=kind, method="explicit", rescale=None,
+                        steps=steps, save_every=steps, every_step=False)
+
+        first, fastest, median = timed(run, repeats)
+        _, fastest_scan, _ = timed(scan_only, repeats)
+        start = time.perf_counter()
+        reference = numpy_flow(curve.points, kind, tau, steps)
+        numpy_seconds = time.perf_counter() - start
+        difference = float(np.abs(np.asarray(run()[-1]) - reference).max())
+        print(f"| {kind} | {first - fastest:.2f} | {1e3 * fastest:.1f} / {1e3 * median:.1f} | {1e3 * numpy_seconds:.0f} "
+              f"| {numpy_seconds / fastest:.1f}x | {1e3 * fastest_scan:.1f} | {numpy_seconds / fastest_scan:.1f}x | {difference:.1e} |")
+
+    curvey_steps = 20 if args.quick else 200
+    per_step = curvey_seconds_per_step(curve.points, taus["B"], curvey_steps)
+    _, fastest_b, _ = timed(lambda: curve_shortening_flow(curve, kind="B", tau=taus["B"], steps=steps).points, 1)
+    print(f"\ncurvey CurveShorteningFlow (B curvature, curvey's normals, {curvey_steps} steps timed): "
+          f"{1e6 * per_step:.0f} us/step -> {per_step * steps:.1f} s for {steps} steps; "
+          f"ddgjax B {1e6 * fastest_b / steps:.1f} us/step ({per_step * steps / fastest_b:.0f}x)")
+
+    print(f"\n## Batch under vmap: {batch} curves x {batch_n} vertices x {batch_steps} steps\n")
+    print("| kind | compile (s) | run min / median (ms) | vertex-steps / s | single curve, same size (vertex-steps / s) |")
+    print("|---|---|---|---|---|")
+    rng = np.random.default_rng(0)
+    base = np.asarray(flower(batch_n).points)
+    curves = jnp.asarray(base[None] * rng.uniform(0.8, 1.2, (batch, 1, 1)) + 0.01 * rng.normal(size=(batch, batch_n, 2)))
+    for kind in ("A", "B"):
+        batched = jax.jit(jax.vmap(lambda P, kind=kind: curve_shortening_flow(Curve(P), kind=kind, tau=1e-4, steps=batch_steps).points[-1]))
+        first, fastest, median = timed(lambda batched=batched: batched(curves), max(1, repeats // 2))
+        _, single, _ = timed(lambda kind=kind: curve_shortening_flow(Curve(curves[0]), kind=kind, tau=1e-4, steps=batch_steps).points, repeats)
+        work = batch * batch_n * batch_steps
+        print(f"| {kind} | {first - fastest:.2f} | {1e3 * fastest:.0f} / {1e3 * median:.0f} | {work / fastest:.3g} "
+              f"| {batch_n * batch_steps / single:.3g} |")
+
+    print(f"\n## Gradient through {grad_steps} steps ({n} vertices)\n")
+    print("| kind | forward (ms) | gradient (ms) | ratio | compile forward / gradient (s) |")
+    print("|---|---|---|---|---|")
+    for kind in ("A", "B", "D"):
+        tau = taus[kind]
+
+        def loss(P, kind=kind, tau=tau):
+            final = curve_shortening_flow(Curve(P), kind=kind, tau=tau, steps=grad_steps).points[-1]
+            return jnp.sum(final**2)
+
+        forward, gradient = jax.jit(loss), jax.jit(jax.grad(loss))
+        first_f, fastest_f, _ = timed(lambda forward=forward: forward(curve.points), repeats)
+        first_g, fastest_g, _ = timed(lambda gradient=gradient: gradient(curve.points), repeats)
+        print(f"| {kind} | {1e3 * fastest_f:.1f} | {1e3 * fastest_g:.1f} | {fastest_g / fastest_f:.2f}x "
+              f"| {first_f - fastest_f:.2f} / {first_g - fastest_g:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,135 @@
+"""Mesh files (ddgjax.io): round trips, vertex order, the SOURCES.md table, clear errors."""
+
+from __future__ import annotations
+
+import igl
+import numpy as np
+import pytest
+
+from conftest import shared_path
+from ddgjax._errors import DDGInputError
+from ddgjax.io import load_mesh, save_mesh
+from ddgjax.mesh import Mesh
+
+# From ../shared/meshes/SOURCES.md: V, F, E, chi, genus (None: not defined), boundary loops
+# (None: not listed, non-manifold). Small and special meshes plus the large ones with UV seams,
+# unreferenced vertices and slivers.
+SOURCES_TABLE = {
+    "tet.obj": (4, 4, 6, 2, 0, 0),
+    "small_disk.obj": (19, 27, 45, 1, 0, 1),
+    "sphere_small.ply": (162, 320, 480, 2, 0, 0),
+    "bob_small.ply": (250, 500, 750, 0, 1, 0),
+    "hourglass_ico.obj": (23, 40, 60, 3, None, 0),
+    "triple_vierbein.obj": (75, 108, 182, 1, None, None),
+    "moebius.obj": (280, 448, 728, 0, None, 1),
+    "torus.obj": (3840, 7680, 11520, 0, 1, 0),
+    "double-torus.obj": (3070, 6144, 9216, -2, 2, 0),
+    "fertility.off": (4494, 9000, 13500, -6, 4, 0),
+    "spot.obj": (2930, 5856, 8784, 2, 0, 0),
+    "camelhead.off": (11381, 22704, 34084, 1, 0, 1),
+    "beetle.off": (19887, 38656, 58552, -9, 0, 11),
+    "stanford-bunny.obj": (35947, 69451, 104288, -3, 0, 5),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SOURCES_TABLE))
+def test_shared_meshes_match_sources_table(name):
+    mesh = load_mesh(shared_path("meshes", name))
+    topology = mesh.topology
+    n_vertices, n_faces, n_edges, chi, genus, loops = SOURCES_TABLE[name]
+    assert (mesh.n_vertices, mesh.n_faces, mesh.n_edges) == (n_vertices, n_faces, n_edges)
+    assert topology.euler_characteristic == chi
+    assert topology.genus == genus
+    if loops is not None:
+        assert len(topology.boundary_loops) == loops
+    # Every boundary edge lies in exactly one loop.
+    assert sum(loop.size for loop in topology.boundary_loops) == topology.boundary_edges.size or loops is None
+    special = {
+        "hourglass_ico.obj": lambda t: t.nonmanifold_vertices.tolist() == [22] and t.is_edge_manifold and t.is_oriented,
+        "triple_vierbein.obj": lambda t: t.nonmanifold_edges.size == 20 and not t.is_oriented,
+        "moebius.obj": lambda t: t.is_manifold and not t.is_oriented and t.inconsistent_edges.size > 0,
+        "stanford-bunny.obj": lambda t: t.unreferenced_vertices.size == 1113 and t.is_manifold and t.is_oriented,
+        "spot.obj": lambda t: t.is_closed and t.n_components == 1,
+    }
+    assert special.get(name, lambda t: t.is_manifold and t.is_oriented)(topology)
+
+
+@pytest.mark.parametrize("name", ["spot.obj", "stanford-bunny.obj", "camelhead.off", "bob_small.ply", "moebius.obj"])
+def test_vertex_order_and_faces_match_libigl_reader(name):
+    path = shared_path("meshes", name)
+    mesh = load_mesh(path)
+    V, F = igl.read_triangle_mesh(str(path))
+    np.testing.assert_array_equal(np.asarray(mesh.vertices), V)
+    np.testing.assert_array_equal(np.asarray(mesh.faces), F)
+
+
+def test_obj_with_texture_coordinates_is_read_by_position_index(tmp_path):
+    # Corners `v/vt/vn`, `v//vn`, negative (relative) indices and a quad, fan-triangulated.
+    path = tmp_path / "quad.obj"
+    path.write_text(
+        "# comment\nv 0 0 0\nv 1 0 0\nv 1 1 0 1.0\nv 0 1 0 0.5 0.5 0.5\nvt 0 0\nvt 1 0\nvn 0 0 1\n"
+        "g group\nusemtl none\nf 1/1/1 2/2/1 3//1 4\nv 0 0 1\nf -1 -4 -5\n"
+    )
+    mesh = load_mesh(path)
+    np.testing.assert_array_equal(np.asarray(mesh.faces), [[0, 1, 2], [0, 2, 3], [4, 1, 0]])
+    np.testing.assert_array_equal(np.asarray(mesh.vertices)[2], [1.0, 1.0, 0.0])
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".off", ".ply"])
+def test_round_trip_is_exact(tmp_path, suffix):
+    rng = np.random.default_rng(0)
+    # Unreferenced vertex 5 and full-precision coordinates must survive.
+    V = rng.normal(size=(6, 3)) * 1e3
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [1, 4, 2]])
+    mesh = Mesh.from_arrays(V, F)
+    path = tmp_path / f"mesh{suffix}"
+    save_mesh(path, mesh)
+    loaded = load_mesh(path)
+    np.testing.assert_array_equal(np.asarray(loaded.vertices), V)
+    np.testing.assert_array_equal(np.asarray(loaded.faces), F)
+
+
+def test_stl_round_trip_merges_corners_in_float32(tmp_path):
+    mesh = load_mesh(shared_path("meshes", "bob_small.ply"))
+    path = tmp_path / "bob.stl"
+    save_mesh(path, mesh)
+    loaded = load_mesh(path)
+    # STL keeps triangles only (float32): same counts after merging, same corner positions face by face.
+    assert (loaded.n_vertices, loaded.n_faces, loaded.n_edges) == (mesh.n_vertices, mesh.n_faces, mesh.n_edges)
+    corners = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
+    loaded_corners = np.asarray(loaded.vertices)[np.asarray(loaded.faces)]
+    np.testing.assert_allclose(loaded_corners, corners.astype(np.float32), rtol=0, atol=0)
+    assert loaded.topology.euler_characteristic == mesh.topology.euler_characteristic
+
+
+def test_dtype_option(tmp_path):
+    import jax.numpy as jnp
+
+    mesh = load_mesh(shared_path("meshes", "tet.obj"), dtype=jnp.float32)
+    assert mesh.vertices.dtype == jnp.float32
+    assert load_mesh(shared_path("meshes", "tet.obj")).vertices.dtype == jnp.float64
+
+
+def test_clear_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such mesh file"):
+        load_mesh(tmp_path / "missing.obj")
+    with pytest.raises(DDGInputError, match=r"unknown mesh format '\.xyz'"):
+        load_mesh(tmp_path / "points.xyz")
+    with pytest.raises(DDGInputError, match="unknown mesh format"):
+        save_mesh(tmp_path / "mesh.vtk", load_mesh(shared_path("meshes", "tet.obj")))
+    points = tmp_path / "points.obj"
+    points.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    with pytest.raises(DDGInputError, match="contains no faces"):
+        load_mesh(points)
+    bad_index = tmp_path / "bad_index.obj"
+    bad_index.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n")
+    with pytest.raises(DDGInputError, match=r"out-of-range entries in faces \[0\]"):
+        load_mesh(bad_index)
+    segment = tmp_path / "segment.obj"
+    segment.write_text("v 0 0 0\nv 1 0 0\nf 1 2\n")
+    with pytest.raises(DDGInputError, match="line 3: a face needs at least three corners"):
+        load_mesh(segment)
+    garbage = tmp_path / "garbage.off"
+    garbage.write_text("this is not an OFF file\n")
+    with pytest.raises(DDGInputError, match="garbage.off"):
+        load_mesh(garbage)

@@ -1,0 +1,145 @@
+"""Mesh construction checks, `check_mesh` reports and the `ddgjax info` command."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from conftest import shared_path
+from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax.cli import main
+from ddgjax.io import load_mesh
+from ddgjax.mesh import Mesh, check_mesh, icosphere
+
+TET_V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+
+
+# ---------------------------------------------------------------- construction refuses bad input
+
+@pytest.mark.parametrize(
+    "vertices, faces, message",
+    [
+        (TET_V[:, :2], TET_F, r"vertices: expected shape \(n, 3\), got \(4, 2\)"),
+        (TET_V.astype(complex), TET_F, "vertices: expected a real floating-point array, got dtype complex128"),
+        (np.where(np.arange(12).reshape(4, 3) == 7, np.nan, TET_V), TET_F, r"NaN/inf at rows \[2\]"),
+        (np.where(np.arange(12).reshape(4, 3) == 0, np.inf, TET_V), TET_F, r"NaN/inf at rows \[0\]"),
+        (np.zeros((0, 3)), TET_F, "vertices: expected at least 1 rows, got 0"),
+        (TET_V, np.zeros((0, 3), dtype=int), "faces: expected at least one face"),
+        (TET_V, TET_F[:, :2], r"faces: expected shape \(nf, 3\)"),
+        (TET_V, TET_F + 0.5, "faces: expected an integer array"),
+        (TET_V, np.where(TET_F == 3, 4, TET_F), r"must lie in \[0, 4\), got out-of-range entries in faces \[1, 2, 3\]"),
+        (TET_V, np.where(TET_F == 3, -1, TET_F), r"out-of-range entries in faces \[1, 2, 3\]"),
+        (TET_V, np.array([[0, 1, 2], [1, 1, 3]]), r"three distinct vertices; faces \[1\] \(1 in all\) repeat one"),
+    ],
+)
+def test_construction_refuses_bad_input(vertices, faces, message):
+    with pytest.raises(DDGInputError, match=message):
+        Mesh.from_arrays(vertices, faces)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n_vertices=st.integers(3, 12),
+    faces=st.lists(st.tuples(st.integers(-3, 15), st.integers(-3, 15), st.integers(-3, 15)), min_size=1, max_size=12),
+)
+def test_construction_accepts_exactly_the_valid_face_lists(n_vertices, faces):
+    """Property: a face list is accepted iff every index is in range and no face repeats a vertex;
+    otherwise the error names the first offending face."""
+    F = np.array(faces)
+    in_range = (F >= 0) & (F < n_vertices)
+    distinct = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])
+    vertices = np.random.default_rng(n_vertices).normal(size=(n_vertices, 3))
+    if in_range.all() and distinct.all():
+        topology = Mesh.from_arrays(vertices, F).topology
+        # Structural invariants of any triangle soup: 3F = sum of edge face counts; edges low < high.
+        assert 3 * F.shape[0] == int(topology.edge_face_counts.sum())
+        assert np.all(topology.edges[:, 0] < topology.edges[:, 1])
+        assert topology.unreferenced_vertices.size == n_vertices - np.unique(F).size
+    else:
+        first_bad = int(np.flatnonzero(~in_range.all(axis=1) if not in_range.all() else ~distinct)[0])
+        with pytest.raises(DDGInputError, match=rf"faces \[{first_bad}[,\]]"):
+            Mesh.from_arrays(vertices, F)
+
+
+def test_with_vertices_refuses_wrong_shape():
+    mesh = Mesh.from_arrays(TET_V, TET_F)
+    with pytest.raises(DDGInputError, match=r"vertices: expected shape \(4, 3\), got \(5, 3\)"):
+        mesh.with_vertices(np.zeros((5, 3)))
+
+
+def test_operators_needing_a_manifold_refuse_clearly():
+    topology = load_mesh(shared_path("meshes", "triple_vierbein.obj")).topology
+    with pytest.raises(MeshDataError, match=r"my operator needs an edge-manifold mesh; edges \["):
+        topology.require_manifold("my operator")
+    moebius = load_mesh(shared_path("meshes", "moebius.obj")).topology
+    with pytest.raises(MeshDataError, match="consistently oriented"):
+        moebius.require_oriented("d1")
+
+
+# ---------------------------------------------------------------- check_mesh
+
+def test_check_mesh_on_clean_and_problem_meshes():
+    clean = check_mesh(Mesh.from_arrays(TET_V, TET_F))
+    assert clean.is_clean and clean.is_closed and clean.genus == 0 and clean.euler_characteristic == 2
+    assert "Euler characteristic 2  genus 0" in str(clean)
+
+    hourglass = check_mesh(load_mesh(shared_path("meshes", "hourglass_ico.obj")))
+    assert hourglass.nonmanifold_vertices.tolist() == [22] and not hourglass.is_manifold and hourglass.genus is None
+    assert "non-manifold vertices (2+ fans): 1 [22]" in str(hourglass)
+
+    vierbein = check_mesh(load_mesh(shared_path("meshes", "triple_vierbein.obj")))
+    assert vierbein.nonmanifold_edges.size == 20 and not vierbein.is_oriented
+
+    moebius = check_mesh(load_mesh(shared_path("meshes", "moebius.obj")))
+    assert moebius.is_manifold and not moebius.is_oriented and moebius.boundary_loop_lengths == (112,)
+
+    bunny = check_mesh(load_mesh(shared_path("meshes", "stanford-bunny.obj")))
+    assert bunny.unreferenced_vertices.size == 1113 and bunny.n_boundary_loops == 5
+    assert "unreferenced vertices: 1113 [" in str(bunny)
+
+
+def test_check_mesh_finds_zero_area_faces_at_current_positions():
+    sphere = icosphere(0)
+    assert check_mesh(sphere).zero_area_faces.size == 0
+    V = np.asarray(sphere.vertices).copy()
+    V[11] = V[0]  # faces 0 and 4 collapse
+    V[4] = 0.5 * (V[3] + V[9])  # face 10 becomes collinear
+    report = check_mesh(sphere.with_vertices(V))
+    assert report.zero_area_faces.tolist() == [0, 4, 10]
+    assert "zero-area faces (area <= 1e-12 * longest edge^2): 3 [0, 4, 10]" in str(report)
+    # A needle of aspect 1e-4 is not zero-area at the default tolerance, but is at area_tol=1e-3.
+    V[4] += 1e-4 * np.cross(V[9] - V[3], [0.0, 0.0, 1.0])
+    assert 10 not in check_mesh(sphere.with_vertices(V)).zero_area_faces
+    assert 10 in check_mesh(sphere.with_vertices(V), area_tol=1e-3).zero_area_faces
+    with pytest.raises(DDGInputError, match="area_tol"):
+        check_mesh(sphere, area_tol=-1.0)
+
+
+# ---------------------------------------------------------------- ddgjax info
+
+def test_info_default_shape(capsys):
+    assert main(["info"]) == 0
+    out = capsys.readouterr().out
+    assert "built-in torus" in out and "genus 1" in out
+    assert "Gauss-Bonnet" in out and "Gaussian curvature K" in out and "enclosed volume:" in out
+    difference = float(out.split("difference")[1].split()[0])
+    assert abs(difference) < 1e-10
+
+
+def test_info_on_a_file(capsys):
+    path = shared_path("meshes", "hourglass_ico.obj")
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "non-manifold vertices (2+ fans): 1 [22]" in out
+    assert "2 pi chi 18.849555921538" in out  # chi = 3
+
+
+@pytest.mark.parametrize("name", ["missing.obj", "points.xyz"])
+def test_info_bad_file_exits_2_without_traceback(capsys, tmp_path, name):
+    assert main(["info", str(tmp_path / name)]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.startswith("ddgjax info: error: ") and "Traceback" not in captured.err
+    assert captured.out == ""

@@ -1,0 +1,102 @@
+"""Built-in shapes (ddgjax.mesh._shapes): counts, topology, orientation, convergence of the area."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ddgjax._errors import DDGInputError
+from ddgjax.mesh import disk, grid, icosphere, torus, uv_sphere
+
+
+def host_area_volume(mesh) -> tuple[float, float]:
+    """Area and signed volume in NumPy (these tests build many sizes; no compilation needed)."""
+    corners = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    return 0.5 * np.linalg.norm(cross, axis=1).sum(), np.einsum("ij,ij->", corners[:, 0], cross) / 6.0
+
+
+def fitted_rate(h, errors) -> float:
+    return float(np.polyfit(np.log(h), np.log(errors), 1)[0])
+
+
+def assert_oriented_manifold(mesh, *, chi: int, genus: int, loops: int) -> None:
+    topology = mesh.topology
+    assert topology.is_manifold and topology.is_oriented and topology.n_components == 1
+    assert topology.unreferenced_vertices.size == 0
+    assert (topology.euler_characteristic, topology.genus, len(topology.boundary_loops)) == (chi, genus, loops)
+
+
+@pytest.mark.parametrize("level", [0, 1, 3])
+def test_icosphere_counts_and_topology(level):
+    mesh = icosphere(level, radius=2.0)
+    assert (mesh.n_vertices, mesh.n_faces, mesh.n_edges) == (10 * 4**level + 2, 20 * 4**level, 30 * 4**level)
+    assert_oriented_manifold(mesh, chi=2, genus=0, loops=0)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(mesh.vertices), axis=1), 2.0, rtol=1e-15)
+    assert host_area_volume(mesh)[1] > 0  # outward normals
+
+
+def test_uv_sphere_and_torus_topology():
+    sphere = uv_sphere(8, 12, radius=1.5)
+    assert (sphere.n_vertices, sphere.n_faces) == (7 * 12 + 2, 2 * 7 * 12)
+    assert_oriented_manifold(sphere, chi=2, genus=0, loops=0)
+    assert host_area_volume(sphere)[1] > 0
+    ring = torus(2.0, 0.5, 24, 8)
+    assert (ring.n_vertices, ring.n_faces) == (192, 384)
+    assert_oriented_manifold(ring, chi=0, genus=1, loops=0)
+    assert host_area_volume(ring)[1] > 0
+
+
+def test_flat_shapes_topology_and_orientation():
+    for mesh, n_vertices, n_faces in [(disk(5, radius=2.0), 3 * 5 * 6 + 1, 6 * 25), (grid(4, 3, size=2.0), 20, 24)]:
+        assert (mesh.n_vertices, mesh.n_faces) == (n_vertices, n_faces)
+        assert_oriented_manifold(mesh, chi=1, genus=0, loops=1)
+        corners = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
+        normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        assert np.all(normals[:, 2] > 0) and np.all(corners[..., 2] == 0)  # counterclockwise from +z
+    assert host_area_volume(grid(4, 3, size=2.0))[0] == pytest.approx(4.0, rel=1e-15)
+    # The disk's triangles are near-equilateral (no obtuse angle); the boundary is the outer ring.
+    mesh = disk(6)
+    boundary = mesh.topology.boundary_loops[0]
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(mesh.vertices)[boundary], axis=1), 1.0, rtol=1e-15)
+    assert boundary.size == 36
+
+
+def test_areas_converge_at_second_order():
+    cases = {
+        "icosphere": ([1, 2, 3, 4], lambda n: icosphere(n, 1.5), 4 * np.pi * 1.5**2, lambda n: 2.0**-n),
+        "uv_sphere": ([8, 16, 32], lambda n: uv_sphere(n, 2 * n, 1.5), 4 * np.pi * 1.5**2, lambda n: 1 / n),
+        "torus": ([16, 32, 64], lambda n: torus(1.0, 0.25, 3 * n, n), 4 * np.pi**2 * 0.25, lambda n: 1 / n),
+        "disk": ([4, 8, 16], lambda n: disk(n, 2.0), np.pi * 4.0, lambda n: 1 / n),
+    }
+    for name, (sizes, make, exact, spacing) in cases.items():
+        errors = [abs(host_area_volume(make(n))[0] - exact) for n in sizes]
+        rate = fitted_rate([spacing(n) for n in sizes], errors)
+        # Inscribed polyhedra: area error O(h^2); measured rates 1.99-2.00.
+        assert 1.9 < rate < 2.1, (name, rate, errors)
+
+
+def test_large_icosphere_is_vectorised():
+    import time
+
+    start = time.perf_counter()
+    mesh = icosphere(7)
+    elapsed = time.perf_counter() - start
+    assert mesh.n_faces == 327_680
+    # Vectorised subdivision plus topology: ~1 s on 2 cores (a per-face Python loop would take a minute).
+    assert elapsed < 20, elapsed
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(DDGInputError, match="subdivisions: expected an integer >= 0"):
+        icosphere(-1)
+    with pytest.raises(DDGInputError, match="radius: expected a positive finite number"):
+        icosphere(1, radius=0.0)
+    with pytest.raises(DDGInputError, match="r: expected a tube radius smaller than R"):
+        torus(1.0, 2.0)
+    with pytest.raises(DDGInputError, match="n_lon: expected an integer >= 3"):
+        uv_sphere(4, 2)
+    with pytest.raises(DDGInputError, match="nx: expected an integer >= 1"):
+        grid(0, 3)
+    with pytest.raises(DDGInputError, match="n_rings"):
+        disk(1.5)
