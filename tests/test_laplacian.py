@@ -254,8 +254,11 @@ def test_jit_vmap_and_gradients():
     np.testing.assert_allclose(batched[2], assemble(batch[2]), rtol=1e-14, atol=1e-15)
     u = jnp.asarray(rng.standard_normal((mesh.n_vertices, 2)))
     energy = jax.jit(lambda W: dirichlet_energy(mesh.with_vertices(W), u))
-    # Reverse mode is what shape optimisation uses; forward mode of the product is tested in test_sparse.
-    check_grads(energy, (batch[0],), order=1, modes=("rev",))
+    # Reverse mode to second order (reverse-over-reverse Hessian-vector products, for Newton-type shape
+    # optimisation) against finite differences; forward mode goes through method="dec" (docstring).
+    check_grads(energy, (batch[0],), order=2, modes=("rev",))
+    energy_dec = jax.jit(lambda W: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W), method="dec") @ u))
+    check_grads(energy_dec, (batch[0],), order=1, modes=("fwd",))
     # grad_u of the energy is L u.
     np.testing.assert_allclose(
         jax.jit(jax.grad(lambda w: dirichlet_energy(mesh, w)))(u), _apply(mesh, u), rtol=1e-13, atol=1e-14

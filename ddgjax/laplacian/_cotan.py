@@ -39,10 +39,11 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
       products and one cross product per face, no normal or gradient is formed. It equals the cotan
       formula since `<e_i, e_j> / (2 A_f) = -cot(angle at the third corner)`. The per-corner values are
       gathered straight into the pattern's storage order (`Mesh.vertex_pattern_corners`) and the
-      diagonal is minus the ELL row sum; reverse mode runs through `ddgjax.sparse.gather_sum`, whose
+      diagonal is minus the ELL row sum; the gather runs through `ddgjax.sparse.gather_sum`, whose
       transpose is a gather (no scatter-add), so `jax.grad` of an energy costs a few energy
-      evaluations. Forward mode (`jax.jvp` / `jax.jacfwd` over the vertices) does not pass through
-      that custom reverse rule: use `method="dec"` for it.
+      evaluations. Second derivatives work by reverse-over-reverse (Hessian-vector products as
+      `jax.grad(lambda V: jnp.vdot(jax.grad(E)(V), v))`); forward mode (`jax.jvp`, `jax.jacfwd`) over
+      the vertices does not pass through that custom reverse rule: use `method="dec"` for it.
     - `method="dec"`: `d0^T *1 d0` from `ddgjax.dec.d0` and the circumcentric `ddgjax.dec.hodge1`,
       summed by `ddgjax.sparse.congruence` (slower; a cross-check of the derivation).
 
