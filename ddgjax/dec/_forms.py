@@ -28,7 +28,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError
-from ..laplacian._cotan import face_hat_gradients
+from ..mesh._geometry import face_hat_gradients
 from ..mesh._geometry import face_vertex_positions
 from ..mesh._mesh import Mesh
 from ._vector_calculus import _as_array

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError
-from ..laplacian._cotan import face_hat_gradients
+from ..mesh._geometry import face_hat_gradients
 from ..mesh._geometry import corner_cotangents, face_edge_vectors, scatter_corners_to_vertices
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix
@@ -40,7 +40,7 @@ from ._operators import d0, d1
 def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"]) -> Float[Array, "nf 3"]:
     """Gradient of the piecewise-linear interpolant of `u`, one tangent vector per face, `(nf, 3)`.
 
-    `(grad u)_f = sum_k u[F[f, k]] grad phi_k` (`ddgjax.laplacian.face_hat_gradients`). Any mesh.
+    `(grad u)_f = sum_k u[F[f, k]] grad phi_k` (`ddgjax.mesh.face_hat_gradients`). Any mesh.
     libigl: `igl.grad(V, F) @ u` reshaped `(3, nf).T`; gpytoolbox: `grad(V, F) @ u`, likewise.
     Reference: Crane et al., *The heat method for distance computation* (2017), eq. (2).
     """

@@ -21,8 +21,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
+from ..dec import d0, hodge1
 from .._numerics import safe_div, safe_norm
-from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_area_vectors, face_edge_vectors
+from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_area_vectors, face_hat_gradients
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, congruence, gather_sum
 
@@ -64,9 +65,6 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     if method == "fem":
         return _fem_stiffness(mesh)
     if method == "dec":
-        # Import here: ddgjax.dec builds on ddgjax.mesh and ddgjax.sparse, and may import this module.
-        from ..dec import d0, hodge1
-
         return congruence(d0(mesh), hodge1(mesh).diagonal(), mesh.vertex_pattern)
     raise DDGInputError(f"method: expected 'fem' or 'dec', got {method!r}")
 
@@ -82,19 +80,6 @@ def _fem_stiffness(mesh: Mesh) -> SparseMatrix:
     off_diagonal = gather_sum(entries.reshape(-1), mesh.vertex_pattern_corners, mesh.corner_pattern_slots)
     rows_off = SparseMatrix(jnp.concatenate([jnp.zeros(mesh.n_vertices, entries.dtype), off_diagonal]), mesh.vertex_pattern)
     return _with_diagonal(rows_off, -rows_off.row_sums())
-
-
-def face_hat_gradients(mesh: Mesh) -> Float[Array, "nf 3 3"]:
-    """Gradient of each corner's hat function on each face, `grad phi_k = (N x e_k) / (2 A)`, `(nf, 3, 3)`.
-
-    `e_k` is the edge vector opposite corner `k` (face order), `N` the unit normal, `A` the area;
-    zero on zero-area faces. Reference: Crane 2020, section 6.2 ("the gradient of a hat function").
-    """
-    area_vectors = face_area_vectors(mesh)
-    double_areas = 2.0 * safe_norm(area_vectors)
-    normals = safe_div(area_vectors, double_areas[:, None] / 2.0)
-    rotated = jnp.cross(normals[:, None, :], face_edge_vectors(mesh))
-    return safe_div(rotated, double_areas[:, None, None])
 
 
 def edge_stiffness_weights(mesh: Mesh) -> Float[Array, " ne"]:

@@ -26,6 +26,7 @@ from ._geometry import (
     face_areas_from_lengths_sq as face_areas_from_lengths_sq,
     face_edge_lengths_sq as face_edge_lengths_sq,
     face_edge_vectors as face_edge_vectors,
+    face_hat_gradients as face_hat_gradients,
     face_normals as face_normals,
     face_vertex_positions as face_vertex_positions,
     scatter_corners_to_vertices as scatter_corners_to_vertices,

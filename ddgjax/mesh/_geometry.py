@@ -298,3 +298,16 @@ def enclosed_volume(mesh: Mesh) -> Float[Array, ""]:
     """
     corners = face_vertex_positions(mesh) - jax.lax.stop_gradient(jnp.mean(mesh.vertices, axis=0))
     return jnp.sum(corners[:, 0] * jnp.cross(corners[:, 1], corners[:, 2])) / 6.0
+
+
+def face_hat_gradients(mesh: Mesh) -> Float[Array, "nf 3 3"]:
+    """Gradient of each corner's hat function on each face, `grad phi_k = (N x e_k) / (2 A)`, `(nf, 3, 3)`.
+
+    `e_k` is the edge vector opposite corner `k` (face order), `N` the unit normal, `A` the area;
+    zero on zero-area faces. Reference: Crane 2020, section 6.2 ("the gradient of a hat function").
+    """
+    area_vectors = face_area_vectors(mesh)
+    double_areas = 2.0 * safe_norm(area_vectors)
+    normals = safe_div(area_vectors, double_areas[:, None] / 2.0)
+    rotated = jnp.cross(normals[:, None, :], face_edge_vectors(mesh))
+    return safe_div(rotated, double_areas[:, None, None])
