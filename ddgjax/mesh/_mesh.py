@@ -123,18 +123,22 @@ class Mesh(eqx.Module):
 def _pattern_corner_maps(topology: MeshTopology, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Off-diagonal storage slot -> corners opposite its edge, and corner -> its edge's two slots."""
     nv, ne, nf = topology.n_vertices, topology.n_edges, topology.n_faces
-    # Storage slots 0..nv-1 are the diagonal (the vertex pattern is diagonal-first ELL).
-    off_source = source[nv:].astype(np.int64)
-    edge = np.where(off_source < nv + ne, off_source - nv, off_source - nv - ne)
-    padding = off_source >= nv + 2 * ne
+    # Storage slots 0..nv-1 are the diagonal (the vertex pattern is diagonal-first ELL). int32 throughout:
+    # every index here is below nv + 2 ne + 3 nf.
+    off_source = source[nv:].astype(np.int32)
+    edge = off_source - np.int32(nv)
+    edge[edge >= ne] -= np.int32(ne)  # high -> low entries; padding (2 ne) lands on ne, the padding row
+    edge_corners = np.full((ne + 1, topology.edge_faces.shape[1]), 3 * nf, dtype=np.int32)
     present = topology.edge_faces >= 0
-    edge_corners = np.where(present, 3 * topology.edge_faces.astype(np.int64) + topology.edge_face_corners, 3 * nf)
-    slot_corners = np.where(padding[:, None], 3 * nf, edge_corners[np.where(padding, 0, edge)])
-    slot_of_source = np.empty(nv + 2 * ne + 1, dtype=np.int64)
-    slot_of_source[off_source] = np.arange(off_source.size)
-    corner_edges = topology.face_edges.reshape(-1).astype(np.int64)
-    corner_slots = np.stack([slot_of_source[nv + corner_edges], slot_of_source[nv + ne + corner_edges]], axis=1)
-    return slot_corners.astype(np.int32), corner_slots.astype(np.int32)
+    edge_corners[:ne][present] = 3 * topology.edge_faces[present] + topology.edge_face_corners[present]
+    slot_corners = edge_corners[edge]
+    slot_of_source = np.empty(nv + 2 * ne + 1, dtype=np.int32)
+    slot_of_source[off_source] = np.arange(off_source.size, dtype=np.int32)
+    corner_edges = topology.face_edges.reshape(-1)
+    corner_slots = np.empty((corner_edges.size, 2), dtype=np.int32)
+    corner_slots[:, 0] = slot_of_source[nv + corner_edges]
+    corner_slots[:, 1] = slot_of_source[nv + ne + corner_edges]
+    return slot_corners, corner_slots
 
 
 def _as_float_array(vertices) -> Float[Array, "nv 3"]:

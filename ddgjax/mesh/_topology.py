@@ -167,46 +167,57 @@ def first_indices_of(indices: np.ndarray, limit: int = 10) -> str:
 def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
     """All connectivity of a validated `(nf, 3)` face array (see module docstring for conventions)."""
     nf = faces.shape[0]
+    n_corners = 3 * nf
     # Half-edge opposite corner k runs faces[:, k+1] -> faces[:, k+2].
     tails = faces[:, [1, 2, 0]]
     heads = faces[:, [2, 0, 1]]
-    low = np.minimum(tails, heads).astype(np.int64)
-    high = np.maximum(tails, heads).astype(np.int64)
-    keys = (low * n_vertices + high).ravel()
-    unique_keys, face_edges = np.unique(keys, return_inverse=True)
-    face_edges = face_edges.reshape(nf, 3).astype(np.int32)
-    edges = np.stack([unique_keys // n_vertices, unique_keys % n_vertices], axis=1).astype(np.int32)
-    ne = edges.shape[0]
+    low = np.minimum(tails, heads).ravel()
+    high = np.maximum(tails, heads).ravel()
+    # One stable sort of the int64 edge keys numbers the edges (lexicographic order) and groups the
+    # corners of each edge by ascending flat corner index, which is the edge -> faces order.
+    keys = low.astype(np.int64) * n_vertices + high
+    order = np.argsort(keys, kind="stable").astype(np.int32)
+    sorted_keys = keys[order]
+    is_first = np.empty(n_corners, dtype=bool)
+    is_first[0] = True
+    np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=is_first[1:])
+    edge_of_sorted = np.cumsum(is_first, dtype=np.int32) - 1
+    starts = np.flatnonzero(is_first)
+    ne = starts.size
+    face_edges = np.empty(n_corners, dtype=np.int32)
+    face_edges[order] = edge_of_sorted
+    face_edges = face_edges.reshape(nf, 3)
+    first_corner = order[starts]
+    edges = np.stack([low[first_corner], high[first_corner]], axis=1).astype(np.int32)
     face_edge_signs = np.where(tails < heads, 1, -1).astype(np.int8)
 
-    # Edge -> faces, grouped with one stable sort of the flat face-edge list.
-    flat_edges = face_edges.ravel()
-    counts = np.bincount(flat_edges, minlength=ne)
-    order = np.argsort(flat_edges, kind="stable")
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    slot = np.arange(order.size) - starts[flat_edges[order]]
+    counts = np.diff(starts, append=n_corners)
+    slot = np.arange(n_corners) - starts[edge_of_sorted]
     width = max(2, int(counts.max()))
     edge_faces = np.full((ne, width), -1, dtype=np.int32)
     edge_face_corners = np.full((ne, width), -1, dtype=np.int8)
-    edge_faces[flat_edges[order], slot] = order // 3
-    edge_face_corners[flat_edges[order], slot] = order % 3
+    flat_slot = edge_of_sorted * width + slot
+    edge_faces.ravel()[flat_slot] = order // 3
+    edge_face_corners.ravel()[flat_slot] = order % 3
 
     boundary_edges = np.flatnonzero(counts == 1).astype(np.int32)
     nonmanifold_edges = np.flatnonzero(counts > 2).astype(np.int32)
     two_face = np.flatnonzero(counts == 2)
     sign_of = face_edge_signs.ravel()
-    f0, f1 = edge_faces[two_face, 0], edge_faces[two_face, 1]
-    c0, c1 = edge_face_corners[two_face, 0], edge_face_corners[two_face, 1]
-    same_direction = sign_of[f0 * 3 + c0] == sign_of[f1 * 3 + c1]
+    same_direction = sign_of[order[starts[two_face]]] == sign_of[order[starts[two_face] + 1]]
     inconsistent_edges = two_face[same_direction].astype(np.int32)
+
+    # Pairs of corners opposite one shared edge: the first corner of each edge with each later one.
+    linked = ~is_first
+    corner_pairs = (order[starts[edge_of_sorted[linked]]], order[linked])
 
     referenced = np.zeros(n_vertices, dtype=bool)
     referenced[faces.ravel()] = True
     unreferenced = np.flatnonzero(~referenced).astype(np.int32)
 
+    nonmanifold_vertices = _nonmanifold_vertices(faces, corner_pairs, n_vertices, nonmanifold_edges.size == 0)
     # Faces sharing an edge are in one component.
-    n_components, face_components = _face_components(nf, edge_faces, counts)
-    nonmanifold_vertices = _nonmanifold_vertices(faces, edge_faces, edge_face_corners, counts, n_vertices)
+    n_components, face_components = _face_components(faces, edges, corner_pairs, nonmanifold_vertices.size == 0)
     boundary_loops = _boundary_loops(faces, edge_faces, edge_face_corners, boundary_edges)
     boundary_vertices = np.unique(edges[boundary_edges].ravel()).astype(np.int32)
 
@@ -231,46 +242,112 @@ def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
     )
 
 
-def _face_components(nf: int, edge_faces: np.ndarray, counts: np.ndarray) -> tuple[int, np.ndarray]:
-    shared = np.flatnonzero(counts >= 2)
-    a = np.repeat(edge_faces[shared, 0], edge_faces.shape[1] - 1)
-    b = edge_faces[shared, 1:].ravel()
-    keep = b >= 0
-    graph = sp.coo_matrix((np.ones(int(keep.sum())), (a[keep], b[keep])), shape=(nf, nf))
-    n, labels = connected_components(graph, directed=False)
-    return int(n), labels.astype(np.int32)
+def _face_components(faces, edges, corner_pairs, vertex_manifold: bool) -> tuple[int, np.ndarray]:
+    """Components of the faces, two faces joined when they share an edge, numbered by their first face.
+
+    Where every vertex is manifold, faces sharing only a vertex are edge-connected through its fan, so
+    the components follow from the smaller vertex-edge graph; otherwise from the face-face graph.
+    """
+    nf = faces.shape[0]
+    if not vertex_manifold:
+        a, b = corner_pairs
+        graph = sp.coo_matrix((np.ones(a.size, dtype=np.int8), (a // 3, b // 3)), shape=(nf, nf))
+        n, labels = connected_components(graph, directed=False)
+        return int(n), labels.astype(np.int32)
+    nv = int(faces.max()) + 1
+    graph = sp.coo_matrix((np.ones(edges.shape[0], dtype=np.int8), (edges[:, 0], edges[:, 1])), shape=(nv, nv))
+    n_vertex_labels, vertex_labels = connected_components(graph, directed=False)
+    raw = vertex_labels[faces[:, 0]]
+    # Renumber as a face-graph search would: components in order of their first face.
+    first_face = np.full(n_vertex_labels, nf, dtype=np.int64)
+    np.minimum.at(first_face, raw, np.arange(nf))
+    present = np.flatnonzero(first_face < nf)
+    rank = np.empty(n_vertex_labels, dtype=np.int32)
+    rank[present[np.argsort(first_face[present])]] = np.arange(present.size, dtype=np.int32)
+    return int(present.size), rank[raw]
 
 
-def _nonmanifold_vertices(faces, edge_faces, edge_face_corners, counts, n_vertices) -> np.ndarray:
+def _nonmanifold_vertices(faces, corner_pairs, n_vertices, edge_manifold: bool) -> np.ndarray:
     """Vertices whose incident corners split into more than one fan.
 
     Corners (face, k) are graph nodes; two corners at the same vertex are joined when their faces share
     an edge at that vertex. A manifold vertex has exactly one connected group of corners.
+    `corner_pairs` are the flat corners `3 f + k` opposite each shared edge, one pair per linked face.
     """
     nf = faces.shape[0]
-    shared = np.flatnonzero(counts >= 2)
-    f0 = np.repeat(edge_faces[shared, 0], edge_faces.shape[1] - 1).astype(np.int64)
-    c0 = np.repeat(edge_face_corners[shared, 0], edge_faces.shape[1] - 1).astype(np.int64)
-    f1 = edge_faces[shared, 1:].ravel().astype(np.int64)
-    c1 = edge_face_corners[shared, 1:].ravel().astype(np.int64)
-    keep = f1 >= 0
-    f0, c0, f1, c1 = f0[keep], c0[keep], f1[keep], c1[keep]
+    q0, q1 = corner_pairs
     # Endpoint corners of the edge in each face: (c+1)%3 and (c+2)%3; match them by vertex.
-    a0, b0 = f0 * 3 + (c0 + 1) % 3, f0 * 3 + (c0 + 2) % 3
-    a1, b1 = f1 * 3 + (c1 + 1) % 3, f1 * 3 + (c1 + 2) % 3
+    to_next = np.array([1, 1, -2], dtype=q0.dtype)
+    to_prev = np.array([2, -1, -1], dtype=q0.dtype)
+    c0, c1 = q0 % 3, q1 % 3
+    a0, b0 = q0 + to_next[c0], q0 + to_prev[c0]
+    a1, b1 = q1 + to_next[c1], q1 + to_prev[c1]
     flat = faces.ravel()
     direct = flat[a0] == flat[a1]
+    if edge_manifold:
+        fan_walk = _nonmanifold_vertices_by_walk(flat, (a0, b0, a1, b1), direct, n_vertices)
+        if fan_walk is not None:
+            return fan_walk
     src = np.concatenate([a0, b0])
     dst = np.concatenate([np.where(direct, a1, b1), np.where(direct, b1, a1)])
-    graph = sp.coo_matrix((np.ones(src.size), (src, dst)), shape=(3 * nf, 3 * nf))
+    graph = sp.coo_matrix((np.ones(src.size, dtype=np.int8), (src, dst)), shape=(3 * nf, 3 * nf))
     _, labels = connected_components(graph, directed=False)
-    # Distinct (vertex, fan label) pairs, as one int64 key: a 1-D unique is ~10x faster than axis=0.
     # Links join only corners at the same vertex, so each fan (component) has exactly one vertex:
     # count the fans of each vertex without a sort (the vertex of each label, then a bincount).
-    vertex_of_fan = np.empty(int(labels.max()) + 1, dtype=np.int64)
+    vertex_of_fan = np.empty(int(labels.max()) + 1, dtype=np.int32)
     vertex_of_fan[labels] = flat
     fans_per_vertex = np.bincount(vertex_of_fan, minlength=n_vertices)
     return np.flatnonzero(fans_per_vertex > 1).astype(np.int32)
+
+
+# Longest fan walk (corners on one side of the start corner) before falling back to a graph search.
+_MAX_FAN_WALK = 128
+
+
+def _nonmanifold_vertices_by_walk(flat, ends, direct, n_vertices) -> np.ndarray | None:
+    """`_nonmanifold_vertices` on an edge-manifold mesh, by walking one fan per vertex.
+
+    With at most two faces per edge each corner has at most two links (one per edge at its vertex), so
+    the fans are paths and cycles: walking from one corner of each vertex in both directions (stopping
+    at a boundary or back at the start) visits its whole fan, and the vertex is manifold exactly when
+    that fan holds all its corners. All vertices walk together, one step per loop pass; None where a
+    fan is longer than `_MAX_FAN_WALK` (very high valence), left to the graph search.
+    """
+    a0, b0, a1, b1 = ends
+    n_corners = flat.size
+    # Walk states 2 x + s: at corner x, leaving across side s (0: the edge opposite next(x), 1: opposite
+    # prev(x)). link[state] is the state of arrival in the linked corner, -1 across a boundary edge.
+    # a = next(q), so the edge opposite q is side 1 of a; b = prev(q), side 0 of b.
+    link = np.full(2 * n_corners, -1, dtype=np.int32)
+    sa0, sb0, sa1, sb1 = 2 * a0 + 1, 2 * b0, 2 * a1 + 1, 2 * b1
+    link[sa0] = np.where(direct, sa1, sb1)
+    link[sb0] = np.where(direct, sb1, sa1)
+    link[sa1] = np.where(direct, sa0, sb0)
+    link[sb1] = np.where(direct, sb0, sa0)
+    corners_per_vertex = np.bincount(flat, minlength=n_vertices)
+    referenced = np.flatnonzero(corners_per_vertex)
+    start_of = np.empty(n_vertices, dtype=np.int32)
+    start_of[flat] = np.arange(n_corners, dtype=np.int32)  # any one corner of each vertex
+    start = start_of[referenced]
+    fan_size = np.ones(referenced.size, dtype=np.int64)
+    closed = np.zeros(referenced.size, dtype=bool)
+    for side in (0, 1):
+        active = np.flatnonzero(~closed)
+        state = 2 * start[active] + side
+        for _ in range(_MAX_FAN_WALK):
+            arrival = link[state]
+            going = arrival >= 0
+            active, arrival = active[going], arrival[going]
+            back = (arrival >> 1) == start[active]
+            closed[active[back]] = True
+            active, arrival = active[~back], arrival[~back]
+            if active.size == 0:
+                break
+            fan_size[active] += 1
+            state = arrival ^ 1
+        else:
+            return None
+    return referenced[fan_size != corners_per_vertex[referenced]].astype(np.int32)
 
 
 def _boundary_loops(faces, edge_faces, edge_face_corners, boundary_edges) -> tuple:

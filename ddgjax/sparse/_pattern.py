@@ -116,39 +116,71 @@ class SparsityPattern(eqx.Module):
             `[diagonal (n) | edges low->high (ne) | edges high->low (ne)]`, or `n + 2 ne` for padding,
             so values assemble with `jnp.take(entries, source, mode="fill", fill_value=0)`.
         """
-        low = np.asarray(edges[:, 0], dtype=np.int64)
-        high = np.asarray(edges[:, 1], dtype=np.int64)
+        # Built straight in diagonal-first ELL storage (the layout `_ell_pattern` gives this pattern):
+        # row i holds [i | lows of edges (., i), ascending | highs of edges (i, .), ascending], so each
+        # entry's ELL position follows from ranks within the edge list, with no sort of `nnz` keys.
+        low = np.asarray(edges[:, 0], dtype=np.int32)
+        high = np.asarray(edges[:, 1], dtype=np.int32)
         ne = low.shape[0]
         n_below = np.bincount(high, minlength=n)  # entries left of the diagonal in each row
         n_above = np.bincount(low, minlength=n)
-        indptr = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(n_below + n_above + 1, out=indptr[1:])
-        # Row i is [lows of edges (., i), ascending | i | highs of edges (i, .), ascending]. Edges are
-        # sorted by (low, high), so a stable sort by `high` keeps the lows ascending.
+        counts = n_below + n_above + 1
+        indptr = np.zeros(n + 1, dtype=np.int32)
+        np.cumsum(counts, out=indptr[1:])
+        width = _ell_width(counts)
+        # Edges are sorted by (low, high), so a stable sort by `high` keeps the lows ascending.
         by_high = np.argsort(high, kind="stable")
-        first_below = indptr[:-1]
-        rank_below = np.empty(ne, dtype=np.int64)
-        rank_below[by_high] = np.arange(ne) - np.repeat(np.cumsum(n_below) - n_below, n_below)
-        pos_high_low = first_below[high] + rank_below
-        diagonal_pos = first_below + n_below
-        rank_above = np.arange(ne) - np.repeat(np.cumsum(n_above) - n_above, n_above)
-        pos_low_high = diagonal_pos[low] + 1 + rank_above
-        csr_source = np.empty(n + 2 * ne, dtype=np.int64)
-        csr_source[diagonal_pos] = np.arange(n)
-        csr_source[pos_low_high] = n + np.arange(ne)
-        csr_source[pos_high_low] = n + ne + np.arange(ne)
+        first_below = (np.cumsum(n_below) - n_below).astype(np.int32)
+        position_high_low = np.empty(ne, dtype=np.int32)
+        position_high_low[by_high] = np.arange(1, ne + 1, dtype=np.int32) - np.repeat(first_below, n_below)
+        first_above = (np.cumsum(n_above) - n_above).astype(np.int32)
+        position_low_high = np.arange(1, ne + 1, dtype=np.int32) - first_above[low] + n_below[low].astype(np.int32)
+        # Entries past `width` go to the COO tail in CSR order (row, then column).
+        tail_low_high = np.flatnonzero(position_low_high >= width)
+        tail_high_low = np.flatnonzero(position_high_low >= width)
+        tail_rows = np.concatenate([low[tail_low_high], high[tail_high_low]])
+        tail_cols = np.concatenate([high[tail_low_high], low[tail_high_low]])
+        tail_order = np.lexsort((tail_cols, tail_rows))
+        n_tail = tail_order.size
+        n_storage = n * width + n_tail
+        tail_slot = np.empty(n_tail, dtype=np.int32)
+        tail_slot[tail_order] = n * width + np.arange(n_tail, dtype=np.int32)
+        slot_low_high = position_low_high * np.int32(n) + low
+        slot_high_low = position_high_low * np.int32(n) + high
+        slot_low_high[tail_low_high] = tail_slot[: tail_low_high.size]
+        slot_high_low[tail_high_low] = tail_slot[tail_low_high.size :]
+        # Padding sits at the row's first CSR entry: its lowest neighbour below the diagonal, else i.
+        lowest_below = low[by_high][np.minimum(first_below, max(ne - 1, 0))] if ne else np.zeros(n, np.int32)
+        pad_cols = np.where(n_below > 0, lowest_below, np.arange(n, dtype=np.int32))
+        storage_rows = np.empty(n_storage, dtype=np.int32)
+        storage_cols = np.empty(n_storage, dtype=np.int32)
+        storage_rows[: n * width].reshape(width, n)[:] = np.arange(n, dtype=np.int32)
+        storage_cols[: n * width].reshape(width, n)[:] = pad_cols
+        storage_cols[:n] = np.arange(n, dtype=np.int32)
+        storage_rows[n * width :] = tail_rows[tail_order]
+        storage_cols[slot_low_high] = high
+        storage_cols[slot_high_low] = low
         nnz = n + 2 * ne
-        csr_rows = np.repeat(np.arange(n), np.diff(indptr))
-        entry_cols = np.concatenate([np.arange(n), high, low])
-        csr_cols = entry_cols[csr_source]
-        # Transpose of an entry: the diagonal maps to itself, an edge to its other direction.
-        partner = np.concatenate([np.arange(n), n + ne + np.arange(ne), n + np.arange(ne)])
-        csr_of_source = np.empty(nnz, dtype=np.int64)
-        csr_of_source[csr_source] = np.arange(nnz)
-        csr_transpose = csr_of_source[partner[csr_source]]
-        pattern, storage_of_csr = _ell_pattern(csr_rows, csr_cols, (n, n), csr_transpose)
-        source = np.full(pattern.nnz, nnz, dtype=np.int32)
-        source[storage_of_csr] = csr_source
+        source = np.full(n_storage, nnz, dtype=np.int32)
+        source[:n] = np.arange(n, dtype=np.int32)
+        source[slot_low_high] = np.arange(n, n + ne, dtype=np.int32)
+        source[slot_high_low] = np.arange(n + ne, nnz, dtype=np.int32)
+        # Transpose of an entry: the diagonal and padding map to themselves, an edge to its other direction.
+        transpose_slot = np.arange(n_storage, dtype=np.int32)
+        transpose_slot[slot_low_high] = slot_high_low
+        transpose_slot[slot_high_low] = slot_low_high
+        pattern = SparsityPattern(
+            rows=jnp.asarray(storage_rows),
+            cols=jnp.asarray(storage_cols),
+            indptr=jnp.asarray(indptr),
+            shape=(n, n),
+            layout="ell",
+            width=width,
+            diagonal_first=True,
+            symmetric=True,
+            transpose_slot=jnp.asarray(transpose_slot),
+            transpose_pattern=None,
+        )
         return pattern, source
 
     @classmethod
