@@ -13,9 +13,13 @@ from jaxtyping import Array, Float
 
 
 def safe_sqrt(x: Float[Array, "..."]) -> Float[Array, "..."]:
-    """`sqrt(max(x, 0))` with a zero (not infinite) gradient at `x <= 0`."""
-    positive = x > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+    """`sqrt(max(x, 0))` with a zero (not infinite) gradient at `x <= 0`; NaN stays NaN.
+
+    The test is `x <= 0`, not `x > 0`, so that a NaN (for which both are false) reaches `sqrt` and
+    propagates instead of turning into a plausible 0 (DESIGN.md: nothing fails silently).
+    """
+    nonpositive = x <= 0
+    return jnp.where(nonpositive, 0.0, jnp.sqrt(jnp.where(nonpositive, 1.0, x)))
 
 
 def safe_norm(x: Float[Array, "... d"], axis: int = -1, keepdims: bool = False) -> Float[Array, "..."]:

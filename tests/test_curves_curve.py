@@ -73,7 +73,7 @@ def test_traced_points_are_not_checked():
     assert value == pytest.approx(4.0, abs=1e-15)
 
 
-def test_with_points_checks_shape_only():
+def test_with_points_checks_shape_and_finiteness():
     curve = Curve(SQUARE)
     moved = curve.with_points(SQUARE + 1)
     np.testing.assert_array_equal(moved.points, SQUARE + 1)
@@ -82,6 +82,12 @@ def test_with_points_checks_shape_only():
     assert float(length(degenerate)) == 0.0
     with pytest.raises(DDGInputError, match=r"expected shape \(4, 2\), got \(3, 2\)"):
         curve.with_points(SQUARE[:3])
+    bad = SQUARE.copy()
+    bad[2, 1] = np.nan
+    with pytest.raises(DDGInputError, match=r"NaN/inf at rows \[2\]"):
+        curve.with_points(bad)
+    # Traced points pass through; a NaN there propagates to the result instead of vanishing.
+    assert np.isnan(jax.jit(lambda P: length(curve.with_points(P)))(bad))
 
 
 def test_vmap_over_curves():

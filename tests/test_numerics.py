@@ -31,6 +31,17 @@ def test_safe_sqrt_values_and_gradients():
     np.testing.assert_allclose(gradient, [0.25, 0.5 / np.sqrt(2.0), 0.0, 0.0], rtol=1e-15)
 
 
+def test_nonfinite_input_propagates_instead_of_vanishing():
+    # A NaN must not become a plausible finite number (DESIGN.md: nothing fails silently with NaN).
+    nan, inf, one = jnp.array(jnp.nan), jnp.array(jnp.inf), jnp.array(1.0)
+    assert np.isnan(safe_sqrt(nan))
+    assert safe_sqrt(inf) == np.inf
+    assert np.isnan(safe_norm(jnp.array([1.0, jnp.nan])))
+    assert np.isnan(safe_div(one, nan))
+    assert np.isnan(safe_atan2(nan, one))
+    assert np.isnan(first_quadrant_atan2(nan, one))
+
+
 def test_safe_norm_values_and_zero_gradient_at_zero():
     x = jnp.array([[3.0, 4.0], [0.0, 0.0], [-1.0, 0.0]])
     np.testing.assert_allclose(safe_norm(x), np.linalg.norm(np.asarray(x), axis=1), rtol=1e-15)

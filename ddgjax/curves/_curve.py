@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._errors import DDGInputError, check_float_array, first_indices, is_traced
+from .._errors import DDGInputError, check_finite, check_float_array, first_indices, is_traced
 
 
 class Curve(eqx.Module):
@@ -54,11 +54,18 @@ class Curve(eqx.Module):
     def with_points(self, points: ArrayLike) -> Curve:
         """The same kind of curve (open / closed) through new points of the same shape.
 
-        Only the shape is checked (as `Mesh.with_vertices` does), not the values: this is how a flow
-        or an optimiser hands back a curve, possibly degenerate. Works under jit, grad and vmap.
+        Checks the shape and, for concrete arrays, that every coordinate is finite; coincident
+        points are allowed (unlike the constructor): this is how a flow or an optimiser hands back
+        a curve, possibly degenerate, whose quantities stay finite. Traced points (jit, grad, vmap)
+        are not checked.
+
+        Raises:
+            DDGInputError: a shape other than `curve.points.shape`, or NaN/inf in concrete points.
         """
         if np.shape(points) != self.points.shape:
             raise DDGInputError(f"points: expected shape {self.points.shape}, got {np.shape(points)}")
+        if not is_traced(points):
+            check_finite("points", np.asarray(points))
         return unchecked_curve(jnp.asarray(points), self.closed)
 
     @property

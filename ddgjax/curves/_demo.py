@@ -68,7 +68,11 @@ def add_flow_arguments(parser: argparse.ArgumentParser) -> None:
         ".npy file of shape (n, 2) or a CSV / text file of 'x,y' lines (optional header); a clockwise file is reversed",
     )
     parser.add_argument(
-        "--vertices", type=_positive(int), default=64, help="number of vertices of the flower, star, random and regular shapes"
+        "--vertices",
+        type=_positive(int),
+        default=64,
+        help="number of vertices of the flower, random and regular shapes; the 5-tip star gets the nearest multiple of "
+        "10 (its 10 straight edges are split into equal segments)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of --shape random")
     parser.add_argument(
