@@ -17,6 +17,7 @@ from ddgjax.curves import (
     cyclic_residual,
     enclosed_area,
     is_simple,
+    simplicity_and_clearance,
     isoperimetric_ratio,
     random_polygon,
     regular_polygon,
@@ -178,3 +179,24 @@ def test_property_invariance(seed, scale, angle):
     np.testing.assert_allclose(moved["ratio"], base["ratio"], rtol=1e-10, atol=1e-12)  # 1e3 x rotation round-off
     np.testing.assert_allclose(moved["residual"], base["residual"], rtol=1e-9, atol=1e-12)
     assert bool(moved["simple"]) == bool(base["simple"])
+
+
+def test_clearance_against_shapely():
+    shapely = pytest.importorskip("shapely")
+    for curve in (star(), random_polygon(30, seed=2), Curve(np.asarray(star().points)[:12], closed=False)):
+        simple, clearance = simplicity_and_clearance(curve)
+        points = np.asarray(curve.points)
+        n, m = len(points), curve.n_edges
+        edges = [shapely.LineString([points[i], points[(i + 1) % n]]) for i in range(m)]
+        expected = np.inf
+        for i in range(m):
+            for j in range(i + 1, m):
+                if j == i + 1:  # adjacent: only the far endpoints count
+                    gap = min(shapely.Point(points[(j + 1) % n]).distance(edges[i]), shapely.Point(points[i]).distance(edges[j]))
+                elif curve.closed and i == 0 and j == m - 1:
+                    gap = min(shapely.Point(points[j]).distance(edges[i]), shapely.Point(points[1]).distance(edges[j]))
+                else:
+                    gap = edges[i].distance(edges[j])
+                expected = min(expected, gap)
+        assert bool(simple)
+        np.testing.assert_allclose(clearance, expected, rtol=1e-12)

@@ -216,7 +216,9 @@ def _table(runs) -> list[str]:
         for index, (name, first, last, change) in enumerate(rows):
             prefix = f"{kind:<5}{kind_tau:>10.3g}  " if index == 0 else " " * 17
             lines.append(f"{prefix}{name:<26}{_cell(first):>22}{_cell(last):>22}{change:>+12.2e}")
-        lines.append(" " * 17 + f"{'simple':<26}{_yes(simple[0]):>22}{_yes(simple.all()):>22}")
+        first_nonsimple = int(result.first_nonsimple_step)
+        throughout = "yes" if first_nonsimple < 0 else f"no (step {first_nonsimple})"
+        lines.append(" " * 17 + f"{'simple (at every step)':<26}{_yes(simple[0]):>22}{throughout:>22}")
     return lines
 
 
@@ -245,7 +247,7 @@ def _warnings(runs) -> tuple[list[str], bool]:
             messages.append(f"flow {kind}: non-finite points by step {nonfinite}: lower --tau or use --method semi-implicit")
         elif nonsimple >= 0:
             messages.append(
-                f"flow {kind}: the curve self-intersected by step {nonsimple} (none of the flows guarantees simplicity)"
+                f"flow {kind}: the curve self-intersected at step {nonsimple} (none of the flows guarantees simplicity)"
             )
     return messages, diverged
 
