@@ -29,6 +29,9 @@ import numpy as np
 from ._errors import DDGInputError
 from .mesh._mesh import Mesh
 
+# The public API; everything else here (the imports, the readers) is an implementation detail.
+__all__ = ["load_mesh", "save_mesh"]
+
 _FORMATS = ("obj", "off", "ply", "stl")
 
 
@@ -102,6 +105,7 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh) -> None:
             handle.write(vertices.astype("<f8").tobytes())
             handle.write(records.tobytes())
         return
+    # trimesh is imported where it is used: importing it takes ~1.6 s, which `import ddgjax` should not pay.
     import trimesh
 
     trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(str(path), file_type=fmt)

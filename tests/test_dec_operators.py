@@ -291,6 +291,9 @@ def test_jit_vmap_grad_over_vertex_positions():
     np.testing.assert_allclose(h2[1], 0.25 * h2[0], rtol=1e-14)
     w = jnp.asarray(np.random.default_rng(5).standard_normal(mesh.n_edges))
     perturbed = mesh.vertices + 0.1 * jnp.sqrt(jnp.arange(12.0).reshape(4, 3))
+    # check_grads' float64 defaults (central differences with eps=1e-4, atol = rtol = 1e-5): the
+    # truncation error of the finite difference is O(eps^2) ~ 1e-8 relative, so no finite-difference
+    # check can confirm a gradient to 1e-10; 1e-5 still catches any wrong term.
     jax.test_util.check_grads(
         jax.jit(lambda V: jnp.sum(w * dec.hodge1(mesh.with_vertices(V), dual="barycentric").diagonal())),
         (perturbed,),

@@ -185,6 +185,20 @@ def test_hodge_laplacians_are_symmetric_psd_with_harmonic_kernels(bob_hodge):
     np.testing.assert_allclose(stars[1][:, None] * strong1, laplacians[1] @ forms[1], rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["bob_small.ply", "small_disk.obj"])
+def test_hodge_laplacian2_matches_gpytoolbox(name):
+    """`d1 *1^{-1} d1^T *2` from gpytoolbox's `dec_*` (its edge order and orientation cancel in the product)."""
+    mesh = load(name)
+    V, F = np.asarray(mesh.vertices), mesh.topology.faces
+    omega = np.random.default_rng(4).standard_normal((mesh.n_faces, 2))
+    got = jax.jit(lambda m: (dec.hodge_laplacian2(m, omega), dec.hodge_laplacian2(m, omega, weak=True)))(mesh)
+    d1, star2 = gpytoolbox.dec_d1(F), gpytoolbox.dec_h2inv(V, F)
+    strong = d1 @ (gpytoolbox.dec_h1inv(V, F) @ (d1.T @ (star2 @ omega)))
+    # Relative to the largest entry: entries near zero carry the cancellation of the sums.
+    for value, expected in zip(got, (strong, star2 @ strong)):
+        np.testing.assert_allclose(np.asarray(value), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
 def test_vector_calculus_bad_input():
     mesh = load("tet.obj")
     with pytest.raises(DDGInputError, match="u: expected leading dimension nv = 4"):
@@ -212,6 +226,7 @@ def test_degenerate_faces_and_derivatives():
         return (
             jnp.sum(jnp.tanh(dec.divergence(moved, grad_u)))
             + jnp.sum(jnp.tanh(dec.curl(moved, dec.sharp(moved, alpha))))
+            + jnp.sum(jnp.tanh(dec.sharp(moved, alpha, at="vertices")))
             + jnp.sum(jnp.tanh(dec.hodge_laplacian1(moved, alpha, dual="barycentric")))
         )
 

@@ -133,3 +133,13 @@ def test_clear_errors(tmp_path):
     garbage.write_text("this is not an OFF file\n")
     with pytest.raises(DDGInputError, match="garbage.off"):
         load_mesh(garbage)
+
+
+def test_public_api_is_explicit():
+    """`ddgjax.io` exports its two functions, not its imports (`np`, `os`, `pathlib`, `Mesh`, ...)."""
+    import ddgjax.io
+
+    assert ddgjax.io.__all__ == ["load_mesh", "save_mesh"]
+    namespace: dict = {}
+    exec("from ddgjax.io import *", namespace)
+    assert sorted(name for name in namespace if name != "__builtins__") == ["load_mesh", "save_mesh"]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -11,7 +13,7 @@ from conftest import shared_path
 from ddgjax._errors import DDGInputError, MeshDataError
 from ddgjax.cli import main
 from ddgjax.io import load_mesh
-from ddgjax.mesh import Mesh, check_mesh, icosphere
+from ddgjax.mesh import Mesh, check_mesh, face_areas, icosphere
 
 TET_V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
 TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
@@ -30,6 +32,10 @@ TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
         (TET_V, np.zeros((0, 3), dtype=int), "faces: expected at least one face"),
         (TET_V, TET_F[:, :2], r"faces: expected shape \(nf, 3\)"),
         (TET_V, TET_F + 0.5, "faces: expected an integer array"),
+        # Whole-number floats too: a float face array is a mix-up, not a valid index list.
+        (TET_V, TET_F.astype(np.float64), r"faces: expected an integer array of vertex indices .*got dtype float64"),
+        (TET_V, TET_F.astype(np.float32), "got dtype float32"),
+        (TET_V, TET_F.astype(bool), "got dtype bool"),
         (TET_V, np.where(TET_F == 3, 4, TET_F), r"must lie in \[0, 4\), got out-of-range entries in faces \[1, 2, 3\]"),
         (TET_V, np.where(TET_F == 3, -1, TET_F), r"out-of-range entries in faces \[1, 2, 3\]"),
         (TET_V, np.array([[0, 1, 2], [1, 1, 3]]), r"three distinct vertices; faces \[1\] \(1 in all\) repeat one"),
@@ -64,10 +70,33 @@ def test_construction_accepts_exactly_the_valid_face_lists(n_vertices, faces):
             Mesh.from_arrays(vertices, F)
 
 
-def test_with_vertices_refuses_wrong_shape():
+@pytest.mark.parametrize(
+    "vertices, message",
+    [
+        (np.zeros((5, 3)), r"vertices: expected shape \(4, 3\), got \(5, 3\)"),
+        (np.zeros((4, 2)), r"vertices: expected shape \(n, 3\), got \(4, 2\)"),
+        (np.zeros(12), r"vertices: expected shape \(n, 3\), got \(12,\)"),
+        (np.where(np.arange(12).reshape(4, 3) == 4, np.nan, TET_V), r"vertices: expected finite coordinates, got NaN/inf at rows \[1\]"),
+        (jnp.asarray(TET_V).at[3, 2].set(-jnp.inf), r"NaN/inf at rows \[3\]"),
+        (TET_V.astype(complex), "vertices: expected a real floating-point array, got dtype complex128"),
+    ],
+)
+def test_with_vertices_refuses_bad_concrete_vertices(vertices, message):
     mesh = Mesh.from_arrays(TET_V, TET_F)
-    with pytest.raises(DDGInputError, match=r"vertices: expected shape \(4, 3\), got \(5, 3\)"):
-        mesh.with_vertices(np.zeros((5, 3)))
+    with pytest.raises(DDGInputError, match=message):
+        mesh.with_vertices(vertices)
+
+
+def test_with_vertices_passes_traced_vertices_through():
+    """Inside jit / grad the values cannot be checked on the host; they pass through unchanged (a NaN
+    included), and the mesh works as usual."""
+    mesh = Mesh.from_arrays(TET_V, TET_F)
+    moved = jax.jit(lambda V: mesh.with_vertices(V).vertices)(jnp.asarray(TET_V).at[0, 0].set(jnp.nan))
+    assert np.isnan(np.asarray(moved)[0, 0])
+    gradient = jax.grad(lambda V: jnp.sum(face_areas(mesh.with_vertices(V))))(jnp.asarray(TET_V))
+    assert gradient.shape == (4, 3) and np.all(np.isfinite(np.asarray(gradient)))
+    # Integer positions become floats, as in Mesh.from_arrays.
+    assert jnp.issubdtype(mesh.with_vertices(TET_V.astype(int)).vertices.dtype, jnp.floating)
 
 
 def test_operators_needing_a_manifold_refuse_clearly():
@@ -88,7 +117,8 @@ def test_check_mesh_on_clean_and_problem_meshes():
 
     hourglass = check_mesh(load_mesh(shared_path("meshes", "hourglass_ico.obj")))
     assert hourglass.nonmanifold_vertices.tolist() == [22] and not hourglass.is_manifold and hourglass.genus is None
-    assert "non-manifold vertices (2+ fans): 1 [22]" in str(hourglass)
+    assert "non-manifold vertices (2+ fans): [22] (1 in all)" in str(hourglass)
+    assert "non-manifold edges (3+ faces): none" in str(hourglass)
 
     vierbein = check_mesh(load_mesh(shared_path("meshes", "triple_vierbein.obj")))
     assert vierbein.nonmanifold_edges.size == 20 and not vierbein.is_oriented
@@ -98,7 +128,8 @@ def test_check_mesh_on_clean_and_problem_meshes():
 
     bunny = check_mesh(load_mesh(shared_path("meshes", "stanford-bunny.obj")))
     assert bunny.unreferenced_vertices.size == 1113 and bunny.n_boundary_loops == 5
-    assert "unreferenced vertices: 1113 [" in str(bunny)
+    assert "unreferenced vertices: [8, 16, 18, 72, 86, 99, 104, 117, 157, 177], ... (1113 in all)" in str(bunny)
+    assert "boundary loops: 5 (vertices per loop: [22, 42, 39, 40, 80])" in str(bunny)
 
 
 def test_check_mesh_finds_zero_area_faces_at_current_positions():
@@ -109,7 +140,7 @@ def test_check_mesh_finds_zero_area_faces_at_current_positions():
     V[4] = 0.5 * (V[3] + V[9])  # face 10 becomes collinear
     report = check_mesh(sphere.with_vertices(V))
     assert report.zero_area_faces.tolist() == [0, 4, 10]
-    assert "zero-area faces (area <= 1e-12 * longest edge^2): 3 [0, 4, 10]" in str(report)
+    assert "zero-area faces (area <= 1e-12 * longest edge^2): [0, 4, 10] (3 in all)" in str(report)
     # A needle of aspect 1e-4 is not zero-area at the default tolerance, but is at area_tol=1e-3.
     V[4] += 1e-4 * np.cross(V[9] - V[3], [0.0, 0.0, 1.0])
     assert 10 not in check_mesh(sphere.with_vertices(V)).zero_area_faces
@@ -133,8 +164,33 @@ def test_info_on_a_file(capsys):
     path = shared_path("meshes", "hourglass_ico.obj")
     assert main(["info", str(path)]) == 0
     out = capsys.readouterr().out
-    assert "non-manifold vertices (2+ fans): 1 [22]" in out
+    assert "non-manifold vertices (2+ fans): [22] (1 in all)" in out
     assert "2 pi chi 18.849555921538" in out  # chi = 3
+
+
+@pytest.mark.parametrize(
+    "name, problem", [("moebius.obj", "inconsistently oriented edges"), ("triple_vierbein.obj", "non-manifold edges")]
+)
+def test_info_says_signed_curvatures_are_undefined_without_an_orientation(capsys, name, problem):
+    """No statistics of H, k1, k2 where their sign means nothing; K and Gauss-Bonnet still reported."""
+    topology = load_mesh(shared_path("meshes", name)).topology
+    assert main(["info", str(shared_path("meshes", name))]) == 0
+    out = capsys.readouterr().out
+    count = (topology.inconsistent_edges if problem.startswith("inconsistently") else topology.nonmanifold_edges).size
+    assert count > 0
+    assert (
+        "mean curvature H, principal curvatures k1, k2: undefined (their sign needs consistently oriented "
+        f"faces; this mesh has {count} {problem})"
+    ) in out
+    assert "mean curvature H (dihedral angles)" not in out and "principal curvature k1 " not in out
+    assert "Gaussian curvature K" in out and "Gauss-Bonnet" in out
+
+
+def test_info_reports_signed_curvatures_on_oriented_meshes(capsys):
+    assert main(["info", str(shared_path("meshes", "tet.obj"))]) == 0
+    out = capsys.readouterr().out
+    assert "mean curvature H (dihedral angles)" in out and "principal curvature k2" in out
+    assert "undefined" not in out
 
 
 @pytest.mark.parametrize("name", ["missing.obj", "points.xyz"])

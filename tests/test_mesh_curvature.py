@@ -17,15 +17,12 @@ from jax.test_util import check_grads
 from conftest import shared_path
 from ddgjax.io import _read_obj, _read_with_trimesh, load_mesh
 from ddgjax.laplacian import laplacian_apply
+from ddgjax._errors import MeshDataError
 from ddgjax.mesh import (
     Mesh,
     disk,
     enclosed_volume,
-    gaussian_curvature,
     icosphere,
-    mean_curvature,
-    mean_curvature_normal,
-    principal_curvatures,
     torus,
     total_area,
     total_mean_curvature,
@@ -34,6 +31,10 @@ from ddgjax.mesh import (
     vertex_mean_curvature_normals,
     vertex_mean_curvatures,
     vertex_normals,
+    vertex_pointwise_gaussian_curvatures,
+    vertex_pointwise_mean_curvature_normals,
+    vertex_pointwise_mean_curvatures,
+    vertex_principal_curvatures,
 )
 from mesh_union import disjoint_union
 
@@ -43,13 +44,13 @@ def curvatures(mesh: Mesh) -> dict:
     """Everything pointwise and integrated in one compiled call."""
     return {
         "defects": vertex_angle_defects(mesh),
-        "K": gaussian_curvature(mesh),
-        "H": mean_curvature(mesh),
-        "HN": mean_curvature_normal(mesh),
+        "K": vertex_pointwise_gaussian_curvatures(mesh),
+        "H": vertex_pointwise_mean_curvatures(mesh),
+        "HN": vertex_pointwise_mean_curvature_normals(mesh),
         "HN_integrated": vertex_mean_curvature_normals(mesh),
         "H_integrated": vertex_mean_curvatures(mesh),
         "KN": vertex_gauss_curvature_normals(mesh),
-        "principal": principal_curvatures(mesh),
+        "principal": vertex_principal_curvatures(mesh),
     }
 
 
@@ -139,13 +140,12 @@ def test_gauss_bonnet_on_every_shared_mesh():
     """sum K_i = 2 pi chi on all meshes in ../shared/meshes, non-manifold and non-orientable ones included.
 
     The meshes are joined into one disjoint union so the defects come from one compiled call; each
-    mesh's sum and chi are read off its vertex / edge / face ranges.
+    mesh's sum and chi are read off its vertex / edge / face ranges. armadillo_loop1.ply (346 k faces)
+    adds about 1.5 s.
     """
     folder = shared_path("meshes")
-    # armadillo_loop1.ply (346 k faces) is a subdivision of armadillo.obj, which is included; leaving it
-    # out halves this test's time.
-    paths = sorted(p for p in folder.iterdir() if p.suffix in (".obj", ".off", ".ply") and p.name != "armadillo_loop1.ply")
-    assert len(paths) >= 20
+    paths = sorted(p for p in folder.iterdir() if p.suffix in (".obj", ".off", ".ply"))
+    assert len(paths) >= 24 and "armadillo_loop1.ply" in [p.name for p in paths]
     union = disjoint_union([_read_obj(p) if p.suffix == ".obj" else _read_with_trimesh(p, p.suffix[1:]) for p in paths])
     topology = union.mesh.topology
     defects = np.asarray(jax.jit(vertex_angle_defects)(union.mesh))
@@ -183,6 +183,43 @@ def test_mean_curvature_normals_match_libigl_cotmatrix(real):
     camel = real["camelhead.off"]
     expected = -igl.cotmatrix(camel["V"], camel["F"]) @ camel["V"] / 2
     assert np.max(np.abs(camel["HN_integrated"] - expected)) < 1e-10 * np.max(np.abs(expected))
+
+
+# ---------------------------------------------------------------- orientation
+
+SIGNED = {
+    "vertex_mean_curvatures": vertex_mean_curvatures,
+    "vertex_pointwise_mean_curvatures": vertex_pointwise_mean_curvatures,
+    "vertex_principal_curvatures": vertex_principal_curvatures,
+    "total_mean_curvature": total_mean_curvature,
+    "vertex_gauss_curvature_normals": vertex_gauss_curvature_normals,
+}
+
+
+@pytest.mark.parametrize(
+    "name, problem",
+    [("moebius.obj", "consistently oriented faces"), ("triple_vierbein.obj", "edge-manifold")],
+)
+def test_signed_curvatures_refuse_meshes_without_an_orientation(name, problem):
+    """Signed dihedral angles are arbitrary without a consistent orientation: the signed curvatures
+    refuse (also under jit: the check reads the host topology); the unsigned ones still work."""
+    mesh = load_mesh(shared_path("meshes", name))
+    for function_name, function in SIGNED.items():
+        for call in (function, jax.jit(function)):
+            with pytest.raises(MeshDataError, match=rf"ddgjax\.mesh\.{function_name} .*needs .*{problem}"):
+                call(mesh)
+    unsigned = jax.jit(
+        lambda m: (
+            vertex_angle_defects(m),
+            vertex_pointwise_gaussian_curvatures(m),
+            vertex_mean_curvature_normals(m),
+            vertex_pointwise_mean_curvature_normals(m),
+        )
+    )(mesh)
+    assert all(np.all(np.isfinite(np.asarray(value))) for value in unsigned)
+    # The mean curvature normal needs no orientation: it is still half the area gradient L V.
+    V, F = arrays(mesh)
+    np.testing.assert_allclose(unsigned[2], -igl.cotmatrix(V, F) @ V / 2, rtol=0, atol=1e-13)
 
 
 # ---------------------------------------------------------------- convergence to analytic curvature
@@ -338,8 +375,8 @@ def test_degenerate_faces_give_finite_values_and_gradients(small_batch):
 
 
 def test_jit_and_vmap_equal_eager(small_batch):
-    # principal_curvatures computes K and H inside: one eager call covers their code paths.
-    np.testing.assert_allclose(small_batch["principal"][0], principal_curvatures(SMALL), rtol=1e-13, atol=1e-14)
+    # vertex_principal_curvatures computes K and H inside: one eager call covers their code paths.
+    np.testing.assert_allclose(small_batch["principal"][0], vertex_principal_curvatures(SMALL), rtol=1e-13, atol=1e-14)
     np.testing.assert_allclose(small_batch["defects"][0], vertex_angle_defects(SMALL), rtol=1e-13, atol=1e-14)
     # Scale: integrated K is invariant, pointwise K scales as 1/s^2 and H as 1/s. A mirror image
     # (reversed orientation) keeps K and flips the sign of H.

@@ -15,8 +15,9 @@ whose flux it measures, `omega = i_B vol`, so that `d(A^flat) = curl(A)` and Sto
 `d1 integrate_1form(A) == integrate_2form(curl A)` holds face by face. A scalar density `rho` on a
 flat mesh in the plane `z = 0` (counterclockwise faces) is the 2-form of `B = (0, 0, rho)`.
 
-Orientation: 0- and 1-forms, `flat` and `sharp` work on any mesh (edges carry their own global
-orientation); `integrate_2form` needs consistently oriented faces, like `d1` and `hodge2`.
+Orientation: 0- and 1-forms, `flat` and `sharp` (at faces or vertices) work on any mesh (edges
+carry their own global orientation); `integrate_2form` needs consistently oriented faces, like `d1`
+and `hodge2`.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError
-from ..mesh._geometry import face_hat_gradients
-from ..mesh._geometry import face_vertex_positions
+from .._numerics import safe_div
+from ..mesh._geometry import corner_dual_areas, face_hat_gradients, face_vertex_positions, scatter_corners_to_vertices
 from ..mesh._mesh import Mesh
 from ._vector_calculus import _as_array
 
@@ -53,10 +54,14 @@ def _evaluate(name: str, function: Callable, points: Float[Array, "q 3"], traili
 
 
 def integrate_0form(mesh: Mesh, f: Callable[[Float[Array, "3"]], Float[Array, ""]]) -> Float[Array, " nv"]:
-    """De Rham map of a 0-form: `f` sampled at the vertices, `(nv,)`.
+    """De Rham map of a 0-form: `f` sampled at the vertices, `u_i = f(p_i)`, `(nv,)`.
 
-    `f` maps one position `(3,)` to a scalar. `d0 @ integrate_0form(f) == integrate_1form(grad f)`
-    exactly (Stokes' theorem on each edge, up to the quadrature error of the right-hand side).
+    `f` maps one position `(3,)` to a scalar `()` (it is `vmap`ped over the vertices; it must be a JAX
+    function). A 0-form is integrated over points, i.e. evaluated: there is no quadrature and no
+    orientation, so it works on every mesh (unreferenced vertices are sampled too).
+    `d0 @ integrate_0form(f) == integrate_1form(grad f)` exactly (Stokes' theorem on each edge, up to
+    the quadrature error of the right-hand side). Reference: Desbrun et al., *Discrete Exterior
+    Calculus* (2005), section 3 (the de Rham map). libigl / gpytoolbox: `f(V)` evaluated on the rows of `V`.
     """
     return _evaluate("f", f, mesh.vertices, ())
 
@@ -88,8 +93,12 @@ def integrate_2form(
     `omega` maps one position `(3,)` to the vector field whose flux is the 2-form (module docstring);
     `n` is the unit normal of the face's vertex order. Quadrature: the collapsed (Duffy) product of
     Gauss-Legendre rules, `(degree + 3) // 2` nodes per direction, exact when `omega` is a polynomial of
-    degree <= `degree` in the position. Needs consistently oriented faces (`MeshDataError`). Stokes:
-    `d1 @ integrate_1form(A) == integrate_2form(curl A)`.
+    degree <= `degree` in the position. Returns `(nf,)` integrated (not pointwise) values: divide by
+    the face areas (`hodge2`) for the mean density. Needs consistently oriented faces
+    (`MeshDataError`): the sign of a face integral is relative to its orientation. Stokes:
+    `d1 @ integrate_1form(A) == integrate_2form(curl A)`. Reference: Desbrun et al., *Discrete
+    Exterior Calculus* (2005), section 3; quadrature: Duffy, "Quadrature over a pyramid or cube of
+    integrands with a singularity at a vertex" (1982). No libigl / gpytoolbox equivalent.
     """
     mesh.topology.require_oriented("ddgjax.dec.integrate_2form")
     _check_degree(degree)
@@ -105,6 +114,14 @@ def integrate_2form(
     return jnp.einsum("q,fqd,fd->f", square_weights, values, jnp.cross(side1, side2))
 
 
+_PLACES = ("faces", "vertices")
+
+
+def _check_at(at: str) -> None:
+    if at not in _PLACES:
+        raise DDGInputError(f"at: expected 'faces' or 'vertices', got {at!r}")
+
+
 def flat(
     mesh: Mesh, field: Float[ArrayLike, "n 3"], *, at: str = "faces"
 ) -> Float[Array, " ne"]:
@@ -117,10 +134,10 @@ def flat(
       integral of the linear interpolant of `X` along the edge; equals `integrate_1form` of any field
       that is linear (affine) in the position.
 
-    Works on any mesh. Reference: Hirani, *Discrete Exterior Calculus* (2003), section 5.
+    Works on any mesh. Reference: Hirani, *Discrete Exterior Calculus* (2003), section 5. libigl /
+    gpytoolbox have no flat (gpytoolbox's `dec_*` operators start from 1-forms).
     """
-    if at not in ("faces", "vertices"):
-        raise DDGInputError(f"at: expected 'faces' or 'vertices', got {at!r}")
+    _check_at(at)
     edge_vectors = mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]]
     if at == "vertices":
         field = _as_array("field", field, mesh.n_vertices, "nv")
@@ -132,21 +149,72 @@ def flat(
     return jnp.sum(jnp.where(present, per_face, 0.0), axis=-1) / jnp.sum(present, axis=-1)
 
 
-def sharp(mesh: Mesh, alpha: Float[ArrayLike, " ne"]) -> Float[Array, "nf 3"]:
-    """Sharp of a discrete 1-form: its Whitney interpolant at each face barycentre, `(nf, 3)`.
-
-    The Whitney 1-form `sum_{ij} alpha_ij (phi_i grad phi_j - phi_j grad phi_i)` (over the face's edges
-    `i -> j`, `alpha_ij` the integral along `i -> j`) is evaluated at the barycentre, where every
-    `phi = 1/3`: `X_f = 1/3 sum_{ij} alpha_ij (grad phi_j - grad phi_i)`, a tangent vector. It satisfies
-    `X_f . (p_j - p_i) = alpha_ij - c_f / 3` with `c_f` the circulation of `alpha` around `f`; so
-    `flat(sharp(alpha)) == alpha` exactly for closed forms (`d1 alpha = 0`, e.g. `alpha = d0 u`, where
-    `sharp(d0 u) == gradient(u)`), and `sharp(flat(X))` is the tangent part of a constant `X`.
-    Independent of the face orientation: works on any mesh. Reference: Whitney, *Geometric
-    Integration Theory* (1957); Crane et al. 2013, section 7.4.
-    """
-    alpha = _as_array("alpha", alpha, mesh.n_edges, "ne")
+def _whitney_corner_values(mesh: Mesh, alpha: Float[Array, " ne"]) -> Float[Array, "nf 3 3"]:
+    """The Whitney interpolant of `alpha` at each corner of each face, `W_f(p_i) = sum_{j != i} alpha_ij grad phi_j`."""
     gradients = face_hat_gradients(mesh)
     # Edge k of a face runs p_{k+1} -> p_{k+2}; the face-order value is the global one times its sign.
     along = mesh.face_edge_signs.astype(alpha.dtype) * alpha[mesh.face_edges]
-    differences = jnp.roll(gradients, -2, axis=1) - jnp.roll(gradients, -1, axis=1)
-    return jnp.einsum("fk,fkd->fd", along, differences) / 3.0
+    # At corner i: alpha_{i -> i+1} is edge i+2 run forwards, alpha_{i -> i+2} is edge i+1 run backwards.
+    to_next, to_prev = jnp.roll(along, -2, axis=1), -jnp.roll(along, -1, axis=1)
+    return to_next[..., None] * jnp.roll(gradients, -1, axis=1) + to_prev[..., None] * jnp.roll(gradients, -2, axis=1)
+
+
+def sharp(mesh: Mesh, alpha: Float[ArrayLike, " ne"], *, at: str = "faces") -> Float[Array, "n 3"]:
+    """Sharp of a discrete 1-form: a vector field from its Whitney interpolant, at faces or vertices.
+
+    The Whitney 1-form of `alpha` on a face is `W = sum_{ij} alpha_ij (phi_i grad phi_j - phi_j grad phi_i)`
+    (over the face's edges `i -> j`, `alpha_ij` the integral along `i -> j`, `phi` the hat functions);
+    it is linear in the `phi`, a tangent vector field on the face, and its value at corner `i` is
+    `W_f(p_i) = sum_{j != i} alpha_ij grad phi_j`.
+
+    - `at="faces"` (default), `(nf, 3)`: `W` at the barycentre, where every `phi = 1/3`:
+      `X_f = 1/3 sum_{ij} alpha_ij (grad phi_j - grad phi_i)`, the mean of the three corner values.
+      It satisfies `X_f . (p_j - p_i) = alpha_ij - c_f / 3` with `c_f` the circulation of `alpha`
+      around `f`; so `flat(sharp(alpha)) == alpha` exactly for closed forms (`d1 alpha = 0`, e.g.
+      `alpha = d0 u`, where `sharp(d0 u) == gradient(u)` == libigl `igl.grad(V, F) @ u` and
+      gpytoolbox `grad(V, F) @ u`, reshaped `(3, nf).T`), and `sharp(flat(X))` is the tangent part of
+      a constant `X`.
+    - `at="vertices"`, `(nv, 3)`: the corner values `W_f(p_i)` of the faces around vertex `i`,
+      averaged with the vertex's Voronoi (mixed) dual-cell areas in each face as weights:
+      `X_i = sum_{f ni i} |*i cap f| W_f(p_i) / sum_{f ni i} |*i cap f|`
+      (`ddgjax.mesh.corner_dual_areas`, summing to `vertex_dual_areas`). This is Hirani's
+      primal-primal sharp, with the always-nonnegative mixed areas in place of the circumcentric
+      ones (the same on meshes without obtuse angles). It evaluates the interpolant at the vertex
+      itself rather than averaging barycentre values (which sit `h/3` away). Exactness:
+      `sharp(flat(X, at="vertices"), at="vertices") == X` for a constant `X` on a flat mesh (on a
+      curved one, a weighted mean of its projections onto the incident faces), and for any field
+      `a + b J p` (constant plus infinitesimal rotation in the plane: the fields Whitney forms
+      reproduce; the mean of face sharps is not exact for these) at every vertex of a flat mesh; for
+      a general linear field it is exact where the one-ring is point-symmetric (the interior of a
+      regular grid) and first-order accurate elsewhere; for a smooth tangent field on a curved
+      surface its error is `O(h)` in general. The vector lies in the span of the incident faces'
+      planes, not in one tangent plane. Vertices with zero dual area (unreferenced, or only
+      degenerate faces around them) get the zero vector.
+
+    Alternatives not taken: a least-squares fit of a linear field per one-ring reproduces every
+    linear field but is underdetermined at boundary vertices with one or two faces, and a global
+    least-squares inverse of `flat(at="vertices")` is not local; neither is a Whitney interpolation.
+
+    Independent of the face orientation: works on any mesh (edges carry their own orientation).
+
+    Args:
+        mesh: any triangle mesh.
+        alpha: `(ne,)` 1-form on `mesh.edges` (integrals along low -> high).
+        at: `"faces"` or `"vertices"` (keyword-only).
+
+    Returns:
+        `(nf, 3)` or `(nv, 3)` vectors.
+
+    Reference: Whitney, *Geometric Integration Theory* (1957); Hirani, *Discrete Exterior Calculus*
+    (2003), section 5.8 (primal-primal sharp); Crane et al. 2013, section 7.4. Equivalents: for exact
+    forms at faces, libigl / gpytoolbox `grad` (above); libigl and gpytoolbox have no sharp of a
+    general 1-form and no vertex sharp.
+    """
+    _check_at(at)
+    alpha = _as_array("alpha", alpha, mesh.n_edges, "ne")
+    corner_values = _whitney_corner_values(mesh, alpha)
+    if at == "faces":
+        return jnp.mean(corner_values, axis=1)
+    weights = corner_dual_areas(mesh, kind="voronoi")
+    weighted = scatter_corners_to_vertices(mesh, weights[..., None] * corner_values)
+    return safe_div(weighted, scatter_corners_to_vertices(mesh, weights)[:, None])

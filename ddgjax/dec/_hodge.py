@@ -71,7 +71,7 @@ def hodge_star_entries(
     """
     _check_dual(dual)
     if degree == 0:
-        entries = vertex_dual_areas(mesh, dual)
+        entries = vertex_dual_areas(mesh, kind=dual)
     elif degree == 1:
         entries = edge_dual_length_ratios(mesh, dual="barycentric" if dual == "barycentric" else "circumcentric")
     elif degree == 2:

@@ -24,7 +24,6 @@ otherwise.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
@@ -94,12 +93,6 @@ def _scale(entries: Float[Array, " n"], x: Float[Array, "n *batch"]) -> Float[Ar
     return entries.reshape((-1,) + (1,) * (x.ndim - 1)) * x
 
 
-def _transpose_apply(matrix: SparseMatrix, y: Float[Array, "n_rows *batch"]) -> Float[Array, "n_cols *batch"]:
-    """`matrix.T @ y` as one scatter over the stored entries (no transposed pattern needed)."""
-    products = _scale(matrix.values, y[matrix.pattern.rows])
-    return jax.ops.segment_sum(products, matrix.pattern.cols, num_segments=matrix.shape[1])
-
-
 def _exterior_derivative(mesh: Mesh, degree: int) -> SparseMatrix:
     return d0(mesh) if degree == 0 else d1(mesh)
 
@@ -117,7 +110,7 @@ def _codifferential(mesh: Mesh, form, degree: int, dual: str):
     d = _exterior_derivative(mesh, degree - 1)
     star_inverse = hodge_star_entries(mesh, degree - 1, dual=dual, inverse=True)
     star = hodge_star_entries(mesh, degree, dual=dual)
-    return _scale(star_inverse, _transpose_apply(d, _scale(star, form)))
+    return _scale(star_inverse, d.T @ _scale(star, form))
 
 
 def codifferential(
@@ -149,7 +142,7 @@ def _hodge_laplacian(mesh: Mesh, name: str, form, degree: int, dual: str, weak: 
     result = jnp.zeros_like(form)
     if degree < 2:
         d = _exterior_derivative(mesh, degree)
-        up = _transpose_apply(d, _scale(hodge_star_entries(mesh, degree + 1, dual=dual), d @ form))
+        up = d.T @ _scale(hodge_star_entries(mesh, degree + 1, dual=dual), d @ form)
         result = result + (up if weak else _scale(hodge_star_entries(mesh, degree, dual=dual, inverse=True), up))
     if degree > 0:
         down = _exterior_derivative(mesh, degree - 1) @ _codifferential(mesh, form, degree, dual)
@@ -162,10 +155,16 @@ def hodge_laplacian0(
 ) -> Float[Array, "nv *batch"]:
     """Hodge Laplacian on 0-forms, `Delta_0 u = delta_1 d0 u = *0^{-1} d0^T *1 d0 u`, `(nv, *batch)`.
 
-    PSD convention: with the circumcentric (default) or Voronoi dual, `d0^T *1 d0 = L`, the cotan
-    Laplacian (`ddgjax.laplacian.cotan_laplacian`), so `Delta_0 = *0^{-1} L` is minus the pointwise
-    Laplace-Beltrami operator. `weak=True` returns the symmetric `*0 Delta_0 u = d0^T *1 d0 u` (no
-    division by dual areas). Works on any mesh; vertices with zero dual area get 0 (pseudo-inverse).
+    `u` is `(nv,)` or `(nv, k)` (columns transformed independently). PSD convention: with the
+    circumcentric (default) or Voronoi dual, `d0^T *1 d0 = L`, the cotan Laplacian
+    (`ddgjax.laplacian.cotan_laplacian`), so `Delta_0 = *0^{-1} L` is minus the pointwise
+    Laplace-Beltrami operator (pointwise: divided by the dual areas). `weak=True` returns the
+    symmetric, integrated `*0 Delta_0 u = d0^T *1 d0 u` (no division by dual areas). `dual="barycentric"`
+    uses the barycentric `*0` and `*1` (`hodge_star_entries`). Works on any mesh; vertices with zero
+    dual area get 0 (pseudo-inverse). Reference: Desbrun et al., *Discrete Exterior Calculus* (2005);
+    Crane et al. 2013, section 6. Equivalents: `weak=True` is `-igl.cotmatrix(V, F) @ u` and
+    `gpytoolbox.cotangent_laplacian(V, F) @ u`; with `dual="voronoi"` the strong form is
+    `-(igl.cotmatrix(V, F) @ u) / M.diagonal()` with `M = igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI)`.
     """
     return _hodge_laplacian(mesh, "u", u, 0, dual, weak)
 
@@ -189,6 +188,14 @@ def hodge_laplacian2(
 ) -> Float[Array, "nf *batch"]:
     """Hodge Laplacian on 2-forms, `Delta_2 = d1 delta_2 = d1 *1^{-1} d1^T *2`, `(nf, *batch)`.
 
-    `weak=True` returns the symmetric `*2 d1 *1^{-1} d1^T *2 omega`. Needs consistently oriented faces.
+    `omega` is `(nf,)` or `(nf, k)`, integrated over the faces (module docstring); so is the result.
+    `Delta_2 omega = d1 *1^{-1} d1^T *2 omega`: `*2` turns the face integrals into densities, `d1^T`
+    takes their jumps across the edges, `*1^{-1}` and `d1` sum the resulting dual fluxes around each
+    face. PSD for positive stars (barycentric always; circumcentric on Delaunay meshes); on a closed
+    surface its kernel is the constant density (`omega` proportional to the face areas). `weak=True`
+    returns the symmetric `*2 d1 *1^{-1} d1^T *2 omega`. Zero `*1` entries invert to 0. Needs
+    consistently oriented faces (`MeshDataError` otherwise). Reference: Desbrun et al., *Discrete
+    Exterior Calculus* (2005); Crane et al. 2013, section 6. gpytoolbox (its own edge order, which
+    cancels here): `dec_d1(F) @ dec_h1inv(V, F) @ dec_d1(F).T @ dec_h2inv(V, F) @ omega`.
     """
     return _hodge_laplacian(mesh, "omega", omega, 2, dual, weak)

@@ -3,8 +3,9 @@
 - `Mesh`, `MeshTopology`: vertices (differentiable) plus connectivity built once in NumPy.
 - Geometry (jit / grad / vmap over `mesh.vertices`): edge lengths, face areas and normals, corner
   angles and cotangents, cotan weights, vertex normals, dual areas, dihedral angles, area, volume.
-- Curvature: angle defects (integrated K), Gaussian / mean / principal curvature (pointwise), mean
-  curvature normals, Gauss curvature normals, total mean curvature.
+- Curvature: angle defects (integrated K), integrated mean curvature (scalar from dihedral angles,
+  normal from `L V`), Gauss curvature normals, total mean curvature; pointwise Gaussian / mean
+  curvature and mean curvature normals (`vertex_pointwise_*`), principal curvatures.
 - Built-in shapes: `icosphere`, `uv_sphere`, `torus`, `disk`, `grid`.
 - Checks: `check_mesh` -> `MeshReport`.
 """
@@ -36,15 +37,15 @@ from ._geometry import (
 )
 from ._check import MeshReport as MeshReport, check_mesh as check_mesh
 from ._curvature import (
-    gaussian_curvature as gaussian_curvature,
-    mean_curvature as mean_curvature,
-    mean_curvature_normal as mean_curvature_normal,
-    principal_curvatures as principal_curvatures,
     total_mean_curvature as total_mean_curvature,
     vertex_angle_defects as vertex_angle_defects,
     vertex_gauss_curvature_normals as vertex_gauss_curvature_normals,
     vertex_mean_curvature_normals as vertex_mean_curvature_normals,
     vertex_mean_curvatures as vertex_mean_curvatures,
+    vertex_pointwise_gaussian_curvatures as vertex_pointwise_gaussian_curvatures,
+    vertex_pointwise_mean_curvature_normals as vertex_pointwise_mean_curvature_normals,
+    vertex_pointwise_mean_curvatures as vertex_pointwise_mean_curvatures,
+    vertex_principal_curvatures as vertex_principal_curvatures,
 )
 from ._mesh import Mesh as Mesh
 from ._shapes import disk as disk, grid as grid, icosphere as icosphere, torus as torus, uv_sphere as uv_sphere

@@ -6,8 +6,9 @@ import dataclasses
 
 import numpy as np
 
-from .._errors import DDGInputError
+from .._errors import DDGInputError, first_indices
 from ._mesh import Mesh
+from ._topology import index_mask
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,7 +72,11 @@ class MeshReport:
 
     def __str__(self) -> str:
         loops = self.boundary_loop_lengths
-        loop_text = "none (closed)" if not loops else f"{len(loops)} (vertices per loop: {_listing(np.asarray(loops))})"
+        # NumPy's own summarisation ("[a, b, ..., y, z]") keeps a mesh with many holes to one line.
+        sizes = np.array2string(
+            np.asarray(loops), separator=", ", threshold=10, edgeitems=5, max_line_width=10**6, formatter={"int": str}
+        )
+        loop_text = "none (closed)" if not loops else f"{len(loops)} (vertices per loop: {sizes})"
         lines = [
             f"vertices {self.n_vertices:,}  faces {self.n_faces:,}  edges {self.n_edges:,}",
             f"Euler characteristic {self.euler_characteristic}  genus {'-' if self.genus is None else self.genus}  "
@@ -80,14 +85,14 @@ class MeshReport:
             f"manifold: {_yes_no(self.is_manifold)}  oriented: {_yes_no(self.is_oriented)}  closed: {_yes_no(self.is_closed)}",
         ]
         problems = [
-            ("non-manifold edges (3+ faces)", self.nonmanifold_edges),
-            ("non-manifold vertices (2+ fans)", self.nonmanifold_vertices),
-            ("inconsistently oriented edges", self.inconsistent_edges),
-            ("unreferenced vertices", self.unreferenced_vertices),
-            (f"zero-area faces (area <= {self.area_tol:g} * longest edge^2)", self.zero_area_faces),
+            ("non-manifold edges (3+ faces)", self.nonmanifold_edges, self.n_edges),
+            ("non-manifold vertices (2+ fans)", self.nonmanifold_vertices, self.n_vertices),
+            ("inconsistently oriented edges", self.inconsistent_edges, self.n_edges),
+            ("unreferenced vertices", self.unreferenced_vertices, self.n_vertices),
+            (f"zero-area faces (area <= {self.area_tol:g} * longest edge^2)", self.zero_area_faces, self.n_faces),
         ]
-        for label, indices in problems:
-            lines.append(f"{label}: {indices.size}" + (f" {_listing(indices)}" if indices.size else ""))
+        for label, indices, size in problems:
+            lines.append(f"{label}: " + (first_indices(index_mask(indices, size)) if indices.size else "none"))
         return "\n".join(lines)
 
 
@@ -124,11 +129,6 @@ def check_mesh(mesh: Mesh, *, area_tol: float = 1e-12) -> MeshReport:
         zero_area_faces=zero_area,
         area_tol=float(area_tol),
     )
-
-
-def _listing(indices: np.ndarray, limit: int = 10) -> str:
-    shown = ", ".join(str(int(i)) for i in indices[:limit])
-    return f"[{shown}{', ...' if indices.size > limit else ''}]"
 
 
 def _yes_no(flag: bool) -> str:

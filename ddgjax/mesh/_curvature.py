@@ -2,9 +2,19 @@
 
 Conventions (DESIGN.md): every function says whether it is **integrated** (a sum over the vertex's
 dual cell, scale-invariant for Gaussian curvature) or **pointwise** (the integrated value divided by
-the vertex dual area, `vertex_dual_areas(mesh, kind)`, Voronoi by default). Mean curvature is
-`H = (k1 + k2) / 2`, positive on a sphere with outward normals; the smooth identities behind the
-discrete ones are `Delta x = -2 H N` and `K = k1 k2`.
+the vertex dual area, `vertex_dual_areas(mesh, kind=kind)`, Voronoi by default). Names follow: the
+integrated quantities are `vertex_angle_defects`, `vertex_mean_curvatures`,
+`vertex_mean_curvature_normals`, `vertex_gauss_curvature_normals`; their pointwise counterparts carry
+`pointwise` (`vertex_pointwise_gaussian_curvatures`, ...), and `vertex_principal_curvatures` is
+pointwise. Mean curvature is `H = (k1 + k2) / 2`, positive on a sphere with outward normals; the
+smooth identities behind the discrete ones are `Delta x = -2 H N` and `K = k1 k2`.
+
+Orientation: angle defects and the mean curvature normal from `L V` need none and work on every
+mesh. The signed scalar mean curvature (and so the principal curvatures, the total mean curvature and
+the Gauss curvature normal) is built from signed dihedral angles, whose sign is relative to the
+faces' orientation: on a mesh without a consistent orientation (a Moebius strip, inconsistently
+oriented or non-manifold edges) it is undefined, and those functions raise `MeshDataError`
+(checked from the host topology, so also under jit).
 
 References: K. Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), "Discrete
 curvature I and II"; M. Meyer, M. Desbrun, P. Schroeder, A. Barr, "Discrete differential-geometry
@@ -18,8 +28,21 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._numerics import safe_div, safe_norm, safe_sqrt
-from ._geometry import corner_angles, edge_dihedral_angles, edge_lengths, scatter_corners_to_vertices, vertex_dual_areas
+from ._geometry import (
+    corner_angles,
+    edge_dihedral_angles,
+    edge_lengths,
+    face_edge_vectors,
+    face_normals,
+    scatter_corners_to_vertices,
+    vertex_dual_areas,
+)
 from ._mesh import Mesh
+
+
+def _require_orientation(mesh: Mesh, name: str) -> None:
+    """Signed dihedral angles need consistently oriented faces (module docstring)."""
+    mesh.topology.require_oriented(f"ddgjax.mesh.{name} (signed dihedral angles)")
 
 
 def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
@@ -35,7 +58,8 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     Converters: `igl.gaussian_curvature(V, F)` is `2 pi - sum theta` everywhere, so it equals this on
     interior vertices and this minus `pi` on boundary vertices; `gpytoolbox.angle_defect(V, F)` is
     this on interior vertices and 0 on boundary vertices
-    (`jnp.where(boundary, 0, vertex_angle_defects(mesh))`). Pointwise: `gaussian_curvature`.
+    (`jnp.where(boundary, 0, vertex_angle_defects(mesh))`). Pointwise:
+    `vertex_pointwise_gaussian_curvatures`.
     """
     angle_sums = scatter_corners_to_vertices(mesh, corner_angles(mesh))
     dtype = angle_sums.dtype
@@ -48,37 +72,50 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     return jnp.where(referenced, 2.0 * jnp.pi - angle_sums - corrections, 0.0)
 
 
-def gaussian_curvature(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
-    """Pointwise Gaussian curvature, `(nv,)`: `vertex_angle_defects / vertex_dual_areas(mesh, kind)`.
+def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
+    """Pointwise Gaussian curvature, `(nv,)`: `K_i / A_i`, the angle defect over the vertex dual area.
 
-    0 where the dual area is 0 (unreferenced vertices). libigl tutorial:
-    `igl.gaussian_curvature(V, F) / igl.massmatrix(V, F, VORONOI).diagonal()` (interior vertices).
+    `K_i = vertex_angle_defects(mesh)` (integrated), `A_i = vertex_dual_areas(mesh, kind=kind)`
+    (`"voronoi"` mixed areas by default, `"barycentric"`, `"circumcentric"`). 0 where the dual area
+    is 0 (unreferenced vertices). Works on every mesh. Converges at `O(h^2)` on regular meshes.
+    Reference: Meyer et al. 2003. libigl tutorial:
+    `igl.gaussian_curvature(V, F) / igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI).diagonal()`
+    (equal on interior vertices; libigl's defect omits the boundary's `-pi`).
     """
-    return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, kind))
+    return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, kind=kind))
 
 
 def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     """Integrated mean curvature normal `H N A_i`, `(nv, 3)`: half the cotan Laplacian of the positions.
 
-    `(H N)_i = (L V)_i / 2 = 1/4 sum_j (cot a_ij + cot b_ij)(f_i - f_j)`, the discrete form of
-    `Delta x = -2 H N` with `L` the PSD weak Laplacian (DESIGN.md). It points outward on convex
-    surfaces with outward normals and equals half the gradient of the total area. At a boundary
-    vertex it also contains the boundary's geodesic curvature term and is not a surface normal.
-    libigl: `-igl.cotmatrix(V, F) @ V / 2` (the libigl tutorial's `HN = -Minv L V` is the pointwise
-    `2 H N` with the opposite sign of `L`).
+    `(H N)_i = (L V)_i / 2 = 1/4 sum_j (cot a_ij + cot b_ij)(p_i - p_j)`, the discrete form of
+    `Delta x = -2 H N` with `L` the PSD weak Laplacian (DESIGN.md). It is half the gradient of the
+    total area, and is computed as such, face by face: `grad_{p_k} A_f = N_f x e_k / 2` (`e_k` the
+    edge opposite corner `k` in face order, `N_f` the unit normal), so
+    `(H N)_i = 1/4 sum_{f ni i} N_f x e_i^f`, equal to `ddgjax.laplacian.laplacian_apply(mesh, V) / 2`
+    to round-off without assembling `L`. Zero-area faces contribute 0.
+
+    Integrated; points outward on convex surfaces with outward normals. Needs no orientation (the
+    product `N_f x e_k` is the same for either vertex order of a face), so it works on every mesh;
+    at a boundary vertex it also contains the boundary's geodesic curvature term and is not a surface
+    normal. Reference: Desbrun, Meyer, Schroeder, Barr, "Implicit fairing of irregular meshes using
+    diffusion and curvature flow" (1999); Meyer et al. 2003. libigl:
+    `-igl.cotmatrix(V, F) @ V / 2` (the libigl tutorial's `HN = -Minv L V` is the pointwise `2 H N`
+    with the opposite sign of `L`); gpytoolbox: `cotangent_laplacian(V, F) @ V / 2`.
     """
-    # Import here: ddgjax.laplacian is built on ddgjax.mesh (a module-level import would be circular).
-    from ..laplacian import laplacian_apply
-
-    return 0.5 * laplacian_apply(mesh, mesh.vertices)
+    corner_terms = 0.25 * jnp.cross(face_normals(mesh)[:, None, :], face_edge_vectors(mesh))
+    return scatter_corners_to_vertices(mesh, corner_terms)
 
 
-def mean_curvature_normal(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 3"]:
-    """Pointwise mean curvature normal `H N`, `(nv, 3)`: `vertex_mean_curvature_normals / dual area`.
+def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 3"]:
+    """Pointwise mean curvature normal `H N`, `(nv, 3)`: `vertex_mean_curvature_normals / A_i`.
 
-    Its length is `|H|` (tending to `1/r` on a sphere of radius r). 0 where the dual area is 0.
+    `A_i = vertex_dual_areas(mesh, kind=kind)`. Its length is `|H|` (tending to `1/r` on a sphere of
+    radius r); 0 where the dual area is 0. Works on every mesh (no orientation needed). Reference:
+    Meyer et al. 2003 (their mean curvature normal operator `K(x_i) = 2 H N`). libigl tutorial: `HN = -Minv @ (L @ V)` with `L = igl.cotmatrix`,
+    `M` the Voronoi mass matrix, equals `2 H N` here.
     """
-    return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, kind)[:, None])
+    return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, kind=kind)[:, None])
 
 
 def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
@@ -88,54 +125,69 @@ def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
     dihedral angle of `edge_dihedral_angles`: positive where convex); it is split equally between
     its two endpoints, so `H_i = 1/4 sum_{e at i} l_e theta_e` and `sum_i H_i = 1/2 sum_e l_e theta_e`
     (`total_mean_curvature`). On a cylinder of radius r this gives `integral H dA` with
-    `H = 1/(2r)` exactly. Boundary and non-manifold edges carry 0. Pointwise: `mean_curvature`.
+    `H = 1/(2r)` exactly. Boundary edges carry 0. Signed: needs consistently oriented faces
+    (`MeshDataError` otherwise; module docstring). Pointwise: `vertex_pointwise_mean_curvatures`.
+    Reference: Crane 2020, "Discrete curvature II" (Steiner formula). libigl and gpytoolbox have no
+    dihedral-angle mean curvature (libigl's tutorial uses the unsigned `|L V|`).
     """
+    _require_orientation(mesh, "vertex_mean_curvatures")
     edge_terms = 0.25 * edge_lengths(mesh) * edge_dihedral_angles(mesh)
     return jax.ops.segment_sum(jnp.repeat(edge_terms, 2), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
 
 
 def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
-    """Total mean curvature `1/2 sum_e l_e theta_e` (integral of `H` over the surface; `4 pi r` on a sphere).
+    """Total mean curvature `1/2 sum_e l_e theta_e`, a scalar `()` (integral of `H`; `4 pi r` on a sphere).
 
     On a closed mesh its gradient is the Gauss curvature normal (`vertex_gauss_curvature_normals`):
     by Schlaefli's formula `sum_e l_e d(theta_e) = 0`, only the edge lengths' variation remains.
+    Signed: needs consistently oriented faces (`MeshDataError` otherwise). Reference: Crane 2020,
+    "Discrete curvature II".
     """
+    _require_orientation(mesh, "total_mean_curvature")
     return 0.5 * jnp.sum(edge_lengths(mesh) * edge_dihedral_angles(mesh))
 
 
 def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
-    """Integrated Gauss curvature normal `K N A_i`, `(nv, 3)`: `1/2 sum_j theta_ij (f_i - f_j) / l_ij`.
+    """Integrated Gauss curvature normal `K N A_i`, `(nv, 3)`: `1/2 sum_j theta_ij (p_i - p_j) / l_ij`.
 
     The gradient of `total_mean_curvature` on a closed mesh (Steiner / Schlaefli). It points outward
     on convex surfaces with outward normals. Crane's notes write `1/2 sum_j theta_ij e_ij / l_ij`
     with `e_ij = f_j - f_i` and state `grad H = K N` under the opposite sign of the edge vector; this
-    function follows the gradient. Zero-length edges contribute 0.
+    function follows the gradient. Zero-length edges contribute 0. Signed dihedral angles: needs
+    consistently oriented faces (`MeshDataError` otherwise). Reference: Crane 2020, "Discrete
+    curvature II". No libigl / gpytoolbox equivalent.
     """
+    _require_orientation(mesh, "vertex_gauss_curvature_normals")
     vectors = mesh.vertices[mesh.edges[:, 0]] - mesh.vertices[mesh.edges[:, 1]]
     terms = 0.5 * safe_div(edge_dihedral_angles(mesh), safe_norm(vectors))[:, None] * vectors
     n = mesh.n_vertices
     return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(terms, mesh.edges[:, 1], num_segments=n)
 
 
-def mean_curvature(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
-    """Pointwise signed mean curvature, `(nv,)`: `vertex_mean_curvatures / vertex_dual_areas(mesh, kind)`.
+def vertex_pointwise_mean_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
+    """Pointwise signed mean curvature, `(nv,)`: `vertex_mean_curvatures / A_i`.
 
-    `H = (k1 + k2) / 2`, `1/r` on a sphere of radius r with outward normals. 0 where the dual area
-    is 0. libigl's tutorial computes the unsigned `|H N|` from `L V` instead (see
-    `mean_curvature_normal`).
+    `A_i = vertex_dual_areas(mesh, kind=kind)`. `H = (k1 + k2) / 2`, `1/r` on a sphere of radius r
+    with outward normals; 0 where the dual area is 0. Needs consistently oriented faces
+    (`MeshDataError` otherwise). Reference: Crane 2020, "Discrete curvature II". libigl's tutorial
+    computes the unsigned `|H|` from `L V` instead (see `vertex_pointwise_mean_curvature_normals`).
     """
-    return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, kind))
+    _require_orientation(mesh, "vertex_pointwise_mean_curvatures")
+    return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, kind=kind))
 
 
-def principal_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 2"]:
+def vertex_principal_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 2"]:
     """Pointwise principal curvatures `(k1, k2)`, `(nv, 2)`, `k1 >= k2`, from `K` and `H`.
 
-    `k1,2 = H +- sqrt(max(H^2 - K, 0))` with the pointwise `mean_curvature` and `gaussian_curvature`
-    (same dual areas). The discrete `H^2 - K` can be slightly negative (umbilic points: a sphere);
-    it is clamped to 0 there. Away from umbilics `k1, k2` inherit the `O(h^2)` accuracy of `K` and
-    `H` on regular meshes; at umbilics the square root makes it `O(h)`. Reference: Meyer et al. 2003, Section 6. libigl's
-    `principal_curvature` fits quadrics instead (and also returns directions).
+    `k1,2 = H +- sqrt(max(H^2 - K, 0))` with `vertex_pointwise_mean_curvatures` and
+    `vertex_pointwise_gaussian_curvatures` (same dual areas). The discrete `H^2 - K` can be slightly
+    negative (umbilic points: a sphere); it is clamped to 0 there. Away from umbilics `k1, k2`
+    inherit the `O(h^2)` accuracy of `K` and `H` on regular meshes; at umbilics the square root makes
+    it `O(h)`. Needs consistently oriented faces, like `H` (`MeshDataError` otherwise). Reference:
+    Meyer et al. 2003, section 6. libigl's `principal_curvature` fits quadrics instead (and also
+    returns directions).
     """
-    h = mean_curvature(mesh, kind=kind)
-    root = safe_sqrt(h * h - gaussian_curvature(mesh, kind=kind))
+    _require_orientation(mesh, "vertex_principal_curvatures")
+    h = vertex_pointwise_mean_curvatures(mesh, kind=kind)
+    root = safe_sqrt(h * h - vertex_pointwise_gaussian_curvatures(mesh, kind=kind))
     return jnp.stack([h + root, h - root], axis=-1)

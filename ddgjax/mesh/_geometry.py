@@ -16,8 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
-
-from .._numerics import safe_div, safe_norm, safe_normalize, safe_sqrt, safe_atan2
+from .._numerics import safe_atan2, safe_div, safe_norm, safe_normalize, safe_sqrt, unsigned_angle
 from ._mesh import Mesh
 
 
@@ -39,12 +38,26 @@ def face_edge_lengths_sq(mesh: Mesh) -> Float[Array, "nf 3"]:
 
 
 def edge_lengths(mesh: Mesh) -> Float[Array, " ne"]:
-    """Length of each global edge, `(ne,)`, in `mesh.edges` order."""
+    """Length of each global edge, `l_e = |p_head - p_tail|`, `(ne,)`, in `mesh.edges` order.
+
+    Unsigned (the low -> high orientation of `mesh.edges` does not matter); a zero-length edge has
+    length 0 with a zero (finite) gradient (`ddgjax._numerics.safe_norm`). Equivalents: libigl
+    `igl.edge_lengths(V, F)` and gpytoolbox `halfedge_lengths(V, F)` give the same values per face
+    corner, `(nf, 3)`, not per global edge (see `face_edge_lengths_sq` for that layout).
+    """
     return safe_norm(mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]])
 
 
 def face_area_vectors(mesh: Mesh) -> Float[Array, "nf 3"]:
-    """`(V1 - V0) x (V2 - V0) / 2`: normal times area, pointing by the right-hand rule of the face order."""
+    """Vector area of each face, `A_f N_f = (p1 - p0) x (p2 - p0) / 2`, `(nf, 3)`.
+
+    Its length is the face area and its direction the unit normal by the right-hand rule of the
+    face's vertex order (outward for counterclockwise faces seen from outside); the zero vector on a
+    degenerate face. Summed over a closed, consistently oriented surface it vanishes, and
+    `sum_f (A_f N_f) . p0 / 3` is the enclosed volume (`enclosed_volume`). Equivalents: libigl
+    `igl.per_face_normals(V, F, ...) * igl.doublearea(V, F)[:, None] / 2`; gpytoolbox
+    `per_face_normals(V, F) * doublearea(V, F)[:, None] / 2`.
+    """
     corners = face_vertex_positions(mesh)
     return 0.5 * jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
 
@@ -75,6 +88,11 @@ def face_areas_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Array,
     return 0.25 * safe_sqrt(product)
 
 
+def _cosine_numerators(lengths_sq: Float[Array, "nf 3"]) -> Float[Array, "nf 3"]:
+    """Law-of-cosines numerator at each corner, `l_{k+1}^2 + l_{k+2}^2 - l_k^2 = 2 l_{k+1} l_{k+2} cos(alpha_k)`."""
+    return jnp.roll(lengths_sq, -1, axis=-1) + jnp.roll(lengths_sq, -2, axis=-1) - lengths_sq
+
+
 def corner_cotangents_from_lengths_sq(
     lengths_sq: Float[Array, "nf 3"], areas: Float[Array, " nf"] | None = None
 ) -> Float[Array, "nf 3"]:
@@ -86,8 +104,7 @@ def corner_cotangents_from_lengths_sq(
     """
     if areas is None:
         areas = face_areas_from_lengths_sq(lengths_sq)
-    numerators = jnp.roll(lengths_sq, -1, axis=-1) + jnp.roll(lengths_sq, -2, axis=-1) - lengths_sq
-    return safe_div(numerators, 4.0 * areas[:, None])
+    return safe_div(_cosine_numerators(lengths_sq), 4.0 * areas[:, None])
 
 
 def corner_cotangents(mesh: Mesh) -> Float[Array, "nf 3"]:
@@ -101,20 +118,22 @@ def corner_angles_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Arr
     Uses `atan2` of (twice the doubled area, law-of-cosines numerator), never `arccos`, so it is exact
     near 0 and pi with finite gradients. libigl: `internal_angles_using_squared_edge_lengths`.
     """
-    areas = face_areas_from_lengths_sq(lengths_sq)
-    numerators = jnp.roll(lengths_sq, -1, axis=-1) + jnp.roll(lengths_sq, -2, axis=-1) - lengths_sq
-    return safe_atan2(jnp.broadcast_to(4.0 * areas[:, None], numerators.shape), numerators)
+    numerators = _cosine_numerators(lengths_sq)
+    # 4 A = 2 l_{k+1} l_{k+2} sin(alpha_k), the sine counterpart of the numerator at every corner.
+    sines = jnp.broadcast_to(4.0 * face_areas_from_lengths_sq(lengths_sq)[:, None], numerators.shape)
+    return safe_atan2(sines, numerators)
 
 
 def corner_angles(mesh: Mesh) -> Float[Array, "nf 3"]:
-    """Interior angle at each corner, `(nf, 3)`, as `atan2(|a x b|, a . b)` of the two incident edges.
+    """Interior angle at each corner, `(nf, 3)`, in `[0, pi]`: `atan2(|a x b|, a . b)` of the two edges leaving it.
 
+    `a = p_{k+1} - p_k`, `b = p_{k+2} - p_k` (`ddgjax._numerics.unsigned_angle`): accurate near 0 and
+    pi with finite gradients, unlike `arccos` (DESIGN.md, Numerics); 0 at a corner with a zero-length
+    edge. Agrees with `corner_angles_from_lengths_sq(face_edge_lengths_sq(mesh))` to round-off.
     libigl: `internal_angles`; gpytoolbox: `tip_angles`.
     """
     corners = face_vertex_positions(mesh)
-    to_next = jnp.roll(corners, -1, axis=1) - corners
-    to_prev = jnp.roll(corners, -2, axis=1) - corners
-    return safe_atan2(safe_norm(jnp.cross(to_next, to_prev)), jnp.sum(to_next * to_prev, axis=-1))
+    return unsigned_angle(jnp.roll(corners, -1, axis=1) - corners, jnp.roll(corners, -2, axis=1) - corners)
 
 
 def edge_cotan_weights_from_corner_cotangents(mesh: Mesh, cotangents: Float[Array, "nf 3"]) -> Float[Array, " ne"]:
@@ -138,9 +157,15 @@ def edge_cotan_weights(mesh: Mesh) -> Float[Array, " ne"]:
     return edge_cotan_weights_from_corner_cotangents(mesh, corner_cotangents(mesh))
 
 
-def scatter_corners_to_vertices(mesh: Mesh, corner_values: Float[Array, "nf 3"]) -> Float[Array, " nv"]:
-    """Sum per-corner values into their vertices, `(nv,)` (unreferenced vertices get 0)."""
-    return jax.ops.segment_sum(corner_values.reshape(-1), mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
+def scatter_corners_to_vertices(mesh: Mesh, corner_values: Float[Array, "nf 3 *d"]) -> Float[Array, "nv *d"]:
+    """Sum per-corner values (scalars or vectors) into their vertices, `(nv, *d)`; unreferenced vertices get 0.
+
+    `out_i = sum_{corners (f, k) with F[f, k] = i} corner_values[f, k]`, one `segment_sum`. NumPy
+    equivalent for scalars: `np.bincount(F.ravel(), weights=corner_values.ravel(), minlength=nv)`
+    (libigl and gpytoolbox have no per-corner sum; libigl's `average_onto_vertices` averages faces).
+    """
+    flat = corner_values.reshape((-1,) + corner_values.shape[2:])
+    return jax.ops.segment_sum(flat, mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
 
 
 _DUAL_AREA_KINDS = ("voronoi", "barycentric", "circumcentric")
@@ -185,7 +210,7 @@ def corner_dual_areas_from_lengths_sq(
         return jnp.broadcast_to(areas[:, None] / 3.0, lengths_sq.shape)
     # l_k^2 cot(alpha_k) / 8 = l_k^2 (l_{k+1}^2 + l_{k+2}^2 - l_k^2) / (32 A): the law-of-cosines
     # numerator is also the (sign of the) cosine, so the obtuse test needs no extra work.
-    cosine_numerators = jnp.roll(lengths_sq, -1, axis=-1) + jnp.roll(lengths_sq, -2, axis=-1) - lengths_sq
+    cosine_numerators = _cosine_numerators(lengths_sq)
     halves = safe_div(lengths_sq * cosine_numerators, 32.0 * areas[:, None])
     circumcentric = jnp.sum(halves, axis=-1, keepdims=True) - halves
     if kind == "circumcentric":
@@ -207,7 +232,7 @@ def corner_dual_areas(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nf 
     return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), kind=kind, areas=face_areas(mesh))
 
 
-def vertex_dual_areas(mesh: Mesh, kind: str = "voronoi") -> Float[Array, " nv"]:
+def vertex_dual_areas(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
     """Area of the dual cell of each vertex, `(nv,)`: the corner shares of its faces, summed.
 
     `"voronoi"` (default) is the mixed area of Meyer et al. 2003, `"barycentric"` a third of each
@@ -247,7 +272,7 @@ def vertex_normals(mesh: Mesh, *, weighting: str = "area", normalize: bool = Tru
         unit = safe_normalize(area_vectors)
         weights = corner_angles(mesh) if weighting == "angle" else jnp.ones(mesh.faces.shape, unit.dtype)
         corner_vectors = weights[:, :, None] * unit[:, None, :]
-    sums = jax.ops.segment_sum(corner_vectors.reshape(-1, 3), mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
+    sums = scatter_corners_to_vertices(mesh, corner_vectors)
     return safe_normalize(sums) if normalize else sums
 
 
@@ -281,20 +306,29 @@ def edge_dihedral_angles(mesh: Mesh) -> Float[Array, " ne"]:
 
 
 def total_area(mesh: Mesh) -> Float[Array, ""]:
-    """Surface area, `sum_f A_f`. Its gradient with respect to the vertices is `L V` (the cotan
-    Laplacian applied to the positions; Pinkall & Polthier 1993)."""
+    """Surface area, `sum_f A_f`, a scalar `()` (`A_f = |(p1 - p0) x (p2 - p0)| / 2`, `face_areas`).
+
+    Its gradient with respect to the vertices is `L V`, the PSD cotan Laplacian applied to the
+    positions, i.e. twice the integrated mean curvature normal (`vertex_mean_curvature_normals`):
+    `grad_{p_i} A = 1/2 sum_j (cot a_ij + cot b_ij)(p_i - p_j)`. Reference: Pinkall & Polthier,
+    "Computing discrete minimal surfaces and their conjugates" (1993). libigl:
+    `igl.doublearea(V, F).sum() / 2`; gpytoolbox: `doublearea(V, F).sum() / 2`.
+    """
     return jnp.sum(face_areas(mesh))
 
 
 def enclosed_volume(mesh: Mesh) -> Float[Array, ""]:
     """Signed volume enclosed by a closed, oriented mesh, `1/6 sum_f (V0 . (V1 x V2))` (divergence theorem).
 
-    Positive for outward-oriented faces. Computed relative to the vertex centroid (held constant
-    under differentiation), which leaves the value and gradient of a closed mesh unchanged and avoids
-    cancellation far from the origin. On a mesh with boundary the value depends on that reference
-    point and is not a volume. Its gradient is `1/3 sum_{f ni i} A_f N_f`, i.e.
-    `vertex_normals(mesh, weighting="area", normalize=False) / 3`. libigl: `igl.volume` summed
-    (tetrahedra to the origin).
+    A scalar `()`: the sum of the signed volumes of the tetrahedra joining each face to a reference
+    point. Positive for outward-oriented faces. Computed relative to the vertex centroid (held
+    constant under differentiation), which leaves the value and gradient of a closed mesh unchanged
+    and avoids cancellation far from the origin. On a mesh with boundary or inconsistent orientation
+    the value depends on that reference point and is not a volume (no error is raised: it is a
+    plain sum; `ddgjax.mesh.check_mesh` tells whether the mesh is closed and oriented). Its gradient
+    is `1/3 sum_{f ni i} A_f N_f`, i.e. `vertex_normals(mesh, weighting="area", normalize=False) / 3`.
+    Reference: the divergence theorem, `V = 1/3 int_S p . N dA`. libigl: `igl.volume` of the
+    tetrahedra to the origin, summed; trimesh: `Trimesh.volume`.
     """
     corners = face_vertex_positions(mesh) - jax.lax.stop_gradient(jnp.mean(mesh.vertices, axis=0))
     return jnp.sum(corners[:, 0] * jnp.cross(corners[:, 1], corners[:, 2])) / 6.0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_float_array, is_traced
 from ..sparse._pattern import SparsityPattern
@@ -96,27 +96,39 @@ class Mesh(eqx.Module):
             topology=topology,
         )
 
-    def with_vertices(self, vertices: Float[Array, "nv 3"] | Float[np.ndarray, "nv 3"]) -> "Mesh":
-        """The same connectivity with new vertex positions (works under jit, grad and vmap).
+    # `vertices` is annotated unshaped on purpose: bad shapes and dtypes get this method's own
+    # `DDGInputError` (naming the argument) rather than a run-time type-checker's message.
+    def with_vertices(self, vertices: ArrayLike) -> "Mesh":
+        """The same connectivity with new vertex positions `(nv, 3)` (works under jit, grad and vmap).
 
-        NumPy arrays are accepted and converted (e.g. from `jax.test_util.check_grads`).
+        A concrete (non-traced) array is checked on the host like `from_arrays` does: it must have
+        shape `(nv, 3)` with this mesh's `nv`, a real dtype and finite values, else `DDGInputError`
+        naming `vertices`, what was expected and the first offending rows. NumPy arrays are accepted
+        and converted (e.g. from `jax.test_util.check_grads`); integer arrays become JAX's default
+        float dtype. Traced arrays (inside `jit`, `grad`, `vmap`) cannot be inspected and pass
+        through unchecked; their shape is fixed by the trace.
         """
-        if not is_traced(vertices) and np.shape(vertices) != (self.topology.n_vertices, 3):
-            raise DDGInputError(
-                f"vertices: expected shape ({self.topology.n_vertices}, 3), got {np.shape(vertices)}"
-            )
-        return eqx.tree_at(lambda mesh: mesh.vertices, self, jnp.asarray(vertices))
+        if is_traced(vertices):
+            return eqx.tree_at(lambda mesh: mesh.vertices, self, vertices)
+        host = check_float_array("vertices", vertices, (3,))
+        if host.shape[0] != self.topology.n_vertices:
+            raise DDGInputError(f"vertices: expected shape ({self.topology.n_vertices}, 3), got {host.shape}")
+        return eqx.tree_at(lambda mesh: mesh.vertices, self, _as_float_array(vertices))
 
     @property
     def n_vertices(self) -> int:
+        """Number of vertices `nv`, unreferenced ones included (`vertices.shape[0]`; libigl `V.shape[0]`)."""
         return self.topology.n_vertices
 
     @property
     def n_faces(self) -> int:
+        """Number of triangles `nf` (`faces.shape[0]`; libigl `F.shape[0]`)."""
         return self.topology.n_faces
 
     @property
     def n_edges(self) -> int:
+        """Number of distinct undirected edges `ne` (`edges.shape[0]`); `nv - ne + nf` is the Euler
+        characteristic when no vertex is unreferenced. libigl: `igl.edges(F).shape[0]`."""
         return self.topology.n_edges
 
 

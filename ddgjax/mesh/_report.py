@@ -10,8 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import DDGInputError, MeshDataError
+from ..io import load_mesh
 from ._check import MeshReport, check_mesh
-from ._curvature import gaussian_curvature, mean_curvature, principal_curvatures, vertex_angle_defects
+from ._curvature import (
+    vertex_angle_defects,
+    vertex_pointwise_gaussian_curvatures,
+    vertex_pointwise_mean_curvatures,
+    vertex_principal_curvatures,
+)
 from ._geometry import enclosed_volume, total_area
 from ._mesh import Mesh
 from ._shapes import torus
@@ -38,21 +44,25 @@ def add_info_arguments(parser: argparse.ArgumentParser) -> None:
 
 @jax.jit
 def _statistics(mesh: Mesh) -> dict:
-    """Every number the report prints, in one compiled call."""
-    return {
+    """Every number the report prints, in one compiled call.
+
+    The signed mean and principal curvatures exist only with a consistent orientation (they raise
+    `MeshDataError` otherwise); without one they are left out and the report says why.
+    """
+    stats = {
         "area": total_area(mesh),
         "volume": enclosed_volume(mesh),
         "defects": vertex_angle_defects(mesh),
-        "K": gaussian_curvature(mesh),
-        "H": mean_curvature(mesh),
-        "principal": principal_curvatures(mesh),
+        "K": vertex_pointwise_gaussian_curvatures(mesh),
     }
+    if mesh.topology.is_oriented:
+        stats["H"] = vertex_pointwise_mean_curvatures(mesh)
+        stats["principal"] = vertex_principal_curvatures(mesh)
+    return stats
 
 
 def run_info(args: argparse.Namespace) -> int:
     """Print the report of `args.mesh` (or the default shape); exit code 2 with a message on bad input."""
-    from ..io import load_mesh
-
     try:
         if args.mesh is None:
             name, mesh = _DEFAULT_SHAPE, torus(1.0, 0.25, 48, 16, dtype=jnp.float64)
@@ -84,13 +94,24 @@ def format_info(name: str, report: MeshReport, stats: dict) -> str:
         "",
         "pointwise curvature (Voronoi dual areas; referenced vertices)      min          median       max",
     ]
-    rows = [
-        ("Gaussian curvature K", stats["K"]),
-        ("mean curvature H (dihedral angles)", stats["H"]),
-        ("principal curvature k1", stats["principal"][:, 0]),
-        ("principal curvature k2", stats["principal"][:, 1]),
-    ]
+    rows = [("Gaussian curvature K", stats["K"])]
+    if "H" in stats:
+        rows += [
+            ("mean curvature H (dihedral angles)", stats["H"]),
+            ("principal curvature k1", stats["principal"][:, 0]),
+            ("principal curvature k2", stats["principal"][:, 1]),
+        ]
     for label, values in rows:
         values = values[referenced]
         lines.append(f"  {label:<62s} {np.min(values):>12.5g} {np.median(values):>12.5g} {np.max(values):>12.5g}")
+    if "H" not in stats:
+        problem = (
+            f"{report.nonmanifold_edges.size} non-manifold edges"
+            if report.nonmanifold_edges.size
+            else f"{report.inconsistent_edges.size} inconsistently oriented edges"
+        )
+        lines.append(
+            "  mean curvature H, principal curvatures k1, k2: undefined (their sign needs consistently "
+            f"oriented faces; this mesh has {problem})"
+        )
     return "\n".join(lines)

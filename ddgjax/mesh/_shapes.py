@@ -19,10 +19,15 @@ from ._mesh import Mesh
 def icosphere(subdivisions=3, radius=1.0, *, dtype=None) -> Mesh:
     """Geodesic sphere: an icosahedron, each face split into four `subdivisions` times.
 
-    Every new vertex is the midpoint of an edge pushed onto the sphere, so all vertices lie on it.
-    `20 * 4**s` faces, `10 * 4**s + 2` vertices, `30 * 4**s` edges; area tends to `4 pi r^2` at
-    rate `O(h^2)` (`h ~ 2^-s`). Equivalent: `trimesh.creation.icosphere`, `gpytoolbox.icosphere`
-    (same counts; vertex numbering may differ).
+    Every new vertex is the midpoint of an edge pushed onto the sphere `|p| = radius` (centred at
+    the origin), so all vertices lie on it. Returns a closed genus-0 `Mesh` with outward normals:
+    vertices `(10 * 4**s + 2, 3)`, faces `(20 * 4**s, 3)`, `30 * 4**s` edges; every angle is
+    between about 54 and 72 degrees (no obtuse faces). Area tends to `4 pi r^2` at rate `O(h^2)`
+    (`h ~ 2^-s`). `dtype`: float dtype of the vertices (default: JAX's default float).
+    Reference: J. R. Baumgardner, P. O. Frederickson, "Icosahedral discretization of the two-sphere"
+    (SIAM J. Numer. Anal., 1985). Equivalents: `trimesh.creation.icosphere(s, radius)` (the same faces up to
+    vertex numbering, positions within 1e-7), `gpytoolbox.icosphere(s)` (same counts, another
+    base icosahedron).
     """
     _check_count("subdivisions", subdivisions, 0)
     _check_positive("radius", radius)
@@ -69,9 +74,13 @@ def _split_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
 def uv_sphere(n_lat=16, n_lon=32, radius=1.0, *, dtype=None) -> Mesh:
     """Latitude-longitude sphere: two poles and `n_lat - 1` rings of `n_lon` vertices.
 
-    `(n_lat - 1) n_lon + 2` vertices and `2 (n_lat - 1) n_lon` faces (fans at the poles, each band of
-    quads split along one diagonal). Vertex 0 is the north pole `(0, 0, r)`, the last the south pole.
-    Area tends to `4 pi r^2` at rate `O(h^2)`.
+    Returns a closed genus-0 `Mesh` with outward normals: vertices `((n_lat - 1) n_lon + 2, 3)`,
+    faces `(2 (n_lat - 1) n_lon, 3)` (fans at the poles, each band of quads split along one
+    diagonal). Vertex 0 is the north pole `(0, 0, r)`, the last the south pole; ring `k` (polar
+    angle `pi k / n_lat`) holds vertices `1 + (k - 1) n_lon ...`. Faces near the poles are thin
+    (angles `O(1 / n_lon)`). Area tends to `4 pi r^2` at rate `O(h^2)`. `dtype` as for `icosphere`.
+    Equivalent: `trimesh.creation.uv_sphere(radius, count=...)`, a latitude-longitude sphere with
+    its own counts convention, numbering and pole treatment.
     """
     _check_count("n_lat", n_lat, 2)
     _check_count("n_lon", n_lon, 3)
@@ -96,9 +105,12 @@ def torus(R=1.0, r=0.25, n_major=48, n_minor=16, *, dtype=None) -> Mesh:
 
     Vertex `(i, j)` (index `i * n_minor + j`) sits at `((R + r cos v) cos u, (R + r cos v) sin u,
     r sin v)` with `u = 2 pi i / n_major`, `v = 2 pi j / n_minor`; `n_major n_minor` vertices,
-    twice as many faces, genus 1, outward normals. Area tends to `4 pi^2 R r` at rate `O(h^2)`.
-    Gaussian curvature `cos v / (r (R + r cos v))`, mean curvature `(R + 2 r cos v) / (2 r (R + r cos v))`.
-    (`../shared/meshes/torus.obj` is the same surface with the axis along y.)
+    twice as many faces: vertices `(n_major n_minor, 3)`, faces `(2 n_major n_minor, 3)`, closed,
+    genus 1, outward normals. Area tends to `4 pi^2 R r` at rate `O(h^2)`. Exact curvatures (for
+    tests): Gaussian `cos v / (r (R + r cos v))`, mean `(R + 2 r cos v) / (2 r (R + r cos v))`.
+    `dtype` as for `icosphere`. (`../shared/meshes/torus.obj` is the same surface with the axis
+    along y.) Equivalents: `gpytoolbox.torus(n_major, n_minor, R=R, r=r)`,
+    `trimesh.creation.torus(R, r, n_major, n_minor)` (other vertex numberings).
     """
     _check_count("n_major", n_major, 3)
     _check_count("n_minor", n_minor, 3)
@@ -121,9 +133,12 @@ def disk(n_rings=8, radius=1.0, *, dtype=None) -> Mesh:
     """Flat disk in z = 0: a centre vertex and `n_rings` concentric rings, ring `k` with `6k` vertices.
 
     Ring `k` has radius `k r / n_rings`; consecutive rings are zipped together by angle, giving nearly
-    equilateral triangles (exactly the hexagonal lattice for `n_rings = 1`). `3 n (n + 1) + 1`
-    vertices, `6 n^2` faces, one boundary loop (the outer ring, counterclockwise). Area (of the
-    inscribed polygon) tends to `pi r^2` at rate `O(h^2)`, `h = r / n_rings`.
+    equilateral triangles (exactly the hexagonal lattice for `n_rings = 1`), faces counterclockwise
+    seen from `+z`. Vertices `(3 n (n + 1) + 1, 3)` (vertex 0 the centre), faces `(6 n^2, 3)`, one
+    boundary loop (the outer ring, counterclockwise). Area (of the inscribed polygon) tends to
+    `pi r^2` at rate `O(h^2)`, `h = r / n_rings`. `dtype` as for `icosphere`. libigl / gpytoolbox
+    build disks by triangulating a boundary polygon instead (`gpytoolbox.regular_circle_polyline` +
+    `gpytoolbox.triangulate`), with other interior points.
     """
     _check_count("n_rings", n_rings, 1)
     _check_positive("radius", radius)
@@ -162,8 +177,12 @@ def grid(nx=8, ny=8, size=1.0, *, dtype=None) -> Mesh:
     """Flat square `[-size/2, size/2]^2` in z = 0, split into `nx` by `ny` cells of two triangles each.
 
     Vertex `(i, j)` (index `j * (nx + 1) + i`) is at `(-size/2 + i size/nx, -size/2 + j size/ny, 0)`;
-    every cell is cut along its diagonal from `(i, j)` to `(i+1, j+1)`. `(nx+1)(ny+1)` vertices,
-    `2 nx ny` faces, one boundary loop. Area exactly `size^2`.
+    every cell is cut along its diagonal from `(i, j)` to `(i+1, j+1)`, faces counterclockwise seen
+    from `+z`. Vertices `((nx+1)(ny+1), 3)`, faces `(2 nx ny, 3)`, one boundary loop; right
+    triangles, so the circumcentric cotan weight of every diagonal is 0. Area exactly `size^2`.
+    `dtype` as for `icosphere`. Equivalents: `igl.triangulated_grid(nx + 1, ny + 1)` and
+    `gpytoolbox.regular_square_mesh(nx + 1, ny + 1)` (on `[0, 1]^2` and `[-1, 1]^2`, 2-D vertices,
+    possibly other diagonals).
     """
     _check_count("nx", nx, 1)
     _check_count("ny", ny, 1)

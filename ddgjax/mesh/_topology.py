@@ -22,17 +22,18 @@ from .._errors import DDGInputError, MeshDataError, first_indices
 
 
 def validate_faces(faces, n_vertices: int) -> np.ndarray:
-    """Host `(nf, 3)` int array of faces, refusing bad shape, dtype, range or repeated corners."""
+    """Host `(nf, 3)` int32 array of faces, refusing bad shape, a non-integer dtype, range or repeated corners."""
     host = np.asarray(faces)
     if host.ndim != 2 or host.shape[1] != 3:
         raise DDGInputError(f"faces: expected shape (nf, 3) (triangles), got {host.shape}")
     if host.shape[0] == 0:
         raise DDGInputError("faces: expected at least one face, got an empty array")
     if not np.issubdtype(host.dtype, np.integer):
-        if np.issubdtype(host.dtype, np.floating) and np.all(np.isfinite(host)) and np.all(host == np.round(host)):
-            host = host.astype(np.int64)
-        else:
-            raise DDGInputError(f"faces: expected an integer array of vertex indices, got dtype {host.dtype}")
+        # Floats are refused even when they hold whole numbers: a float face array is almost always a
+        # mix-up (vertices passed as faces, or indices that went through float arithmetic).
+        raise DDGInputError(
+            f"faces: expected an integer array of vertex indices (e.g. int32 or int64), got dtype {host.dtype}"
+        )
     out_of_range = (host < 0) | (host >= n_vertices)
     if out_of_range.any():
         raise DDGInputError(
@@ -132,12 +133,14 @@ class MeshTopology:
         """Raise `MeshDataError` naming `operation` unless the mesh is an edge- and vertex-manifold."""
         if not self.is_edge_manifold:
             raise MeshDataError(
-                f"{operation} needs an edge-manifold mesh; edges {first_indices_of(self.nonmanifold_edges)} "
+                f"{operation} needs an edge-manifold mesh; edges "
+                f"{first_indices(index_mask(self.nonmanifold_edges, self.n_edges))} "
                 "have three or more faces"
             )
         if self.nonmanifold_vertices.size:
             raise MeshDataError(
-                f"{operation} needs a vertex-manifold mesh; vertices {first_indices_of(self.nonmanifold_vertices)} "
+                f"{operation} needs a vertex-manifold mesh; vertices "
+                f"{first_indices(index_mask(self.nonmanifold_vertices, self.n_vertices))} "
                 "join separate fans of faces"
             )
 
@@ -148,7 +151,8 @@ class MeshTopology:
         if self.inconsistent_edges.size:
             raise MeshDataError(
                 f"{operation} needs consistently oriented faces (an orientable, oriented mesh); edges "
-                f"{first_indices_of(self.inconsistent_edges)} are traversed the same way by both their faces"
+                f"{first_indices(index_mask(self.inconsistent_edges, self.n_edges))} "
+                "are traversed the same way by both their faces"
             )
 
     # Identity semantics: a topology is a static pytree field, so jit caches on the object itself and a
@@ -159,9 +163,11 @@ class MeshTopology:
         return self is other
 
 
-def first_indices_of(indices: np.ndarray, limit: int = 10) -> str:
-    shown = ", ".join(str(int(i)) for i in indices[:limit])
-    return f"[{shown}{', ...' if indices.size > limit else ''}] ({indices.size} in all)"
+def index_mask(indices: np.ndarray, size: int) -> np.ndarray:
+    """Boolean mask of length `size`, true at `indices` (for `ddgjax._errors.first_indices`)."""
+    mask = np.zeros(size, dtype=bool)
+    mask[indices] = True
+    return mask
 
 
 def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
