@@ -6,10 +6,12 @@ import gpytoolbox
 import igl
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import pytest
 import robust_laplacian
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from jax.test_util import check_grads
 
 from conftest import MESHES, shared_path
@@ -25,6 +27,10 @@ from ddgjax.laplacian import (
     to_pytorch3d_cot_laplacian,
 )
 from ddgjax.mesh import Mesh, grid, icosphere
+
+# jax.test_util.check_grads compares with central finite differences of step 1e-4: their truncation
+# error is ~1e-8 relative, so its float64 default tolerance (1e-5) is used; exact derivative
+# identities (forward = reverse mode, grad_u E = L u) are checked to round-off separately.
 
 # Jitted once per mesh topology: eager dispatch of every small op (recompiled for each new shape)
 # would dominate the test time.
@@ -65,6 +71,13 @@ def test_matches_libigl_and_gpytoolbox(real):
     galerkin = _mass(mesh, kind="galerkin").to_scipy()
     assert _relative(galerkin, igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_FULL)) < 1e-12
     assert _relative(galerkin, gpytoolbox.massmatrix(V, F, type="full")) < 1e-12
+    # Matrix-free L u (these meshes have high-degree vertices: the COO tail of the pattern is used).
+    assert mesh.vertex_pattern.nnz > mesh.vertex_pattern.width * mesh.n_vertices
+    U = np.random.default_rng(0).standard_normal((V.shape[0], 2))
+    applied = np.asarray(_apply(mesh, jnp.asarray(U)))
+    scale = np.abs(expected).max() * np.abs(U).max()
+    np.testing.assert_allclose(applied, L.to_scipy() @ U, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(applied, expected @ U, rtol=0, atol=1e-10 * scale)  # libigl: as above (slivers)
 
 
 def test_fem_equals_dec_on_every_shared_mesh():
@@ -254,9 +267,10 @@ def test_jit_vmap_and_gradients():
     np.testing.assert_allclose(batched[2], assemble(batch[2]), rtol=1e-14, atol=1e-15)
     u = jnp.asarray(rng.standard_normal((mesh.n_vertices, 2)))
     energy = jax.jit(lambda W: dirichlet_energy(mesh.with_vertices(W), u))
-    # Reverse mode to second order (reverse-over-reverse Hessian-vector products, for Newton-type shape
-    # optimisation) against finite differences; forward mode goes through method="dec" (docstring).
+    # Reverse mode to second order and forward mode against finite differences, on both routes
+    # (forward-over-reverse Hessian-vector products: test_forward_mode_equals_reverse_mode).
     check_grads(energy, (batch[0],), order=2, modes=("rev",))
+    check_grads(energy, (batch[0],), order=1, modes=("fwd",))
     energy_dec = jax.jit(lambda W: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W), method="dec") @ u))
     check_grads(energy_dec, (batch[0],), order=1, modes=("fwd",))
     # grad_u of the energy is L u.
@@ -267,6 +281,127 @@ def test_jit_vmap_and_gradients():
     flat = grid(3, 3, size=2.0)
     linear = 2.0 * flat.vertices[:, 0] + 3.0 * flat.vertices[:, 1]
     np.testing.assert_allclose(jax.jit(dirichlet_energy)(flat, linear), 0.5 * 13.0 * 4.0, rtol=1e-13)
+
+
+def test_forward_mode_equals_reverse_mode():
+    mesh = icosphere(1)
+    rng = np.random.default_rng(1)
+    V = mesh.vertices + 0.05 * jnp.asarray(rng.standard_normal(mesh.vertices.shape))
+    u = jnp.asarray(rng.standard_normal(mesh.n_vertices))
+    directions = jnp.asarray(rng.standard_normal((3,) + V.shape))
+
+    def energy(W):
+        return dirichlet_energy(mesh.with_vertices(W), u)
+
+    def values(W):
+        return cotan_laplacian(mesh.with_vertices(W)).values
+
+    @jax.jit
+    def derivatives(W, v):
+        grad = jax.grad(energy)(W)
+        return {
+            "jvp": jax.jvp(energy, (W,), (v,))[1],
+            "grad . v": jnp.vdot(grad, v),
+            "hvp fwd-over-rev": jax.jvp(jax.grad(energy), (W,), (v,))[1],
+            "hvp rev-over-rev": jax.grad(lambda X: jnp.vdot(jax.grad(energy)(X), v))(W),
+            "jacfwd L": jax.jacfwd(values)(W),
+            "jacrev L": jax.jacrev(values)(W),
+            "hvps": jax.vmap(lambda d: jax.jvp(jax.grad(energy), (W,), (d,))[1])(directions),
+        }
+
+    r = derivatives(V, directions[0])
+    np.testing.assert_allclose(r["jvp"], r["grad . v"], rtol=1e-12)
+    np.testing.assert_allclose(r["hvp fwd-over-rev"], r["hvp rev-over-rev"], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(r["jacfwd L"], r["jacrev L"], rtol=0, atol=1e-13)
+    for k in range(3):
+        np.testing.assert_allclose(r["hvps"][k], derivatives(V, directions[k])["hvp fwd-over-rev"], rtol=1e-13, atol=1e-13)
+    # The Hessian-vector product against central differences of the reverse-mode gradient: step 1e-5
+    # leaves a truncation error ~1e-10 of the gradient's scale (second differences of a smooth function).
+    grad = jax.jit(jax.grad(energy))
+    step = 1e-5
+    finite = (grad(V + step * directions[0]) - grad(V - step * directions[0])) / (2 * step)
+    scale = np.abs(r["hvp fwd-over-rev"]).max()
+    np.testing.assert_allclose(r["hvp fwd-over-rev"], finite, rtol=0, atol=1e-7 * scale)
+
+
+def _fan(n_rim: int) -> Mesh:
+    """A cone over a closed rim of `n_rim` vertices: one apex of degree `n_rim` (the pattern's COO tail)."""
+    angles = 2 * np.pi * np.arange(n_rim) / n_rim
+    rim = np.stack([np.cos(angles), np.sin(angles), 0.1 * np.sin(3 * angles)], axis=1)
+    V = np.concatenate([[[0.0, 0.0, 0.7]], [[0.0, 0.0, -0.7]], rim])
+    rim_index = 2 + np.arange(n_rim)
+    upper = np.stack([np.zeros(n_rim, int), rim_index, np.roll(rim_index, -1)], axis=1)
+    lower = np.stack([np.ones(n_rim, int), np.roll(rim_index, -1), rim_index], axis=1)
+    return Mesh.from_arrays(V, np.concatenate([upper, lower]))
+
+
+def test_laplacian_apply_is_matrix_free_and_equals_the_matrix():
+    fan = _fan(40)
+    assert fan.vertex_pattern.nnz > fan.vertex_pattern.width * fan.n_vertices  # its apex overflows into the tail
+    for mesh in (icosphere(2), fan, grid(5, 4)):
+        L = _laplacian(mesh).to_scipy()
+        U = np.random.default_rng(2).standard_normal((mesh.n_vertices, 3))
+        scale = abs(L).max() * np.abs(U).max()
+        np.testing.assert_allclose(_apply(mesh, jnp.asarray(U)), L @ U, rtol=0, atol=1e-13 * scale)
+        np.testing.assert_allclose(_apply(mesh, jnp.asarray(U[:, 0])), L @ U[:, 0], rtol=0, atol=1e-13 * scale)
+    # No matrix and no scatter-add: the corner -> edge gather (and in reverse mode its transpose, the
+    # second gather_sum) are fixed gathers; the tail's sorted segment_sum is absent on an icosphere.
+    mesh = icosphere(2)
+    forward = str(jax.make_jaxpr(lambda W: laplacian_apply(mesh.with_vertices(W), W))(mesh.vertices))
+    assert "scatter-add" not in forward and forward.count("ddgjax_gather_sum") == 1
+    reverse = str(jax.make_jaxpr(jax.grad(lambda W: dirichlet_energy(mesh.with_vertices(W), mesh.vertices)))(mesh.vertices))
+    assert reverse.count("ddgjax_gather_sum") == 2
+    with pytest.raises(DDGInputError, match="u: expected shape"):
+        laplacian_apply(mesh, jnp.ones(mesh.n_vertices + 1))
+    with pytest.raises(DDGInputError, match="u: expected shape"):
+        laplacian_apply(mesh, jnp.ones((mesh.n_vertices, 2, 2)))
+
+
+def test_mass_plus_laplacian_matches_scipy(real):
+    _, _, mesh = real
+    L = _laplacian(mesh)
+    reference = L.to_scipy()
+    for kind in ("voronoi", "barycentric", "galerkin"):
+        M = _mass(mesh, kind=kind)
+        for t in (1e-3, 0.5):
+            heat = M + t * L  # the heat method's and implicit mean curvature flow's operator
+            assert heat.pattern.nnz == L.pattern.nnz and heat.positive_semidefinite
+            scale = abs(reference).max()
+            assert abs(heat.to_scipy() - (M.to_scipy() + t * reference)).max() <= 1e-15 * scale
+            assert abs((M - t * L).to_scipy() - (M.to_scipy() - t * reference)).max() <= 1e-15 * scale
+            assert abs((L + M).to_scipy() - (reference + M.to_scipy())).max() <= 1e-15 * scale
+            assert not (M - t * L).positive_semidefinite and (M - t * L).symmetric
+
+
+def test_heat_operator_solves_with_lineax_cg_and_differentiates():
+    mesh = icosphere(2)
+    t = 0.01
+    rng = np.random.default_rng(3)
+    b = jnp.asarray(rng.standard_normal(mesh.n_vertices))
+    weights = jnp.asarray(rng.standard_normal(mesh.n_vertices))
+    solver = lx.CG(rtol=1e-13, atol=1e-13)
+
+    @jax.jit
+    def solve(W):
+        moved = mesh.with_vertices(W)
+        # Both flagged PSD and t >= 0 is concrete: M + t L carries the tags lineax.CG needs.
+        operator = mass_matrix(moved) + t * cotan_laplacian(moved)
+        return lx.linear_solve(operator.as_lineax_operator(), b, solver).value
+
+    V = mesh.vertices + 0.02 * jnp.asarray(rng.standard_normal(mesh.vertices.shape))
+    moved = mesh.with_vertices(V)
+    expected = spla.spsolve((mass_matrix(moved).to_scipy() + t * cotan_laplacian(moved).to_scipy()).tocsc(), np.asarray(b))
+    np.testing.assert_allclose(solve(V), expected, rtol=1e-10, atol=1e-12)  # CG stops at 1e-13 relative
+    # jax.grad through lineax's implicit differentiation (an adjoint CG solve) w.r.t. vertex positions.
+    check_grads(lambda W: jnp.vdot(weights, solve(W)), (V,), order=1, modes=("rev",))
+
+    # A traced time step cannot be proven nonnegative; the caller asserts it for lineax.
+    def traced(step):
+        operator = mass_matrix(mesh) + step * cotan_laplacian(mesh)
+        assert operator.symmetric and not operator.positive_semidefinite
+        return lx.linear_solve(operator.as_lineax_operator(positive_semidefinite=True), b, solver).value
+
+    jax.eval_shape(traced, t)  # traces lineax.CG (which refuses untagged operators) without compiling
 
 
 def test_converters_pytorch3d_by_hand():
@@ -283,6 +418,8 @@ def test_converters_pytorch3d_by_hand():
 
 def test_bad_arguments():
     mesh = icosphere(0)
+    with pytest.raises(DDGInputError, match="equal shapes"):
+        cotan_laplacian(mesh) + cotan_laplacian(icosphere(1))
     with pytest.raises(DDGInputError, match="method"):
         cotan_laplacian(mesh, method="graph")
     with pytest.raises(DDGInputError, match="kind"):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -9,9 +11,27 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 from jax.test_util import check_grads
+from jaxtyping import TypeCheckError
 
 from ddgjax._errors import DDGInputError
-from ddgjax.sparse import SparseMatrix, SparsityPattern, congruence, diagonal_matrix, find_slots, from_scipy, gather_sum
+from ddgjax.sparse import (
+    SparseMatrix,
+    SparsityPattern,
+    congruence,
+    congruence_plan,
+    diagonal_matrix,
+    from_scipy,
+    gather_sum,
+)
+
+# jax.test_util.check_grads compares with central finite differences of step 1e-4: their truncation
+# error is ~1e-8 relative, so its float64 default tolerance (1e-5) is used; exact derivative
+# identities are checked to round-off separately.
+
+
+def primitives(jaxpr) -> set[str]:
+    """Names of the primitives in a printed jaxpr (nested ones too)."""
+    return set(re.findall(r"=\s+([A-Za-z_][\w\-]*)", str(jaxpr)))
 
 
 def _random(shape, density, seed, dense_row=None):
@@ -67,7 +87,11 @@ def test_csr_pattern_built_from_jax_arrays_and_its_transpose():
     np.testing.assert_allclose(matrix.T @ y, reference.T @ y, rtol=1e-13)
     np.testing.assert_allclose(jax.jit(lambda m, v: m.T @ v)(matrix, y), reference.T @ y, rtol=1e-13)
     assert abs(matrix.T.to_scipy() - reference.T).max() == 0
+    assert abs(matrix.T.T.to_scipy() - reference).max() == 0
+    np.testing.assert_allclose(matrix.T.T @ np.ones(12), reference @ np.ones(12), rtol=1e-13)
     np.testing.assert_allclose(matrix.diagonal(), reference.diagonal())
+    # DESIGN.md: no sort or search of a fixed pattern at run time.
+    assert not {"sort", "while"} & primitives(jax.make_jaxpr(lambda m, v: m.T @ v)(matrix, y))
 
 
 def test_symmetric_pattern_transpose_is_a_permutation():
@@ -79,6 +103,7 @@ def test_symmetric_pattern_transpose_is_a_permutation():
     values.data = np.random.default_rng(5).random(values.nnz)
     matrix = from_scipy(values)
     assert matrix.pattern.symmetric and matrix.pattern.transpose_pattern is None
+    assert not matrix.symmetric  # a symmetric pattern, not symmetric values
     np.testing.assert_array_equal(matrix.T.todense(), values.T.toarray())
 
 
@@ -130,13 +155,13 @@ def test_diagonal_matrix():
 def spd():
     base = _random((25, 25), 0.06, 8)
     reference = (base @ base.T + sp.eye(25)).tocsr()
-    return from_scipy(reference), reference
+    return from_scipy(reference, positive_semidefinite=True), reference
 
 
 def test_lineax_cg_solves(spd):
     matrix, reference = spd
     b = np.random.default_rng(9).random(25)
-    operator = matrix.as_lineax_operator(symmetric=True, positive_semidefinite=True)
+    operator = matrix.as_lineax_operator()  # tags from the matrix's own flags
     assert lx.is_symmetric(operator) and lx.is_positive_semidefinite(operator)
     solution = lx.linear_solve(operator, jnp.asarray(b), lx.CG(rtol=1e-12, atol=1e-12))
     np.testing.assert_allclose(reference @ solution.value, b, rtol=1e-9)  # CG tolerance 1e-12
@@ -182,15 +207,37 @@ def test_congruence_matches_scipy_and_refuses_missing_positions():
     weights = rng.random(n_rows)
     expected = (d_ref.T @ sp.diags(weights) @ d_ref).tocsr()
     target, _ = SparsityPattern.from_coo(*expected.nonzero(), (n, n))
-    result = congruence(from_scipy(d_ref), jnp.asarray(weights), target)
+    plan = congruence_plan(cols, target)
+    ell = from_scipy(d_ref)  # ELL of width 3, values row by row in column-major storage
+    result = congruence(ell, jnp.asarray(weights), target, plan)
     np.testing.assert_allclose(result.todense(), expected.toarray(), rtol=1e-13, atol=1e-15)
-    jitted = jax.jit(congruence)(_as_csr_layout(d_ref), jnp.asarray(weights), target)
+    assert result.symmetric
+    jitted = jax.jit(congruence)(_as_csr_layout(d_ref), jnp.asarray(weights), target, plan)
     np.testing.assert_allclose(jitted.todense(), expected.toarray(), rtol=1e-13, atol=1e-15)
+    # No search or sort at run time: gathers and one sorted segment_sum.
+    jaxpr = jax.make_jaxpr(congruence)(_as_csr_layout(d_ref), jnp.asarray(weights), target, plan)
+    assert not {"sort", "while"} & primitives(jaxpr)
+    # Linear in the weights, bilinear in D's values: forward and reverse mode.
+    f = lambda w, v: jnp.sum(jnp.sin(congruence(SparseMatrix(v, ell.pattern), w, target, plan).values))
+    check_grads(jax.jit(f), (jnp.asarray(weights), ell.values), order=1, modes=("fwd", "rev"))
     too_small, _ = SparsityPattern.from_coo(np.arange(n), np.arange(n), (n, n))
     with pytest.raises(DDGInputError, match="lacks"):
-        congruence(from_scipy(d_ref), jnp.asarray(weights), too_small)
-    slots = find_slots(target, jnp.asarray([0, 1]), jnp.asarray([0, 1]))
-    assert int(slots[0]) < target.nnz
+        congruence_plan(cols, too_small)
+    with pytest.raises(DDGInputError, match="other columns"):
+        congruence(ell, jnp.asarray(weights), target, congruence_plan(cols[::-1], target))
+    with pytest.raises(DDGInputError, match="congruence: expected"):
+        congruence(ell, jnp.asarray(weights[:-1]), target, plan)
+
+
+def test_slots_host_lookup():
+    reference = _random((20, 20), 0.2, 14) + sp.eye(20)
+    matrix = from_scipy(reference)
+    rows, cols = reference.nonzero()
+    slots = matrix.pattern.slots(rows, cols)
+    np.testing.assert_array_equal(np.asarray(matrix.values)[slots], np.asarray(reference[rows, cols]).ravel())
+    absent = np.flatnonzero(reference.toarray().ravel() == 0)[:3]
+    assert np.all(matrix.pattern.slots(absent // 20, absent % 20) == matrix.pattern.nnz)
+    assert matrix.pattern.slots(np.array([-1, 20]), np.array([0, 0])).tolist() == [matrix.pattern.nnz] * 2
 
 
 def _as_csr_layout(reference: sp.csr_matrix) -> SparseMatrix:
@@ -203,16 +250,152 @@ def _as_csr_layout(reference: sp.csr_matrix) -> SparseMatrix:
     return SparseMatrix(jnp.asarray(reference.data), pattern)
 
 
-def test_gather_sum_reverse_mode_is_the_transposed_gather():
-    # y[s] = sum_k x[index[s, k]]; index 6 (out of range) pads. transpose_index lists, per x entry,
-    # the outputs reading it (pad 4 = n outputs).
-    index = jnp.array([[0, 3], [2, 6], [3, 5], [1, 1]])
-    transpose_index = jnp.array([[0, 4], [3, 3], [1, 4], [0, 2], [4, 4], [2, 4]])
+# y[s] = sum_k x[index[s, k]]; index 6 (out of range) pads. TRANSPOSE_INDEX lists, per x entry, the
+# outputs reading it (pad 4 = number of outputs).
+INDEX = jnp.array([[0, 3], [2, 6], [3, 5], [1, 1]])
+TRANSPOSE_INDEX = jnp.array([[0, 4], [3, 3], [1, 4], [0, 2], [4, 4], [2, 4]])
+WEIGHTS = jnp.array([1.0, -2.0, 0.5, 3.0])
+
+
+def _plain(x):
+    return jnp.sum(WEIGHTS * jnp.sin(jnp.take(x, INDEX, axis=0, mode="fill", fill_value=0).sum(1)))
+
+
+def _custom(x):
+    return jnp.sum(WEIGHTS * jnp.sin(gather_sum(x, INDEX, TRANSPOSE_INDEX)))
+
+
+def test_gather_sum_all_modes_equal_the_plain_gather():
     x = jnp.linspace(0.5, 2.0, 6)
-    weights = jnp.array([1.0, -2.0, 0.5, 3.0])
-    plain = lambda x: jnp.sum(weights * jnp.sin(jnp.take(x, index, mode="fill", fill_value=0).sum(1)))
-    custom = jax.jit(lambda x: jnp.sum(weights * jnp.sin(gather_sum(x, index, transpose_index))))
-    np.testing.assert_allclose(custom(x), plain(x), rtol=1e-15)
-    np.testing.assert_allclose(jax.grad(custom)(x), jax.grad(plain)(x), rtol=1e-14)
-    batched = jax.vmap(jax.grad(custom))(jnp.stack([x, 2 * x]))
-    np.testing.assert_allclose(batched[1], jax.grad(plain)(2 * x), rtol=1e-14)
+    v = jnp.cos(jnp.arange(6.0))
+
+    @jax.jit
+    def compare(x, v):
+        """Each derivative of the primitive next to the same derivative of the plain gather."""
+        hvp = lambda f: jax.jvp(jax.grad(f), (x,), (v,))[1]  # forward-over-reverse
+        return {
+            "value": (_custom(x), _plain(x)),
+            "grad": (jax.grad(_custom)(x), jax.grad(_plain)(x)),
+            "jvp": (jax.jvp(_custom, (x,), (v,))[1], jax.jvp(_plain, (x,), (v,))[1]),
+            "jacfwd of grad": (jax.jacfwd(jax.grad(_custom))(x), jax.hessian(_plain)(x)),
+            "hvp": (hvp(_custom), hvp(_plain)),
+            "vmap of grad": tuple(jax.vmap(jax.grad(f))(jnp.stack([x, 2 * x])) for f in (_custom, _plain)),
+        }
+
+    for name, (custom, plain) in compare(x, v).items():
+        np.testing.assert_allclose(custom, plain, rtol=1e-14, atol=1e-15, err_msg=name)
+    check_grads(jax.jit(_custom), (x,), order=2, modes=("fwd", "rev"))
+    # Trailing axes of x are carried along: (n, 2) -> (m, 2).
+    block = jnp.stack([x, -x], axis=1)
+    np.testing.assert_allclose(gather_sum(block, INDEX, TRANSPOSE_INDEX)[:, 1], -gather_sum(x, INDEX, TRANSPOSE_INDEX))
+
+
+def test_gather_sum_transpose_is_a_gather_not_a_scatter():
+    x = jnp.linspace(0.5, 2.0, 6)
+    for jaxpr in (jax.make_jaxpr(jax.grad(_custom))(x), jax.make_jaxpr(jax.linear_transpose(
+        lambda x: gather_sum(x, INDEX, TRANSPOSE_INDEX), x))(jnp.ones(4))):
+        assert "scatter-add" not in primitives(jaxpr) and "ddgjax_gather_sum" in primitives(jaxpr)
+    hvp = jax.make_jaxpr(lambda x, v: jax.jvp(jax.grad(_custom), (x,), (v,))[1])(x, x)
+    assert "scatter-add" not in primitives(hvp)
+
+
+def test_gather_sum_vmap_over_index_arrays():
+    # A second incidence: the outputs in reverse order.
+    index = jnp.stack([INDEX, INDEX[::-1]])
+    transpose_index = jnp.stack([TRANSPOSE_INDEX, jnp.where(TRANSPOSE_INDEX < 4, 3 - TRANSPOSE_INDEX, 4)])
+    xs = jnp.stack([jnp.linspace(0.5, 2.0, 6), jnp.linspace(-1.0, 1.0, 6)])
+
+    def loss(x, i, t):
+        return jnp.sum(WEIGHTS * jnp.sin(gather_sum(x, i, t)))
+
+    def plain(x, i):
+        return jnp.sum(WEIGHTS * jnp.sin(jnp.take(x, i, axis=0, mode="fill", fill_value=0).sum(1)))
+
+    @jax.jit
+    def compare(xs, index, transpose_index):
+        values = (jax.vmap(loss)(xs, index, transpose_index), jax.vmap(plain)(xs, index))
+        grads = (
+            jax.vmap(jax.grad(loss), in_axes=(None, 0, 0))(xs[0], index, transpose_index),
+            jax.vmap(jax.grad(plain), in_axes=(None, 0))(xs[0], index),
+        )
+        return values, grads
+
+    for custom, expected in compare(xs, index, transpose_index):
+        np.testing.assert_allclose(custom, expected, rtol=1e-14)
+
+
+def test_gather_sum_bad_input():
+    # jaxtyping's run-time checker (active in the tests) would catch these first; the function under
+    # it raises DDGInputError, as users without the checker see.
+    unchecked = getattr(gather_sum, "__wrapped__", gather_sum)
+    with pytest.raises(DDGInputError, match="index: expected a 2-d integer array"):
+        unchecked(jnp.ones(6), jnp.ones((4, 2)), TRANSPOSE_INDEX)
+    with pytest.raises(DDGInputError, match="same n"):
+        unchecked(jnp.ones(5), INDEX, TRANSPOSE_INDEX)
+    with pytest.raises((DDGInputError, TypeCheckError)):
+        gather_sum(jnp.ones(5), INDEX, TRANSPOSE_INDEX)
+
+
+def test_structure_flags_follow_arithmetic(spd):
+    matrix, _ = spd  # symmetric positive definite
+    general = SparseMatrix(jnp.asarray(np.random.default_rng(15).random(matrix.pattern.nnz)), matrix.pattern)
+    assert matrix.symmetric and matrix.positive_semidefinite and not general.symmetric
+    assert (2.0 * matrix).positive_semidefinite and (matrix + matrix / 3.0).positive_semidefinite
+    assert (-matrix).negative_semidefinite and not (-matrix).positive_semidefinite
+    assert (matrix * -2.0).negative_semidefinite and (matrix - 2.0 * matrix).symmetric
+    assert not (matrix - 0.5 * matrix).positive_semidefinite  # a difference is not provably semidefinite
+    assert (matrix - (-matrix)).positive_semidefinite
+    assert not (matrix + general).symmetric
+    traced = jax.jit(lambda t, m: (t * m).values.sum() * 0 + int((t * m).positive_semidefinite))(2.0, matrix)
+    assert traced == 0  # a traced scalar cannot be proven nonnegative: only `symmetric` survives
+    assert jax.jit(lambda t, m: jnp.asarray(int((t * m).symmetric)))(2.0, matrix) == 1
+    assert lx.is_negative_semidefinite((-matrix).as_lineax_operator())
+    assert lx.is_positive_semidefinite((2.0 * matrix).as_lineax_operator())
+    assert not lx.is_symmetric(general.as_lineax_operator())
+    assert lx.is_positive_semidefinite(general.as_lineax_operator(symmetric=True, positive_semidefinite=True))
+    assert matrix.T is matrix  # a symmetric matrix is its own transpose
+    with pytest.raises(DDGInputError, match="semidefinite"):
+        SparseMatrix(general.values, general.pattern, positive_semidefinite=True)
+    with pytest.raises(DDGInputError, match="not symmetric"):
+        from_scipy(_random((25, 25), 0.2, 15), positive_semidefinite=True)
+    with pytest.raises(DDGInputError, match="values: expected shape"):
+        SparseMatrix(general.values[:-1], general.pattern)
+
+
+def test_adding_a_diagonal_matches_scipy():
+    base = _random((30, 30), 0.15, 16)
+    square = from_scipy(base + base.T + sp.eye(30))  # host pattern with the diagonal stored first
+    assert square.pattern.diagonal_first
+    rng = np.random.default_rng(17)
+    d = diagonal_matrix(jnp.asarray(rng.random(30)), positive_semidefinite=True)
+    reference = square.to_scipy()
+    diag_ref = d.to_scipy()
+    for result, expected in (
+        (square + d, reference + diag_ref),
+        (d + square, reference + diag_ref),
+        (square - 0.5 * d, reference - 0.5 * diag_ref),
+        (d - 2.0 * square, diag_ref - 2.0 * reference),
+        (d + d, 2.0 * diag_ref),
+    ):
+        assert abs(result.to_scipy() - expected).max() < 1e-14
+    assert (square + d).pattern is square.pattern and (d + d).pattern.is_diagonal
+    # Under jit and differentiated through both value arrays.
+    sum_jit = jax.jit(lambda a, b: (a + 3.0 * b) @ jnp.ones(30))
+    np.testing.assert_allclose(sum_jit(square, d), (reference + 3.0 * diag_ref) @ np.ones(30), rtol=1e-14)
+    check_grads(
+        lambda v, w: jnp.sum(jnp.sin((SparseMatrix(v, square.pattern) + diagonal_matrix(w)).values)),
+        (square.values, d.values),
+        order=1,
+    )
+    # A CSR pattern holding its whole diagonal (e.g. built from JAX arrays).
+    csr = _as_csr_layout((base + sp.eye(30)).tocsr())
+    assert abs((csr + d).to_scipy() - (csr.to_scipy() + diag_ref)).max() < 1e-14
+    np.testing.assert_allclose(jax.jit(lambda a, b: (a - b).values)(csr, d), (csr - d).values)
+    # Patterns without a full diagonal cannot take it.
+    no_diagonal = from_scipy(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30)))
+    with pytest.raises(DDGInputError, match="whole diagonal"):
+        no_diagonal + d
+    with pytest.raises(DDGInputError, match="lacks diagonal"):
+        _as_csr_layout(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30))) + d
+    with pytest.raises(DDGInputError, match="equal shapes"):
+        square + diagonal_matrix(jnp.ones(29))

@@ -11,6 +11,5 @@ from ._convert import to_igl_cotmatrix as to_igl_cotmatrix
 from ._convert import to_pytorch3d_cot_laplacian as to_pytorch3d_cot_laplacian
 from ._cotan import cotan_laplacian as cotan_laplacian
 from ._cotan import dirichlet_energy as dirichlet_energy
-from ._cotan import edge_stiffness_weights as edge_stiffness_weights
 from ._cotan import laplacian_apply as laplacian_apply
 from ._mass import mass_matrix as mass_matrix

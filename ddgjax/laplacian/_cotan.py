@@ -6,26 +6,35 @@ Convention (DESIGN.md): `L` is the positive semidefinite weak (integrated) Lapla
 
 so `L == -igl.cotmatrix(V, F) == gpytoolbox.cotangent_laplacian(V, F)`, and the pointwise
 Laplace-Beltrami operator is `-M^{-1} L`. Both routes land on `mesh.vertex_pattern`: the edge
-entries `-w_ij` are gathered from per-edge weights (no scatter), the diagonal is minus the
+entries `-w_ij` are gathered from per-corner values (no scatter), the diagonal is minus the
 off-diagonal row sum (`L 1 = 0` by construction, exactly the partition of unity `sum_j grad phi_j = 0`).
 
 Works on every triangle mesh, as libigl's does: a boundary edge has one cotangent term, a
 non-manifold edge one per incident face, inconsistent orientation does not matter (cotangents are
 unsigned), an unreferenced vertex has an empty (zero) row. Degenerate faces (zero area, collinear
 corners) contribute nothing, with finite values and gradients (libigl gives inf / NaN there).
+
+Every function here is differentiable in the vertex positions in forward and reverse mode, to any
+order (`jax.jvp`, `jax.jacfwd`, `jax.grad`, Hessian-vector products), under `jit` and `vmap`: the
+corner -> pattern gather is `ddgjax.sparse.gather_sum`, whose transpose is a fixed gather too.
 """
 
 from __future__ import annotations
 
+import weakref
+
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError
-from ..dec import d0, hodge1
+from .._errors import DDGInputError, is_traced
 from .._numerics import safe_div, safe_norm
-from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_area_vectors, face_hat_gradients
+from ..dec import d0, hodge1
 from ..mesh._mesh import Mesh
-from ..sparse import SparseMatrix, congruence, gather_sum
+from ..mesh._topology import MeshTopology
+from ..sparse import CongruencePlan, SparseMatrix, SparsityPattern, congruence, congruence_plan, gather_sum
+
 
 def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     """The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on `mesh.vertex_pattern`.
@@ -40,16 +49,16 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
       products and one cross product per face, no normal or gradient is formed. It equals the cotan
       formula since `<e_i, e_j> / (2 A_f) = -cot(angle at the third corner)`. The per-corner values are
       gathered straight into the pattern's storage order (`Mesh.vertex_pattern_corners`) and the
-      diagonal is minus the ELL row sum; the gather runs through `ddgjax.sparse.gather_sum`, whose
-      transpose is a gather (no scatter-add), so `jax.grad` of an energy costs a few energy
-      evaluations. Second derivatives work by reverse-over-reverse (Hessian-vector products as
-      `jax.grad(lambda V: jnp.vdot(jax.grad(E)(V), v))`); forward mode (`jax.jvp`, `jax.jacfwd`) over
-      the vertices does not pass through that custom reverse rule: use `method="dec"` for it.
+      diagonal is minus the ELL row sum.
     - `method="dec"`: `d0^T *1 d0` from `ddgjax.dec.d0` and the circumcentric `ddgjax.dec.hodge1`,
-      summed by `ddgjax.sparse.congruence` (slower; a cross-check of the derivation).
+      summed by `ddgjax.sparse.congruence` (a cross-check of the derivation; slower). Its product ->
+      slot map is built on the host once per mesh topology and cached.
 
-    Both agree to round-off on every mesh (tests). Works under jit / grad / vmap over the vertex
-    positions; see the module docstring for non-manifold, boundary and degenerate input.
+    Both agree to round-off on every mesh (tests). The result is flagged symmetric positive
+    semidefinite (a Gram matrix of hat gradients, whatever the angles), so
+    `cotan_laplacian(m).as_lineax_operator()` is tagged for `lineax.CG`. Works under jit / grad / jvp /
+    vmap over the vertex positions; see the module docstring for non-manifold, boundary and
+    degenerate input.
 
     Args:
         mesh: any triangle mesh.
@@ -63,36 +72,70 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     libigl `cotmatrix` (negated); gpytoolbox `cotangent_laplacian`.
     """
     if method == "fem":
-        return _fem_stiffness(mesh)
+        rows_off = _off_diagonal(mesh, _edge_entries(mesh))
+        return _with_diagonal(rows_off, -rows_off.row_sums(), positive_semidefinite=True)
     if method == "dec":
-        return congruence(d0(mesh), hodge1(mesh).diagonal(), mesh.vertex_pattern)
+        star = hodge1(mesh).diagonal()
+        values = congruence(d0(mesh), star, mesh.vertex_pattern, _dec_plan(mesh.topology)).values
+        return SparseMatrix(values, mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
     raise DDGInputError(f"method: expected 'fem' or 'dec', got {method!r}")
 
 
-def _fem_stiffness(mesh: Mesh) -> SparseMatrix:
-    """The FEM stiffness on `mesh.vertex_pattern`, values computed in storage order (see `cotan_laplacian`)."""
-    corners = mesh.vertices[mesh.faces]
-    p0, p1, p2 = corners[:, 0], corners[:, 1], corners[:, 2]
-    e0, e1, e2 = p2 - p1, p0 - p2, p1 - p0  # edge opposite corner k
-    dots = jnp.stack([jnp.sum(e1 * e2, axis=-1), jnp.sum(e2 * e0, axis=-1), jnp.sum(e0 * e1, axis=-1)], axis=1)
-    # <e_i, e_j> / (4 A) per corner (the entry of the edge opposite it); 0 on zero-area faces.
-    entries = safe_div(dots, 2.0 * safe_norm(jnp.cross(e1, e2))[:, None])
-    off_diagonal = gather_sum(entries.reshape(-1), mesh.vertex_pattern_corners, mesh.corner_pattern_slots)
-    rows_off = SparseMatrix(jnp.concatenate([jnp.zeros(mesh.n_vertices, entries.dtype), off_diagonal]), mesh.vertex_pattern)
-    return _with_diagonal(rows_off, -rows_off.row_sums())
+def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
+    """Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (same convention as `cotan_laplacian`).
 
+    `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)` with `w_ij = 1/2 (cot a_ij + cot b_ij)`, evaluated term by
+    term: each face's corner values `-cot(alpha) / 2 = <e_i, e_j> / (4 A_f)` are gathered onto the
+    directed edges `i -> j` leaving each vertex (the off-diagonal slots of `mesh.vertex_pattern`, which
+    list them row by row), multiplied by the edge differences `u_j - u_i`, and summed per vertex. No
+    matrix is assembled: no diagonal, no `SparseMatrix`. Equals `cotan_laplacian(mesh) @ u` to
+    round-off. Every step is a fixed gather or a contiguous sum, no scatter-add (only the few
+    directed edges of high-degree vertices that overflow the pattern's ELL width go through a
+    sorted `segment_sum`), so the result is also bitwise reproducible on GPU. The corner -> edge
+    gather is `ddgjax.sparse.gather_sum`, whose transpose is a gather: differentiable in `u` and in
+    the vertex positions, forward and reverse mode, under jit and vmap.
 
-def edge_stiffness_weights(mesh: Mesh) -> Float[Array, " ne"]:
-    """Cotan weight of each edge from the FEM stiffness, `w_ij = -sum_f A_f <grad phi_i, grad phi_j>`, `(ne,)`.
+    `laplacian_apply(mesh, mesh.vertices)` is the integrated mean curvature normal `2 H N A_i`, the
+    gradient of the total area (outward on a convex closed mesh). Reference: Pinkall & Polthier
+    (1993). libigl: `-igl.cotmatrix(V, F) @ u`; gpytoolbox: `cotangent_laplacian(V, F) @ u`.
 
-    Equals `edge_cotan_weights` (to round-off); computed from `face_hat_gradients`.
+    Args:
+        mesh: any triangle mesh.
+        u: `(nv,)` or `(nv, k)` values at the vertices.
+
+    Returns:
+        `L u`, the shape of `u`.
     """
-    gradients = face_hat_gradients(mesh)
-    double_areas = 2.0 * safe_norm(face_area_vectors(mesh))
-    # Corner k's entry is the stiffness of the edge opposite it: corners k+1 and k+2.
-    products = jnp.sum(jnp.roll(gradients, -1, axis=1) * jnp.roll(gradients, -2, axis=1), axis=-1)
-    # -2 A <grad phi_{k+1}, grad phi_{k+2}> = cot(alpha_k): the edge gather takes corner cotangents.
-    return edge_cotan_weights_from_corner_cotangents(mesh, -double_areas[:, None] * products)
+    n = mesh.n_vertices
+    if not is_traced(u) and (np.ndim(u) not in (1, 2) or np.shape(u)[0] != n):
+        raise DDGInputError(f"u: expected shape ({n},) or ({n}, k), got {np.shape(u)}")
+    shape = jnp.shape(u)
+    columns = jnp.asarray(u).reshape(n, -1)
+    pattern = mesh.vertex_pattern
+    weights = _edge_entries(mesh)[:, None]  # L_ij on the off-diagonal slots nv.. (row i, column j)
+    ell_end = n * pattern.width
+    ell_weights = weights[: ell_end - n].reshape(pattern.width - 1, n, 1)
+    ell_heads = pattern.cols[n:ell_end].reshape(pattern.width - 1, n)
+    # Slots of ELL block k hold row i at position i, so u_i needs no gather.
+    result = jnp.zeros_like(columns)
+    for k in range(pattern.width - 1):
+        result = result + ell_weights[k] * (columns[ell_heads[k]] - columns)
+    if pattern.nnz > ell_end:  # the COO tail of high-degree rows, sorted by row
+        rows, heads = pattern.rows[ell_end:], pattern.cols[ell_end:]
+        differences = weights[ell_end - n :] * (columns[heads] - columns[rows])
+        result = result + jax.ops.segment_sum(differences, rows, num_segments=n, indices_are_sorted=True)
+    return result.reshape(shape)
+
+
+def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
+    """Dirichlet energy `E(u) = 1/2 u^T L u = 1/2 int |grad u|^2` of a piecewise-linear function (summed over columns).
+
+    `u` of shape `(nv,)` or `(nv, k)`. Differentiable in `u` (`grad_u E = L u`) and in the vertex
+    positions, in forward and reverse mode and to second order (Hessian-vector products by
+    forward-over-reverse, as optimistix / lineax Newton operators use them). Reference: Pinkall &
+    Polthier 1993. libigl / gpytoolbox: `0.5 * u @ (L @ u)` with `L = -igl.cotmatrix(V, F)`.
+    """
+    return 0.5 * jnp.sum(u * laplacian_apply(mesh, u))
 
 
 def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatrix:
@@ -100,28 +143,42 @@ def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatri
     zeros = jnp.zeros(mesh.n_vertices, edge_values.dtype)
     entries = jnp.concatenate([zeros, edge_values, edge_values])
     values = jnp.take(entries, mesh.vertex_pattern_source, mode="fill", fill_value=0)
-    return SparseMatrix(values, mesh.vertex_pattern)
+    return SparseMatrix(values, mesh.vertex_pattern, symmetric=True)
 
 
-def _with_diagonal(matrix: SparseMatrix, diagonal: Float[Array, " nv"]) -> SparseMatrix:
+def _edge_entries(mesh: Mesh) -> Float[Array, " n_off"]:
+    """FEM stiffness `L_ij = sum_f <e_i, e_j> / (4 A_f)` on each off-diagonal slot of `mesh.vertex_pattern`."""
+    corners = mesh.vertices[mesh.faces]
+    p0, p1, p2 = corners[:, 0], corners[:, 1], corners[:, 2]
+    e0, e1, e2 = p2 - p1, p0 - p2, p1 - p0  # edge opposite corner k
+    dots = jnp.stack([jnp.sum(e1 * e2, axis=-1), jnp.sum(e2 * e0, axis=-1), jnp.sum(e0 * e1, axis=-1)], axis=1)
+    # <e_i, e_j> / (4 A) per corner (the entry of the edge opposite it); 0 on zero-area faces.
+    entries = safe_div(dots, 2.0 * safe_norm(jnp.cross(e1, e2))[:, None])
+    return gather_sum(entries.reshape(-1), mesh.vertex_pattern_corners, mesh.corner_pattern_slots)
+
+
+def _off_diagonal(mesh: Mesh, edge_entries: Float[Array, " n_off"]) -> SparseMatrix:
+    values = jnp.concatenate([jnp.zeros(mesh.n_vertices, edge_entries.dtype), edge_entries])
+    return SparseMatrix(values, mesh.vertex_pattern, symmetric=True)
+
+
+def _with_diagonal(
+    matrix: SparseMatrix, diagonal: Float[Array, " nv"], *, positive_semidefinite: bool
+) -> SparseMatrix:
     # The vertex pattern stores the diagonal first (slots 0..nv-1).
-    return SparseMatrix(matrix.values.at[: diagonal.shape[0]].set(diagonal), matrix.pattern)
+    values = matrix.values.at[: diagonal.shape[0]].set(diagonal)
+    return SparseMatrix(values, matrix.pattern, symmetric=True, positive_semidefinite=positive_semidefinite)
 
 
-def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
-    """Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (same convention as `cotan_laplacian`).
-
-    `(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`. `laplacian_apply(mesh, mesh.vertices)` is
-    the integrated mean curvature normal `2 H N A_i`, the gradient of the total area (outward on a
-    convex closed mesh). libigl: `-igl.cotmatrix(V, F) @ u`.
-    """
-    return cotan_laplacian(mesh) @ u
+_DEC_PLANS: "weakref.WeakKeyDictionary[MeshTopology, CongruencePlan]" = weakref.WeakKeyDictionary()
 
 
-def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
-    """Dirichlet energy `E(u) = 1/2 u^T L u = 1/2 int |grad u|^2` of a piecewise-linear function (summed over columns).
-
-    Differentiable in `u` (`grad_u E = L u`) and in the vertex positions. Reference: Pinkall &
-    Polthier 1993.
-    """
-    return 0.5 * jnp.sum(u * (cotan_laplacian(mesh) @ u))
+def _dec_plan(topology: MeshTopology) -> CongruencePlan:
+    """The `d0^T W d0` plan on the vertex pattern, built on the host once per topology (rows of `d0` are `[tail, head]`)."""
+    plan = _DEC_PLANS.get(topology)
+    if plan is None:
+        # Host work even when called inside a trace (mesh.vertex_pattern is traced there).
+        with jax.ensure_compile_time_eval():
+            pattern, _ = SparsityPattern.from_edges(topology.edges, topology.n_vertices)
+            plan = _DEC_PLANS[topology] = congruence_plan(topology.edges, pattern)
+    return plan

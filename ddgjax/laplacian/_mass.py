@@ -10,19 +10,22 @@ from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._cotan import _with_diagonal, vertex_operator
 
+
 def mass_matrix(mesh: Mesh, *, kind: str = "voronoi") -> SparseMatrix:
     """Mass matrix `M` (integrates piecewise-linear functions: `u^T M v ~ int u v`), symmetric positive definite.
 
     - `"voronoi"` (default; mixed area of Meyer et al. 2003): diagonal, `M_ii` = the vertex's mixed
-      Voronoi area (`vertex_dual_areas(mesh, "voronoi")`), as libigl `MASSMATRIX_TYPE_VORONOI`.
+      Voronoi area (`vertex_dual_areas(mesh, kind="voronoi")`), as libigl `MASSMATRIX_TYPE_VORONOI`.
     - `"barycentric"`: diagonal, a third of the incident face areas (libigl `MASSMATRIX_TYPE_BARYCENTRIC`).
     - `"galerkin"`: the consistent FEM mass matrix `M_ij = int phi_i phi_j` on `mesh.vertex_pattern`
       (same pattern as the cotan Laplacian, so `L + t M` is defined): `A_f / 6` on the diagonal and
       `A_f / 12` off it per face (libigl `MASSMATRIX_TYPE_FULL`; gpytoolbox `massmatrix(type="full")`).
 
-    The lumped kinds return a diagonal `SparseMatrix` (`ddgjax.sparse.diagonal_matrix`). Every kind
-    sums to the total area; unreferenced vertices get zero rows (so `M` is then only semidefinite);
-    zero-area faces contribute nothing.
+    The lumped kinds return a diagonal `SparseMatrix` (`ddgjax.sparse.diagonal_matrix`); `L + t M`
+    and `M + t L` work for every kind (a diagonal matrix adds onto the Laplacian's pattern). Every
+    kind is flagged symmetric positive semidefinite (so `as_lineax_operator()` is tagged for
+    `lineax.CG`) and sums to the total area; unreferenced vertices get zero rows (so `M` is then only
+    semidefinite); zero-area faces contribute nothing.
 
     Args:
         mesh: any triangle mesh.
@@ -34,12 +37,12 @@ def mass_matrix(mesh: Mesh, *, kind: str = "voronoi") -> SparseMatrix:
     Reference: Meyer, Desbrun, Schroeder, Barr (2003); libigl `massmatrix`.
     """
     if kind in ("voronoi", "barycentric"):
-        return diagonal_matrix(vertex_dual_areas(mesh, kind))
+        return diagonal_matrix(vertex_dual_areas(mesh, kind=kind), positive_semidefinite=True)
     if kind == "galerkin":
         areas = face_areas(mesh)
         # Each face adds A/12 to each of its three edges (the helper halves its corner sum).
         edge_values = edge_cotan_weights_from_corner_cotangents(mesh, jnp.broadcast_to(areas[:, None] / 6.0, (areas.shape[0], 3)))
         off_diagonal = vertex_operator(mesh, edge_values)
         # Row i: sum_f A_f / 6 on the diagonal equals its off-diagonal sum, 2 A_f / 12 per face.
-        return _with_diagonal(off_diagonal, off_diagonal.row_sums())
+        return _with_diagonal(off_diagonal, off_diagonal.row_sums(), positive_semidefinite=True)
     raise DDGInputError(f"kind: expected 'voronoi', 'barycentric' or 'galerkin', got {kind!r}")

@@ -1,10 +1,10 @@
 """Fixed-pattern sparse matrices: assembly under jit, products, export to SciPy / BCOO, lineax operators."""
 
+from ._gather import gather_sum as gather_sum
 from ._matrix import SparseMatrix as SparseMatrix
 from ._matrix import diagonal_matrix as diagonal_matrix
 from ._matrix import from_scipy as from_scipy
-from ._gather import gather_sum as gather_sum
 from ._pattern import SparsityPattern as SparsityPattern
-from ._pattern import gather_index as gather_index
+from ._products import CongruencePlan as CongruencePlan
 from ._products import congruence as congruence
-from ._products import find_slots as find_slots
+from ._products import congruence_plan as congruence_plan

@@ -1,39 +1,119 @@
-"""A fixed gather-and-sum whose reverse mode is a gather too (no scatter-add)."""
+"""`gather_sum`: a fixed gather-and-sum whose transpose is another fixed gather (no scatter-add).
+
+JAX transposes a gather into a scatter-add, the slow operation on CPU (a serial loop; DESIGN.md,
+measured facts). When the incidence is fixed, the transpose is itself a gather over the transposed
+incidence, built once on the host. `gather_sum` is a linear JAX primitive that knows this:
+
+- forward (`jit`, eager): lowered to the plain gather `jnp.take(x, index, mode="fill").sum(1)`;
+- forward mode (`jax.jvp`, `jax.jacfwd`): it is linear, so the tangent is `gather_sum` of the tangent;
+- reverse mode (`jax.grad`, `jax.linear_transpose`): the transpose is `gather_sum` with the two
+  index arrays swapped, so gradients, Hessian-vector products (forward-over-reverse or
+  reverse-over-reverse) and any depth of nesting stay gathers;
+- `vmap`: over `x` it is one call on a wider `x`; over the index arrays the batch is folded into
+  the leading axis (offset indices), still one call.
+"""
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jax.extend.core import Primitive
+from jax.interpreters import ad, batching, mlir
+from jaxtyping import Array, ArrayLike, Float, Int
+
+from .._errors import DDGInputError
+
+gather_sum_p = Primitive("ddgjax_gather_sum")
 
 
-@jax.custom_vjp
 def gather_sum(
-    x: Float[Array, " n"], index: Int[Array, "m k"], transpose_index: Int[Array, "n j"]
-) -> Float[Array, " m"]:
-    """`y[s] = sum_k x[index[s, k]]` (out-of-range indices read 0), differentiated by gathers.
+    x: Float[ArrayLike, "n *rest"], index: Int[ArrayLike, "m k"], transpose_index: Int[ArrayLike, "n j"]
+) -> Float[Array, "m *rest"]:
+    """`y[s] = sum_k x[index[s, k]]`, whose derivative in both modes is a fixed gather.
 
-    JAX transposes a gather into a scatter-add, which is the slow operation on CPU (a serial loop).
-    Here the pattern is fixed, so the transpose is another fixed gather: `transpose_index[c]` lists
-    every `s` with `c` among `index[s, :]` (each pair once, padded with an out-of-range index), and
-    `x_bar[c] = sum_j y_bar[transpose_index[c, j]]`. The caller guarantees that the two index arrays
+    `index[s, k] >= n` pads (reads 0); `transpose_index[c]` lists every `s` with `c` among
+    `index[s, :]` (each occurrence once, padded with an index `>= m`), so that the transpose is
+    `x_bar[c] = sum_j y_bar[transpose_index[c, j]]`. The caller guarantees that the two arrays
     describe the same incidence (built together on the host, e.g. `Mesh.vertex_pattern_corners` and
-    `Mesh.corner_pattern_slots`).
+    `Mesh.corner_pattern_slots`); negative indices are not allowed.
 
-    Reverse mode, `jit` and `vmap` work; forward mode (`jax.jvp`, `jax.jacfwd`) does not pass through
-    a `custom_vjp` (JAX limitation), so callers keep a plain-gather path for it.
+    Linear in `x`; works under `jit`, `grad`, `jvp`, `jacfwd`, `vmap` and nested combinations (module
+    docstring). No libigl / gpytoolbox equivalent; in SciPy terms it is `S @ x` (and its transpose
+    `S.T @ y_bar`) with `S` the `(m, n)` 0/1 incidence matrix given in both row-compressed forms.
+    Reference: JAX documentation, "JAX internals: primitives" (linear primitives and transposition).
+
+    Args:
+        x: `(n, *rest)` values.
+        index: `(m, k)` integer, rows of `S` as padded column lists.
+        transpose_index: `(n, j)` integer, columns of `S` as padded row lists.
+
+    Returns:
+        `(m, *rest)`.
     """
+    x = jnp.asarray(x)
+    index, transpose_index = jnp.asarray(index), jnp.asarray(transpose_index)
+    for name, array in (("index", index), ("transpose_index", transpose_index)):
+        if array.ndim != 2 or not jnp.issubdtype(array.dtype, jnp.integer):
+            raise DDGInputError(f"{name}: expected a 2-d integer array, got shape {array.shape} dtype {array.dtype}")
+    if x.ndim == 0 or transpose_index.shape[0] != x.shape[0]:
+        raise DDGInputError(
+            f"x, transpose_index: expected x of shape (n, ...) and transpose_index (n, j) with the same n, "
+            f"got {x.shape} and {transpose_index.shape}"
+        )
+    return gather_sum_p.bind(x, index, transpose_index)
+
+
+def _gather(x, index):
     return jnp.take(x, index, axis=0, mode="fill", fill_value=0).sum(axis=1)
 
 
-def _gather_sum_fwd(x, index, transpose_index):
-    return gather_sum(x, index, transpose_index), (index, transpose_index)
+def _impl(x, index, transpose_index):
+    del transpose_index
+    return _gather(x, index)
 
 
-def _gather_sum_bwd(residuals, cotangent):
-    index, transpose_index = residuals
-    x_bar = jnp.take(cotangent, transpose_index, axis=0, mode="fill", fill_value=0).sum(axis=1)
-    return x_bar, None, None
+def _abstract_eval(x, index, transpose_index):
+    del transpose_index
+    return jax.core.ShapedArray((index.shape[0],) + x.shape[1:], x.dtype, weak_type=x.weak_type)
 
 
-gather_sum.defvjp(_gather_sum_fwd, _gather_sum_bwd)
+def _jvp(tangent, x, index, transpose_index):
+    del x
+    return gather_sum_p.bind(tangent, index, transpose_index)
+
+
+def _transpose(cotangent, x, index, transpose_index):
+    if ad.is_undefined_primal(index) or ad.is_undefined_primal(transpose_index):
+        raise DDGInputError("gather_sum is linear in x only; its index arrays cannot be differentiated")
+    if type(cotangent) is ad.Zero:
+        return ad.Zero(x.aval), None, None
+    return gather_sum_p.bind(cotangent, transpose_index, index), None, None
+
+
+def _batch(args, dims):
+    x, index, transpose_index = args
+    x_dim, index_dim, transpose_dim = dims
+    if index_dim is None and transpose_dim is None:
+        # One call on a wider x: the batch axis becomes a trailing axis of the gathered rows.
+        return gather_sum_p.bind(jnp.moveaxis(x, x_dim, 1), index, transpose_index), 1
+    size = next(a.shape[d] for a, d in zip(args, dims) if d is not None)
+    x = batching.bdim_at_front(x, x_dim, size)
+    index = batching.bdim_at_front(index, index_dim, size)
+    transpose_index = batching.bdim_at_front(transpose_index, transpose_dim, size)
+    n, m = x.shape[1], index.shape[1]
+    # Fold the batch into the leading axis: batch b's entries move to [b n, (b + 1) n); padding
+    # stays past the end.
+    batch = jnp.arange(size, dtype=index.dtype)[:, None, None]
+    index = jnp.where(index < n, index + batch * n, size * n).reshape(size * m, -1)
+    transpose_index = jnp.where(transpose_index < m, transpose_index + batch * m, size * m).reshape(size * n, -1)
+    y = gather_sum_p.bind(x.reshape((size * n,) + x.shape[2:]), index, transpose_index)
+    return y.reshape((size, m) + y.shape[1:]), 0
+
+
+gather_sum_p.def_impl(_impl)
+gather_sum_p.def_abstract_eval(_abstract_eval)
+mlir.register_lowering(gather_sum_p, mlir.lower_fun(_impl, multiple_results=False))
+ad.defjvp(gather_sum_p, _jvp, None, None)
+ad.primitive_transposes[gather_sum_p] = _transpose
+batching.primitive_batchers[gather_sum_p] = _batch
+

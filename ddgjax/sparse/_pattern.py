@@ -3,12 +3,15 @@
 A `SparsityPattern` is the set of structurally nonzero positions of a matrix plus the *storage
 order* of its values. Operators whose values change with the geometry (the cotan Laplacian, mass
 matrices, Hodge stars) keep their pattern and re-assemble only the values with one gather: no
-sorting or deduplication happens inside jit (DESIGN.md, Architecture).
+sorting, searching or deduplication happens inside jit (DESIGN.md, Architecture).
 
-Two storage layouts:
+Three storage layouts:
 
 - `"csr"`: values in CSR order (sorted by row, then column). Any code may build one directly from
-  JAX arrays, also inside jit. Products use a sorted `segment_sum`.
+  JAX arrays, also inside jit (e.g. `ddgjax.dec.d0`). Products use a sorted `segment_sum`.
+- `"coo"`: values in any order, no repeated position (the transpose of a `"csr"` pattern, or of
+  an ELL pattern without transpose data: rows and columns swapped, values untouched). Products use
+  an unsorted `segment_sum`.
 - `"ell"`: built on the host by `from_coo` / `from_edges` / `diagonal`. Slots `k * n_rows + i`
   (`k < width`) hold the `k`-th entry of row `i` (column-major padded ELLPACK; for a square pattern
   with a full diagonal, `k = 0` is the diagonal); rows longer than `width` put their remaining
@@ -20,6 +23,7 @@ Two storage layouts:
 
 Host-built patterns also carry their transpose: a symmetric pattern the permutation of its own slots
 (`(i, j) -> (j, i)`), any other its transposed pattern and the slot each transposed entry reads.
+`SparsityPattern.slots` locates positions on the host (for maps built once, e.g. `congruence_plan`).
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
-from .._errors import DDGInputError
+from .._errors import DDGInputError, is_traced
 
 # Cost of one COO-tail entry relative to one ELL slot (scatter vs contiguous multiply-add).
 _TAIL_COST = 3
@@ -41,9 +45,10 @@ class SparsityPattern(eqx.Module):
     Attributes:
         rows: `(nnz,)` row of each storage slot (`nnz` counts ELL padding slots too).
         cols: `(nnz,)` column of each storage slot.
-        indptr: `(n_rows + 1,)` CSR row pointer of the distinct entries (the storage for `"csr"`).
+        indptr: `(n_rows + 1,)` CSR row pointer of the distinct entries (the storage for `"csr"`);
+            `None` for `"coo"`.
         shape: `(n_rows, n_cols)`, static.
-        layout: `"csr"` or `"ell"` (module docstring), static.
+        layout: `"csr"`, `"coo"` or `"ell"` (module docstring), static.
         width: ELL width (0 for `"csr"`), static.
         diagonal_first: ELL slot block 0 is the diagonal, static.
         symmetric: the pattern equals its transpose, static.
@@ -55,7 +60,7 @@ class SparsityPattern(eqx.Module):
 
     rows: Int[Array, " nnz"]
     cols: Int[Array, " nnz"]
-    indptr: Int[Array, " n_rows_plus_1"]
+    indptr: Int[Array, " n_rows_plus_1"] | None
     shape: tuple[int, int] = eqx.field(static=True)
     layout: str = eqx.field(static=True, default="csr")
     width: int = eqx.field(static=True, default=0)
@@ -69,6 +74,38 @@ class SparsityPattern(eqx.Module):
         """Number of storage slots (the length of a matrix's `values`)."""
         return int(self.rows.shape[0])
 
+    @property
+    def is_diagonal(self) -> bool:
+        """The `(n, n)` diagonal pattern (`SparsityPattern.diagonal`): exactly one slot per row, on the diagonal."""
+        return self.layout == "ell" and self.diagonal_first and self.width == 1 and self.nnz == self.shape[0]
+
+    def slots(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Host lookup: the storage slot of each position `(rows[k], cols[k])`, or `nnz` where it has none.
+
+        NumPy, once, outside jit (a sort of the pattern's keys); needs concrete pattern arrays. Where
+        an ELL padding slot repeats a position, the real (lowest) slot is returned.
+        """
+        if is_traced(self.rows) or is_traced(self.cols):
+            raise DDGInputError("pattern: SparsityPattern.slots runs on the host and needs concrete (non-traced) arrays")
+        n_cols = self.shape[1]
+        keys = np.asarray(self.rows, dtype=np.int64) * n_cols + np.asarray(self.cols, dtype=np.int64)
+        order = np.argsort(keys, kind="stable")  # by key, then slot: a position's real slot comes first
+        sorted_keys = keys[order]
+        first = np.ones(sorted_keys.size, dtype=bool)
+        first[1:] = sorted_keys[1:] != sorted_keys[:-1]
+        unique_keys, unique_slots = sorted_keys[first], order[first]
+        rows = np.asarray(rows, dtype=np.int64)
+        cols = np.asarray(cols, dtype=np.int64)
+        result = np.full(rows.shape, self.nnz, dtype=np.int64)
+        if unique_keys.size == 0:
+            return result
+        query = rows * n_cols + cols
+        inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < n_cols)
+        position = np.minimum(np.searchsorted(unique_keys, query), unique_keys.size - 1)
+        found = inside & (unique_keys[position] == query)
+        result[found] = unique_slots[position[found]]
+        return result
+
     @classmethod
     def from_coo(
         cls, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
@@ -81,8 +118,7 @@ class SparsityPattern(eqx.Module):
 
         Returns:
             `(pattern, slot)`: `slot[k]` is the storage slot that entry `k` is summed into; values for
-            the pattern are `jax.ops.segment_sum(entries, slot, pattern.nnz)`, or, when no position
-            repeats, the gather `jnp.take(entries, gather_index(pattern, slot), mode="fill", fill_value=0)`.
+            the pattern are `jax.ops.segment_sum(entries, slot, pattern.nnz)` (padding slots get 0).
         """
         rows = np.asarray(rows, dtype=np.int64).reshape(-1)
         cols = np.asarray(cols, dtype=np.int64).reshape(-1)
@@ -197,13 +233,6 @@ class SparsityPattern(eqx.Module):
             diagonal_first=True,
             symmetric=True,
         )
-
-
-def gather_index(pattern: SparsityPattern, slot: np.ndarray) -> np.ndarray:
-    """Inverse of an injective `slot` map from `from_coo`: entry index per storage slot (`len(slot)` for padding)."""
-    index = np.full(pattern.nnz, slot.shape[0], dtype=np.int32)
-    index[slot] = np.arange(slot.shape[0], dtype=np.int32)
-    return index
 
 
 def _is_permutation_of(keys: np.ndarray, sorted_keys: np.ndarray) -> bool:
