@@ -243,6 +243,45 @@ def test_certified_tracking_is_exact_on_a_simple_run(polygon):
     assert int(curve_shortening_flow(bow_tie, kind="B", tau=1e-3, steps=4).first_nonsimple_step) == 0
 
 
+def _plain_explicit_step(points, tau, closed, kind):
+    """The explicit step from its weights, differentiated by plain autodiff (the reference)."""
+    edges = jnp.roll(points, -1, axis=0) - points
+    alpha, beta = _flow_weights(edges, closed, kind)
+    return points + tau * (beta[:, None] * edges - alpha[:, None] * jnp.roll(edges, 1, axis=0))
+
+
+@pytest.mark.parametrize("closed", [True, False])
+def test_closed_form_step_derivatives_match_autodiff(polygon, closed):
+    # _explicit_step carries a hand-derived tangent (custom_jvp); both modes must equal autodiff.
+    rng = np.random.default_rng(3)
+    P = polygon.points
+    V, G = jnp.asarray(rng.normal(size=P.shape)), jnp.asarray(rng.normal(size=P.shape))
+    # add a straight vertex (theta = 0, the series branch of dr/dtheta) and a sharp turn (theta ~ pi - 0.3;
+    # at exactly pi the step is not differentiable: |theta| has a kink there)
+    rotation = jnp.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]])
+    P = P.at[5].set(0.5 * (P[4] + P[6])).at[20].set(P[19] + 0.9 * rotation @ (P[19] - P[21]))
+    for kind in "ABCD":
+        ours = jax.jvp(lambda Q, t: _explicit_step(Q, t, closed, kind), (P, 1e-2), (V, 0.3))[1]
+        plain = jax.jvp(lambda Q, t: _plain_explicit_step(Q, t, closed, kind), (P, 1e-2), (V, 0.3))[1]
+        np.testing.assert_allclose(ours, plain, rtol=1e-12, atol=1e-14, err_msg=kind)
+        grads = [
+            jax.grad(lambda Q, t: jnp.sum(G * step(Q, t, closed, kind)), argnums=(0, 1))(P, 1e-2)
+            for step in (_explicit_step, _plain_explicit_step)
+        ]
+        np.testing.assert_allclose(grads[0][0], grads[1][0], rtol=1e-12, atol=1e-14, err_msg=kind)
+        np.testing.assert_allclose(grads[0][1], grads[1][1], rtol=1e-12, err_msg=kind)
+
+
+def test_step_derivatives_are_finite_on_degenerate_curves():
+    # coincident consecutive points (a zero-length edge) and an exact reversal (theta = pi)
+    points = jnp.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 1.0], [0.2, 1.0]])
+    for kind in "ABCD":
+        value, tangent = jax.jvp(lambda Q: _explicit_step(Q, 1e-2, True, kind), (points,), (jnp.ones_like(points),))
+        gradient = jax.grad(lambda Q: jnp.sum(_explicit_step(Q, 1e-2, True, kind) ** 2))(points)
+        assert np.isfinite(np.asarray(value)).all() and np.isfinite(np.asarray(tangent)).all(), kind
+        assert np.isfinite(np.asarray(gradient)).all(), kind
+
+
 def test_semi_implicit_solves_the_linearly_implicit_system(polygon):
     steps = _one_step_each(polygon.points)
     for kind in "ABCD":

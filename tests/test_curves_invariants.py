@@ -10,6 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from ddgjax.curves._invariants import NEAR_EDGES, near_and_far_clearances
+
 from ddgjax.curves import (
     Curve,
     area_centroid,
@@ -200,3 +202,27 @@ def test_clearance_against_shapely():
                 expected = min(expected, gap)
         assert bool(simple)
         np.testing.assert_allclose(clearance, expected, rtol=1e-12)
+
+
+def test_near_and_far_clearances_split_by_distance_along_the_curve():
+    shapely = pytest.importorskip("shapely")
+    curve = random_polygon(24, seed=2)
+    points = np.asarray(curve.points)
+    n = len(points)
+    edges = [shapely.LineString([points[i], points[(i + 1) % n]]) for i in range(n)]
+    near = far = np.inf
+    for i in range(n):
+        for j in range(i + 1, n):
+            apart = min(j - i, n - (j - i))
+            if apart == 1:  # adjacent: the far endpoints only
+                a, b = (i, j) if j == i + 1 else (j, i)  # edge b follows edge a
+                gap = min(shapely.Point(points[(b + 1) % n]).distance(edges[a]), shapely.Point(points[a]).distance(edges[b]))
+            else:
+                gap = edges[i].distance(edges[j])
+            if apart <= NEAR_EDGES:
+                near = min(near, gap)
+            else:
+                far = min(far, gap)
+    simple, ours_near, ours_far = near_and_far_clearances(curve)
+    assert bool(simple)
+    np.testing.assert_allclose([ours_near, ours_far], [near, far], rtol=1e-12)

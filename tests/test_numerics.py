@@ -9,7 +9,7 @@ import pytest
 
 from ddgjax._numerics import (
     cross2,
-    first_quadrant_atan2,
+    half_angle_ratio,
     safe_atan2,
     safe_div,
     safe_norm,
@@ -39,7 +39,7 @@ def test_nonfinite_input_propagates_instead_of_vanishing():
     assert np.isnan(safe_norm(jnp.array([1.0, jnp.nan])))
     assert np.isnan(safe_div(one, nan))
     assert np.isnan(safe_atan2(nan, one))
-    assert np.isnan(first_quadrant_atan2(nan, one))
+    assert np.isnan(half_angle_ratio(nan, one))
 
 
 def test_safe_norm_values_and_zero_gradient_at_zero():
@@ -108,28 +108,37 @@ def test_angles_have_zero_gradients_at_zero_vectors(function):
         assert _finite(jax.grad(function, argnums=(0, 1))(jnp.zeros(3), a3))
 
 
-def test_first_quadrant_atan2_matches_numpy_over_the_quadrant():
-    # angles uniformly over [0, pi/2], radii over 24 decades, both branch points (ratio 0.66 and 1)
-    rng = np.random.default_rng(0)
-    angle = np.concatenate([np.linspace(0, np.pi / 2, 20001), np.arctan([0.66, 1 / 0.66, 1.0]), rng.uniform(0, np.pi / 2, 5000)])
-    radius = 10.0 ** rng.uniform(-12, 12, angle.size)
-    y, x = radius * np.sin(angle), radius * np.cos(angle)
-    x[np.argmin(np.abs(angle - np.pi / 2))] = 0.0  # exactly pi/2
-    y = np.concatenate([y, [0.0, 0.0, 5.0, 1e-300, 1.0, 0.66, 1.0, 0.66000000001]])
-    x = np.concatenate([x, [0.0, 3.0, 0.0, 1.0, 1e-300, 1.0, 1.0, 1.0]])
-    ours = np.asarray(jax.jit(first_quadrant_atan2)(jnp.asarray(y), jnp.asarray(x)))
-    reference = np.arctan2(y, x)
-    ulp = np.spacing(np.maximum(reference, np.finfo(float).tiny))
-    assert np.max(np.abs(ours - reference) / ulp) <= 4  # Cephes: ~2 ulp
-    assert ours[-8] == 0.0 and ours[-6] == np.pi / 2 and ours[-2] == np.pi / 4
+def test_half_angle_ratio_matches_numpy_over_the_quarter_turn():
+    # h / sin(h) on [0, pi/2], densely and at the ends; tiny angles need no special case
+    h = np.concatenate([np.linspace(0.0, np.pi / 2, 200001), [1e-300, 1e-12, 1e-8, 1e-4, np.pi / 2]])
+    ours = np.asarray(jax.jit(half_angle_ratio)(jnp.asarray(np.sin(h) ** 2), jnp.asarray(np.cos(h))))
+    reference = np.where(h > 0, h / np.where(h > 0, np.sin(h), 1.0), 1.0)
+    # the reference itself rounds twice (sin, quotient): a few ulps of agreement is all there is
+    assert np.max(np.abs(ours / reference - 1)) < 4 * np.finfo(float).eps
+    assert ours[0] == 1.0 and abs(ours[-1] - np.pi / 2) <= 2 * np.spacing(np.pi / 2)
 
 
-def test_first_quadrant_atan2_gradients():
-    # d atan2(y, x) = (x dy - y dx) / (x^2 + y^2)
-    y, x = jnp.array([0.3, 2.0, 1.0, 0.0, 1.0]), jnp.array([1.0, 0.5, 1.0, 1.0, 0.0])
-    dy, dx = jax.vmap(jax.grad(first_quadrant_atan2, argnums=(0, 1)))(y, x)
-    r2 = np.asarray(x**2 + y**2)
-    np.testing.assert_allclose(dy, np.asarray(x) / r2, rtol=1e-14, atol=1e-16)
-    np.testing.assert_allclose(dx, -np.asarray(y) / r2, rtol=1e-14, atol=1e-16)
-    dy0, dx0 = jax.grad(first_quadrant_atan2, argnums=(0, 1))(0.0, 0.0)
-    assert float(dy0) == 0.0 and float(dx0) == 0.0
+def test_half_angle_ratio_pade_coefficients():
+    # The [10/10] Pade approximant of atan(sqrt(u)) / sqrt(u) reproduces the series to order u^20
+    # (exact rational arithmetic) and has positive coefficients (no cancellation on u >= 0).
+    from fractions import Fraction
+
+    from ddgjax._numerics import _ATAN_DENOMINATOR, _ATAN_NUMERATOR, _atan_pade
+
+    assert all(c > 0 for c in _ATAN_NUMERATOR + _ATAN_DENOMINATOR)
+    numerator, denominator = _atan_pade(4)  # small order: check the defining property exactly
+    series = [Fraction((-1) ** k, 2 * k + 1) for k in range(9)]
+    exact_numerator = [Fraction(c).limit_denominator(10**12) for c in numerator]
+    exact_denominator = [Fraction(c).limit_denominator(10**12) for c in denominator]
+    for m in range(9):
+        product = sum(exact_denominator[j] * series[m - j] for j in range(min(m, 4) + 1))
+        expected = exact_numerator[m] if m <= 4 else 0
+        assert abs(float(product - expected)) < 1e-12, m
+
+
+def test_half_angle_ratio_gradient():
+    # d/dh (h / sin h) = (sin h - h cos h) / sin^2 h, through the (sin^2 h, cos h) parametrisation
+    h = jnp.array([0.3, 1.0, 1.5])
+    derivative = jax.vmap(jax.grad(lambda x: half_angle_ratio(jnp.sin(x) ** 2, jnp.cos(x))))(h)
+    expected = (np.sin(h) - h * np.cos(h)) / np.sin(h) ** 2
+    np.testing.assert_allclose(derivative, expected, rtol=1e-13)

@@ -137,8 +137,15 @@ def _point_segment_distances_sq(point, start, direction, inverse_length_sq) -> F
     return rx * rx + ry * ry
 
 
+# Edge pairs at most this far apart along the curve are "near" in `near_and_far_clearances`.
+NEAR_EDGES = 2
+
+
 def _edge_pair_sweep(curve: Curve, block: int, with_clearance: bool):
-    """`(simple, clearance)` by one O(n^2) sweep over edge pairs (clearance None unless asked for); see `is_simple`."""
+    """`(simple, near clearance, far clearance)` by one O(n^2) sweep over edge pairs; see `is_simple`.
+
+    The clearances (None unless asked for) are split at `NEAR_EDGES` edges apart along the curve.
+    """
     points = curve.points
     starts = points if curve.closed else points[:-1]
     ends = jnp.roll(points, -1, axis=0)[: starts.shape[0]]
@@ -173,14 +180,16 @@ def _edge_pair_sweep(curve: Curve, block: int, with_clearance: bool):
         follows = index == i + 1
         adjacent_gap = jnp.where(follows, jnp.minimum(end_to_i, i_start_to), jnp.minimum(start_to_i, i_end_to))
         every_gap = jnp.minimum(jnp.minimum(start_to_i, end_to_i), jnp.minimum(i_start_to, i_end_to))
-        gaps = jnp.where(adjacent, adjacent_gap, every_gap)
-        return hits, jnp.min(jnp.where(later, gaps, jnp.inf))
+        gaps = jnp.where(later, jnp.where(adjacent, adjacent_gap, every_gap), jnp.inf)
+        apart = jnp.minimum(gap, m - gap) if curve.closed else gap
+        near = apart <= NEAR_EDGES
+        return hits, jnp.min(jnp.where(near, gaps, jnp.inf)), jnp.min(jnp.where(near, jnp.inf, gaps))
 
     swept = jax.lax.map(row, index, batch_size=min(block, m))
     if not with_clearance:
-        return ~jnp.any(swept), None
-    hits, gaps_sq = swept
-    return ~jnp.any(hits), jnp.sqrt(jnp.min(gaps_sq))
+        return ~jnp.any(swept), None, None
+    hits, near_sq, far_sq = swept
+    return ~jnp.any(hits), jnp.sqrt(jnp.min(near_sq)), jnp.sqrt(jnp.min(far_sq))
 
 
 @functools.partial(jax.jit, static_argnames=("block",))
@@ -196,6 +205,18 @@ def simplicity_and_clearance(curve: Curve, *, block: int = 128) -> tuple[Bool[Ar
     `clearance` apart can meet and the curve stays simple. Meaningless (but finite) for a non-simple
     curve. The same O(n^2) blocked sweep as `is_simple`, with four endpoint-to-segment distances
     per pair. Checked against shapely's `distance` in the tests.
+    """
+    simple, near, far = _edge_pair_sweep(curve, block, with_clearance=True)
+    return simple, jnp.minimum(near, far)
+
+
+def near_and_far_clearances(curve: Curve, *, block: int = 128) -> tuple[Bool[Array, ""], Float[Array, ""], Float[Array, ""]]:
+    """`simplicity_and_clearance` with the clearance split between near and far edge pairs.
+
+    Near: edges at most `NEAR_EDGES` apart along the curve (`inf` if there are none); far: the
+    rest (`inf` if none). Near edges move almost together in a smooth flow, so the flows certify
+    them by the relative motion of nearby vertices and the far ones by the total motion
+    (`ddgjax.curves._flow`).
     """
     return _edge_pair_sweep(curve, block, with_clearance=True)
 
