@@ -141,9 +141,8 @@ def _pattern_corner_maps(topology: MeshTopology, source: np.ndarray) -> tuple[np
     edge = off_source - np.int32(nv)
     edge[edge >= ne] -= np.int32(ne)  # high -> low entries; padding (2 ne) lands on ne, the padding row
     edge_corners = np.full((ne + 1, topology.edge_faces.shape[1]), 3 * nf, dtype=np.int32)
-    present = topology.edge_faces >= 0
-    edge_corners[:ne][present] = 3 * topology.edge_faces[present] + topology.edge_face_corners[present]
-    slot_corners = edge_corners[edge]
+    np.copyto(edge_corners[:ne], 3 * topology.edge_faces + topology.edge_face_corners, where=topology.edge_faces >= 0)
+    slot_corners = np.take(edge_corners, edge, axis=0)
     slot_of_source = np.empty(nv + 2 * ne + 1, dtype=np.int32)
     slot_of_source[off_source] = np.arange(off_source.size, dtype=np.int32)
     corner_edges = topology.face_edges.reshape(-1)

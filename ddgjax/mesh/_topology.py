@@ -13,12 +13,14 @@ characteristic, genus, and the manifold / orientation checks. Conventions (DESIG
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from .._errors import DDGInputError, MeshDataError, first_indices
+from ..sparse._pattern import stable_order
 
 
 def validate_faces(faces, n_vertices: int) -> np.ndarray:
@@ -79,14 +81,52 @@ class MeshTopology:
     edge_face_corners: np.ndarray
     edge_face_counts: np.ndarray
     boundary_edges: np.ndarray
-    boundary_loops: tuple
-    boundary_vertices: np.ndarray
-    face_components: np.ndarray
-    n_components: int
-    unreferenced_vertices: np.ndarray
     nonmanifold_edges: np.ndarray
-    nonmanifold_vertices: np.ndarray
     inconsistent_edges: np.ndarray
+
+    # The vertex- and component-level checks cost more than the rest of the topology together
+    # (measured at 327k faces: fan walk 100 ms, components 40 ms, against 270 ms for libigl's whole
+    # cotmatrix) and no operator on an edge-manifold mesh needs them, so they are computed on first
+    # use and cached (functools.cached_property writes the instance __dict__, frozen or not).
+
+    @functools.cached_property
+    def unreferenced_vertices(self) -> np.ndarray:
+        referenced = np.zeros(self.n_vertices, dtype=bool)
+        referenced[self.faces.ravel()] = True
+        return np.flatnonzero(~referenced).astype(np.int32)
+
+    @functools.cached_property
+    def boundary_vertices(self) -> np.ndarray:
+        return np.unique(self.edges[self.boundary_edges].ravel()).astype(np.int32)
+
+    @functools.cached_property
+    def boundary_loops(self) -> tuple:
+        return _boundary_loops(self.faces, self.edge_faces, self.edge_face_corners, self.boundary_edges)
+
+    @functools.cached_property
+    def nonmanifold_vertices(self) -> np.ndarray:
+        return _nonmanifold_vertices(self.faces, self._corner_pairs, self.n_vertices, self.nonmanifold_edges.size == 0)
+
+    @functools.cached_property
+    def _components(self) -> tuple[int, np.ndarray]:
+        # Faces sharing an edge are in one component.
+        return _face_components(self.faces, self.edges, self._corner_pairs, self.nonmanifold_vertices.size == 0)
+
+    @property
+    def face_components(self) -> np.ndarray:
+        return self._components[1]
+
+    @property
+    def n_components(self) -> int:
+        return self._components[0]
+
+    @property
+    def _corner_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs of flat corners `3 f + k` opposite one shared edge: each edge's first corner with each later one."""
+        corners = 3 * self.edge_faces.astype(np.int64) + self.edge_face_corners
+        later = self.edge_faces[:, 1:] >= 0
+        first = np.broadcast_to(corners[:, :1], later.shape)
+        return first[later].astype(np.int32), corners[:, 1:][later].astype(np.int32)
 
     @property
     def n_faces(self) -> int:
@@ -182,8 +222,7 @@ def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
     # One stable sort of the int64 edge keys numbers the edges (lexicographic order) and groups the
     # corners of each edge by ascending flat corner index, which is the edge -> faces order.
     keys = low.astype(np.int64) * n_vertices + high
-    order = np.argsort(keys, kind="stable").astype(np.int32)
-    sorted_keys = keys[order]
+    order, sorted_keys = stable_order(keys)
     is_first = np.empty(n_corners, dtype=bool)
     is_first[0] = True
     np.not_equal(sorted_keys[1:], sorted_keys[:-1], out=is_first[1:])
@@ -198,7 +237,7 @@ def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
     face_edge_signs = np.where(tails < heads, 1, -1).astype(np.int8)
 
     counts = np.diff(starts, append=n_corners)
-    slot = np.arange(n_corners) - starts[edge_of_sorted]
+    slot = np.arange(n_corners, dtype=np.int32) - np.repeat(starts.astype(np.int32), counts)
     width = max(2, int(counts.max()))
     edge_faces = np.full((ne, width), -1, dtype=np.int32)
     edge_face_corners = np.full((ne, width), -1, dtype=np.int8)
@@ -210,22 +249,8 @@ def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
     nonmanifold_edges = np.flatnonzero(counts > 2).astype(np.int32)
     two_face = np.flatnonzero(counts == 2)
     sign_of = face_edge_signs.ravel()
-    same_direction = sign_of[order[starts[two_face]]] == sign_of[order[starts[two_face] + 1]]
+    same_direction = sign_of[first_corner[two_face]] == sign_of[order[starts[two_face] + 1]]
     inconsistent_edges = two_face[same_direction].astype(np.int32)
-
-    # Pairs of corners opposite one shared edge: the first corner of each edge with each later one.
-    linked = ~is_first
-    corner_pairs = (order[starts[edge_of_sorted[linked]]], order[linked])
-
-    referenced = np.zeros(n_vertices, dtype=bool)
-    referenced[faces.ravel()] = True
-    unreferenced = np.flatnonzero(~referenced).astype(np.int32)
-
-    nonmanifold_vertices = _nonmanifold_vertices(faces, corner_pairs, n_vertices, nonmanifold_edges.size == 0)
-    # Faces sharing an edge are in one component.
-    n_components, face_components = _face_components(faces, edges, corner_pairs, nonmanifold_vertices.size == 0)
-    boundary_loops = _boundary_loops(faces, edge_faces, edge_face_corners, boundary_edges)
-    boundary_vertices = np.unique(edges[boundary_edges].ravel()).astype(np.int32)
 
     return MeshTopology(
         n_vertices=int(n_vertices),
@@ -237,13 +262,7 @@ def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
         edge_face_corners=edge_face_corners,
         edge_face_counts=counts.astype(np.int32),
         boundary_edges=boundary_edges,
-        boundary_loops=boundary_loops,
-        boundary_vertices=boundary_vertices,
-        face_components=face_components,
-        n_components=n_components,
-        unreferenced_vertices=unreferenced,
         nonmanifold_edges=nonmanifold_edges,
-        nonmanifold_vertices=nonmanifold_vertices,
         inconsistent_edges=inconsistent_edges,
     )
 
