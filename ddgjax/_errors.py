@@ -47,3 +47,17 @@ def is_traced(array) -> bool:
     import jax
 
     return isinstance(array, jax.core.Tracer)
+
+
+def check_count(name: str, value, minimum: int = 1) -> int:
+    """A Python / NumPy integer `>= minimum` (not a bool) as an `int`, else `DDGInputError` naming the argument."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise DDGInputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def check_positive(name: str, value) -> float:
+    """A finite real number `> 0` as a `float`, else `DDGInputError` naming the argument."""
+    if not (np.isscalar(value) and np.isreal(value) and np.isfinite(value) and value > 0) or isinstance(value, (bool, np.bool_)):
+        raise DDGInputError(f"{name}: expected a finite number > 0, got {value!r}")
+    return float(value)

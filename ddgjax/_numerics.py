@@ -60,10 +60,10 @@ def signed_angle_2d(a: Float[Array, "... 2"], b: Float[Array, "... 2"]) -> Float
 
 
 def unsigned_angle(a: Float[Array, "... d"], b: Float[Array, "... d"]) -> Float[Array, "..."]:
-    """Angle in `[0, pi]` between vectors of any dimension, `atan2(|a x b|, a . b)`.
+    """Angle in `[0, pi]` between two 2-D or 3-D vectors, `atan2(|a x b|, a . b)`.
 
-    `|a x b|` is computed as `sqrt(|a|^2 |b|^2 - (a.b)^2)` only in 2D/3D via the cross product, so
-    it has no cancellation for small angles.
+    `|a x b|` comes from the cross product itself (not `sqrt(|a|^2 |b|^2 - (a.b)^2)`, which cancels
+    for small angles), so the angle is accurate near 0 and pi alike (DESIGN.md, Numerics).
     """
     if a.shape[-1] == 2:
         sin_part = jnp.abs(cross2(a, b))

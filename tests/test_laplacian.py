@@ -14,7 +14,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from jax.test_util import check_grads
 
-from conftest import MESHES, shared_path
+from conftest import shared_path
 from ddgjax._errors import DDGInputError
 from ddgjax.laplacian import (
     cotan_laplacian,
@@ -82,7 +82,6 @@ def test_matches_libigl_and_gpytoolbox(real):
 
 def test_fem_equals_dec_on_every_shared_mesh():
     names = sorted(p.name for p in shared_path("meshes").iterdir() if p.suffix in (".obj", ".off", ".ply"))
-    names = [n for n in names if n != "armadillo_loop1.ply"]  # 346k faces: the benchmark mesh, too slow here
     assert len(names) >= 20
     # One disjoint union of all meshes (its Laplacian is block diagonal): one compilation, not 23.
     vertices, faces, owner, offset = [], [], [], 0

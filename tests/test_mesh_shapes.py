@@ -100,7 +100,7 @@ def test_icosphere_matches_trimesh_up_to_numbering():
 def test_bad_parameters_are_refused():
     with pytest.raises(DDGInputError, match="subdivisions: expected an integer >= 0"):
         icosphere(-1)
-    with pytest.raises(DDGInputError, match="radius: expected a positive finite number"):
+    with pytest.raises(DDGInputError, match="radius: expected a finite number > 0"):
         icosphere(1, radius=0.0)
     with pytest.raises(DDGInputError, match="r: expected a tube radius smaller than R"):
         torus(1.0, 2.0)

@@ -14,25 +14,14 @@ import os
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import DDGInputError, check_float_array
+from .._errors import DDGInputError, check_count, check_float_array, check_positive
 from ._curve import Curve
 
 __all__ = ["figure3_polygon", "flower", "load_polygon", "random_polygon", "regular_polygon", "star"]
 
 
-def _check_count(name: str, value, minimum: int) -> int:
-    """A Python int `>= minimum`, or a DDGInputError naming the argument."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise DDGInputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
-def _check_positive(name: str, value) -> float:
-    """A finite float `> 0`, or a DDGInputError naming the argument."""
-    value = float(value)
-    if not np.isfinite(value) or value <= 0:
-        raise DDGInputError(f"{name}: expected a finite number > 0, got {value!r}")
-    return value
 
 
 def _radial(angles: np.ndarray, radii: np.ndarray, center=(0.0, 0.0)) -> Curve:
@@ -64,8 +53,8 @@ def regular_polygon(n: int, radius: float = 1.0, center: tuple[float, float] = (
     Equivalent: `gpytoolbox.regular_circle_polyline(n + 1)[0][:-1]` for the unit circle (gpytoolbox
     repeats the first vertex at the end).
     """
-    n = _check_count("n", n, 3)
-    radius = _check_positive("radius", radius)
+    n = check_count("n", n, 3)
+    radius = check_positive("radius", radius)
     angles = 2 * np.pi * np.arange(n) / n
     return _radial(angles, np.full(n, radius), center)
 
@@ -85,9 +74,9 @@ def flower(n: int = 128, petals: int = 5, amplitude: float = 0.3, radius: float 
     Returns:
         A closed counterclockwise `Curve` with points of shape `(n, 2)`.
     """
-    n = _check_count("n", n, 3)
-    petals = _check_count("petals", petals, 1)
-    radius = _check_positive("radius", radius)
+    n = check_count("n", n, 3)
+    petals = check_count("petals", petals, 1)
+    radius = check_positive("radius", radius)
     if not 0 <= amplitude < 1:
         raise DDGInputError(f"amplitude: expected a number in [0, 1) so the flower stays simple, got {amplitude!r}")
     angles = 2 * np.pi * np.arange(n) / n
@@ -110,10 +99,10 @@ def star(tips: int = 5, inner_radius: float = 0.5, outer_radius: float = 1.0, su
     Returns:
         A closed counterclockwise `Curve` with points of shape `(2 * tips * subdivisions, 2)`.
     """
-    tips = _check_count("tips", tips, 2)
-    subdivisions = _check_count("subdivisions", subdivisions, 1)
-    outer_radius = _check_positive("outer_radius", outer_radius)
-    inner_radius = _check_positive("inner_radius", inner_radius)
+    tips = check_count("tips", tips, 2)
+    subdivisions = check_count("subdivisions", subdivisions, 1)
+    outer_radius = check_positive("outer_radius", outer_radius)
+    inner_radius = check_positive("inner_radius", inner_radius)
     if inner_radius >= outer_radius:
         raise DDGInputError(f"inner_radius: expected < outer_radius = {outer_radius}, got {inner_radius}")
     angles = np.pi * np.arange(2 * tips) / tips
@@ -143,8 +132,8 @@ def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int 
     Returns:
         A closed counterclockwise `Curve` with points of shape `(n, 2)`.
     """
-    n = _check_count("n", n, 3)
-    modes = _check_count("modes", modes, 2)
+    n = check_count("n", n, 3)
+    modes = check_count("modes", modes, 2)
     if not 0 <= amplitude < 1:
         raise DDGInputError(f"amplitude: expected a number in [0, 1) so the radii stay positive, got {amplitude!r}")
     if not 0 <= jitter < 0.5:

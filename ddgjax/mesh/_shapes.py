@@ -12,7 +12,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._errors import DDGInputError
+from .._errors import DDGInputError, check_count, check_positive
 from ._mesh import Mesh
 
 
@@ -29,8 +29,8 @@ def icosphere(subdivisions=3, radius=1.0, *, dtype=None) -> Mesh:
     vertex numbering, positions within 1e-7), `gpytoolbox.icosphere(s)` (same counts, another
     base icosahedron).
     """
-    _check_count("subdivisions", subdivisions, 0)
-    _check_positive("radius", radius)
+    check_count("subdivisions", subdivisions, 0)
+    check_positive("radius", radius)
     phi = (1.0 + np.sqrt(5.0)) / 2.0
     vertices = np.array(
         [[-1, phi, 0], [1, phi, 0], [-1, -phi, 0], [1, -phi, 0], [0, -1, phi], [0, 1, phi],
@@ -82,9 +82,9 @@ def uv_sphere(n_lat=16, n_lon=32, radius=1.0, *, dtype=None) -> Mesh:
     Equivalent: `trimesh.creation.uv_sphere(radius, count=...)`, a latitude-longitude sphere with
     its own counts convention, numbering and pole treatment.
     """
-    _check_count("n_lat", n_lat, 2)
-    _check_count("n_lon", n_lon, 3)
-    _check_positive("radius", radius)
+    check_count("n_lat", n_lat, 2)
+    check_count("n_lon", n_lon, 3)
+    check_positive("radius", radius)
     polar = np.pi * np.arange(1, n_lat) / n_lat
     azimuth = 2.0 * np.pi * np.arange(n_lon) / n_lon
     p, a = np.meshgrid(polar, azimuth, indexing="ij")
@@ -112,10 +112,10 @@ def torus(R=1.0, r=0.25, n_major=48, n_minor=16, *, dtype=None) -> Mesh:
     along y.) Equivalents: `gpytoolbox.torus(n_major, n_minor, R=R, r=r)`,
     `trimesh.creation.torus(R, r, n_major, n_minor)` (other vertex numberings).
     """
-    _check_count("n_major", n_major, 3)
-    _check_count("n_minor", n_minor, 3)
-    _check_positive("R", R)
-    _check_positive("r", r)
+    check_count("n_major", n_major, 3)
+    check_count("n_minor", n_minor, 3)
+    check_positive("R", R)
+    check_positive("r", r)
     if r >= R:
         raise DDGInputError(f"r: expected a tube radius smaller than R={R} (a torus without self-intersection), got {r}")
     u = 2.0 * np.pi * np.arange(n_major) / n_major
@@ -140,8 +140,8 @@ def disk(n_rings=8, radius=1.0, *, dtype=None) -> Mesh:
     build disks by triangulating a boundary polygon instead (`gpytoolbox.regular_circle_polyline` +
     `gpytoolbox.triangulate`), with other interior points.
     """
-    _check_count("n_rings", n_rings, 1)
-    _check_positive("radius", radius)
+    check_count("n_rings", n_rings, 1)
+    check_positive("radius", radius)
     counts = 6 * np.arange(n_rings + 1)
     counts[0] = 1
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -184,9 +184,9 @@ def grid(nx=8, ny=8, size=1.0, *, dtype=None) -> Mesh:
     `gpytoolbox.regular_square_mesh(nx + 1, ny + 1)` (on `[0, 1]^2` and `[-1, 1]^2`, 2-D vertices,
     possibly other diagonals).
     """
-    _check_count("nx", nx, 1)
-    _check_count("ny", ny, 1)
-    _check_positive("size", size)
+    check_count("nx", nx, 1)
+    check_count("ny", ny, 1)
+    check_positive("size", size)
     x = size * (np.arange(nx + 1) / nx - 0.5)
     y = size * (np.arange(ny + 1) / ny - 0.5)
     xx, yy = np.meshgrid(x, y, indexing="xy")
@@ -206,13 +206,3 @@ def _quads_to_triangles(a, b, c, d) -> np.ndarray:
 def _mesh(vertices: np.ndarray, faces: np.ndarray, dtype) -> Mesh:
     mesh = Mesh.from_arrays(vertices, faces)
     return mesh if dtype is None else mesh.with_vertices(jnp.asarray(vertices, dtype=dtype))
-
-
-def _check_count(name: str, value, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise DDGInputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-
-
-def _check_positive(name: str, value) -> None:
-    if not (np.isscalar(value) and np.isfinite(value) and value > 0):
-        raise DDGInputError(f"{name}: expected a positive finite number, got {value!r}")
