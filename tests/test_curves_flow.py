@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import math
 
+import curvey
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-from ddgjax._errors import DDGInputError
-import curvey
+import shapely
 from curvey.flow import CurveShorteningFlow
 
+from ddgjax._errors import DDGInputError
 from ddgjax.curves import (
     Curve,
     curvature_vectors,
@@ -141,7 +141,6 @@ def test_no_flow_guarantees_simplicity(shape_runs):
             continue
         assert first > 0, (name, kind)
         # Independent confirmation with shapely (exact predicates) on the states around that step.
-        shapely = pytest.importorskip("shapely")
         around = curve_shortening_flow(
             curve, kind=kind, tau=run.tau, steps=first + 1, save_every=1, rescale="area", check_simple="saved"
         ).points

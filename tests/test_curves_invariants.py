@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -184,7 +185,6 @@ def test_property_invariance(seed, scale, angle):
 
 
 def test_clearance_against_shapely():
-    shapely = pytest.importorskip("shapely")
     for curve in (star(), random_polygon(30, seed=2), Curve(np.asarray(star().points)[:12], closed=False)):
         simple, clearance = simplicity_and_clearance(curve)
         points = np.asarray(curve.points)
@@ -205,7 +205,6 @@ def test_clearance_against_shapely():
 
 
 def test_near_and_far_clearances_split_by_distance_along_the_curve():
-    shapely = pytest.importorskip("shapely")
     curve = random_polygon(24, seed=2)
     points = np.asarray(curve.points)
     n = len(points)
