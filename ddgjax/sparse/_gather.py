@@ -64,12 +64,39 @@ def gather_sum(
 
 
 def _gather(x, index):
-    return jnp.take(x, index, axis=0, mode="fill", fill_value=0).sum(axis=1)
+    # One gather per column of `index`, added up: a single elementwise kernel. (Gathering the
+    # `(m, k)` block and reducing over its short last axis makes XLA's CPU backend emit a separate
+    # reduction, 3x slower for the cotan assembly's k = 2.)
+    total = jnp.zeros((index.shape[0],) + x.shape[1:], x.dtype)
+    for k in range(index.shape[1]):
+        total = total + jnp.take(x, index[:, k], axis=0, mode="fill", fill_value=0)
+    return total
 
 
 def _impl(x, index, transpose_index):
     del transpose_index
     return _gather(x, index)
+
+
+def _lower(x, index, transpose_index):
+    """The compiled form: `_impl` on `x` computed into a buffer first (`_materialized`)."""
+    return _materialized(_impl(_materialized(x, index), index, transpose_index), index)
+
+
+def _materialized(x, index):
+    """`x`, behind a boundary that stops XLA from fusing the computation of `x` into the gather.
+
+    Each element of `x` is read by several rows of `index` in scattered order, so a fused producer
+    (e.g. the per-face cotangent formulas) would be recomputed per read, with random access to its
+    own inputs: the cotan assembly ran 2-3x slower that way (armadillo_loop1: 122 against 38 ms
+    for the corner -> slot step; benchmarks/README.md). XLA's CPU pipeline drops
+    `lax.optimization_barrier` before fusion but keeps a conditional, which it cannot fuse across;
+    the predicate (indices are non-negative by contract) is a run-time value, so the conditional
+    stays, and the other branch (NaN, never taken for valid input) keeps XLA from merging the two.
+    """
+    if index.size == 0:
+        return x
+    return jax.lax.cond(index[0, 0] >= 0, lambda v: v, lambda v: jnp.full_like(v, jnp.nan), x)
 
 
 def _abstract_eval(x, index, transpose_index):
@@ -112,7 +139,7 @@ def _batch(args, dims):
 
 gather_sum_p.def_impl(_impl)
 gather_sum_p.def_abstract_eval(_abstract_eval)
-mlir.register_lowering(gather_sum_p, mlir.lower_fun(_impl, multiple_results=False))
+mlir.register_lowering(gather_sum_p, mlir.lower_fun(_lower, multiple_results=False))
 ad.defjvp(gather_sum_p, _jvp, None, None)
 ad.primitive_transposes[gather_sum_p] = _transpose
 batching.primitive_batchers[gather_sum_p] = _batch
