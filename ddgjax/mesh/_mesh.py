@@ -8,6 +8,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_float_array, is_traced
+from .._host import to_device
 from ..sparse._pattern import SparsityPattern
 from ._topology import MeshTopology, build_topology, validate_faces
 
@@ -81,18 +82,21 @@ class Mesh(eqx.Module):
         """A mesh with the given (already built) topology and vertex positions."""
         pattern, source = SparsityPattern.from_edges(topology.edges, topology.n_vertices)
         slot_corners, corner_slots = _pattern_corner_maps(topology, source)
+        device = to_device(
+            faces=topology.faces,
+            edges=topology.edges,
+            face_edges=topology.face_edges,
+            face_edge_signs=topology.face_edge_signs.astype(np.int32),
+            edge_faces=topology.edge_faces,
+            edge_face_corners=topology.edge_face_corners.astype(np.int32),
+            vertex_pattern_source=source,
+            vertex_pattern_corners=slot_corners,
+            corner_pattern_slots=corner_slots,
+        )
         return cls(
             vertices=vertices,
-            faces=jnp.asarray(topology.faces),
-            edges=jnp.asarray(topology.edges),
-            face_edges=jnp.asarray(topology.face_edges),
-            face_edge_signs=jnp.asarray(topology.face_edge_signs, dtype=jnp.int32),
-            edge_faces=jnp.asarray(topology.edge_faces),
-            edge_face_corners=jnp.asarray(topology.edge_face_corners, dtype=jnp.int32),
             vertex_pattern=pattern,
-            vertex_pattern_source=jnp.asarray(source),
-            vertex_pattern_corners=jnp.asarray(slot_corners),
-            corner_pattern_slots=jnp.asarray(corner_slots),
+            **device,
             topology=topology,
         )
 

@@ -34,6 +34,7 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from .._errors import DDGInputError, is_traced
+from .._host import to_device
 
 # Cost of one COO-tail entry relative to one ELL slot (scatter vs contiguous multiply-add).
 _TAIL_COST = 3
@@ -222,15 +223,12 @@ class SparsityPattern(eqx.Module):
         transpose_slot[slot_low_high] = slot_high_low
         transpose_slot[slot_high_low] = slot_low_high
         pattern = SparsityPattern(
-            rows=jnp.asarray(storage_rows),
-            cols=jnp.asarray(storage_cols),
-            indptr=jnp.asarray(indptr),
+            **to_device(rows=storage_rows, cols=storage_cols, indptr=indptr, transpose_slot=transpose_slot),
             shape=(n, n),
             layout="ell",
             width=width,
             diagonal_first=True,
             symmetric=True,
-            transpose_slot=jnp.asarray(transpose_slot),
             transpose_pattern=None,
         )
         return pattern, source
