@@ -133,10 +133,84 @@ def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
 
     `u` of shape `(nv,)` or `(nv, k)`. Differentiable in `u` (`grad_u E = L u`) and in the vertex
     positions, in forward and reverse mode and to second order (Hessian-vector products by
-    forward-over-reverse, as optimistix / lineax Newton operators use them). Reference: Pinkall &
-    Polthier 1993. libigl / gpytoolbox: `0.5 * u @ (L @ u)` with `L = -igl.cotmatrix(V, F)`.
+    forward-over-reverse, as optimistix / lineax Newton operators use them). The derivative in the
+    vertex positions is written out per face (`_face_energy_gradients`, a custom JVP): autodiff
+    of the assembly would carry the per-corner values through the corner -> edge gather and back,
+    1.5x slower (benchmarks/README.md). Reference: Pinkall & Polthier 1993. libigl / gpytoolbox:
+    `0.5 * u @ (L @ u)` with `L = -igl.cotmatrix(V, F)`.
     """
+    return _dirichlet_energy(mesh, u)
+
+
+@jax.custom_jvp
+def _dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
     return 0.5 * jnp.sum(u * laplacian_apply(mesh, u))
+
+
+@_dirichlet_energy.defjvp
+def _dirichlet_energy_jvp(primals, tangents):
+    """`dE = <L u, du> + sum_f sum_j <G_fj, dp_fj>` (`G` from `_face_energy_gradients`; linear in the tangents)."""
+    mesh, u = primals
+    d_mesh, d_u = tangents
+    applied = laplacian_apply(mesh, u)
+    d_energy = jnp.sum(applied * d_u)
+    gradients = _face_energy_gradients(mesh, u)
+    for c in range(3):
+        d_corners = d_mesh.vertices[:, c][mesh.faces]  # (nf, 3): coordinate c of each corner's motion
+        for j in range(3):
+            d_energy = d_energy + jnp.sum(gradients[j][c] * d_corners[:, j])
+    return 0.5 * jnp.sum(u * applied), d_energy
+
+
+def _face_energy_gradients(mesh: Mesh, u: Float[Array, "nv *k"]) -> list[list[Float[Array, " nf"]]]:
+    """`G[j][c]`: derivative of `E = 1/2 u^T L u` in coordinate `c` of corner `j` of each face (closed form).
+
+    Per face, `E_f = sum_k s_k <e_{k+1}, e_{k+2}> / (4 A)` with `s_k = -(u_{k+1} - u_{k+2})^2 / 2`
+    (`e_k` the edge opposite corner `k`, `<e_{k+1}, e_{k+2}> / (4 A) = -cot(alpha_k) / 2`). With
+    `e_0 + e_1 + e_2 = 0` the numerator is `Q = sum_m b_m |e_m|^2`, `b_m = (s_m - s_{m+1} - s_{m+2}) / 2`,
+    so `grad_j Q = 2 (b_{j+1} e_{j+1} - b_{j+2} e_{j+2})`, and with `n = e_1 x e_2 = 2 A N`,
+    `grad_j A = (N x e_j) / 2`:
+
+        G_j = (2 (b_{j+1} e_{j+1} - b_{j+2} e_{j+2}) - Q (n x e_j) / |n|^2) / (2 |n|).
+
+    Zero-area faces contribute 0 (their entries are 0 too), with finite derivatives. Columns of a
+    `(nv, k)` `u` add up in `s_k`.
+    """
+    corners = [mesh.vertices[:, c][mesh.faces] for c in range(3)]
+    points = [[corners[c][:, k] for c in range(3)] for k in range(3)]
+    edges = [[points[(k + 2) % 3][c] - points[(k + 1) % 3][c] for c in range(3)] for k in range(3)]
+    values = u.reshape(u.shape[0], -1)[mesh.faces]  # (nf, 3, columns)
+    weights = []
+    for k in range(3):
+        difference = values[:, (k + 1) % 3] - values[:, (k + 2) % 3]
+        weights.append(-0.5 * jnp.sum(difference * difference, axis=-1))
+    b = [0.5 * (weights[m] - weights[(m + 1) % 3] - weights[(m + 2) % 3]) for m in range(3)]
+    normal = _cross(edges[1], edges[2])
+    inverse_sq = _reciprocal(_dot(normal, normal))
+    inverse_two_n = 0.5 * safe_sqrt(inverse_sq)  # 1 / (2 |n|)
+    numerator = b[0] * _dot(edges[0], edges[0]) + b[1] * _dot(edges[1], edges[1]) + b[2] * _dot(edges[2], edges[2])
+    along = [2 * b[m] * inverse_two_n for m in range(3)]
+    across = numerator * inverse_sq * inverse_two_n
+    gradients = []
+    for j in range(3):
+        turned = _cross(normal, edges[j])
+        gradients.append(
+            [along[(j + 1) % 3] * edges[(j + 1) % 3][c] - along[(j + 2) % 3] * edges[(j + 2) % 3][c] - across * turned[c] for c in range(3)]
+        )
+    return gradients
+
+
+def _dot(a, b):
+    """Dot product of 3-vectors given as coordinate lists (XLA does not vectorise size-3 reductions)."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _reciprocal(x):
+    return safe_div(jnp.ones_like(x), x)
 
 
 def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatrix:
@@ -158,14 +232,10 @@ def _edge_entries(mesh: Mesh) -> Float[Array, " n_off"]:
     points = [[corners[c][:, k] for c in range(3)] for k in range(3)]  # points[k][c], (nf,)
     edges = [[points[(k + 2) % 3][c] - points[(k + 1) % 3][c] for c in range(3)] for k in range(3)]  # opposite corner k
 
-    def dot(a, b):
-        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-    a, b = edges[1], edges[2]
-    normal = [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]  # 2 A n
-    four_areas = 2.0 * safe_sqrt(dot(normal, normal))
+    normal = _cross(edges[1], edges[2])  # 2 A n
+    four_areas = 2.0 * safe_sqrt(_dot(normal, normal))
     # <e_i, e_j> / (4 A) per corner k (the entry of the edge opposite it); 0 on zero-area faces.
-    entries = jnp.stack([safe_div(dot(edges[(k + 1) % 3], edges[(k + 2) % 3]), four_areas) for k in range(3)], axis=1)
+    entries = jnp.stack([safe_div(_dot(edges[(k + 1) % 3], edges[(k + 2) % 3]), four_areas) for k in range(3)], axis=1)
     return gather_sum(entries.reshape(-1), mesh.vertex_pattern_corners, mesh.corner_pattern_slots)
 
 
