@@ -156,9 +156,11 @@ def _dirichlet_energy_jvp(primals, tangents):
     d_energy = jnp.sum(applied * d_u)
     gradients = _face_energy_gradients(mesh, u)
     for c in range(3):
-        d_corners = d_mesh.vertices[:, c][mesh.faces]  # (nf, 3): coordinate c of each corner's motion
         for j in range(3):
-            d_energy = d_energy + jnp.sum(gradients[j][c] * d_corners[:, j])
+            # One (nf,) gather per corner and coordinate: reverse mode scatters each G[j][c] as it is.
+            # (Gathering an (nf, 3) block would make XLA stack the three corners first, a
+            # concatenation it does not vectorise: 1.2-1.7x slower gradients.)
+            d_energy = d_energy + jnp.sum(gradients[j][c] * d_mesh.vertices[:, c][mesh.faces[:, j]])
     return 0.5 * jnp.sum(u * applied), d_energy
 
 
