@@ -345,8 +345,8 @@ def test_laplacian_apply_is_matrix_free_and_equals_the_matrix():
         np.testing.assert_allclose(_apply(mesh, jnp.asarray(U[:, 0])), L @ U[:, 0], rtol=0, atol=1e-13 * scale)
     # No matrix and no scatter-add: the corner -> edge gather is a fixed gather; the tail's sorted
     # segment_sum is absent on an icosphere. The energy's gradient in the vertices is per face (its
-    # custom JVP): the corner -> edge gather is not transposed, only the three coordinate gathers
-    # of the corners are (one scatter-add per corner and coordinate).
+    # custom JVP): the corner -> edge gather is not transposed, only the corner coordinate gathers
+    # of the corners are (nine scatter-adds, one per corner and coordinate).
     mesh = icosphere(2)
     forward = str(jax.make_jaxpr(lambda W: laplacian_apply(mesh.with_vertices(W), W))(mesh.vertices))
     assert "scatter-add" not in forward and forward.count("ddgjax_gather_sum") == 1
