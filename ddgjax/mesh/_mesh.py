@@ -143,7 +143,7 @@ def _pattern_corner_maps(topology: MeshTopology, source: np.ndarray) -> tuple[np
     # every index here is below nv + 2 ne + 3 nf.
     off_source = source[nv:].astype(np.int32)
     edge = off_source - np.int32(nv)
-    edge[edge >= ne] -= np.int32(ne)  # high -> low entries; padding (2 ne) lands on ne, the padding row
+    np.subtract(edge, np.int32(ne), out=edge, where=edge >= ne)  # high -> low entries; padding (2 ne) lands on ne, the padding row
     edge_corners = np.full((ne + 1, topology.edge_faces.shape[1]), 3 * nf, dtype=np.int32)
     np.copyto(edge_corners[:ne], 3 * topology.edge_faces + topology.edge_face_corners, where=topology.edge_faces >= 0)
     slot_corners = np.take(edge_corners, edge, axis=0)
@@ -151,8 +151,8 @@ def _pattern_corner_maps(topology: MeshTopology, source: np.ndarray) -> tuple[np
     slot_of_source[off_source] = np.arange(off_source.size, dtype=np.int32)
     corner_edges = topology.face_edges.reshape(-1)
     corner_slots = np.empty((corner_edges.size, 2), dtype=np.int32)
-    corner_slots[:, 0] = slot_of_source[nv + corner_edges]
-    corner_slots[:, 1] = slot_of_source[nv + ne + corner_edges]
+    corner_slots[:, 0] = np.take(slot_of_source[nv : nv + ne], corner_edges)
+    corner_slots[:, 1] = np.take(slot_of_source[nv + ne : nv + 2 * ne], corner_edges)
     return slot_corners, corner_slots
 
 

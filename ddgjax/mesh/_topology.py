@@ -251,12 +251,14 @@ def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
     counts = np.diff(starts, append=n_corners)
     slot = np.arange(n_corners, dtype=np.int32) - np.repeat(starts.astype(np.int32), counts)
     width = max(2, int(counts.max()))
-    edge_faces = np.full((ne, width), -1, dtype=np.int32)
-    edge_face_corners = np.full((ne, width), -1, dtype=np.int8)
-    flat_slot = edge_of_sorted * width + slot
-    face_of_sorted = order // 3
-    edge_faces.ravel()[flat_slot] = face_of_sorted
-    edge_face_corners.ravel()[flat_slot] = order - 3 * face_of_sorted
+    # One write of the flat corners 3 f + k in edge order, then whole-array divisions (two scattered
+    # writes, one into int8, took 2x as long).
+    edge_corners = np.full((ne, width), -1, dtype=np.int32)
+    edge_corners.ravel()[edge_of_sorted * width + slot] = order
+    padding = edge_corners < 0
+    edge_faces = np.floor_divide(edge_corners, 3)  # padding: -1 // 3 = -1
+    edge_face_corners = (edge_corners - 3 * edge_faces).astype(np.int8)
+    edge_face_corners[padding] = -1
 
     boundary_edges = np.flatnonzero(counts == 1).astype(np.int32)
     nonmanifold_edges = np.flatnonzero(counts > 2).astype(np.int32)
