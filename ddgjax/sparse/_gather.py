@@ -5,8 +5,9 @@ measured facts). When the incidence is fixed, the transpose is itself a gather o
 incidence, built once on the host. `gather_sum` is a linear JAX primitive that knows this:
 
 - forward (`jit`, eager): one `jnp.take(x, index[:, k], mode="fill")` per column of `index`, added
-  up; compiled with `x` and the result on either side of a fusion boundary (`_materialized`), so
-  XLA neither recomputes the producer of `x` per read nor the gather per consumer;
+  up; on CPU compiled with `x` and the result on either side of a fusion boundary
+  (`_materialized`), so XLA neither recomputes the producer of `x` per read nor the gather per
+  consumer;
 - forward mode (`jax.jvp`, `jax.jacfwd`): it is linear, so the tangent is `gather_sum` of the tangent;
 - reverse mode (`jax.grad`, `jax.linear_transpose`): the transpose is `gather_sum` with the two
   index arrays swapped, so gradients, Hessian-vector products (forward-over-reverse or
@@ -146,7 +147,11 @@ def _batch(args, dims):
 
 gather_sum_p.def_impl(_impl)
 gather_sum_p.def_abstract_eval(_abstract_eval)
-mlir.register_lowering(gather_sum_p, mlir.lower_fun(_lower, multiple_results=False))
+mlir.register_lowering(gather_sum_p, mlir.lower_fun(_impl, multiple_results=False))
+# The fusion boundaries are for XLA's CPU backend (where they were measured). On a GPU a
+# conditional reads its predicate on the host, a synchronisation per call, so other platforms get
+# the plain gather.
+mlir.register_lowering(gather_sum_p, mlir.lower_fun(_lower, multiple_results=False), platform="cpu")
 ad.defjvp(gather_sum_p, _jvp, None, None)
 ad.primitive_transposes[gather_sum_p] = _transpose
 batching.primitive_batchers[gather_sum_p] = _batch
