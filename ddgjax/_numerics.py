@@ -35,6 +35,11 @@ def safe_div(num: Float[Array, "..."], den: Float[Array, "..."], fill: float = 0
     return jnp.where(nonzero, num / jnp.where(nonzero, den, 1.0), fill)
 
 
+def safe_reciprocal(x: Float[Array, "..."]) -> Float[Array, "..."]:
+    """`1 / x`, or 0 where `x == 0` (a zero-length edge, a zero-area face), with finite gradients."""
+    return safe_div(jnp.ones_like(x), x)
+
+
 def safe_normalize(x: Float[Array, "... d"], axis: int = -1) -> Float[Array, "... d"]:
     """`x / |x|`, or the zero vector where `|x| == 0`, with finite gradients."""
     return safe_div(x, safe_norm(x, axis=axis, keepdims=True))

@@ -53,7 +53,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from .._errors import DDGInputError, check_count, is_traced
-from .._numerics import cross2, half_angle_ratio, safe_div, safe_norm, safe_sqrt
+from .._numerics import cross2, half_angle_ratio, safe_div, safe_norm, safe_reciprocal, safe_sqrt
 from ._curvature import _interior_mask, check_kind, length, total_curvature
 from ._curve import Curve, unchecked_curve
 from ._invariants import NEAR_EDGES, centroid, cyclic_residual, enclosed_area, is_simple, isoperimetric_ratio, near_and_far_clearances
@@ -123,11 +123,6 @@ class CurveFlowResult(eqx.Module):
         return unchecked_curve(self.points[index], self.closed)
 
 
-def _reciprocal(x: Float[Array, "..."]) -> Float[Array, "..."]:
-    """`1 / x`, 0 where `x == 0` (coincident points), finite gradients."""
-    return safe_div(jnp.ones_like(x), x)
-
-
 def _flow_weights(edges: Float[Array, "n 2"], closed: bool, kind: str):
     """Weights `alpha, beta` with `kappa_i N_i = alpha_i (p_{i-1} - p_i) + beta_i (p_{i+1} - p_i)` (module docstring).
 
@@ -143,17 +138,17 @@ def _flow_weights(edges: Float[Array, "n 2"], closed: bool, kind: str):
         u = jnp.roll(edges, 1, axis=0)
         ux, uy, vx, vy = u[:, 0], u[:, 1], edges[:, 0], edges[:, 1]
         wx, wy = ux + vx, uy + vy
-        scale = 2 * _reciprocal(wx * wx + wy * wy)
+        scale = 2 * safe_reciprocal(wx * wx + wy * wy)
         alpha = scale * safe_div(ux * wx + uy * wy, ux * ux + uy * uy)
         beta = scale * safe_div(vx * wx + vy * wy, vx * vx + vy * vy)
     else:
-        inverse = _reciprocal(safe_norm(edges))
+        inverse = safe_reciprocal(safe_norm(edges))
         unit_v = edges * inverse[:, None]
         unit_u, inverse_u = jnp.roll(unit_v, 1, axis=0), jnp.roll(inverse, 1)
         if kind == "B":
             ratio = 1.0
         elif kind == "C":
-            ratio = 2 * _reciprocal(safe_norm(unit_u + unit_v))  # 1 / cos(theta / 2)
+            ratio = 2 * safe_reciprocal(safe_norm(unit_u + unit_v))  # 1 / cos(theta / 2)
         else:
             difference = unit_v - unit_u
             sine_sq = 0.25 * jnp.sum(difference * difference, axis=-1)  # sin(theta/2)^2
@@ -192,7 +187,7 @@ def _ratio_and_slope(unit_u, unit_v, kind):
     sine_sq = 0.25 * _dot(difference, difference)
     cosine = 0.5 * safe_norm(unit_u + unit_v)
     if kind == "C":
-        return _reciprocal(cosine), 0.5 * safe_div(safe_sqrt(sine_sq), cosine * cosine)
+        return safe_reciprocal(cosine), 0.5 * safe_div(safe_sqrt(sine_sq), cosine * cosine)
     ratio = half_angle_ratio(sine_sq, cosine)
     small = sine_sq < 1e-8
     sine = jnp.where(small, 1.0, safe_sqrt(sine_sq))
@@ -214,7 +209,7 @@ def _explicit_step_jvp(closed, kind, primals, tangents):
     - D: `kappa N = q (b e - a u)` with `w = u + e`, `a = u.w / |u|^2`, `b = e.w / |e|^2`,
       `q = 2 / |w|^2`; `da = (du.w + u.dw - 2 a u.du) / |u|^2` (likewise `db`), `dq = -q^2 w.dw`.
 
-    Zero-length edges keep the NaN-safe zeros of the primal (every reciprocal is `_reciprocal`).
+    Zero-length edges keep the NaN-safe zeros of the primal (every reciprocal is `safe_reciprocal`).
     """
     points, tau = primals
     d_points, d_tau = tangents
@@ -222,8 +217,8 @@ def _explicit_step_jvp(closed, kind, primals, tangents):
     if kind == "D":
         u, du = jnp.roll(edges, 1, axis=0), jnp.roll(d_edges, 1, axis=0)
         w, dw = u + edges, du + d_edges
-        inverse_u, inverse_v = _reciprocal(_dot(u, u)), _reciprocal(_dot(edges, edges))
-        q = 2 * _reciprocal(_dot(w, w))
+        inverse_u, inverse_v = safe_reciprocal(_dot(u, u)), safe_reciprocal(_dot(edges, edges))
+        q = 2 * safe_reciprocal(_dot(w, w))
         a, b = _dot(u, w) * inverse_u, _dot(edges, w) * inverse_v
         da = (_dot(du, w) + _dot(u, dw) - 2 * a * _dot(u, du)) * inverse_u
         db = (_dot(d_edges, w) + _dot(edges, dw) - 2 * b * _dot(edges, d_edges)) * inverse_v
@@ -232,7 +227,7 @@ def _explicit_step_jvp(closed, kind, primals, tangents):
         vector = q[:, None] * direction
         d_vector = dq[:, None] * direction + q[:, None] * (db[:, None] * edges + b[:, None] * d_edges - da[:, None] * u - a[:, None] * du)
     else:
-        inverse = _reciprocal(safe_norm(edges))
+        inverse = safe_reciprocal(safe_norm(edges))
         unit_v = edges * inverse[:, None]
         unit_u = jnp.roll(unit_v, 1, axis=0)
         d_unit_v = (d_edges - _dot(unit_v, d_edges)[:, None] * unit_v) * inverse[:, None]
@@ -302,7 +297,7 @@ def _certificate(points, closed):
     allowance = 64 * jnp.finfo(points.dtype).eps * jnp.max(jnp.abs(points))
     centred = points - jnp.mean(points, axis=0)
     margins = jnp.maximum(jnp.stack([near, far]) - allowance, 0.0)
-    reference = (points, centred, jnp.sum(centred * centred), _reciprocal(margins * margins))
+    reference = (points, centred, jnp.sum(centred * centred), safe_reciprocal(margins * margins))
     return simple & jnp.all(jnp.isfinite(points)), reference
 
 
@@ -319,7 +314,7 @@ def _certified(p, reference) -> Bool[Array, ""]:
     a_re, a_im = safe_div(sums[2], norm_sq), safe_div(sums[3], norm_sq)
     dx = x - sums[0] / x.shape[0] - (a_re * rx - a_im * ry)
     dy = y - sums[1] / x.shape[0] - (a_re * ry + a_im * rx)
-    far = 4 * (dx * dx + dy * dy) * inverse_margins_sq[1] * _reciprocal(a_re * a_re + a_im * a_im)
+    far = 4 * (dx * dx + dy * dy) * inverse_margins_sq[1] * safe_reciprocal(a_re * a_re + a_im * a_im)
     mx, my = x - points[:, 0], y - points[:, 1]
     near = jnp.zeros_like(x)
     for offset in range(1, NEAR_EDGES + 2):  # vertices of one near edge pair are at most NEAR_EDGES + 1 apart

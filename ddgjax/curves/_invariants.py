@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._numerics import cross2, safe_div, safe_norm, safe_sqrt
+from .._numerics import cross2, safe_div, safe_norm, safe_reciprocal, safe_sqrt
 from ._curvature import _edge_lengths
 from ._curve import Curve
 
@@ -158,7 +158,7 @@ def _edge_pair_sweep(curve: Curve, block: int, with_clearance: bool):
     directions = ends - starts
     start_x, start_y, end_x, end_y = starts[:, 0], starts[:, 1], ends[:, 0], ends[:, 1]
     direction_x, direction_y = end_x - start_x, end_y - start_y
-    inverse_lengths_sq = safe_div(jnp.ones(m, points.dtype), direction_x**2 + direction_y**2)
+    inverse_lengths_sq = safe_reciprocal(direction_x**2 + direction_y**2)
 
     def row(i):
         cross = _segments_intersect(starts[i], ends[i], starts, ends, tolerance)

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
-from .._numerics import safe_div, safe_norm
+from .._numerics import safe_div, safe_norm, safe_reciprocal
 from ..mesh._geometry import edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
@@ -77,10 +77,10 @@ def hodge_star_entries(
     elif degree == 2:
         mesh.topology.require_oriented("ddgjax.dec.hodge2")
         areas = face_areas(mesh)
-        return areas if inverse else safe_div(jnp.ones_like(areas), areas)
+        return areas if inverse else safe_reciprocal(areas)
     else:
         raise DDGInputError(f"degree: expected 0, 1 or 2 (forms on a triangle mesh), got {degree!r}")
-    return safe_div(jnp.ones_like(entries), entries) if inverse else entries
+    return safe_reciprocal(entries) if inverse else entries
 
 
 def hodge0(mesh: Mesh, *, dual: str = "circumcentric", inverse: bool = False) -> SparseMatrix:

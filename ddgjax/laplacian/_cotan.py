@@ -29,7 +29,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError, is_traced
-from .._numerics import safe_div, safe_sqrt
+from .._numerics import safe_div, safe_reciprocal, safe_sqrt
 from ..dec import d0, hodge1
 from ..mesh._mesh import Mesh
 from ..mesh._topology import MeshTopology
@@ -188,7 +188,7 @@ def _face_energy_gradients(mesh: Mesh, u: Float[Array, "nv *k"]) -> list[list[Fl
         weights.append(-0.5 * jnp.sum(difference * difference, axis=-1))
     b = [0.5 * (weights[m] - weights[(m + 1) % 3] - weights[(m + 2) % 3]) for m in range(3)]
     normal = _cross(edges[1], edges[2])
-    inverse_sq = _reciprocal(_dot(normal, normal))
+    inverse_sq = safe_reciprocal(_dot(normal, normal))
     inverse_two_n = 0.5 * safe_sqrt(inverse_sq)  # 1 / (2 |n|)
     numerator = b[0] * _dot(edges[0], edges[0]) + b[1] * _dot(edges[1], edges[1]) + b[2] * _dot(edges[2], edges[2])
     along = [2 * b[m] * inverse_two_n for m in range(3)]
@@ -209,10 +209,6 @@ def _dot(a, b):
 
 def _cross(a, b):
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-
-
-def _reciprocal(x):
-    return safe_div(jnp.ones_like(x), x)
 
 
 def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatrix:
