@@ -83,6 +83,14 @@ class MeshTopology:
     boundary_edges: np.ndarray
     nonmanifold_edges: np.ndarray
 
+    def __post_init__(self):
+        # Read-only: a Mesh's device arrays may share these buffers (`ddgjax._host.to_device` does
+        # not copy on CPU), so an in-place edit would change the mesh behind jit's back.
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+
     # The vertex- and component-level checks cost more than the rest of the topology together
     # (measured at 327k faces: fan walk 100 ms, components 40 ms, against 270 ms for libigl's whole
     # cotmatrix) and no operator on an edge-manifold mesh needs them, so they are computed on first
