@@ -178,16 +178,13 @@ def _face_energy_gradients(mesh: Mesh, u: Float[Array, "nv *k"]) -> list[list[Fl
     Zero-area faces contribute 0 (their entries are 0 too), with finite derivatives. Columns of a
     `(nv, k)` `u` add up in `s_k`.
     """
-    corners = [mesh.vertices[:, c][mesh.faces] for c in range(3)]
-    points = [[corners[c][:, k] for c in range(3)] for k in range(3)]
-    edges = [[points[(k + 2) % 3][c] - points[(k + 1) % 3][c] for c in range(3)] for k in range(3)]
+    edges, normal = _face_edges(mesh)
     values = u.reshape(u.shape[0], -1)[mesh.faces]  # (nf, 3, columns)
     weights = []
     for k in range(3):
         difference = values[:, (k + 1) % 3] - values[:, (k + 2) % 3]
         weights.append(-0.5 * jnp.sum(difference * difference, axis=-1))
     b = [0.5 * (weights[m] - weights[(m + 1) % 3] - weights[(m + 2) % 3]) for m in range(3)]
-    normal = _cross(edges[1], edges[2])
     inverse_sq = safe_reciprocal(_dot(normal, normal))
     inverse_two_n = 0.5 * safe_sqrt(inverse_sq)  # 1 / (2 |n|)
     numerator = b[0] * _dot(edges[0], edges[0]) + b[1] * _dot(edges[1], edges[1]) + b[2] * _dot(edges[2], edges[2])
@@ -200,6 +197,20 @@ def _face_energy_gradients(mesh: Mesh, u: Float[Array, "nv *k"]) -> list[list[Fl
             [along[(j + 1) % 3] * edges[(j + 1) % 3][c] - along[(j + 2) % 3] * edges[(j + 2) % 3][c] - across * turned[c] for c in range(3)]
         )
     return gradients
+
+
+def _face_edges(mesh: Mesh) -> tuple[list[list[Float[Array, " nf"]]], list[Float[Array, " nf"]]]:
+    """`(edges, normal)` per face as coordinate lists: `edges[k][c]`, coordinate `c` of the edge opposite
+    corner `k` (`p_{k+2} - p_{k+1}`), and `normal[c] = (e_1 x e_2)[c] = 2 A N` (counterclockwise corners).
+
+    Coordinate by coordinate on `(nf,)` arrays: XLA's CPU backend does not vectorise reductions over a
+    size-3 axis, and this form assembles 2x faster than `(nf, 3, 3)` arrays with `sum(axis=-1)` /
+    `jnp.cross` (benchmarks/README.md).
+    """
+    corners = [mesh.vertices[:, c][mesh.faces] for c in range(3)]  # coordinate c of each face's corners, (nf, 3)
+    points = [[corners[c][:, k] for c in range(3)] for k in range(3)]  # points[k][c], (nf,)
+    edges = [[points[(k + 2) % 3][c] - points[(k + 1) % 3][c] for c in range(3)] for k in range(3)]
+    return edges, _cross(edges[1], edges[2])
 
 
 def _dot(a, b):
@@ -220,17 +231,8 @@ def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatri
 
 
 def _edge_entries(mesh: Mesh) -> Float[Array, " n_off"]:
-    """FEM stiffness `L_ij = sum_f <e_i, e_j> / (4 A_f)` on each off-diagonal slot of `mesh.vertex_pattern`.
-
-    Written coordinate by coordinate on `(nf,)` arrays: XLA's CPU backend does not vectorise
-    reductions over a size-3 axis, and this form assembles 2x faster than `(nf, 3, 3)` arrays with
-    `sum(axis=-1)` / `jnp.cross` (benchmarks/README.md).
-    """
-    corners = [mesh.vertices[:, c][mesh.faces] for c in range(3)]  # coordinate c of each face's corners, (nf, 3)
-    points = [[corners[c][:, k] for c in range(3)] for k in range(3)]  # points[k][c], (nf,)
-    edges = [[points[(k + 2) % 3][c] - points[(k + 1) % 3][c] for c in range(3)] for k in range(3)]  # opposite corner k
-
-    normal = _cross(edges[1], edges[2])  # 2 A n
+    """FEM stiffness `L_ij = sum_f <e_i, e_j> / (4 A_f)` on each off-diagonal slot of `mesh.vertex_pattern`."""
+    edges, normal = _face_edges(mesh)
     four_areas = 2.0 * safe_sqrt(_dot(normal, normal))
     # <e_i, e_j> / (4 A) per corner k (the entry of the edge opposite it); 0 on zero-area faces.
     entries = jnp.stack([safe_div(_dot(edges[(k + 1) % 3], edges[(k + 2) % 3]), four_areas) for k in range(3)], axis=1)
