@@ -14,6 +14,7 @@ from ddgjax._numerics import (
     safe_div,
     safe_norm,
     safe_normalize,
+    safe_reciprocal,
     safe_sqrt,
     signed_angle_2d,
     unsigned_angle,
@@ -59,6 +60,12 @@ def test_safe_div_values_fill_and_gradients():
     d_num, d_den = jax.vmap(jax.grad(safe_div, argnums=(0, 1)))(num, den)
     np.testing.assert_allclose(d_num, [0.25, 0.0, -0.5], rtol=1e-15)
     np.testing.assert_allclose(d_den, [-1 / 16, 0.0, -0.75], rtol=1e-15)
+
+
+def test_safe_reciprocal_is_zero_with_zero_gradient_at_zero():
+    x = jnp.array([4.0, 0.0, -0.5])
+    np.testing.assert_array_equal(safe_reciprocal(x), [0.25, 0.0, -2.0])
+    np.testing.assert_allclose(jax.vmap(jax.grad(safe_reciprocal))(x), [-1 / 16, 0.0, -4.0], rtol=1e-15)
 
 
 def test_safe_normalize_values_and_gradients():
