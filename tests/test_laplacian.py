@@ -345,8 +345,8 @@ def test_laplacian_apply_is_matrix_free_and_equals_the_matrix():
         np.testing.assert_allclose(_apply(mesh, jnp.asarray(U[:, 0])), L @ U[:, 0], rtol=0, atol=1e-13 * scale)
     # No matrix and no scatter-add: the corner -> edge gather is a fixed gather; the tail's sorted
     # segment_sum is absent on an icosphere. The energy's gradient in the vertices is per face (its
-    # custom JVP): the corner -> edge gather is not transposed, only the corner coordinate gathers
-    # of the corners are (nine scatter-adds, one per corner and coordinate).
+    # custom JVP): the corner -> edge gather is not transposed, only the coordinate gathers of the
+    # corners are (nine scatter-adds, one per corner and coordinate).
     mesh = icosphere(2)
     forward = str(jax.make_jaxpr(lambda W: laplacian_apply(mesh.with_vertices(W), W))(mesh.vertices))
     assert "scatter-add" not in forward and forward.count("ddgjax_gather_sum") == 1
@@ -438,3 +438,16 @@ def test_energy_gradient_closed_form_equals_autodiff_of_the_assembly(real):
         assembled = jax.jit(jax.grad(lambda W: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W)) @ u)))(jnp.asarray(V))
         assert np.all(np.isfinite(closed))
         np.testing.assert_allclose(closed, assembled, rtol=0, atol=1e-11 * np.abs(assembled).max())
+
+
+@pytest.mark.parametrize("scale", [1e-8, 1e8])
+def test_energy_gradient_in_float32_scales_as_one_over_length(scale):
+    """`E` is scale-invariant on a surface, so `grad_V E` scales as `1 / s`; the closed form keeps its
+    factors in float32 range at edge lengths 1e-8 and 1e8 (`|n|^-3` alone would overflow at 1e-8)."""
+    mesh = icosphere(2)
+    V = np.asarray(mesh.vertices, np.float32)
+    u = jnp.asarray(np.random.default_rng(5).standard_normal(mesh.n_vertices), jnp.float32)
+    gradient = jax.jit(jax.grad(lambda W: dirichlet_energy(mesh.with_vertices(W), u)))
+    unit, scaled = gradient(jnp.asarray(V)), gradient(jnp.asarray(V * np.float32(scale)))
+    assert scaled.dtype == jnp.float32 and np.all(np.isfinite(scaled))
+    np.testing.assert_allclose(np.asarray(scaled) * scale, unit, rtol=0, atol=1e-5 * np.abs(unit).max())
