@@ -87,9 +87,9 @@ class SparseMatrix(eqx.Module):
         first = 1 if pattern.diagonal_first else 0
         # One gather of every row's columns, row by row (`(n_rows, width - first)` indices), then
         # `width` contiguous multiply-adds fused into one pass. Against one gather per ELL block
-        # fused into the sum: 2.6x faster on a mesh in scattered vertex order (armadillo_loop1,
-        # 3.9 -> 1.5 ms per product in a solver loop), equal on well-ordered meshes from 10k
-        # vertices, 4 us slower at 2.5k (benchmarks/README.md).
+        # fused into the sum it trades speed on icospheres for robustness to the vertex order:
+        # armadillo_loop1 3.4 -> 1.8 ms per product (4.0 -> 2.0 in a solver loop; 1.5-1.8x SciPy
+        # -> 0.84-0.92x), icosphere(7) 0.63 -> 0.99 ms (0.47x -> 0.75x SciPy); benchmarks/README.md.
         gathered = take_rows(x, ell_cols[first:].T)
         result = _broadcast(ell_values[0], x) * (x if first else gathered[:, 0])
         for k in range(1, width):
