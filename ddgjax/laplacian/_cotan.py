@@ -181,8 +181,8 @@ def _face_energy_gradients(mesh: Mesh, u: Float[Array, "nv *k"]) -> list[list[Fl
     `G_0 + G_1 + G_2 = 0` (translations keep `E`) and `G_j` lies in the face plane (moving a corner
     off the plane changes the edge lengths only to second order). Zero-area faces contribute 0, with
     finite derivatives; the unit normal and `1 / |n|^2` keep every factor within float32 range for
-    edge lengths from 1e-8 to 1e8 (tests). Columns of a `(nv, k)` `u` add up. Checked against autodiff of the
-    assembled matrix (tests). Reference: J. D. Eshelby, "The force on an elastic singularity" (1951),
+    edge lengths from 1e-8 to 1e8 (tests). Columns of a `(nv, k)` `u` add up. Checked against
+    autodiff of the assembled matrix (tests). Reference: J. D. Eshelby, "The force on an elastic singularity" (1951),
     the energy-momentum tensor; M. C. Delfour, J.-P. Zolesio, "Shapes and Geometries" (2011), shape
     derivatives of the Dirichlet energy.
     """
