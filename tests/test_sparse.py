@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import jax
@@ -61,6 +62,14 @@ def test_products_transpose_and_exports_match_scipy(pair):
     np.testing.assert_allclose(aty, reference.T @ y, rtol=1e-13, atol=1e-14)
     np.testing.assert_allclose(attx, reference @ x, rtol=1e-13, atol=1e-14)
     np.testing.assert_allclose(sums, np.asarray(reference.sum(axis=1)).ravel(), rtol=1e-13)
+    # The stored row-major ELL index is the slot-major one transposed; an ELL pattern made by hand
+    # (no stored index) gives the same product.
+    pattern = matrix.pattern
+    first, n_rows = int(pattern.diagonal_first), matrix.shape[0]
+    slot_major = np.asarray(pattern.cols[: n_rows * pattern.width]).reshape(pattern.width, n_rows)
+    np.testing.assert_array_equal(pattern.row_cols, slot_major[first:].T)
+    by_hand = SparseMatrix(matrix.values, dataclasses.replace(pattern, row_cols=None))
+    np.testing.assert_array_equal(products(by_hand, x, block, y)[0], ax)
     np.testing.assert_array_equal(matrix.todense(), reference.toarray())
     np.testing.assert_array_equal(matrix.to_bcoo().todense(), reference.toarray())
     exported = matrix.to_scipy()
@@ -122,6 +131,8 @@ def test_from_edges_matches_from_coo():
     assert pattern.symmetric and pattern.diagonal_first
     np.testing.assert_array_equal(matrix.T.todense(), expected.T)
     np.testing.assert_array_equal(matrix.diagonal(), np.diag(expected))
+    x = np.arange(1.0, n + 1)
+    np.testing.assert_allclose(matrix @ x, expected @ x, rtol=1e-15)
 
 
 def test_arithmetic_and_pattern_mismatch():

@@ -82,15 +82,19 @@ class SparseMatrix(eqx.Module):
             )
         n_rows, width = self.shape[0], pattern.width
         ell_values = self.values[: n_rows * width].reshape(width, n_rows)
-        ell_cols = pattern.cols[: n_rows * width].reshape(width, n_rows)
         # The diagonal block of a diagonal-first pattern multiplies x itself (no gather).
         first = 1 if pattern.diagonal_first else 0
-        # One gather of every row's columns, row by row (`(n_rows, width - first)` indices), then
-        # `width` contiguous multiply-adds fused into one pass. Against one gather per ELL block
-        # fused into the sum it trades speed on icospheres for robustness to the vertex order:
-        # armadillo_loop1 3.4 -> 1.8 ms per product (4.0 -> 2.0 in a solver loop; 1.5-1.8x SciPy
-        # -> 0.84-0.92x), icosphere(7) 0.63 -> 0.99 ms (0.47x -> 0.75x SciPy); benchmarks/README.md.
-        gathered = take_rows(x, ell_cols[first:].T)
+        # One gather of every row's columns, row by row (`(n_rows, width - first)` indices, stored
+        # row-major in the pattern), then `width` contiguous multiply-adds fused into one pass.
+        # Against one gather per ELL block fused into the sum it trades speed on icospheres for
+        # robustness to the vertex order: armadillo_loop1 3.4 -> 1.8 ms per product (4.0 -> 2.0 in a
+        # solver loop; 1.5-1.8x SciPy -> 0.84-0.92x), icosphere(7) 0.63 -> 0.99 ms (0.47x -> 0.75x
+        # SciPy); benchmarks/README.md.
+        if width > first:
+            index = pattern.row_cols
+            if index is None:  # an ELL pattern assembled by hand: transpose the index here
+                index = pattern.cols[: n_rows * width].reshape(width, n_rows)[first:].T
+            gathered = take_rows(x, index)
         result = _broadcast(ell_values[0], x) * (x if first else gathered[:, 0])
         for k in range(1, width):
             result = result + _broadcast(ell_values[k], x) * gathered[:, k - first]

@@ -73,6 +73,12 @@ class SparsityPattern(eqx.Module):
             (`nnz` for a padding slot: read as 0); `None` where unknown (patterns built under jit) or
             the identity (a diagonal pattern).
         transpose_pattern: the transposed pattern of a non-symmetric host-built pattern, else `None`.
+        row_cols: `(n_rows, width - diagonal_first)` columns of the ELL block row by row, without the
+            diagonal block of a diagonal-first pattern: `cols[:n_rows * width]` reshaped
+            `(width, n_rows)` and transposed, built on the host by `from_coo` / `from_edges`
+            (`None` for other layouts, the diagonal pattern, and ELL patterns made by hand). `A @ x`
+            gathers every row's columns with it in one row-major gather; transposing the index
+            inside jit instead costs as much as the product itself on each call.
     """
 
     rows: Int[Array, " nnz"]
@@ -85,6 +91,7 @@ class SparsityPattern(eqx.Module):
     symmetric: bool = eqx.field(static=True, default=False)
     transpose_slot: Int[Array, " nnz_t"] | None = None
     transpose_pattern: "SparsityPattern | None" = None
+    row_cols: Int[Array, "n_rows k"] | None = None
 
     @property
     def nnz(self) -> int:
@@ -223,7 +230,13 @@ class SparsityPattern(eqx.Module):
         transpose_slot[slot_low_high] = slot_high_low
         transpose_slot[slot_high_low] = slot_low_high
         pattern = SparsityPattern(
-            **to_device(rows=storage_rows, cols=storage_cols, indptr=indptr, transpose_slot=transpose_slot),
+            **to_device(
+                rows=storage_rows,
+                cols=storage_cols,
+                indptr=indptr,
+                transpose_slot=transpose_slot,
+                row_cols=_row_major(storage_cols, n, width, first=1),
+            ),
             shape=(n, n),
             layout="ell",
             width=width,
@@ -247,6 +260,11 @@ class SparsityPattern(eqx.Module):
             diagonal_first=True,
             symmetric=True,
         )
+
+
+def _row_major(storage_cols: np.ndarray, n_rows: int, width: int, first: int) -> np.ndarray:
+    """ELL block columns row by row, from block `first` on: `(n_rows, width - first)` (`SparsityPattern.row_cols`)."""
+    return np.ascontiguousarray(storage_cols[: n_rows * width].reshape(width, n_rows)[first:].T)
 
 
 def _is_permutation_of(keys: np.ndarray, sorted_keys: np.ndarray) -> bool:
@@ -333,5 +351,6 @@ def _ell_pattern(
         symmetric=csr_transpose is not None,
         transpose_slot=None if transpose_slot is None else jnp.asarray(transpose_slot.astype(np.int32)),
         transpose_pattern=transposed,
+        row_cols=jnp.asarray(_row_major(storage_cols, n_rows, width, first=int(diagonal_first))),
     )
     return pattern, storage_of_csr.astype(np.int64)
