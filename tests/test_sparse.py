@@ -209,6 +209,21 @@ def test_jit_and_vmap_equal_eager(spd):
     np.testing.assert_allclose(jax.jit(lambda m, x: m @ x)(matrix, xs[0]), matrix @ xs[0], rtol=1e-14)
 
 
+def test_eager_product_is_one_compiled_call_per_structure(spd):
+    """Eager `A @ x` runs one cached program: a second matrix on the same pattern (new values) and
+    a NumPy right-hand side reuse it; nothing is compiled per matrix."""
+    from ddgjax.sparse._matrix import _compiled_product
+
+    matrix, reference = spd
+    x = np.random.default_rng(14).random(25)
+    np.testing.assert_allclose(matrix @ x, reference @ x, rtol=1e-13)
+    compiled = _compiled_product._cache_size()
+    doubled = SparseMatrix(2 * matrix.values, matrix.pattern, symmetric=matrix.symmetric,
+                           positive_semidefinite=matrix.positive_semidefinite)
+    np.testing.assert_allclose(doubled @ jnp.asarray(x), 2 * (reference @ x), rtol=1e-13)
+    assert _compiled_product._cache_size() == compiled
+
+
 def test_congruence_matches_scipy_and_refuses_missing_positions():
     rng = np.random.default_rng(13)
     n_rows, n = 30, 12

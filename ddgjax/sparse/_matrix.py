@@ -73,7 +73,16 @@ class SparseMatrix(eqx.Module):
         """`A @ x` for a vector `(n_cols,)` or a block of right-hand sides `(n_cols, k)`."""
         if not is_traced(x) and (np.ndim(x) == 0 or np.shape(x)[0] != self.shape[1]):
             raise DDGInputError(f"x: expected shape ({self.shape[1]},) or ({self.shape[1]}, k), got {np.shape(x)}")
-        x = jnp.asarray(x)
+        if not isinstance(x, jax.Array):  # (`jnp.asarray` of a JAX array still costs ~20 us of dispatch)
+            x = jnp.asarray(x)
+        if not (is_traced(x) or is_traced(self.values) or is_traced(self.pattern.cols)):
+            # An eager product runs as one compiled program (cached per shape and pattern layout, not
+            # per matrix) instead of a dozen op-by-op dispatches: 5 ms -> 0.05 ms for the Laplacian
+            # of a 2.5k-vertex mesh. Traced calls (inside jit, grad, vmap) stay inline.
+            return _compiled_product(self, x)
+        return self._product(x)
+
+    def _product(self, x: Float[Array, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
         pattern = self.pattern
         if pattern.layout != "ell":
             products = _broadcast(self.values, x) * x[pattern.cols]
@@ -345,6 +354,9 @@ def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, op: str):
         f"square pattern with every diagonal entry, or a CSR pattern); got layout {pattern.layout!r} with "
         f"diagonal_first={pattern.diagonal_first}"
     )
+
+
+_compiled_product = jax.jit(SparseMatrix._product)
 
 
 def _static(pattern: SparsityPattern) -> tuple:
