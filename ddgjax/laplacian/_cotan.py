@@ -31,6 +31,7 @@ from jaxtyping import Array, Float
 from .._errors import DDGInputError, is_traced
 from .._numerics import safe_div, safe_reciprocal, safe_sqrt
 from ..dec import d0, hodge1
+from ..mesh._compiled import compiled_kernel
 from ..mesh._mesh import Mesh
 from ..mesh._topology import MeshTopology
 from ..sparse import CongruencePlan, SparseMatrix, SparsityPattern, congruence, congruence_plan, gather_sum
@@ -73,13 +74,19 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     libigl `cotmatrix` (negated); gpytoolbox `cotangent_laplacian`.
     """
     if method == "fem":
-        rows_off = _off_diagonal(mesh, _edge_entries(mesh))
-        return _with_diagonal(rows_off, -rows_off.row_sums(), positive_semidefinite=True)
+        return SparseMatrix(_fem_values(mesh), mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
     if method == "dec":
         star = hodge1(mesh).diagonal()
         values = congruence(d0(mesh), star, mesh.vertex_pattern, _dec_plan(mesh.topology)).values
         return SparseMatrix(values, mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
     raise DDGInputError(f"method: expected 'fem' or 'dec', got {method!r}")
+
+
+@compiled_kernel
+def _fem_values(mesh: Mesh) -> Float[Array, " nnz"]:
+    """Values of the FEM cotan Laplacian on `mesh.vertex_pattern` (one compiled program per mesh size)."""
+    rows_off = _off_diagonal(mesh, _edge_entries(mesh))
+    return _with_diagonal(rows_off, -rows_off.row_sums(), positive_semidefinite=True).values
 
 
 def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
@@ -107,11 +114,22 @@ def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k
     Returns:
         `L u`, the shape of `u`.
     """
+    return _compiled_apply(mesh, _vertex_values(mesh, u))
+
+
+def _vertex_values(mesh: Mesh, u) -> Float[Array, "nv *k"]:
+    """`u` as a JAX array, after checking (outside any trace) that it has shape `(nv,)` or `(nv, k)`."""
     n = mesh.n_vertices
     if not is_traced(u) and (np.ndim(u) not in (1, 2) or np.shape(u)[0] != n):
         raise DDGInputError(f"u: expected shape ({n},) or ({n}, k), got {np.shape(u)}")
+    return u if isinstance(u, jax.Array) else jnp.asarray(u)
+
+
+def _apply_laplacian(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
+    """`laplacian_apply` without the input check (see there)."""
+    n = mesh.n_vertices
     shape = jnp.shape(u)
-    columns = jnp.asarray(u).reshape(n, -1)
+    columns = u.reshape(n, -1)
     pattern = mesh.vertex_pattern
     weights = _edge_entries(mesh)[:, None]  # L_ij on the off-diagonal slots nv.. (row i, column j)
     ell_end = n * pattern.width
@@ -128,6 +146,9 @@ def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k
     return result.reshape(shape)
 
 
+_compiled_apply = compiled_kernel(_apply_laplacian)
+
+
 def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
     """Dirichlet energy `E(u) = 1/2 u^T L u = 1/2 int |grad u|^2` of a piecewise-linear function (summed over columns).
 
@@ -139,12 +160,15 @@ def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
     1.5x slower (benchmarks/README.md). Reference: Pinkall & Polthier 1993. libigl / gpytoolbox:
     `0.5 * u @ (L @ u)` with `L = -igl.cotmatrix(V, F)`.
     """
-    return _dirichlet_energy(mesh, u)
+    return _compiled_energy(mesh, _vertex_values(mesh, u))
 
 
 @jax.custom_jvp
 def _dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
-    return 0.5 * jnp.sum(u * laplacian_apply(mesh, u))
+    return 0.5 * jnp.sum(u * _apply_laplacian(mesh, u))
+
+
+_compiled_energy = compiled_kernel(_dirichlet_energy)
 
 
 @_dirichlet_energy.defjvp
@@ -152,7 +176,7 @@ def _dirichlet_energy_jvp(primals, tangents):
     """`dE = <L u, du> + sum_f sum_j <G_fj, dp_fj>` (`G` from `_face_energy_gradients`; linear in the tangents)."""
     mesh, u = primals
     d_mesh, d_u = tangents
-    applied = laplacian_apply(mesh, u)
+    applied = _apply_laplacian(mesh, u)
     d_energy = jnp.sum(applied * d_u)
     gradients = _face_energy_gradients(mesh, u)
     for c in range(3):

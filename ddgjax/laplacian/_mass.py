@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
 from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_areas, vertex_dual_areas
+from ..mesh._compiled import compiled_kernel
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._cotan import _with_diagonal, vertex_operator
@@ -37,12 +39,21 @@ def mass_matrix(mesh: Mesh, *, kind: str = "voronoi") -> SparseMatrix:
     Reference: Meyer, Desbrun, Schroeder, Barr (2003); libigl `massmatrix`.
     """
     if kind in ("voronoi", "barycentric"):
-        return diagonal_matrix(vertex_dual_areas(mesh, kind=kind), positive_semidefinite=True)
+        return diagonal_matrix(_lumped_masses(mesh, kind=kind), positive_semidefinite=True)
     if kind == "galerkin":
-        areas = face_areas(mesh)
-        # Each face adds A/12 to each of its three edges (the helper halves its corner sum).
-        edge_values = edge_cotan_weights_from_corner_cotangents(mesh, jnp.broadcast_to(areas[:, None] / 6.0, (areas.shape[0], 3)))
-        off_diagonal = vertex_operator(mesh, edge_values)
-        # Row i: sum_f A_f / 6 on the diagonal equals its off-diagonal sum, 2 A_f / 12 per face.
-        return _with_diagonal(off_diagonal, off_diagonal.row_sums(), positive_semidefinite=True)
+        return SparseMatrix(_galerkin_values(mesh), mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
     raise DDGInputError(f"kind: expected 'voronoi', 'barycentric' or 'galerkin', got {kind!r}")
+
+
+_lumped_masses = compiled_kernel(vertex_dual_areas, static_argnames=("kind",))
+
+
+@compiled_kernel
+def _galerkin_values(mesh: Mesh) -> Float[Array, " nnz"]:
+    """Values of the Galerkin mass matrix on `mesh.vertex_pattern` (one compiled program per mesh size)."""
+    areas = face_areas(mesh)
+    # Each face adds A/12 to each of its three edges (the helper halves its corner sum).
+    edge_values = edge_cotan_weights_from_corner_cotangents(mesh, jnp.broadcast_to(areas[:, None] / 6.0, (areas.shape[0], 3)))
+    off_diagonal = vertex_operator(mesh, edge_values)
+    # Row i: sum_f A_f / 6 on the diagonal equals its off-diagonal sum, 2 A_f / 12 per face.
+    return _with_diagonal(off_diagonal, off_diagonal.row_sums(), positive_semidefinite=True).values
