@@ -52,6 +52,25 @@ def timed(fn, *args, repeats=5):
     return (min(times), float(np.median(times))), result
 
 
+def timed_interleaved(calls: dict, repeats: int, block: int = 1) -> dict:
+    """`{name: (min, median) ms}` for `{name: (fn, args)}`: `repeats` rounds, each running every call
+    `block` times in turn.
+
+    Calls compared against each other then see the same drift of this VM and the same aftermath of
+    earlier work (a peer's lingering worker threads), which one block after another does not. A
+    block of several calls lets a sub-millisecond call reach its steady state (back-to-back JAX
+    and SciPy calls slow each other: XLA's worker threads spin for a while after each call).
+    """
+    times = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, (fn, args) in calls.items():
+            for _ in range(block):
+                start = time.perf_counter()
+                jax.block_until_ready(fn(*args))
+                times[name].append(1e3 * (time.perf_counter() - start))
+    return {name: (min(t), float(np.median(t))) for name, t in times.items()}
+
+
 def first_call(fn, *args):
     """Wall time in ms of the first (compiling) call."""
     start = time.perf_counter()
@@ -68,18 +87,27 @@ def bench_mesh(name, V, F, repeats, run_robust):
     nv, nf = V.shape[0], F.shape[0]
     rows = {}
     # --- build from a new mesh -------------------------------------------------------------
-    rows["igl.cotmatrix"] = timed(igl.cotmatrix, V, F, repeats=repeats)[0]
-    rows["gpytoolbox.cotangent_laplacian"] = timed(gpytoolbox.cotangent_laplacian, V, F, repeats=repeats)[0]
     if run_robust:
         rows["robust_laplacian.mesh_laplacian"] = timed(robust_laplacian.mesh_laplacian, V, F, repeats=1)[0]
-    rows["ddgjax topology (Mesh.from_arrays)"], mesh = timed(Mesh.from_arrays, V, F, repeats=repeats)
+    mesh = Mesh.from_arrays(V, F)
     # `cotan_laplacian` runs a kernel compiled once per mesh size (not per mesh object): the first
     # mesh of a size pays the compile, every later one (new topology object) reuses it.
     compile_ms = first_call(lambda m: cotan_laplacian(m).values, mesh)
-    rows["ddgjax cotan_laplacian(mesh) (compiled kernel)"] = timed(lambda m: cotan_laplacian(m).values, mesh, repeats=repeats)[0]
-    rows["ddgjax build = Mesh.from_arrays + cotan_laplacian, new mesh each time"] = timed(
-        lambda V, F: cotan_laplacian(Mesh.from_arrays(V, F)).values, V, F, repeats=repeats
-    )[0]
+    rows.update(
+        timed_interleaved(
+            {
+                "igl.cotmatrix": (igl.cotmatrix, (V, F)),
+                "gpytoolbox.cotangent_laplacian": (gpytoolbox.cotangent_laplacian, (V, F)),
+                "ddgjax topology (Mesh.from_arrays)": (Mesh.from_arrays, (V, F)),
+                "ddgjax cotan_laplacian(mesh) (compiled kernel)": (lambda m: cotan_laplacian(m).values, (mesh,)),
+                "ddgjax build = Mesh.from_arrays + cotan_laplacian, new mesh each time": (
+                    lambda V, F: cotan_laplacian(Mesh.from_arrays(V, F)).values,
+                    (V, F),
+                ),
+            },
+            repeats=repeats,
+        )
+    )
     if tx_mesh is not None:
         try:
             def tx_build(V, F):
@@ -99,14 +127,21 @@ def bench_mesh(name, V, F, repeats, run_robust):
     L = cotan_laplacian(mesh)
     csr = L.to_scipy()
     x = np.random.default_rng(0).standard_normal(nv)
-    rows["scipy CSR L @ x"] = timed(csr.dot, x, repeats=4 * repeats)[0]
     matvec = jax.jit(lambda A, x: A @ x)
     xj = jnp.asarray(x)
     matvec_compile = first_call(matvec, L, xj)
-    rows["ddgjax L @ x (jitted)"] = timed(matvec, L, xj, repeats=4 * repeats)[0]
-    # Outside jit `L @ x` runs one compiled product too (cached per shape and layout).
-    first_call(L.__matmul__, xj)
-    rows["ddgjax L @ x (eager, no user jit)"] = timed(L.__matmul__, xj, repeats=4 * repeats)[0]
+    first_call(L.__matmul__, xj)  # outside jit `L @ x` runs one compiled product too (cached per shape and layout)
+    rows.update(
+        timed_interleaved(
+            {
+                "scipy CSR L @ x": (csr.dot, (x,)),
+                "ddgjax L @ x (jitted)": (matvec, (L, xj)),
+                "ddgjax L @ x (eager, no user jit)": (L.__matmul__, (xj,)),
+            },
+            repeats=4,
+            block=repeats,
+        )
+    )
     # The same product repeated inside one jitted loop (as an iterative solver runs it), against a
     # Python loop of SciPy products: per product, without the per-call dispatch (~50 us for a jitted
     # call with a SparseMatrix argument, which dominates below ~50k faces).

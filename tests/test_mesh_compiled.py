@@ -88,3 +88,22 @@ def test_compiled_kernels_inside_jit_grad_and_vmap():
     np.testing.assert_allclose(jax.jit(lambda m, W: dirichlet_energy(m.with_vertices(W), u))(mesh, V), energy(V), rtol=1e-13)
     batched = jax.vmap(lambda s: cotan_laplacian(mesh.with_vertices(s * V)).values)(jnp.asarray([1.0, 2.0]))
     np.testing.assert_allclose(batched[1], batched[0], rtol=1e-12)  # the cotan Laplacian is scale invariant
+
+
+def test_orientation_is_checked_on_every_mesh_not_served_from_the_cache():
+    from ddgjax._errors import MeshDataError
+    from ddgjax.mesh import total_mean_curvature, vertex_mean_curvatures, vertex_principal_curvatures
+
+    oriented = icosphere(1)
+    V, F = np.asarray(oriented.vertices), np.asarray(oriented.faces).copy()
+    F[0] = F[0, ::-1]  # one face flipped: same sizes, inconsistent orientation
+    flipped = Mesh.from_arrays(V, F)
+    assert total_mean_curvature(oriented) > 0
+    vertex_principal_curvatures(oriented)  # nested kernels reuse the outer check
+    for function in (total_mean_curvature, vertex_mean_curvatures, vertex_principal_curvatures):
+        with pytest.raises(MeshDataError, match="consistently oriented"):
+            function(flipped)
+    # A stand-in whose caller did not check the orientation refuses rather than guess.
+    with pytest.raises(AttributeError, match="cannot check the orientation"):
+        counts_only(oriented).topology.require_oriented("an operation")
+    counts_only(oriented, oriented=True).topology.require_oriented("an operation")

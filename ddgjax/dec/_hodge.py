@@ -24,6 +24,7 @@ from jaxtyping import Array, Float
 from .._errors import DDGInputError
 from .._numerics import safe_div, safe_norm, safe_reciprocal
 from ..mesh._geometry import edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
+from ..mesh._compiled import compiled_kernel
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
 
@@ -35,6 +36,7 @@ def _check_dual(dual: str, allowed: tuple[str, ...] = _DUALS) -> None:
         raise DDGInputError(f"dual: expected one of {allowed}, got {dual!r}")
 
 
+@compiled_kernel(static_argnames=("dual",))
 def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "circumcentric") -> Float[Array, " ne"]:
     """`|e*| / |e|` per edge, `(ne,)`: the diagonal of `*1`.
 

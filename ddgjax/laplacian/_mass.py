@@ -39,13 +39,10 @@ def mass_matrix(mesh: Mesh, *, kind: str = "voronoi") -> SparseMatrix:
     Reference: Meyer, Desbrun, Schroeder, Barr (2003); libigl `massmatrix`.
     """
     if kind in ("voronoi", "barycentric"):
-        return diagonal_matrix(_lumped_masses(mesh, kind=kind), positive_semidefinite=True)
+        return diagonal_matrix(vertex_dual_areas(mesh, kind=kind), positive_semidefinite=True)
     if kind == "galerkin":
         return SparseMatrix(_galerkin_values(mesh), mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
     raise DDGInputError(f"kind: expected 'voronoi', 'barycentric' or 'galerkin', got {kind!r}")
-
-
-_lumped_masses = compiled_kernel(vertex_dual_areas, static_argnames=("kind",))
 
 
 @compiled_kernel

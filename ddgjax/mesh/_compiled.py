@@ -29,10 +29,15 @@ from ._topology import MeshTopology
 
 
 class ElementCounts(MeshTopology):
-    """Stand-in topology inside a compiled kernel: element counts only, equal when the counts are equal."""
+    """Stand-in topology inside a compiled kernel: element counts only, equal when the counts are equal.
 
-    def __init__(self, n_vertices: int, n_faces: int, n_edges: int):  # noqa: D107 (no dataclass init: no arrays)
-        object.__setattr__(self, "_counts", (n_vertices, n_faces, n_edges))
+    `oriented` records that the kernel's caller checked the real topology's orientation
+    (`compiled_kernel(requires_orientation=...)`): `require_oriented` then passes, and otherwise
+    refuses, since the stand-in cannot tell.
+    """
+
+    def __init__(self, n_vertices: int, n_faces: int, n_edges: int, oriented: bool = False):  # noqa: D107
+        object.__setattr__(self, "_counts", (n_vertices, n_faces, n_edges, oriented))
 
     @property
     def n_vertices(self) -> int:
@@ -45,6 +50,17 @@ class ElementCounts(MeshTopology):
     @property
     def n_edges(self) -> int:
         return self._counts[2]
+
+    @property
+    def oriented(self) -> bool:
+        return self._counts[3]
+
+    def require_oriented(self, operation: str) -> None:
+        if not self.oriented:
+            raise AttributeError(
+                f"{operation}: a compiled mesh kernel cannot check the orientation; check it before the "
+                "kernel (compiled_kernel(requires_orientation=...))"
+            )
 
     def __eq__(self, other: object) -> bool:
         return type(other) is ElementCounts and self._counts == other._counts
@@ -59,29 +75,37 @@ class ElementCounts(MeshTopology):
         )
 
     def __repr__(self) -> str:
-        return f"ElementCounts(n_vertices={self.n_vertices}, n_faces={self.n_faces}, n_edges={self.n_edges})"
+        return (
+            f"ElementCounts(n_vertices={self.n_vertices}, n_faces={self.n_faces}, n_edges={self.n_edges}, "
+            f"oriented={self.oriented})"
+        )
 
 
-def counts_only(mesh: Mesh) -> Mesh:
-    """The same mesh arrays with the topology replaced by its `ElementCounts`."""
+def counts_only(mesh: Mesh, *, oriented: bool = False) -> Mesh:
+    """The same mesh arrays with the topology replaced by its `ElementCounts` (a stand-in is kept as it is)."""
     topology = mesh.topology
     if type(topology) is ElementCounts:
         return mesh
-    return dataclasses.replace(mesh, topology=ElementCounts(topology.n_vertices, topology.n_faces, topology.n_edges))
+    counts = ElementCounts(topology.n_vertices, topology.n_faces, topology.n_edges, oriented)
+    return dataclasses.replace(mesh, topology=counts)
 
 
-def compiled_kernel(function=None, *, static_argnames: tuple[str, ...] = ()):
+def compiled_kernel(function=None, *, static_argnames: tuple[str, ...] = (), requires_orientation: str | None = None):
     """`jax.jit` of `function(mesh, *args, **kwargs)`, cached by the mesh's array shapes and element counts.
 
-    For private kernels whose body reads only the mesh's arrays and counts (module docstring); the
-    public function validates its inputs and does any topology work first.
+    For functions whose body reads only the mesh's arrays and counts (module docstring); array
+    arguments other than the mesh are validated by the caller. `requires_orientation` (the
+    operation's name for the error) checks the real topology's orientation before the call
+    (`MeshTopology.require_oriented`), so the body may call `require_oriented` itself.
     """
     if function is None:
-        return functools.partial(compiled_kernel, static_argnames=static_argnames)
+        return functools.partial(compiled_kernel, static_argnames=static_argnames, requires_orientation=requires_orientation)
     compiled = jax.jit(function, static_argnames=static_argnames)
 
     @functools.wraps(function)
     def kernel(mesh: Mesh, *args, **kwargs):
-        return compiled(counts_only(mesh), *args, **kwargs)
+        if requires_orientation is not None:
+            mesh.topology.require_oriented(requires_orientation)
+        return compiled(counts_only(mesh, oriented=requires_orientation is not None), *args, **kwargs)
 
     return kernel

@@ -37,14 +37,20 @@ from ._geometry import (
     scatter_corners_to_vertices,
     vertex_dual_areas,
 )
+from ._compiled import compiled_kernel
 from ._mesh import Mesh
+
+
+def _operation(name: str) -> str:
+    return f"ddgjax.mesh.{name} (signed dihedral angles)"
 
 
 def _require_orientation(mesh: Mesh, name: str) -> None:
     """Signed dihedral angles need consistently oriented faces (module docstring)."""
-    mesh.topology.require_oriented(f"ddgjax.mesh.{name} (signed dihedral angles)")
+    mesh.topology.require_oriented(_operation(name))
 
 
+@compiled_kernel
 def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     """Integrated Gaussian curvature: the angle defect at each vertex, `(nv,)`.
 
@@ -72,6 +78,7 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     return jnp.where(referenced, 2.0 * jnp.pi - angle_sums - corrections, 0.0)
 
 
+@compiled_kernel(static_argnames=("kind",))
 def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise Gaussian curvature, `(nv,)`: `K_i / A_i`, the angle defect over the vertex dual area.
 
@@ -85,6 +92,7 @@ def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, kind: str = "voronoi") -
     return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, kind=kind))
 
 
+@compiled_kernel
 def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     """Integrated mean curvature normal `H N A_i`, `(nv, 3)`: half the cotan Laplacian of the positions.
 
@@ -107,6 +115,7 @@ def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     return scatter_corners_to_vertices(mesh, corner_terms)
 
 
+@compiled_kernel(static_argnames=("kind",))
 def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 3"]:
     """Pointwise mean curvature normal `H N`, `(nv, 3)`: `vertex_mean_curvature_normals / A_i`.
 
@@ -118,6 +127,7 @@ def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, kind: str = "voronoi"
     return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, kind=kind)[:, None])
 
 
+@compiled_kernel(requires_orientation=_operation("vertex_mean_curvatures"))
 def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
     """Integrated scalar mean curvature from dihedral angles, `(nv,)`.
 
@@ -135,6 +145,7 @@ def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
     return jax.ops.segment_sum(jnp.repeat(edge_terms, 2), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
 
 
+@compiled_kernel(requires_orientation=_operation("total_mean_curvature"))
 def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
     """Total mean curvature `1/2 sum_e l_e theta_e`, a scalar `()` (integral of `H`; `4 pi r` on a sphere).
 
@@ -147,6 +158,7 @@ def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
     return 0.5 * jnp.sum(edge_lengths(mesh) * edge_dihedral_angles(mesh))
 
 
+@compiled_kernel(requires_orientation=_operation("vertex_gauss_curvature_normals"))
 def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     """Integrated Gauss curvature normal `K N A_i`, `(nv, 3)`: `1/2 sum_j theta_ij (p_i - p_j) / l_ij`.
 
@@ -164,6 +176,7 @@ def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(terms, mesh.edges[:, 1], num_segments=n)
 
 
+@compiled_kernel(static_argnames=("kind",), requires_orientation=_operation("vertex_pointwise_mean_curvatures"))
 def vertex_pointwise_mean_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise signed mean curvature, `(nv,)`: `vertex_mean_curvatures / A_i`.
 
@@ -176,6 +189,7 @@ def vertex_pointwise_mean_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Fl
     return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, kind=kind))
 
 
+@compiled_kernel(static_argnames=("kind",), requires_orientation=_operation("vertex_principal_curvatures"))
 def vertex_principal_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 2"]:
     """Pointwise principal curvatures `(k1, k2)`, `(nv, 2)`, `k1 >= k2`, from `K` and `H`.
 

@@ -23,7 +23,9 @@ class Mesh(eqx.Module):
 
     Integer arrays are pytree leaves (so large meshes are jit arguments, not baked-in constants);
     `topology` (NumPy, static, hashed by identity) holds the rest of the connectivity and the checks,
-    so moving vertices never triggers recompilation.
+    so moving vertices never triggers recompilation. (A function you jit with the mesh as an argument
+    compiles once per mesh object; ddgjax's own operators called outside jit run kernels compiled
+    once per mesh size, see `ddgjax.mesh._compiled`.)
 
     Attributes:
         vertices: `(nv, 3)` positions, in the caller's float dtype.
