@@ -8,8 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from ddgjax._errors import MeshDataError
 from ddgjax.laplacian import cotan_laplacian, dirichlet_energy, laplacian_apply, mass_matrix
-from ddgjax.mesh import Mesh, icosphere
+from ddgjax.laplacian._cotan import _fem_values
+from ddgjax.mesh import Mesh, icosphere, total_mean_curvature, vertex_mean_curvatures, vertex_principal_curvatures
 from ddgjax.mesh._compiled import ElementCounts, compiled_kernel, counts_only
 
 
@@ -26,10 +28,13 @@ def test_meshes_of_one_size_share_one_program_and_keep_their_own_connectivity():
     V, F = _relabelled(first, seed=0)
     second = Mesh.from_arrays(V, F)
     assert second.topology is not first.topology and second.vertex_pattern.width == first.vertex_pattern.width
+    first_L = cotan_laplacian(first)
+    programs = _fem_values.compiled._cache_size()
     L = cotan_laplacian(second)
+    assert _fem_values.compiled._cache_size() == programs  # the second mesh compiled nothing
     # Each mesh's own faces and pattern reach the shared program (nothing of the first is baked in).
     assert abs(L.to_scipy() + igl.cotmatrix(V, F)).max() < 1e-12
-    assert abs(cotan_laplacian(first).to_scipy() + igl.cotmatrix(np.asarray(first.vertices), np.asarray(first.faces))).max() < 1e-12
+    assert abs(first_L.to_scipy() + igl.cotmatrix(np.asarray(first.vertices), np.asarray(first.faces))).max() < 1e-12
     u = jnp.asarray(np.random.default_rng(1).random(V.shape[0]))
     np.testing.assert_allclose(laplacian_apply(second, u), L @ u, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(dirichlet_energy(second, u), 0.5 * u @ (L @ u), rtol=1e-12)
@@ -91,9 +96,6 @@ def test_compiled_kernels_inside_jit_grad_and_vmap():
 
 
 def test_orientation_is_checked_on_every_mesh_not_served_from_the_cache():
-    from ddgjax._errors import MeshDataError
-    from ddgjax.mesh import total_mean_curvature, vertex_mean_curvatures, vertex_principal_curvatures
-
     oriented = icosphere(1)
     V, F = np.asarray(oriented.vertices), np.asarray(oriented.faces).copy()
     F[0] = F[0, ::-1]  # one face flipped: same sizes, inconsistent orientation

@@ -6,8 +6,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
-from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_areas, vertex_dual_areas
 from ..mesh._compiled import compiled_kernel
+from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_areas, vertex_dual_areas
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._cotan import _with_diagonal, vertex_operator

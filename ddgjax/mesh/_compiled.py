@@ -108,4 +108,5 @@ def compiled_kernel(function=None, *, static_argnames: tuple[str, ...] = (), req
             mesh.topology.require_oriented(requires_orientation)
         return compiled(counts_only(mesh, oriented=requires_orientation is not None), *args, **kwargs)
 
+    kernel.compiled = compiled  # the jitted function (its cache: `kernel.compiled._cache_size()`)
     return kernel
