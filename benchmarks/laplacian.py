@@ -58,8 +58,8 @@ def timed_interleaved(calls: dict, repeats: int, block: int = 1) -> dict:
 
     Calls compared against each other then see the same drift of this VM and the same aftermath of
     earlier work (a peer's lingering worker threads), which one block after another does not. A
-    block of several calls lets a sub-millisecond call reach its steady state (back-to-back JAX
-    and SciPy calls slow each other: XLA's worker threads spin for a while after each call).
+    block of several calls lets a sub-millisecond call reach its steady state (in our runs a JAX
+    call and a SciPy call right after each other were both slower than in a run of their own).
     """
     times = {name: [] for name in calls}
     for _ in range(repeats):
