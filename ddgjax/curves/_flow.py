@@ -151,9 +151,7 @@ def _flow_weights(edges: Float[Array, "n 2"], closed: bool, kind: str):
         elif kind == "C":
             ratio = 2 * safe_reciprocal(safe_norm(unit_u + unit_v))  # 1 / cos(theta / 2)
         else:
-            difference = unit_v - unit_u
-            sine_sq = 0.25 * jnp.sum(difference * difference, axis=-1)  # sin(theta/2)^2
-            ratio = half_angle_ratio(sine_sq, 0.5 * safe_norm(unit_u + unit_v))  # (theta/2) / sin(theta/2)
+            ratio = half_angle_ratio(0.5 * safe_norm(unit_u + unit_v))  # (theta/2) / sin(theta/2), from cos(theta/2)
         alpha, beta = ratio * inverse_u, ratio * inverse
     if not closed:
         interior = _interior_mask(edges.shape[0], closed)
@@ -189,7 +187,7 @@ def _ratio_and_slope(unit_u, unit_v, kind):
     cosine = 0.5 * safe_norm(unit_u + unit_v)
     if kind == "C":
         return safe_reciprocal(cosine), 0.5 * safe_div(safe_sqrt(sine_sq), cosine * cosine)
-    ratio = half_angle_ratio(sine_sq, cosine)
+    ratio = half_angle_ratio(cosine)
     small = sine_sq < 1e-8
     sine = jnp.where(small, 1.0, safe_sqrt(sine_sq))
     slope = jnp.where(small, cosine * safe_sqrt(sine_sq) * (1 / 6 + 0.15 * sine_sq), 0.5 * (1 - ratio * cosine) / sine)
