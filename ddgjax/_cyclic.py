@@ -20,6 +20,8 @@ from jax.extend.core import Primitive
 from jax.interpreters import ad, batching, mlir
 from jaxtyping import Array, Float
 
+from ._errors import DDGInputError
+
 cyclic_shift_p = Primitive("ddgjax_cyclic_shift")
 
 
@@ -36,8 +38,13 @@ def cyclic_shift(x: Float[Array, "..."], shift: int, axis: int = 0) -> Float[Arr
 
     Returns:
         Array of `x`'s shape and dtype.
+
+    Raises:
+        DDGInputError: `x` is a scalar, or `axis` is not one of its axes.
     """
     x = jnp.asarray(x)
+    if x.ndim == 0 or not -x.ndim <= int(axis) < x.ndim:
+        raise DDGInputError(f"axis: expected an axis of an array of shape {x.shape}, got {axis}")
     return cyclic_shift_p.bind(x, shift=int(shift), axis=int(axis) % x.ndim)
 
 

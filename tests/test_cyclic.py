@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from ddgjax import DDGInputError
 from ddgjax._cyclic import cyclic_shift, cyclic_shift_p
 
 CASES = [(1, 0), (-1, 0), (3, 0), (2, 1), (-1, -1), (7, 0)]
@@ -59,3 +60,10 @@ def test_vmap_over_any_axis(batch_axis, shift, axis):
     gradients = jax.vmap(jax.grad(lambda v: jnp.sum(cyclic_shift(v, shift, axis) ** 3)), in_axes=batch_axis)(stacked)
     expected = jax.vmap(jax.grad(lambda v: jnp.sum(jnp.roll(v, shift, axis=axis) ** 3)), in_axes=batch_axis)(stacked)
     np.testing.assert_array_equal(gradients, expected)
+
+
+def test_refuses_a_scalar_and_a_missing_axis():
+    with pytest.raises(DDGInputError, match="axis"):
+        cyclic_shift(jnp.array(1.0), 1)
+    with pytest.raises(DDGInputError, match="axis"):
+        cyclic_shift(jnp.ones((3, 2)), 1, axis=2)

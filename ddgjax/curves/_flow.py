@@ -160,7 +160,8 @@ def _flow_weights(edges: Float[Array, "n 2"], closed: bool, kind: str):
 
 
 def _edge_vectors(points: Float[Array, "n 2"]) -> Float[Array, "n 2"]:
-    return jnp.roll(points, -1, axis=0) - points
+    """`e_i = p_{i+1} - p_i` (cyclically); `cyclic_shift` so that its transpose is a roll too."""
+    return cyclic_shift(points, -1) - points
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(2, 3))
@@ -216,14 +217,13 @@ def _explicit_step_jvp(closed, kind, primals, tangents):
       `q = 2 / |w|^2`; `da = (du.w + u.dw - 2 a u.du) / |u|^2` (likewise `db`), `dq = -q^2 w.dw`.
 
     The tangent's rolls are `cyclic_shift`, whose transpose is the opposite roll (`jnp.roll`
-    transposes into padded copies, each its own kernel): the gradient through 1,000 steps got
-    1.3-1.4x faster with both changes (benchmarks/README.md). Zero-length edges keep the NaN-safe
-    zeros of the primal (every reciprocal is `safe_reciprocal`).
+    transposes into padded copies, each its own kernel): with the compact form above, the
+    gradient through 1,000 steps got 1.3-1.7x faster (benchmarks/README.md). Zero-length edges
+    keep the NaN-safe zeros of the primal (every reciprocal is `safe_reciprocal`).
     """
     points, tau = primals
     d_points, d_tau = tangents
-    edges = _edge_vectors(points)
-    d_edges = cyclic_shift(d_points, -1) - d_points
+    edges, d_edges = _edge_vectors(points), _edge_vectors(d_points)
     if kind == "D":
         u, du = jnp.roll(edges, 1, axis=0), cyclic_shift(d_edges, 1)
         w, dw = u + edges, du + d_edges
