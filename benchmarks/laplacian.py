@@ -54,7 +54,7 @@ def timed(fn, *args, repeats=5):
 
 def timed_interleaved(calls: dict, repeats: int, block: int = 1) -> dict:
     """`{name: (min, median) ms}` for `{name: (fn, args)}`: `repeats` rounds, each running every call
-    `block` times in turn.
+    `block` times in turn, each round starting with the next call.
 
     Calls compared against each other then see the same drift of this VM and the same aftermath of
     earlier work (a peer's lingering worker threads), which one block after another does not. A
@@ -62,8 +62,12 @@ def timed_interleaved(calls: dict, repeats: int, block: int = 1) -> dict:
     call and a SciPy call right after each other were both slower than in a run of their own).
     """
     times = {name: [] for name in calls}
-    for _ in range(repeats):
-        for name, (fn, args) in calls.items():
+    names = list(calls)
+    for round_ in range(repeats):
+        # Rotate the order each round: a call right after another library's is slower on this VM
+        # (caches, thread wake-ups), so a fixed order would always penalise the same library.
+        for name in names[round_ % len(names) :] + names[: round_ % len(names)]:
+            fn, args = calls[name]
             for _ in range(block):
                 start = time.perf_counter()
                 jax.block_until_ready(fn(*args))
@@ -165,8 +169,15 @@ def bench_mesh(name, V, F, repeats, run_robust):
     gradient = jax.jit(jax.grad(lambda m, W: dirichlet_energy(m.with_vertices(W), u), argnums=1))
     first_call(energy, mesh, moved)
     gradient_compile = first_call(gradient, mesh, moved)
-    rows["ddgjax energy u^T L u / 2 (jitted)"] = timed(energy, mesh, moved, repeats=repeats)[0]
-    rows["ddgjax grad_V energy (jitted)"] = timed(gradient, mesh, moved, repeats=repeats)[0]
+    rows.update(
+        timed_interleaved(
+            {
+                "ddgjax energy u^T L u / 2 (jitted)": (energy, (mesh, moved)),
+                "ddgjax grad_V energy (jitted)": (gradient, (mesh, moved)),
+            },
+            repeats=repeats,
+        )
+    )
     if tx_linops is not None:
         hemesh = tx_mesh.HeMesh.from_triangles(nv, jnp.asarray(F))
         tx_apply = jax.jit(lambda h, W, u: tx_linops.compute_cotan_laplace(W, h, u))

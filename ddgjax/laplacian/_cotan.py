@@ -35,7 +35,7 @@ from ..mesh._compiled import compiled_kernel
 from ..mesh._mesh import Mesh
 from ..mesh._topology import MeshTopology
 from ..sparse import CongruencePlan, SparseMatrix, SparsityPattern, congruence, congruence_plan, gather_sum
-from ..sparse._matrix import take_rows
+from .._indexing import take_rows, take_rows_or_zero
 
 
 def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
@@ -141,7 +141,7 @@ def _apply_laplacian(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *
         result = result + ell_weights[k] * (take_rows(columns, ell_heads[k]) - columns)
     if pattern.nnz > ell_end:  # the COO tail of high-degree rows, sorted by row
         rows, heads = pattern.rows[ell_end:], pattern.cols[ell_end:]
-        differences = weights[ell_end - n :] * (columns[heads] - columns[rows])
+        differences = weights[ell_end - n :] * (take_rows(columns, heads) - take_rows(columns, rows))
         result = result + jax.ops.segment_sum(differences, rows, num_segments=n, indices_are_sorted=True)
     return result.reshape(shape)
 
@@ -184,7 +184,7 @@ def _dirichlet_energy_jvp(primals, tangents):
             # One (nf,) gather per corner and coordinate: reverse mode scatters each G[j][c] as it is.
             # (Stacking G into (nf, 3, 3) for one row scatter makes XLA concatenate, which it does
             # not vectorise: 1.8x slower gradients at 20k faces, ~10% faster on armadillo_loop1.)
-            d_energy = d_energy + jnp.sum(gradients[j][c] * d_mesh.vertices[:, c][mesh.faces[:, j]])
+            d_energy = d_energy + jnp.sum(gradients[j][c] * take_rows(d_mesh.vertices[:, c], mesh.faces[:, j]))
     return 0.5 * jnp.sum(u * applied), d_energy
 
 
@@ -211,7 +211,7 @@ def _face_energy_gradients(mesh: Mesh, u: Float[Array, "nv *k"]) -> list[list[Fl
     derivatives of the Dirichlet energy.
     """
     edges, normal = _face_edges(mesh)
-    values = u[mesh.faces]  # (nf, 3) or (nf, 3, columns)
+    values = take_rows(u, mesh.faces)  # (nf, 3) or (nf, 3, columns)
     if u.ndim == 1:  # (nf,) arrays throughout: no reductions over a size-1 axis for XLA to keep
         per_column, column_sum = lambda x: x, lambda x: x
     else:
@@ -236,7 +236,7 @@ def _face_edges(mesh: Mesh) -> tuple[list[list[Float[Array, " nf"]]], list[Float
     size-3 axis, and this form assembles 2x faster than `(nf, 3, 3)` arrays with `sum(axis=-1)` /
     `jnp.cross` (benchmarks/README.md).
     """
-    corners = [mesh.vertices[:, c][mesh.faces] for c in range(3)]  # coordinate c of each face's corners, (nf, 3)
+    corners = [take_rows(mesh.vertices[:, c], mesh.faces) for c in range(3)]  # coordinate c of each face's corners, (nf, 3)
     points = [[corners[c][:, k] for c in range(3)] for k in range(3)]  # points[k][c], (nf,)
     edges = [[points[(k + 2) % 3][c] - points[(k + 1) % 3][c] for c in range(3)] for k in range(3)]
     return edges, _cross(edges[1], edges[2])
@@ -255,7 +255,7 @@ def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatri
     """Symmetric matrix on `mesh.vertex_pattern` with `edge_values` off the diagonal and 0 on it (one gather)."""
     zeros = jnp.zeros(mesh.n_vertices, edge_values.dtype)
     entries = jnp.concatenate([zeros, edge_values, edge_values])
-    values = jnp.take(entries, mesh.vertex_pattern_source, mode="fill", fill_value=0)
+    values = take_rows_or_zero(entries, mesh.vertex_pattern_source)
     return SparseMatrix(values, mesh.vertex_pattern, symmetric=True)
 
 

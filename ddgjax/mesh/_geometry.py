@@ -16,6 +16,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
+from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_div, safe_norm, safe_normalize, safe_sqrt, unsigned_angle
 from ._compiled import compiled_kernel
 from ._mesh import Mesh
@@ -23,7 +24,7 @@ from ._mesh import Mesh
 
 def face_vertex_positions(mesh: Mesh) -> Float[Array, "nf 3 3"]:
     """`(nf, 3, 3)` corner positions `V[F]` (one gather; everything per face starts here)."""
-    return mesh.vertices[mesh.faces]
+    return take_rows(mesh.vertices, mesh.faces)
 
 
 def face_edge_vectors(mesh: Mesh) -> Float[Array, "nf 3 3"]:
@@ -48,7 +49,7 @@ def edge_lengths(mesh: Mesh) -> Float[Array, " ne"]:
     `igl.edge_lengths(V, F)` and gpytoolbox `halfedge_lengths(V, F)` give the same values per face
     corner, `(nf, 3)`, not per global edge (see `face_edge_lengths_sq` for that layout).
     """
-    return safe_norm(mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]])
+    return safe_norm(take_rows(mesh.vertices, mesh.edges[:, 1]) - take_rows(mesh.vertices, mesh.edges[:, 0]))
 
 
 @compiled_kernel

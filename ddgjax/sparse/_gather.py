@@ -4,7 +4,7 @@ JAX transposes a gather into a scatter-add, the slow operation on CPU (a serial 
 measured facts). When the incidence is fixed, the transpose is itself a gather over the transposed
 incidence, built once on the host. `gather_sum` is a linear JAX primitive that knows this:
 
-- forward (`jit`, eager): one `jnp.take(x, index[:, k], mode="fill")` per column of `index`, added
+- forward (`jit`, eager): one fill-with-0 gather of `x` (`take_rows_or_zero`) per column of `index`, added
   up; on CPU compiled with `x` and the result on either side of a fusion boundary
   (`_materialized`), so XLA neither recomputes the producer of `x` per read nor the gather per
   consumer;
@@ -25,6 +25,7 @@ from jax.interpreters import ad, batching, mlir
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError
+from .._indexing import take_rows_or_zero
 
 gather_sum_p = Primitive("ddgjax_gather_sum")
 
@@ -72,7 +73,7 @@ def _gather(x, index):
     # reduction, 3x slower for the cotan assembly's k = 2.)
     total = jnp.zeros((index.shape[0],) + x.shape[1:], x.dtype)
     for k in range(index.shape[1]):
-        total = total + jnp.take(x, index[:, k], axis=0, mode="fill", fill_value=0)
+        total = total + take_rows_or_zero(x, index[:, k])
     return total
 
 

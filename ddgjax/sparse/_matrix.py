@@ -12,6 +12,7 @@ from jax.experimental import sparse as jsparse
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, is_traced
+from .._indexing import take_rows, take_rows_or_zero
 from ._pattern import SparsityPattern
 
 
@@ -71,16 +72,29 @@ class SparseMatrix(eqx.Module):
 
     def __matmul__(self, x: Float[ArrayLike, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
         """`A @ x` for a vector `(n_cols,)` or a block of right-hand sides `(n_cols, k)`."""
-        if not is_traced(x) and (np.ndim(x) == 0 or np.shape(x)[0] != self.shape[1]):
-            raise DDGInputError(f"x: expected shape ({self.shape[1]},) or ({self.shape[1]}, k), got {np.shape(x)}")
+        # Each attribute of an `eqx.Module` costs ~1-3 us to read: at 2.5k vertices the product itself
+        # takes ~50 us per eager call, so the fields are read once here.
+        values, pattern = self.values, self.pattern
+        n_rows, n_cols = pattern.shape
+        traced_x = is_traced(x)
+        if not traced_x and (np.ndim(x) == 0 or np.shape(x)[0] != n_cols):
+            raise DDGInputError(f"x: expected shape ({n_cols},) or ({n_cols}, k), got {np.shape(x)}")
         if not isinstance(x, jax.Array):  # (`jnp.asarray` of a JAX array still costs ~20 us of dispatch)
             x = jnp.asarray(x)
-        if not (is_traced(x) or is_traced(self.values) or is_traced(self.pattern.cols)):
-            # An eager product runs as one compiled program (cached per shape and pattern layout, not
-            # per matrix) instead of a dozen op-by-op dispatches: 5 ms -> 0.09 ms for the Laplacian
-            # of a 2.5k-vertex mesh. Traced calls (inside jit, grad, vmap) stay inline.
-            return _compiled_product(self, x)
-        return self._product(x)
+        cols = pattern.cols
+        if traced_x or is_traced(values) or is_traced(cols):
+            return self._product(x)
+        # An eager product runs as one compiled program (cached per shape and pattern layout, not per
+        # matrix) instead of a dozen op-by-op dispatches: 5 ms -> 0.09 ms for the Laplacian of a
+        # 2.5k-vertex mesh. A host-built ELL pattern passes only the arrays the product reads, the
+        # layout constants positionally: JAX's dispatch costs ~3 us per array argument, more for a
+        # pytree and for keyword arguments (benchmarks/README.md).
+        index = pattern.row_cols
+        if pattern.layout == "ell" and index is not None:
+            width = pattern.width
+            tail = (pattern.rows, cols) if cols.shape[0] > n_rows * width else None
+            return _compiled_ell_product(values, index, tail, x, n_rows, width, pattern.diagonal_first)
+        return _compiled_product(self, x)
 
     def _product(self, x: Float[Array, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
         pattern = self.pattern
@@ -89,33 +103,11 @@ class SparseMatrix(eqx.Module):
             return jax.ops.segment_sum(
                 products, pattern.rows, num_segments=self.shape[0], indices_are_sorted=pattern.layout == "csr"
             )
-        n_rows, width = self.shape[0], pattern.width
-        ell_values = self.values[: n_rows * width].reshape(width, n_rows)
-        # The diagonal block of a diagonal-first pattern multiplies x itself (no gather).
-        first = 1 if pattern.diagonal_first else 0
-        # One gather of every row's columns, row by row (`(n_rows, width - first)` indices, stored
-        # row-major in the pattern), then `width` contiguous multiply-adds fused into one pass.
-        # Against one gather per ELL block fused into the sum it trades speed on icospheres for
-        # robustness to the vertex order: armadillo_loop1 3.4 -> 1.8 ms per product (4.0 -> 2.0 in a
-        # solver loop; 1.5-1.8x SciPy -> 0.84-0.92x), icosphere(7) 0.63 -> 0.99 ms (0.47x -> 0.75x
-        # SciPy); benchmarks/README.md.
-        if width > first:
-            index = pattern.row_cols
-            if index is None:  # an ELL pattern assembled by hand: transpose the index here
-                index = pattern.cols[: n_rows * width].reshape(width, n_rows)[first:].T
-            gathered = take_rows(x, index)
-        result = _broadcast(ell_values[0], x) * (x if first else gathered[:, 0])
-        for k in range(1, width):
-            result = result + _broadcast(ell_values[k], x) * gathered[:, k - first]
-        if pattern.nnz > n_rows * width:
-            tail = slice(n_rows * width, None)
-            result = result + jax.ops.segment_sum(
-                _broadcast(self.values[tail], x) * take_rows(x, pattern.cols[tail]),
-                pattern.rows[tail],
-                num_segments=n_rows,
-                indices_are_sorted=True,
-            )
-        return result
+        index = pattern.row_cols
+        if index is None:  # an ELL pattern assembled by hand: transpose the index here
+            n_rows, width = self.shape[0], pattern.width
+            index = pattern.cols[: n_rows * width].reshape(width, n_rows)[int(pattern.diagonal_first) :].T
+        return _ell_product(self.values, index, _tail(pattern), x, self.shape[0], pattern.width, pattern.diagonal_first)
 
     @property
     def T(self) -> "SparseMatrix":
@@ -130,9 +122,9 @@ class SparseMatrix(eqx.Module):
         if self.symmetric or pattern.is_diagonal:
             return self
         if pattern.symmetric and pattern.transpose_slot is not None:
-            return SparseMatrix(self.values[pattern.transpose_slot], pattern, **flags)
+            return SparseMatrix(take_rows(self.values, pattern.transpose_slot), pattern, **flags)
         if pattern.transpose_pattern is not None:
-            values = jnp.take(self.values, pattern.transpose_slot, mode="fill", fill_value=0)
+            values = take_rows_or_zero(self.values, pattern.transpose_slot)
             return SparseMatrix(values, pattern.transpose_pattern, **flags)
         swapped = SparsityPattern(
             rows=pattern.cols, cols=pattern.rows, indptr=None, shape=pattern.shape[::-1], layout="coo"
@@ -359,6 +351,39 @@ def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, op: str):
 _compiled_product = jax.jit(SparseMatrix._product)
 
 
+def _tail(pattern: SparsityPattern) -> tuple[Int[Array, " nnz"], Int[Array, " nnz"]] | None:
+    """`(rows, cols)` of an ELL pattern with a COO tail (sliced inside the product), else `None`."""
+    return (pattern.rows, pattern.cols) if pattern.nnz > pattern.shape[0] * pattern.width else None
+
+
+def _ell_product(values, index, tail, x, n_rows: int, width: int, diagonal_first: bool):
+    """`A @ x` on an ELL(+COO tail) pattern (`SparsityPattern`), from the arrays it reads.
+
+    `index` is the `(n_rows, width - first)` row-major column index (`SparsityPattern.row_cols`): one
+    gather of every row's columns, row by row, then `width` contiguous multiply-adds fused into one
+    pass. Against one gather per ELL block fused into the sum it trades speed on icospheres for
+    robustness to the vertex order: armadillo_loop1 3.4 -> 1.8 ms per product (4.0 -> 2.0 in a
+    solver loop; 1.5-1.8x SciPy -> 0.84-0.92x), icosphere(7) 0.63 -> 0.99 ms (0.47x -> 0.75x SciPy);
+    benchmarks/README.md. The diagonal block of a diagonal-first pattern multiplies `x` itself.
+    """
+    ell_values = values[: n_rows * width].reshape(width, n_rows)
+    first = 1 if diagonal_first else 0
+    if width > first:
+        gathered = take_rows(x, index)
+    result = _broadcast(ell_values[0], x) * (x if first else gathered[:, 0])
+    for k in range(1, width):
+        result = result + _broadcast(ell_values[k], x) * gathered[:, k - first]
+    if tail is not None:
+        rows, cols = (array[n_rows * width :] for array in tail)
+        result = result + jax.ops.segment_sum(
+            _broadcast(values[n_rows * width :], x) * take_rows(x, cols), rows, num_segments=n_rows, indices_are_sorted=True
+        )
+    return result
+
+
+_compiled_ell_product = jax.jit(_ell_product, static_argnums=(4, 5, 6))
+
+
 def _static(pattern: SparsityPattern) -> tuple:
     return (pattern.shape, pattern.layout, pattern.width, pattern.diagonal_first, pattern.nnz)
 
@@ -381,10 +406,3 @@ def _same_positions(pa: SparsityPattern, pb: SparsityPattern, op: str) -> bool:
         if not np.array_equal(np.asarray(x), np.asarray(y)):
             return False
     return True
-
-
-def take_rows(x: Float[Array, "n *rest"], index: Int[Array, "..."]) -> Float[Array, "... *rest"]:
-    """`x[index]` for indices a pattern guarantees in range (built on the host): XLA skips its bounds
-    handling (`mode="promise_in_bounds"`), 10-15% faster for the random gathers of a matvec."""
-    return x.at[index].get(mode="promise_in_bounds")
-
