@@ -32,13 +32,11 @@ in discrete differential geometry 2: plane curves".
 
 from __future__ import annotations
 
-import functools
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from .._compile import tuned_jit
 from .._errors import DDGInputError
 from .._numerics import cross2, safe_div, safe_norm, safe_normalize, signed_angle_2d
 from ._curve import Curve
@@ -86,7 +84,7 @@ def _edge_lengths(points: Float[Array, "n 2"], closed: bool) -> Float[Array, " n
     return safe_norm(following - points[: following.shape[0]])
 
 
-@jax.jit
+@tuned_jit
 def edge_lengths(curve: Curve) -> Float[Array, " ne"]:
     """Length of every edge: `(n,)` for a closed curve (edge `i` is `p_i -> p_{(i+1) mod n}`), `(n-1,)` when open.
 
@@ -96,7 +94,7 @@ def edge_lengths(curve: Curve) -> Float[Array, " ne"]:
     return _edge_lengths(curve.points, curve.closed)
 
 
-@jax.jit
+@tuned_jit
 def length(curve: Curve) -> Float[Array, ""]:
     """Total length `L = sum_i |p_{i+1} - p_i|` (including the closing edge of a closed curve).
 
@@ -108,7 +106,7 @@ def length(curve: Curve) -> Float[Array, ""]:
     return jnp.sum(edge_lengths(curve))
 
 
-@jax.jit
+@tuned_jit
 def vertex_dual_lengths(curve: Curve) -> Float[Array, " n"]:
     """Dual length `d_i = (|p_i - p_{i-1}| + |p_{i+1} - p_i|) / 2` of every vertex, `(n,)`.
 
@@ -128,7 +126,7 @@ def _turning_angles(points: Float[Array, "n 2"], closed: bool) -> Float[Array, "
     return jnp.where(_interior_mask(points.shape[0], closed), signed_angle_2d(u, v), 0.0)
 
 
-@jax.jit
+@tuned_jit
 def turning_angles(curve: Curve) -> Float[Array, " n"]:
     """Signed turning angle `theta_i` from edge `p_{i-1} p_i` to edge `p_i p_{i+1}`, `(n,)`, in `(-pi, pi)`.
 
@@ -140,7 +138,7 @@ def turning_angles(curve: Curve) -> Float[Array, " n"]:
     return _turning_angles(curve.points, curve.closed)
 
 
-@jax.jit
+@tuned_jit
 def total_curvature(curve: Curve) -> Float[Array, ""]:
     """Total signed curvature `sum_i theta_i` (integrated `kappa^A`).
 
@@ -150,7 +148,7 @@ def total_curvature(curve: Curve) -> Float[Array, ""]:
     return jnp.sum(turning_angles(curve))
 
 
-@jax.jit
+@tuned_jit
 def turning_number(curve: Curve) -> Array:
     """Turning number of a closed curve, the integer `round(total_curvature / (2 pi))` (int32 scalar).
 
@@ -200,7 +198,7 @@ def _to_form(curve: Curve, kind: str, kappa: Float[Array, " n"], pointwise: bool
     return safe_div(kappa, dual) if pointwise else kappa * dual
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "pointwise"))
+@tuned_jit(static_argnames=("kind", "pointwise"))
 def curvature(curve: Curve, kind: str, *, pointwise: bool | None = None) -> Float[Array, " n"]:
     """Discrete curvature of `kind` (`"A"`, `"B"`, `"C"` or `"D"`) at every vertex, `(n,)`, signed.
 
@@ -233,7 +231,7 @@ def curvature(curve: Curve, kind: str, *, pointwise: bool | None = None) -> Floa
     return _to_form(curve, kind, kappa, pointwise)
 
 
-@functools.partial(jax.jit, static_argnames=("kind",))
+@tuned_jit(static_argnames=("kind",))
 def curvature_normals(curve: Curve, kind: str) -> Float[Array, "n 2"]:
     """Unit normal the reading report pairs with curvature `kind`, `(n, 2)`.
 
@@ -246,7 +244,7 @@ def curvature_normals(curve: Curve, kind: str) -> Float[Array, "n 2"]:
     return _curvature_and_normals(curve.points, curve.closed, kind)[1]
 
 
-@functools.partial(jax.jit, static_argnames=("kind", "pointwise"))
+@tuned_jit(static_argnames=("kind", "pointwise"))
 def curvature_vectors(curve: Curve, kind: str, *, pointwise: bool | None = None) -> Float[Array, "n 2"]:
     """Curvature vector `kappa_i N_i` of `kind`, `(n, 2)`: the velocity of the curve-shortening flow.
 

@@ -52,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from .._compile import tuned_jit
 from .._cyclic import cyclic_shift
 from .._errors import DDGInputError, check_count, is_traced
 from .._numerics import cross2, half_angle_ratio, safe_div, safe_norm, safe_reciprocal, safe_sqrt
@@ -383,26 +384,19 @@ _SERIAL_BELOW = 20_000
 _SERIAL_KERNELS = {"xla_disable_hlo_passes": "cpu-parallel-task-assigner"}
 
 
+def _serial_below_threshold(points, *args, **kwargs) -> dict[str, str]:
+    """Extra CPU compiler options for a flow on `points` (`tuned_jit`): single-threaded kernels for small curves."""
+    return _SERIAL_KERNELS if points.shape[-2] < _SERIAL_BELOW else {}
+
+
 def _jit_by_size(static_argnames: tuple[str, ...]):
-    """`jax.jit` that compiles curves below `_SERIAL_BELOW` vertices with single-threaded kernels on CPU.
+    """`tuned_jit` that compiles curves below `_SERIAL_BELOW` vertices with single-threaded kernels on CPU.
 
     The choice is made from the (static) shape at call time. Under a caller's own transformation
-    (`jit`, `grad`, `vmap`: traced points) JAX allows compiler options only on the outermost `jit`,
-    so the plain version is used and the caller's compilation settings apply.
+    (`jit`, `grad`, `vmap`) JAX allows compiler options only on the outermost `jit`, so the plain
+    version is used and the caller's compilation settings apply (`ddgjax._compile`).
     """
-
-    def decorate(function):
-        threaded = jax.jit(function, static_argnames=static_argnames)
-        serial = jax.jit(function, static_argnames=static_argnames, compiler_options=_SERIAL_KERNELS)
-
-        @functools.wraps(function)
-        def call(points, *args, **kwargs):
-            small = points.shape[-2] < _SERIAL_BELOW and jax.default_backend() == "cpu" and not is_traced(points)
-            return (serial if small else threaded)(points, *args, **kwargs)
-
-        return call
-
-    return decorate
+    return tuned_jit(static_argnames=static_argnames, extra_cpu_options=_serial_below_threshold)
 
 
 @_jit_by_size(("closed", "kind", "method", "rescale", "count", "check"))
@@ -585,7 +579,7 @@ def _run_with_progress(points, tau, *, closed, kind, method, rescale, steps, sav
     return jnp.stack(frames), carry[2][0]
 
 
-@functools.partial(jax.jit, static_argnames=("closed",))
+@tuned_jit(static_argnames=("closed",))
 def _saved_invariants(frames, first_nonsimple, tau, save_every, *, closed) -> dict:
     """The invariant fields of `CurveFlowResult` (one compiled program per shape, whatever the kind / method / rescale)."""
     total, middle, size, area, ratio, residual, simple, finite = _frame_invariants(frames, closed)

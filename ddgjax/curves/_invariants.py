@@ -7,18 +7,17 @@ curve as closed by the chord from its last point back to its first.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from .._compile import tuned_jit
 from .._numerics import cross2, safe_div, safe_norm, safe_reciprocal, safe_sqrt
 from ._curvature import _edge_lengths
 from ._curve import Curve
 
 
-@jax.jit
+@tuned_jit
 def centroid(curve: Curve) -> Float[Array, "2"]:
     """Vertex centroid `(1/n) sum_i p_i`, `(2,)`: the centre of mass the reading report's B-flow keeps.
 
@@ -35,7 +34,7 @@ def _shoelace_terms(points: Float[Array, "n 2"]):
     return origin, relative, following, cross2(relative, following)
 
 
-@jax.jit
+@tuned_jit
 def enclosed_area(curve: Curve) -> Float[Array, ""]:
     """Signed enclosed area by the shoelace formula, `A = (1/2) sum_i p_i x p_{i+1}`.
 
@@ -46,7 +45,7 @@ def enclosed_area(curve: Curve) -> Float[Array, ""]:
     return 0.5 * jnp.sum(_shoelace_terms(curve.points)[3])
 
 
-@jax.jit
+@tuned_jit
 def area_centroid(curve: Curve) -> Float[Array, "2"]:
     """Centre of mass of the enclosed region, `(2,)`: `(1 / 6A) sum_i (p_i + p_{i+1}) (p_i x p_{i+1})`.
 
@@ -58,7 +57,7 @@ def area_centroid(curve: Curve) -> Float[Array, "2"]:
     return origin + safe_div(moment, 0.5 * jnp.sum(cross))
 
 
-@jax.jit
+@tuned_jit
 def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     """Isoperimetric ratio `4 pi |A| / L^2`: 1 for a circle, `pi / (n tan(pi / n))` for a regular n-gon, less otherwise.
 
@@ -69,7 +68,7 @@ def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     return safe_div(4 * jnp.pi * jnp.abs(enclosed_area(curve)), perimeter**2)
 
 
-@jax.jit
+@tuned_jit
 def cyclic_residual(curve: Curve) -> Float[Array, ""]:
     """How far the vertices are from lying on one circle: `std_i |p_i - c| / mean_i |p_i - c|`.
 
@@ -196,7 +195,7 @@ def _edge_pair_sweep(curve: Curve, block: int, with_clearance: bool):
     return ~jnp.any(hits), safe_sqrt(jnp.min(near_sq)), safe_sqrt(jnp.min(far_sq))
 
 
-@functools.partial(jax.jit, static_argnames=("block",))
+@tuned_jit(static_argnames=("block",))
 def simplicity_and_clearance(curve: Curve, *, block: int = 128) -> tuple[Bool[Array, ""], Float[Array, ""]]:
     """`(is_simple(curve), clearance)`: whether the curve is simple, and by how much.
 
@@ -228,7 +227,7 @@ def near_and_far_clearances(curve: Curve, *, block: int = 128) -> tuple[Bool[Arr
     return _edge_pair_sweep(curve, block, with_clearance=True)
 
 
-@functools.partial(jax.jit, static_argnames=("block",))
+@tuned_jit(static_argnames=("block",))
 def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
     """True when the curve does not intersect or touch itself (boolean scalar, jit-compatible).
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 
-import jax
+from .._compile import tuned_jit
 
 from ._mesh import Mesh
 from ._topology import MeshTopology
@@ -97,7 +97,8 @@ def counts_only(mesh: Mesh, *, oriented: bool = False) -> Mesh:
 
 
 def compiled_kernel(function=None, *, static_argnames: tuple[str, ...] = (), requires_orientation: str | None = None):
-    """`jax.jit` of `function(mesh, *args, **kwargs)`, cached by the mesh's array shapes and element counts.
+    """`jax.jit` of `function(mesh, *args, **kwargs)` (`ddgjax._compile.tuned_jit`), cached by the mesh's array
+    shapes and element counts.
 
     For functions whose body reads only the mesh's arrays and counts (module docstring); array
     arguments other than the mesh are validated by the caller. `requires_orientation` (the
@@ -106,7 +107,7 @@ def compiled_kernel(function=None, *, static_argnames: tuple[str, ...] = (), req
     """
     if function is None:
         return functools.partial(compiled_kernel, static_argnames=static_argnames, requires_orientation=requires_orientation)
-    compiled = jax.jit(function, static_argnames=static_argnames)
+    compiled = tuned_jit(function, static_argnames=static_argnames)
 
     @functools.wraps(function)
     def kernel(mesh: Mesh, *args, **kwargs):
@@ -114,5 +115,5 @@ def compiled_kernel(function=None, *, static_argnames: tuple[str, ...] = (), req
             mesh.topology.require_oriented(requires_orientation)
         return compiled(counts_only(mesh, oriented=requires_orientation is not None), *args, **kwargs)
 
-    kernel.compiled = compiled  # the jitted function (its cache: `kernel.compiled._cache_size()`)
+    kernel.compiled = compiled  # the jitted function (its cache: `kernel.compiled._cache_size()`; `ddgjax._compile`)
     return kernel

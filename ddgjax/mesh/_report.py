@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compile import tuned_jit
 from .._errors import DDGInputError, MeshDataError
 from ..io import load_mesh
 from ._check import MeshReport, check_mesh
@@ -42,7 +43,7 @@ def add_info_arguments(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(run=run_info)
 
 
-@jax.jit
+@tuned_jit
 def _statistics(mesh: Mesh) -> dict:
     """Every number the report prints, in one compiled call.
 

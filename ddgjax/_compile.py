@@ -1,0 +1,90 @@
+"""How ddgjax compiles its own kernels: `jax.jit`, plus XLA:CPU options where they are measured to help.
+
+XLA:CPU (jax 0.10) hands some fusions to the YNNPACK library once the arrays pass a size: the
+reductions over a short axis that geometry is made of (`sum(v * v, axis=-1)` for a length or a dot
+product of 2- or 3-vectors) become `__ynn_fusion` kernels that run several times slower than XLA's
+own loops. Measured with and without them in one process (benchmarks/README.md): the A flow on a
+4,000-vertex curve 147 -> 48 ms for 1,000 steps (B 61 -> 17, C 83 -> 27; the D gradient 900 -> 216
+ms), on an 82k-face mesh `face_edge_lengths_sq` 4.8 -> 0.64 ms, `vertex_dual_areas` 12.3 -> 3.1,
+`vertex_pointwise_mean_curvatures` 44 -> 9.2. Below ~2,000 elements XLA emits none, so small inputs
+are unchanged. The empty list `xla_cpu_experimental_ynn_fusion_type=""` turns them off.
+
+JAX accepts compiler options only on a top-level `jit`, not on one nested in another
+transformation, so `tuned_jit` keeps the plain `jax.jit` too: a call made outside any
+transformation on a CPU backend runs the tuned program; under a caller's `jit` / `grad` / `vmap`
+the kernel is traced into the caller's program and the caller's settings apply (the README shows
+the `XLA_FLAGS` that give a user's own `jit` the same). An option this jaxlib does not know is
+left out (checked once per process), so an upgrade cannot break a kernel.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping
+
+import jax
+import numpy as np
+from jax.extend.core import find_top_trace
+
+#: Options for every kernel compiled on CPU (module docstring).
+CPU_OPTIONS: Mapping[str, str] = {"xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+def at_top_level() -> bool:
+    """True outside every JAX transformation (no `jit`, `grad`, `vmap` is tracing this call)."""
+    # The evaluation trace is the bottom of JAX's trace stack; any transformation replaces it.
+    return type(find_top_trace(())).__name__ == "EvalTrace"
+
+
+@functools.cache
+def _known(name: str, value: str) -> bool:
+    """Whether this jaxlib's XLA:CPU accepts the compiler option (one tiny compile per option and process)."""
+    try:
+        jax.jit(lambda x: x + 1, compiler_options={name: value}).lower(np.float32(0)).compile()
+    except Exception:  # XLA refuses an unknown option or value with INVALID_ARGUMENT
+        return False
+    return True
+
+
+def supported_cpu_options(extra: Mapping[str, str] | None = None) -> dict[str, str]:
+    """`CPU_OPTIONS` plus `extra`, without the options this jaxlib does not accept."""
+    options = {**CPU_OPTIONS, **(extra or {})}
+    return {name: value for name, value in options.items() if _known(name, value)}
+
+
+def tuned_jit(
+    function: Callable | None = None,
+    *,
+    static_argnames: tuple[str, ...] = (),
+    static_argnums: tuple[int, ...] | None = None,
+    extra_cpu_options: Callable[..., Mapping[str, str]] | None = None,
+):
+    """`jax.jit(function)` whose top-level CPU calls compile with `CPU_OPTIONS` (module docstring).
+
+    `extra_cpu_options(*args, **kwargs)`, if given, adds options chosen per call (e.g. from a static
+    shape); each distinct set of options is its own compiled program. The wrapper's
+    `_cache_size()` counts the programs of every version, as `jax.jit`'s does.
+    """
+    if function is None:
+        return functools.partial(
+            tuned_jit, static_argnames=static_argnames, static_argnums=static_argnums, extra_cpu_options=extra_cpu_options
+        )
+    # `static_argnums=None` lets JAX find the positions of `static_argnames` (an explicit `()` would not).
+    settings = {"static_argnames": static_argnames, "static_argnums": static_argnums}
+    plain = jax.jit(function, **settings)
+    tuned: dict[tuple, Callable] = {}
+
+    @functools.wraps(function)
+    def call(*args, **kwargs):
+        if not at_top_level() or jax.default_backend() != "cpu":
+            return plain(*args, **kwargs)
+        extra = tuple(sorted(extra_cpu_options(*args, **kwargs).items())) if extra_cpu_options else ()
+        version = tuned.get(extra)
+        if version is None:
+            options = supported_cpu_options(dict(extra))
+            version = tuned[extra] = jax.jit(function, **settings, compiler_options=options or None)
+        return version(*args, **kwargs)
+
+    call._cache_size = lambda: plain._cache_size() + sum(version._cache_size() for version in tuned.values())
+    call.plain, call.tuned_versions = plain, tuned  # for inspection (tests: `lower(...).compile().as_text()`)
+    return call
