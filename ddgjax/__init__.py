@@ -6,7 +6,9 @@ calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices), `ddgjax.sparse` 
 matrices), `ddgjax.io` (mesh files). Conventions: see DESIGN.md and the README.
 
 Importing ddgjax never changes `jax.config`; enable float64 yourself
-(`jax.config.update("jax_enable_x64", True)`) for geometry work.
+(`jax.config.update("jax_enable_x64", True)`) for geometry work. ddgjax's own kernels compile with
+`cpu_compiler_options()` on CPU; pass the same to a `jax.jit` of your own
+(`jax.jit(f, compiler_options=ddgjax.cpu_compiler_options())`) to get their speed inside it.
 """
 
 from importlib.metadata import PackageNotFoundError, version as _version
@@ -17,6 +19,7 @@ from . import io as io
 from . import laplacian as laplacian
 from . import mesh as mesh
 from . import sparse as sparse
+from ._compile import cpu_compiler_options as cpu_compiler_options
 from ._errors import DDGInputError as DDGInputError
 from ._errors import MeshDataError as MeshDataError
 from .curves import Curve as Curve

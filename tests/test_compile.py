@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ddgjax._compile import CPU_OPTIONS, at_top_level, supported_cpu_options, tuned_jit
+import ddgjax
+from ddgjax._compile import CPU_OPTIONS, at_top_level, tuned_jit
 
 cpu_only = pytest.mark.skipif(jax.default_backend() != "cpu", reason="the tuned programs are compiled for CPU only")
 
@@ -31,14 +32,17 @@ def test_at_top_level_is_false_under_every_transformation():
 
 
 def test_unknown_options_are_left_out():
-    options = supported_cpu_options({"xla_cpu_no_such_option_in_any_xla": "1"})
+    options = ddgjax.cpu_compiler_options({"xla_cpu_no_such_option_in_any_xla": "1"})
     assert "xla_cpu_no_such_option_in_any_xla" not in options
     assert set(options) <= set(CPU_OPTIONS)
+    # ... and what is left compiles: the public recipe for a user's own jit.
+    kernel = jax.jit(lambda v: _squared_lengths(v), compiler_options=ddgjax.cpu_compiler_options() or None)
+    np.testing.assert_allclose(kernel(jnp.ones((4, 2))), 2.0)
 
 
 @cpu_only
 def test_top_level_call_runs_the_tuned_program_without_ynn_fusions():
-    kernel = tuned_jit(_squared_lengths)
+    kernel = tuned_jit(lambda v: _squared_lengths(v))  # a function of its own: JAX shares caches per function
     points = jnp.asarray(np.random.default_rng(0).random((50_000, 2)))
     np.testing.assert_allclose(kernel(points), np.sum(np.asarray(points) ** 2, axis=1), rtol=1e-15)
     assert kernel.plain._cache_size() == 0 and len(kernel.tuned_versions) == 1
@@ -48,7 +52,7 @@ def test_top_level_call_runs_the_tuned_program_without_ynn_fusions():
 
 
 def test_nested_calls_use_the_plain_program_and_agree():
-    kernel = tuned_jit(_squared_lengths)
+    kernel = tuned_jit(lambda v: _squared_lengths(v))
     points = jnp.asarray(np.random.default_rng(1).random((300, 2)))
     expected = np.sum(np.asarray(points) ** 2, axis=1)
     np.testing.assert_allclose(jax.jit(kernel)(points), expected, rtol=1e-15)

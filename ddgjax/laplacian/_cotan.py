@@ -29,13 +29,13 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError, is_traced
+from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_div, safe_reciprocal, safe_sqrt
 from ..dec import d0, hodge1
 from ..mesh._compiled import compiled_kernel
 from ..mesh._mesh import Mesh
 from ..mesh._topology import MeshTopology
 from ..sparse import CongruencePlan, SparseMatrix, SparsityPattern, congruence, congruence_plan, gather_sum
-from .._indexing import take_rows, take_rows_or_zero
 
 
 def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
