@@ -12,9 +12,9 @@ are unchanged. The empty list `xla_cpu_experimental_ynn_fusion_type=""` turns th
 JAX accepts compiler options only on a top-level `jit`, not on one nested in another
 transformation, so `tuned_jit` keeps the plain `jax.jit` too: a call made outside any
 transformation on a CPU backend runs the tuned program; under a caller's `jit` / `grad` / `vmap`
-the kernel is traced into the caller's program and the caller's settings apply (the README shows
-the `XLA_FLAGS` that give a user's own `jit` the same). An option this jaxlib does not know is
-left out (checked once per process), so an upgrade cannot break a kernel.
+the kernel is traced into the caller's program and the caller's settings apply
+(`cpu_compiler_options()` gives a user's own `jit` the same; README, conventions). An option this
+jaxlib does not know is left out (checked once per process), so an upgrade cannot break a kernel.
 """
 
 from __future__ import annotations
