@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+import ddgjax
 from ddgjax.curves import Curve, curve_shortening_flow, flower
 from ddgjax.curves._flow import _run
 
@@ -136,21 +137,23 @@ def main() -> int:
           f"ddgjax B {1e6 * fastest_b / steps:.1f} us/step ({per_step * steps / fastest_b:.0f}x)")
 
     print(f"\n## Batch under vmap: {batch} curves x {batch_n} vertices x {batch_steps} steps\n")
-    print("| kind | compile (s) | run min / median (ms) | vertex-steps / s | single curve, same size (vertex-steps / s) |")
-    print("|---|---|---|---|---|")
+    print("Your own `jax.jit(jax.vmap(flow))`: plain, and with `compiler_options=ddgjax.cpu_compiler_options()`.\n")
+    print("| kind | jit | compile (s) | run min / median (ms) | vertex-steps / s | single curve, same size (vertex-steps / s) |")
+    print("|---|---|---|---|---|---|")
     rng = np.random.default_rng(0)
     base = np.asarray(flower(batch_n).points)
     curves = jnp.asarray(base[None] * rng.uniform(0.8, 1.2, (batch, 1, 1)) + 0.01 * rng.normal(size=(batch, batch_n, 2)))
     for kind in ("A", "B"):
-        # check_simple="saved": under vmap the certified tracking's lazy test becomes an every-step test
-        batched = jax.jit(jax.vmap(lambda P, kind=kind: curve_shortening_flow(
-            Curve(P), kind=kind, tau=1e-4, steps=batch_steps, check_simple="saved").points[-1]))
-        first, fastest, median = timed(lambda batched=batched: batched(curves), max(1, repeats // 2))
         _, single, _ = timed(lambda kind=kind: curve_shortening_flow(
             Curve(curves[0]), kind=kind, tau=1e-4, steps=batch_steps, check_simple="saved").points, repeats)
-        work = batch * batch_n * batch_steps
-        print(f"| {kind} | {first - fastest:.2f} | {1e3 * fastest:.0f} / {1e3 * median:.0f} | {work / fastest:.3g} "
-              f"| {batch_n * batch_steps / single:.3g} |")
+        for label, options in (("plain", None), ("cpu_compiler_options", ddgjax.cpu_compiler_options() or None)):
+            # check_simple="saved": under vmap the certified tracking's lazy test becomes an every-step test
+            batched = jax.jit(jax.vmap(lambda P, kind=kind: curve_shortening_flow(
+                Curve(P), kind=kind, tau=1e-4, steps=batch_steps, check_simple="saved").points[-1]), compiler_options=options)
+            first, fastest, median = timed(lambda batched=batched: batched(curves), max(1, repeats // 2))
+            work = batch * batch_n * batch_steps
+            print(f"| {kind} | {label} | {first - fastest:.2f} | {1e3 * fastest:.0f} / {1e3 * median:.0f} | {work / fastest:.3g} "
+                  f"| {batch_n * batch_steps / single:.3g} |")
 
     print(f"\n## Gradient through {grad_steps} steps ({n} vertices)\n")
     print("| kind | forward (ms) | gradient (ms) | ratio | compile forward / gradient (s) |")
