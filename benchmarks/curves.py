@@ -165,7 +165,8 @@ def main() -> int:
             final = curve_shortening_flow(Curve(P), kind=kind, tau=tau, steps=grad_steps, check_simple="saved").points[-1]
             return jnp.sum(final**2)
 
-        forward, gradient = jax.jit(loss), jax.jit(jax.grad(loss))
+        options = ddgjax.cpu_compiler_options() or None  # as the README recommends for your own jit
+        forward, gradient = jax.jit(loss, compiler_options=options), jax.jit(jax.grad(loss), compiler_options=options)
         first_f, fastest_f, _ = timed(lambda forward=forward: forward(curve.points), repeats)
         first_g, fastest_g, _ = timed(lambda gradient=gradient: gradient(curve.points), repeats)
         print(f"| {kind} | {1e3 * fastest_f:.1f} | {1e3 * fastest_g:.1f} | {fastest_g / fastest_f:.2f}x "

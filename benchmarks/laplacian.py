@@ -9,7 +9,9 @@ For each mesh (icospheres of growing size, `../shared/meshes/armadillo_loop1.ply
 - **`L @ x`** against SciPy's CSR product on the same matrix;
 - **gradient** of the Dirichlet energy `u^T L u / 2` w.r.t. the vertices, against the energy itself.
 
-Times are min / median over repeats, in ms. Run: `python benchmarks/laplacian.py [--max-faces N]`.
+Functions jitted here (as a user would) compile with `ddgjax.cpu_compiler_options()`, as the README
+recommends (triangulax's too). Times are min / median over repeats, in ms. Run:
+`python benchmarks/laplacian.py [--max-faces N]`.
 """
 
 from __future__ import annotations
@@ -30,8 +32,16 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import robust_laplacian  # noqa: E402
 
+import ddgjax  # noqa: E402
 from ddgjax.laplacian import cotan_laplacian, dirichlet_energy  # noqa: E402
 from ddgjax.mesh import Mesh, icosphere  # noqa: E402
+
+# Functions jitted here are what a user writes; they compile as the README recommends (the options
+# ddgjax's own kernels use: XLA:CPU's YNNPACK fusions off). With a plain `jax.jit` a user-jitted
+# Dirichlet energy is up to 2x slower from ~160k vertices (a YNNPACK reduction), which would also
+# flatter the gradient / energy ratio (icosphere(7): 1.5x plain, 2.6x with the options).
+def jit(function, **kwargs):
+    return jax.jit(function, compiler_options=ddgjax.cpu_compiler_options() or None, **kwargs)
 
 try:
     import triangulax.linops as tx_linops
@@ -123,7 +133,7 @@ def bench_mesh(name, V, F, repeats, run_robust):
             rows["triangulax build"] = f"failed: {type(error).__name__}"
     # --- re-assembly for moved vertices --------------------------------------------------------
     # The mesh is a jit argument (its integer arrays are leaves), never a baked-in constant.
-    reassemble = jax.jit(lambda m, W: cotan_laplacian(m.with_vertices(W)).values)
+    reassemble = jit(lambda m, W: cotan_laplacian(m.with_vertices(W)).values)
     moved = jnp.asarray(V * 1.01)
     reassemble_compile = first_call(reassemble, mesh, moved)
     rows["ddgjax re-assembly (moved vertices, jitted)"] = timed(reassemble, mesh, moved, repeats=repeats)[0]
@@ -131,7 +141,7 @@ def bench_mesh(name, V, F, repeats, run_robust):
     L = cotan_laplacian(mesh)
     csr = L.to_scipy()
     x = np.random.default_rng(0).standard_normal(nv)
-    matvec = jax.jit(lambda A, x: A @ x)
+    matvec = jit(lambda A, x: A @ x)
     xj = jnp.asarray(x)
     matvec_compile = first_call(matvec, L, xj)
     first_call(L.__matmul__, xj)  # outside jit `L @ x` runs one compiled product too (cached per shape and layout)
@@ -150,7 +160,7 @@ def bench_mesh(name, V, F, repeats, run_robust):
     # Python loop of SciPy products: per product, without the per-call dispatch (~50 us for a jitted
     # call with a SparseMatrix argument, which dominates below ~50k faces).
     products = 100
-    loop = jax.jit(lambda A, x: jax.lax.fori_loop(0, products, lambda _, y: y + 1e-6 * (A @ y), x))
+    loop = jit(lambda A, x: jax.lax.fori_loop(0, products, lambda _, y: y + 1e-6 * (A @ y), x))
     first_call(loop, L, xj)
 
     def scipy_loop(x):
@@ -165,8 +175,8 @@ def bench_mesh(name, V, F, repeats, run_robust):
     rows["ddgjax L @ X (k=3)"] = timed(matvec, L, jnp.asarray(X3), repeats=2 * repeats)[0]
     # --- Dirichlet energy and its gradient w.r.t. the vertices ----------------------------------
     u = jnp.asarray(np.random.default_rng(2).standard_normal(nv))
-    energy = jax.jit(lambda m, W: dirichlet_energy(m.with_vertices(W), u))
-    gradient = jax.jit(jax.grad(lambda m, W: dirichlet_energy(m.with_vertices(W), u), argnums=1))
+    energy = jit(lambda m, W: dirichlet_energy(m.with_vertices(W), u))
+    gradient = jit(jax.grad(lambda m, W: dirichlet_energy(m.with_vertices(W), u), argnums=1))
     first_call(energy, mesh, moved)
     gradient_compile = first_call(gradient, mesh, moved)
     rows.update(
@@ -180,10 +190,10 @@ def bench_mesh(name, V, F, repeats, run_robust):
     )
     if tx_linops is not None:
         hemesh = tx_mesh.HeMesh.from_triangles(nv, jnp.asarray(F))
-        tx_apply = jax.jit(lambda h, W, u: tx_linops.compute_cotan_laplace(W, h, u))
+        tx_apply = jit(lambda h, W, u: tx_linops.compute_cotan_laplace(W, h, u))
         first_call(tx_apply, hemesh, moved, u)
         rows["triangulax matrix-free L u (jitted, incl. geometry)"] = timed(tx_apply, hemesh, moved, u, repeats=repeats)[0]
-        tx_grad = jax.jit(jax.grad(lambda h, W: -0.5 * u @ tx_linops.compute_cotan_laplace(W, h, u), argnums=1))
+        tx_grad = jit(jax.grad(lambda h, W: -0.5 * u @ tx_linops.compute_cotan_laplace(W, h, u), argnums=1))
         first_call(tx_grad, hemesh, moved)
         rows["triangulax grad_V energy (jitted)"] = timed(tx_grad, hemesh, moved, repeats=repeats)[0]
     compiles = {"assembly": compile_ms, "re-assembly": reassemble_compile, "L @ x": matvec_compile, "grad": gradient_compile}
