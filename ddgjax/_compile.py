@@ -26,6 +26,8 @@ import jax
 import numpy as np
 from jax.extend.core import find_top_trace
 
+from ._errors import DDGInputError
+
 #: Options for every kernel compiled on CPU (module docstring).
 CPU_OPTIONS: Mapping[str, str] = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
@@ -55,8 +57,14 @@ def cpu_compiler_options(extra: Mapping[str, str] | None = None) -> dict[str, st
     (module docstring; a 4,000-vertex B flow of 1,000 steps under `jax.jit`: 56 -> 17 ms). Same
     effect for every `jit` of a process: `XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=` set
     before JAX starts. Options the installed jaxlib does not accept are left out, so the result is
-    always safe to pass (and may be empty). `extra` adds options of your own, filtered alike.
+    always safe to pass (and may be empty). `extra` adds options of your own (a mapping of option
+    names to string values, as `jax.jit(..., compiler_options=...)` takes them), filtered alike.
+    Reference: XLA's debug options (`xla/debug_options_flags.cc`, `xla_cpu_experimental_ynn_fusion_type`).
     """
+    if extra is not None and (
+        not isinstance(extra, Mapping) or not all(isinstance(item, str) for pair in extra.items() for item in pair)
+    ):
+        raise DDGInputError(f"extra: expected a mapping of option names to string values, got {extra!r}")
     options = {**CPU_OPTIONS, **(extra or {})}
     return {name: value for name, value in options.items() if _known(name, value)}
 

@@ -73,3 +73,9 @@ def test_static_arguments_by_name_work_positionally_and_extra_options_make_versi
     assert float(kernel(jnp.float64(2.0), power=2)) == 4.0
     assert calls == [3, 2]
     assert len(kernel.tuned_versions) == (2 if jax.default_backend() == "cpu" else 0)
+
+
+@pytest.mark.parametrize("extra", ["xla_cpu_use_xnnpack", {"xla_cpu_use_xnnpack": False}, {1: "a"}])
+def test_malformed_extra_options_are_refused(extra):
+    with pytest.raises(ddgjax.DDGInputError, match="extra"):
+        ddgjax.cpu_compiler_options(extra)
