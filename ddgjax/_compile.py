@@ -48,7 +48,9 @@ def _known(name: str, value: str) -> bool:
     return True
 
 
-def cpu_compiler_options(extra: Mapping[str, str] | None = None) -> dict[str, str]:
+# `extra` is annotated loosely on purpose: a malformed value gets this function's own `DDGInputError`
+# (naming the argument) rather than a run-time type-checker's message.
+def cpu_compiler_options(extra: object = None) -> dict[str, str]:
     """XLA:CPU compiler options ddgjax compiles its own kernels with, for a `jax.jit` of your own.
 
     `jax.jit(f, compiler_options=ddgjax.cpu_compiler_options())` compiles `f` as ddgjax compiles its
