@@ -109,3 +109,19 @@ def test_orientation_is_checked_on_every_mesh_not_served_from_the_cache():
     with pytest.raises(AttributeError, match="cannot check the orientation"):
         counts_only(oriented).topology.require_oriented("an operation")
     counts_only(oriented, oriented=True).topology.require_oriented("an operation")
+
+
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="the tuned programs are compiled for CPU only")
+def test_eager_kernels_compile_without_ynnpack_fusions():
+    """Eager mesh kernels run the program `ddgjax._compile.tuned_jit` compiles: XLA:CPU's YNNPACK
+    fusions off (several times slower for geometry's short reductions; benchmarks/README.md)."""
+    from ddgjax.mesh import face_edge_lengths_sq
+
+    mesh = icosphere(5)  # 61k face corners: past the size where XLA:CPU hands reductions to YNNPACK
+    np.testing.assert_allclose(
+        face_edge_lengths_sq(mesh), igl.squared_edge_lengths(np.asarray(mesh.vertices), np.asarray(mesh.faces)), rtol=1e-12
+    )
+    compiled = face_edge_lengths_sq.compiled
+    (tuned,) = compiled.tuned_versions.values()
+    stand_in = counts_only(mesh)
+    assert "__ynn_fusion" not in tuned.lower(stand_in).compile().as_text()
