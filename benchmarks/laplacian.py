@@ -36,6 +36,13 @@ import ddgjax  # noqa: E402
 from ddgjax.laplacian import cotan_laplacian, dirichlet_energy  # noqa: E402
 from ddgjax.mesh import Mesh, icosphere  # noqa: E402
 
+try:
+    import triangulax.linops as tx_linops
+    import triangulax.mesh as tx_mesh
+except ImportError:  # optional peer
+    tx_linops = tx_mesh = None
+
+
 # Functions jitted here are what a user writes; they compile as the README recommends (the options
 # ddgjax's own kernels use: XLA:CPU's YNNPACK fusions off). With a plain `jax.jit` a user-jitted
 # Dirichlet energy is up to 2x slower from ~160k vertices (a YNNPACK reduction), which would also
@@ -43,11 +50,6 @@ from ddgjax.mesh import Mesh, icosphere  # noqa: E402
 def jit(function, **kwargs):
     return jax.jit(function, compiler_options=ddgjax.cpu_compiler_options() or None, **kwargs)
 
-try:
-    import triangulax.linops as tx_linops
-    import triangulax.mesh as tx_mesh
-except ImportError:  # optional peer
-    tx_linops = tx_mesh = None
 
 SHARED = pathlib.Path(__file__).resolve().parents[2] / "shared" / "meshes"
 

@@ -29,6 +29,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError
+from .._indexing import take_rows
 from .._numerics import safe_div
 from ..mesh._geometry import corner_dual_areas, face_hat_gradients, face_vertex_positions, scatter_corners_to_vertices
 from ..mesh._mesh import Mesh
@@ -78,8 +79,8 @@ def integrate_1form(
     """
     _check_degree(degree)
     nodes, weights = _gauss_legendre(degree // 2 + 1, mesh.vertices.dtype)
-    tails = mesh.vertices[mesh.edges[:, 0]]
-    vectors = mesh.vertices[mesh.edges[:, 1]] - tails
+    tails = take_rows(mesh.vertices, mesh.edges[:, 0])
+    vectors = take_rows(mesh.vertices, mesh.edges[:, 1]) - tails
     points = tails[:, None, :] + nodes[None, :, None] * vectors[:, None, :]
     values = _evaluate("alpha", alpha, points.reshape(-1, 3), (3,)).reshape(points.shape)
     return jnp.einsum("q,eqd,ed->e", weights, values, vectors)
@@ -138,10 +139,10 @@ def flat(
     gpytoolbox have no flat (gpytoolbox's `dec_*` operators start from 1-forms).
     """
     _check_at(at)
-    edge_vectors = mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]]
+    edge_vectors = take_rows(mesh.vertices, mesh.edges[:, 1]) - take_rows(mesh.vertices, mesh.edges[:, 0])
     if at == "vertices":
         field = _as_array("field", field, mesh.n_vertices, "nv")
-        mean_field = 0.5 * (field[mesh.edges[:, 0]] + field[mesh.edges[:, 1]])
+        mean_field = 0.5 * (take_rows(field, mesh.edges[:, 0]) + take_rows(field, mesh.edges[:, 1]))
         return jnp.sum(mean_field * edge_vectors, axis=-1)
     field = _as_array("field", field, mesh.n_faces, "nf")
     present = mesh.edge_faces >= 0
@@ -153,7 +154,7 @@ def _whitney_corner_values(mesh: Mesh, alpha: Float[Array, " ne"]) -> Float[Arra
     """The Whitney interpolant of `alpha` at each corner of each face, `W_f(p_i) = sum_{j != i} alpha_ij grad phi_j`."""
     gradients = face_hat_gradients(mesh)
     # Edge k of a face runs p_{k+1} -> p_{k+2}; the face-order value is the global one times its sign.
-    along = mesh.face_edge_signs.astype(alpha.dtype) * alpha[mesh.face_edges]
+    along = mesh.face_edge_signs.astype(alpha.dtype) * take_rows(alpha, mesh.face_edges)
     # At corner i: alpha_{i -> i+1} is edge i+2 run forwards, alpha_{i -> i+2} is edge i+1 run backwards.
     to_next, to_prev = jnp.roll(along, -2, axis=1), -jnp.roll(along, -1, axis=1)
     return to_next[..., None] * jnp.roll(gradients, -1, axis=1) + to_prev[..., None] * jnp.roll(gradients, -2, axis=1)

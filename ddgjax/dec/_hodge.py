@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
+from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_reciprocal
 from ..mesh._geometry import edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
 from ..mesh._compiled import compiled_kernel
@@ -53,7 +54,7 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "circumcentric") -> Float
     if dual == "circumcentric":
         return edge_cotan_weights(mesh)
     barycentres = jnp.mean(face_vertex_positions(mesh), axis=1)
-    midpoints = 0.5 * (mesh.vertices[mesh.edges[:, 0]] + mesh.vertices[mesh.edges[:, 1]])
+    midpoints = 0.5 * (take_rows(mesh.vertices, mesh.edges[:, 0]) + take_rows(mesh.vertices, mesh.edges[:, 1]))
     present = mesh.edge_faces >= 0
     segments = barycentres[jnp.where(present, mesh.edge_faces, 0)] - midpoints[:, None, :]
     dual_lengths = jnp.sum(jnp.where(present, safe_norm(segments), 0.0), axis=-1)

@@ -28,6 +28,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError
+from .._indexing import take_rows
 from ..mesh._geometry import face_hat_gradients
 from ..mesh._geometry import corner_cotangents, face_edge_vectors, scatter_corners_to_vertices
 from ..mesh._mesh import Mesh
@@ -44,7 +45,7 @@ def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"]) -> Float[Array, "nf 3"]:
     Reference: Crane et al., *The heat method for distance computation* (2017), eq. (2).
     """
     u = _as_array("u", u, mesh.n_vertices, "nv")
-    return jnp.einsum("fk,fkd->fd", u[mesh.faces], face_hat_gradients(mesh))
+    return jnp.einsum("fk,fkd->fd", take_rows(u, mesh.faces), face_hat_gradients(mesh))
 
 
 def divergence(mesh: Mesh, field: Float[ArrayLike, "nf 3"]) -> Float[Array, " nv"]:

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_sqrt
 from ._geometry import (
     corner_angles,
@@ -170,7 +171,7 @@ def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     curvature II". No libigl / gpytoolbox equivalent.
     """
     _require_orientation(mesh, "vertex_gauss_curvature_normals")
-    vectors = mesh.vertices[mesh.edges[:, 0]] - mesh.vertices[mesh.edges[:, 1]]
+    vectors = take_rows(mesh.vertices, mesh.edges[:, 0]) - take_rows(mesh.vertices, mesh.edges[:, 1])
     terms = 0.5 * safe_div(edge_dihedral_angles(mesh), safe_norm(vectors))[:, None] * vectors
     n = mesh.n_vertices
     return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(terms, mesh.edges[:, 1], num_segments=n)

@@ -313,7 +313,7 @@ def edge_dihedral_angles(mesh: Mesh) -> Float[Array, " ne"]:
     n0 = area_vectors[first]
     n1 = area_vectors[jnp.where(two_faces, second, first)]
     direction = mesh.face_edge_signs[first, mesh.edge_face_corners[:, 0]].astype(n0.dtype)
-    edge_vectors = mesh.vertices[mesh.edges[:, 1]] - mesh.vertices[mesh.edges[:, 0]]
+    edge_vectors = take_rows(mesh.vertices, mesh.edges[:, 1]) - take_rows(mesh.vertices, mesh.edges[:, 0])
     unit_edges = direction[:, None] * safe_normalize(edge_vectors)
     angles = safe_atan2(jnp.sum(unit_edges * jnp.cross(n0, n1), axis=-1), jnp.sum(n0 * n1, axis=-1))
     return jnp.where(two_faces, angles, 0.0)

@@ -81,8 +81,7 @@ class SparseMatrix(eqx.Module):
             raise DDGInputError(f"x: expected shape ({n_cols},) or ({n_cols}, k), got {np.shape(x)}")
         if not isinstance(x, jax.Array):  # (`jnp.asarray` of a JAX array still costs ~20 us of dispatch)
             x = jnp.asarray(x)
-        cols = pattern.cols
-        if traced_x or is_traced(values) or is_traced(cols):
+        if traced_x or is_traced(values) or is_traced(pattern.cols):
             return self._product(x)
         # An eager product runs as one compiled program (cached per shape and pattern layout, not per
         # matrix) instead of a dozen op-by-op dispatches: 5 ms -> 0.09 ms for the Laplacian of a
@@ -91,9 +90,7 @@ class SparseMatrix(eqx.Module):
         # pytree and for keyword arguments (benchmarks/README.md).
         index = pattern.row_cols
         if pattern.layout == "ell" and index is not None:
-            width = pattern.width
-            tail = (pattern.rows, cols) if cols.shape[0] > n_rows * width else None
-            return _compiled_ell_product(values, index, tail, x, n_rows, width, pattern.diagonal_first)
+            return _compiled_ell_product(values, index, _tail(pattern), x, n_rows, pattern.width, pattern.diagonal_first)
         return _compiled_product(self, x)
 
     def _product(self, x: Float[Array, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
