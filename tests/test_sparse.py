@@ -148,8 +148,25 @@ def test_arithmetic_and_pattern_mismatch():
         a + from_scipy(b_ref)
     with pytest.raises(DDGInputError, match="scalar"):
         a * a
-    with pytest.raises(DDGInputError, match="x: expected shape"):
+    with pytest.raises(DDGInputError, match=r"x: expected shape \(15,\) or \(15, k\), got \(3,\)"):
         a @ np.ones(3)
+    with pytest.raises(DDGInputError, match=r"x: expected shape \(15,\) or \(15, k\), got \(3,\)"):
+        jax.jit(lambda m, x: m @ x)(a, jnp.ones(3))  # the same message under jit
+
+
+@pytest.mark.parametrize("other", ["ddgjax", "scipy", "bcoo"])
+def test_sparse_sparse_products_are_refused_as_such(other, without_type_checker):
+    a = from_scipy(_random((15, 15), 0.3, 6))
+    b = {"ddgjax": a, "scipy": a.to_scipy(), "bcoo": a.to_bcoo()}[other]
+    with pytest.raises(DDGInputError, match="sparse-sparse products are not supported"):
+        a @ b
+
+
+def test_conversion_to_a_dense_array_is_refused_with_what_to_call():
+    a = from_scipy(_random((15, 15), 0.3, 6))
+    for convert in (np.asarray, jnp.asarray, np.array):
+        with pytest.raises(DDGInputError, match=r"not a dense array; use A\.todense\(\)"):
+            convert(a)
 
 
 def test_diagonal_matrix():
@@ -212,10 +229,10 @@ def test_jit_and_vmap_equal_eager(spd):
 def test_eager_product_is_one_compiled_call_per_structure(spd):
     """Eager `A @ x` runs one cached program: a second matrix on the same pattern (new values) and
     a NumPy right-hand side reuse it; nothing is compiled per matrix."""
-    from ddgjax.sparse._matrix import _compiled_ell_product, _compiled_product
+    from ddgjax.sparse._matrix import _compiled_product
 
     def programs():
-        return _compiled_product._cache_size() + _compiled_ell_product._cache_size()
+        return _compiled_product._cache_size()
 
     matrix, reference = spd
     x = np.random.default_rng(14).random(25)

@@ -5,21 +5,22 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError
+from .._errors import check_choice
 from ..mesh._compiled import compiled_kernel
 from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_areas, vertex_dual_areas
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._cotan import _with_diagonal, vertex_operator
+from ._plan import VertexPlan, vertex_plan
 
 
 def mass_matrix(mesh: Mesh, *, kind: str = "voronoi") -> SparseMatrix:
     """Mass matrix `M` (integrates piecewise-linear functions: `u^T M v ~ int u v`), symmetric positive definite.
 
     - `"voronoi"` (default; mixed area of Meyer et al. 2003): diagonal, `M_ii` = the vertex's mixed
-      Voronoi area (`vertex_dual_areas(mesh, kind="voronoi")`), as libigl `MASSMATRIX_TYPE_VORONOI`.
+      Voronoi area (`vertex_dual_areas(mesh, dual="voronoi")`), as libigl `MASSMATRIX_TYPE_VORONOI`.
     - `"barycentric"`: diagonal, a third of the incident face areas (libigl `MASSMATRIX_TYPE_BARYCENTRIC`).
-    - `"galerkin"`: the consistent FEM mass matrix `M_ij = int phi_i phi_j` on `mesh.vertex_pattern`
+    - `"galerkin"`: the consistent FEM mass matrix `M_ij = int phi_i phi_j` on the vertex pattern
       (same pattern as the cotan Laplacian, so `L + t M` is defined): `A_f / 6` on the diagonal and
       `A_f / 12` off it per face (libigl `MASSMATRIX_TYPE_FULL`; gpytoolbox `massmatrix(type="full")`).
 
@@ -38,19 +39,19 @@ def mass_matrix(mesh: Mesh, *, kind: str = "voronoi") -> SparseMatrix:
 
     Reference: Meyer, Desbrun, Schroeder, Barr (2003); libigl `massmatrix`.
     """
-    if kind in ("voronoi", "barycentric"):
-        return diagonal_matrix(vertex_dual_areas(mesh, kind=kind), positive_semidefinite=True)
-    if kind == "galerkin":
-        return SparseMatrix(_galerkin_values(mesh), mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
-    raise DDGInputError(f"kind: expected 'voronoi', 'barycentric' or 'galerkin', got {kind!r}")
+    check_choice("kind", kind, ("voronoi", "barycentric", "galerkin"))
+    if kind != "galerkin":
+        return diagonal_matrix(vertex_dual_areas(mesh, dual=kind), positive_semidefinite=True)
+    plan = vertex_plan(mesh)
+    return SparseMatrix(_galerkin_values(mesh, plan), plan.pattern, symmetric=True, positive_semidefinite=True)
 
 
 @compiled_kernel
-def _galerkin_values(mesh: Mesh) -> Float[Array, " nnz"]:
-    """Values of the Galerkin mass matrix on `mesh.vertex_pattern` (one compiled program per mesh size)."""
+def _galerkin_values(mesh: Mesh, plan: VertexPlan) -> Float[Array, " nnz"]:
+    """Values of the Galerkin mass matrix on `plan.pattern` (one compiled program per mesh size)."""
     areas = face_areas(mesh)
     # Each face adds A/12 to each of its three edges (the helper halves its corner sum).
     edge_values = edge_cotan_weights_from_corner_cotangents(mesh, jnp.broadcast_to(areas[:, None] / 6.0, (areas.shape[0], 3)))
-    off_diagonal = vertex_operator(mesh, edge_values)
+    off_diagonal = vertex_operator(plan, edge_values)
     # Row i: sum_f A_f / 6 on the diagonal equals its off-diagonal sum, 2 A_f / 12 per face.
     return _with_diagonal(off_diagonal, off_diagonal.row_sums(), positive_semidefinite=True).values

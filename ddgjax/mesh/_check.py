@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 
 from .._errors import DDGInputError, first_indices
-from ._mesh import Mesh
+from ._mesh import Mesh, require_mesh
 from ._topology import index_mask
 
 
@@ -26,6 +26,8 @@ class MeshReport:
         nonmanifold_vertices: vertices whose faces form more than one fan.
         inconsistent_edges: two-face edges traversed in the same direction by both faces.
         unreferenced_vertices: vertices used by no face.
+        duplicate_faces: faces with the same three vertices as an earlier face, in any order or
+            orientation (each later copy; the first stays unlisted).
         zero_area_faces: faces with `area <= area_tol * (longest edge)^2` at the current positions.
         area_tol: the relative tolerance used.
     """
@@ -41,6 +43,7 @@ class MeshReport:
     nonmanifold_vertices: np.ndarray
     inconsistent_edges: np.ndarray
     unreferenced_vertices: np.ndarray
+    duplicate_faces: np.ndarray
     zero_area_faces: np.ndarray
     area_tol: float
 
@@ -62,11 +65,12 @@ class MeshReport:
 
     @property
     def is_clean(self) -> bool:
-        """True when no data problem was found (manifold, oriented, no unreferenced vertices or zero-area faces)."""
+        """True when no data problem was found (manifold, oriented; no unreferenced vertices, duplicate or zero-area faces)."""
         return (
             self.is_manifold
             and self.is_oriented
             and self.unreferenced_vertices.size == 0
+            and self.duplicate_faces.size == 0
             and self.zero_area_faces.size == 0
         )
 
@@ -89,6 +93,7 @@ class MeshReport:
             ("non-manifold vertices (2+ fans)", self.nonmanifold_vertices, self.n_vertices),
             ("inconsistently oriented edges", self.inconsistent_edges, self.n_edges),
             ("unreferenced vertices", self.unreferenced_vertices, self.n_vertices),
+            ("duplicate faces (same three vertices as an earlier face)", self.duplicate_faces, self.n_faces),
             (f"zero-area faces (area <= {self.area_tol:g} * longest edge^2)", self.zero_area_faces, self.n_faces),
         ]
         for label, indices, size in problems:
@@ -99,17 +104,19 @@ class MeshReport:
 def check_mesh(mesh: Mesh, *, area_tol: float = 1e-12) -> MeshReport:
     """Topology and data checks of a mesh, with counts and the offending indices.
 
-    Topology comes from `mesh.topology` (built once); zero-area faces are measured at the current
-    vertex positions, on the host in NumPy: a face is flagged when `A_f <= area_tol * l_max^2`
-    (`l_max` its longest edge), a scale-invariant test that also catches collinear corners.
-    This is a host-side function (not for use under jit).
+    Topology comes from `mesh.topology` (built once). Duplicate faces are found on the host in NumPy
+    by sorting each face's vertex indices and looking for repeated rows, so a copy with reversed
+    orientation counts too (a face and its reversed copy form a closed, oriented two-face "pillow"
+    that no edge check flags). Zero-area faces are measured at the current vertex positions: a face
+    is flagged when `A_f <= area_tol * l_max^2` (`l_max` its longest edge), a scale-invariant test
+    that also catches collinear corners. This is a host-side function (not for use under jit).
 
     Equivalents: libigl `is_edge_manifold`, `is_vertex_manifold`, `euler_characteristic`,
-    `boundary_loop`; trimesh `Trimesh.is_watertight` / `is_winding_consistent`.
+    `boundary_loop`, `unique_simplices`; trimesh `Trimesh.is_watertight` / `is_winding_consistent`.
     """
     if not (np.isscalar(area_tol) and np.isfinite(area_tol) and area_tol >= 0):
         raise DDGInputError(f"area_tol: expected a nonnegative finite number, got {area_tol!r}")
-    topology = mesh.topology
+    topology = require_mesh("mesh", mesh).topology
     corners = np.asarray(mesh.vertices, dtype=np.float64)[topology.faces]
     doubled_areas = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
     longest_sq = np.max(np.sum((np.roll(corners, -1, axis=1) - corners) ** 2, axis=-1), axis=1)
@@ -126,9 +133,20 @@ def check_mesh(mesh: Mesh, *, area_tol: float = 1e-12) -> MeshReport:
         nonmanifold_vertices=topology.nonmanifold_vertices,
         inconsistent_edges=topology.inconsistent_edges,
         unreferenced_vertices=topology.unreferenced_vertices,
+        duplicate_faces=_duplicate_faces(topology.faces),
         zero_area_faces=zero_area,
         area_tol=float(area_tol),
     )
+
+
+def _duplicate_faces(faces: np.ndarray) -> np.ndarray:
+    """Indices of the faces whose vertex set repeats an earlier face's, in increasing order."""
+    ordered = np.sort(faces, axis=1)
+    # lexsort is stable, so the first face of each group of equal rows is its lowest index.
+    order = np.lexsort(ordered.T[::-1])
+    rows = ordered[order]
+    repeats = np.all(rows[1:] == rows[:-1], axis=1)
+    return np.sort(order[1:][repeats])
 
 
 def _yes_no(flag: bool) -> str:

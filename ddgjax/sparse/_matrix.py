@@ -72,26 +72,25 @@ class SparseMatrix(eqx.Module):
 
     def __matmul__(self, x: Float[ArrayLike, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
         """`A @ x` for a vector `(n_cols,)` or a block of right-hand sides `(n_cols, k)`."""
-        # Each attribute of an `eqx.Module` costs ~1-3 us to read: at 2.5k vertices the product itself
-        # takes ~50 us per eager call, so the fields are read once here.
-        values, pattern = self.values, self.pattern
-        n_rows, n_cols = pattern.shape
-        traced_x = is_traced(x)
-        if not traced_x and (np.ndim(x) == 0 or np.shape(x)[0] != n_cols):
+        n_cols = self.shape[1]
+        if isinstance(x, (SparseMatrix, jsparse.JAXSparse)) or sp.issparse(x):
+            raise DDGInputError(
+                f"x: sparse-sparse products are not supported (A @ B with B a {type(x).__name__}); multiply by a "
+                "dense (n_cols,) vector or (n_cols, k) block, or multiply the exports: A.to_scipy() @ B.to_scipy()"
+            )
+        if np.ndim(x) not in (1, 2) or np.shape(x)[0] != n_cols:  # shapes are known under jit too
             raise DDGInputError(f"x: expected shape ({n_cols},) or ({n_cols}, k), got {np.shape(x)}")
-        if not isinstance(x, jax.Array):  # (`jnp.asarray` of a JAX array still costs ~20 us of dispatch)
-            x = jnp.asarray(x)
-        if traced_x or is_traced(values) or is_traced(pattern.cols):
+        x = jnp.asarray(x)
+        if is_traced(x) or is_traced(self.values) or is_traced(self.pattern.cols):
             return self._product(x)
-        # An eager product runs as one compiled program (cached per shape and pattern layout, not per
-        # matrix) instead of a dozen op-by-op dispatches: 5 ms -> 0.09 ms for the Laplacian of a
-        # 2.5k-vertex mesh. A host-built ELL pattern passes only the arrays the product reads, the
-        # layout constants positionally: JAX's dispatch costs ~3 us per array argument, more for a
-        # pytree and for keyword arguments (benchmarks/README.md).
-        index = pattern.row_cols
-        if pattern.layout == "ell" and index is not None:
-            return _compiled_ell_product(values, index, _tail(pattern), x, n_rows, pattern.width, pattern.diagonal_first)
+        # Eager: one compiled program (cached per shape and pattern layout) instead of a dozen dispatches.
         return _compiled_product(self, x)
+
+    def __array__(self, *args, **kwargs):
+        raise DDGInputError(
+            "A: a SparseMatrix is not a dense array; use A.todense() (small matrices, tests), A.to_scipy() or "
+            "A.to_bcoo(), or A @ x for products"
+        )
 
     def _product(self, x: Float[Array, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
         pattern = self.pattern
@@ -358,10 +357,8 @@ def _ell_product(values, index, tail, x, n_rows: int, width: int, diagonal_first
 
     `index` is the `(n_rows, width - first)` row-major column index (`SparsityPattern.row_cols`): one
     gather of every row's columns, row by row, then `width` contiguous multiply-adds fused into one
-    pass. Against one gather per ELL block fused into the sum it trades speed on icospheres for
-    robustness to the vertex order: armadillo_loop1 3.4 -> 1.8 ms per product (4.0 -> 2.0 in a
-    solver loop; 1.5-1.8x SciPy -> 0.84-0.92x), icosphere(7) 0.63 -> 0.99 ms (0.47x -> 0.75x SciPy);
-    benchmarks/README.md. The diagonal block of a diagonal-first pattern multiplies `x` itself.
+    pass. One row-major gather (rather than one gather per ELL block) keeps the product fast whatever
+    the vertex order of the mesh. The diagonal block of a diagonal-first pattern multiplies `x` itself.
     """
     ell_values = values[: n_rows * width].reshape(width, n_rows)
     first = 1 if diagonal_first else 0
@@ -378,7 +375,7 @@ def _ell_product(values, index, tail, x, n_rows: int, width: int, diagonal_first
     return result
 
 
-_compiled_ell_product = jax.jit(_ell_product, static_argnums=(4, 5, 6))
+
 
 
 def _static(pattern: SparsityPattern) -> tuple:
