@@ -1,15 +1,14 @@
-"""The `Mesh` pytree: vertex positions plus integer connectivity built once in NumPy."""
+"""The `Mesh` pytree: vertex positions plus integer connectivity built once in NumPy (DESIGN.md, two phases)."""
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_float_array, is_traced
-from .._host import to_device
-from ..sparse._pattern import SparsityPattern
 from ._topology import MeshTopology, build_topology, validate_faces
 
 
@@ -22,10 +21,11 @@ class Mesh(eqx.Module):
         jax.grad(lambda V: energy(mesh.with_vertices(V)))(mesh.vertices)
 
     Integer arrays are pytree leaves (so large meshes are jit arguments, not baked-in constants);
-    `topology` (NumPy, static, hashed by identity) holds the rest of the connectivity and the checks,
-    so moving vertices never triggers recompilation. (A function you jit with the mesh as an argument
-    compiles once per mesh object; ddgjax's own operators called outside jit run kernels compiled
-    once per mesh size, see `ddgjax.mesh._compiled`.)
+    `topology` (NumPy, static) holds the connectivity and its checks and compares equal for equal
+    face arrays, so a function you jit with the mesh as an argument compiles once per connectivity
+    (the same mesh loaded twice reuses the program) and moving vertices never recompiles. The storage
+    plans of operators (sparsity patterns, slot maps) are not part of a mesh: the package that uses
+    one builds it on first use and caches it per connectivity (e.g. `ddgjax.laplacian`).
 
     Attributes:
         vertices: `(nv, 3)` positions, in the caller's float dtype.
@@ -34,18 +34,8 @@ class Mesh(eqx.Module):
         face_edges: `(nf, 3)` edge opposite each corner (libigl / gpytoolbox order).
         face_edge_signs: `(nf, 3)` int32 +1 / -1: does the face traverse that edge low -> high.
         edge_faces, edge_face_corners: `(ne, m)` faces of each edge and the corner opposite it, -1 padded.
-        vertex_pattern: sparsity pattern of vertex-vertex operators (diagonal plus edges; ELL storage,
-            symmetric), shared by the cotan Laplacian and the Galerkin mass matrix.
-        vertex_pattern_source: `(nnz,)` for each storage slot, its index in the list
-            `[diagonal (nv) | edges low->high (ne) | edges high->low (ne)]`, or `nv + 2 ne` for an ELL
-            padding slot, so operator values assemble with one gather:
-            `jnp.take(entries, vertex_pattern_source, mode="fill", fill_value=0)`.
-        vertex_pattern_corners: `(nnz - nv, m)` for each off-diagonal storage slot `nv + s`, the flat
-            corners `3 f + k` opposite its edge (`3 nf` pads), so per-corner values (cotangents) land
-            in storage order with one gather; `corner_pattern_slots` `(3 nf, 2)` is its transpose (the
-            two off-diagonal slots of each corner's edge), for a scatter-free reverse pass
-            (`ddgjax.sparse.gather_sum`).
-        topology: `MeshTopology` (static).
+        topology: `MeshTopology` (static; `None` only inside ddgjax's compiled kernels, see
+            `ddgjax.mesh._compiled`).
     """
 
     vertices: Float[Array, "nv 3"]
@@ -55,11 +45,13 @@ class Mesh(eqx.Module):
     face_edge_signs: Int[Array, "nf 3"]
     edge_faces: Int[Array, "ne m"]
     edge_face_corners: Int[Array, "ne m"]
-    vertex_pattern: SparsityPattern
-    vertex_pattern_source: Int[Array, " nnz"]
-    vertex_pattern_corners: Int[Array, "n_off m"]
-    corner_pattern_slots: Int[Array, "n_corners 2"]
-    topology: MeshTopology = eqx.field(static=True)
+    topology: MeshTopology | None = eqx.field(static=True)
+
+    def __init__(self, *args, **kwargs):
+        raise DDGInputError(
+            "Mesh(...): build a mesh with ddgjax.Mesh.from_arrays(vertices, faces) (it checks the arrays and "
+            "builds the connectivity) or ddgjax.io.load_mesh(path)"
+        )
 
     @classmethod
     def from_arrays(cls, vertices, faces) -> "Mesh":
@@ -67,8 +59,9 @@ class Mesh(eqx.Module):
 
         Raises `DDGInputError` on bad shapes or dtypes, NaN/inf coordinates, an empty mesh, face
         indices out of range and faces repeating a vertex. Data problems (non-manifold, inconsistent
-        orientation, unreferenced vertices, zero-area faces) are accepted and reported by
-        `ddgjax.mesh.check_mesh`; operators that cannot handle them refuse with `MeshDataError`.
+        orientation, unreferenced vertices, zero-area faces, duplicate faces) are accepted and
+        reported by `ddgjax.mesh.check_mesh`; operators that cannot handle them refuse with
+        `MeshDataError`.
         """
         if is_traced(vertices):
             raise DDGInputError(
@@ -82,25 +75,17 @@ class Mesh(eqx.Module):
     @classmethod
     def from_topology(cls, vertices: Float[Array, "nv 3"], topology: MeshTopology) -> "Mesh":
         """A mesh with the given (already built) topology and vertex positions."""
-        pattern, source = SparsityPattern.from_edges(topology.edges, topology.n_vertices)
-        slot_corners, corner_slots = _pattern_corner_maps(topology, source)
-        device = to_device(
-            faces=topology.faces,
-            edges=topology.edges,
-            face_edges=topology.face_edges,
-            face_edge_signs=topology.face_edge_signs.astype(np.int32),
-            edge_faces=topology.edge_faces,
-            edge_face_corners=topology.edge_face_corners.astype(np.int32),
-            vertex_pattern_source=source,
-            vertex_pattern_corners=slot_corners,
-            corner_pattern_slots=corner_slots,
+        arrays = jax.device_put(
+            {
+                "faces": topology.faces,
+                "edges": topology.edges,
+                "face_edges": topology.face_edges,
+                "face_edge_signs": topology.face_edge_signs.astype(np.int32),
+                "edge_faces": topology.edge_faces,
+                "edge_face_corners": topology.edge_face_corners.astype(np.int32),
+            }
         )
-        return cls(
-            vertices=vertices,
-            vertex_pattern=pattern,
-            **device,
-            topology=topology,
-        )
+        return _assemble(vertices=vertices, **arrays, topology=topology)
 
     # `vertices` is annotated unshaped on purpose: bad shapes and dtypes get this method's own
     # `DDGInputError` (naming the argument) rather than a run-time type-checker's message.
@@ -111,51 +96,62 @@ class Mesh(eqx.Module):
         shape `(nv, 3)` with this mesh's `nv`, a real dtype and finite values, else `DDGInputError`
         naming `vertices`, what was expected and the first offending rows. NumPy arrays are accepted
         and converted (e.g. from `jax.test_util.check_grads`); integer arrays become JAX's default
-        float dtype. Traced arrays (inside `jit`, `grad`, `vmap`) cannot be inspected and pass
-        through unchecked; their shape is fixed by the trace.
+        float dtype. Traced arrays (inside `jit`, `grad`, `vmap`) get the same shape and dtype checks;
+        their values cannot be inspected.
         """
+        if np.shape(vertices) != (self.n_vertices, 3):
+            raise DDGInputError(f"vertices: expected shape ({self.n_vertices}, 3), got {np.shape(vertices)}")
         if is_traced(vertices):
+            if not jnp.issubdtype(vertices.dtype, jnp.floating):
+                raise DDGInputError(f"vertices: expected a real floating-point array, got dtype {vertices.dtype}")
             return eqx.tree_at(lambda mesh: mesh.vertices, self, vertices)
-        host = check_float_array("vertices", vertices, (3,))
-        if host.shape[0] != self.topology.n_vertices:
-            raise DDGInputError(f"vertices: expected shape ({self.topology.n_vertices}, 3), got {host.shape}")
+        check_float_array("vertices", vertices, (3,))
         return eqx.tree_at(lambda mesh: mesh.vertices, self, _as_float_array(vertices))
 
     @property
     def n_vertices(self) -> int:
         """Number of vertices `nv`, unreferenced ones included (`vertices.shape[0]`; libigl `V.shape[0]`)."""
-        return self.topology.n_vertices
+        return self.vertices.shape[0]
 
     @property
     def n_faces(self) -> int:
         """Number of triangles `nf` (`faces.shape[0]`; libigl `F.shape[0]`)."""
-        return self.topology.n_faces
+        return self.faces.shape[0]
 
     @property
     def n_edges(self) -> int:
         """Number of distinct undirected edges `ne` (`edges.shape[0]`); `nv - ne + nf` is the Euler
         characteristic when no vertex is unreferenced. libigl: `igl.edges(F).shape[0]`."""
-        return self.topology.n_edges
+        return self.edges.shape[0]
 
 
-def _pattern_corner_maps(topology: MeshTopology, source: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Off-diagonal storage slot -> corners opposite its edge, and corner -> its edge's two slots."""
-    nv, ne, nf = topology.n_vertices, topology.n_edges, topology.n_faces
-    # Storage slots 0..nv-1 are the diagonal (the vertex pattern is diagonal-first ELL). int32 throughout:
-    # every index here is below nv + 2 ne + 3 nf.
-    off_source = source[nv:].astype(np.int32)
-    edge = off_source - np.int32(nv)
-    np.subtract(edge, np.int32(ne), out=edge, where=edge >= ne)  # high -> low entries; padding (2 ne) lands on ne, the padding row
-    edge_corners = np.full((ne + 1, topology.edge_faces.shape[1]), 3 * nf, dtype=np.int32)
-    np.copyto(edge_corners[:ne], 3 * topology.edge_faces + topology.edge_face_corners, where=topology.edge_faces >= 0)
-    slot_corners = np.take(edge_corners, edge, axis=0)
-    slot_of_source = np.empty(nv + 2 * ne + 1, dtype=np.int32)
-    slot_of_source[off_source] = np.arange(off_source.size, dtype=np.int32)
-    corner_edges = topology.face_edges.reshape(-1)
-    corner_slots = np.empty((corner_edges.size, 2), dtype=np.int32)
-    corner_slots[:, 0] = np.take(slot_of_source[nv : nv + ne], corner_edges)
-    corner_slots[:, 1] = np.take(slot_of_source[nv + ne : nv + 2 * ne], corner_edges)
-    return slot_corners, corner_slots
+    def without_topology(self) -> "Mesh":
+        """The same arrays with `topology=None`: what ddgjax's compiled kernels trace (`ddgjax.mesh._compiled`)."""
+        if self.topology is None:
+            return self
+        return _assemble(**{name: getattr(self, name) for name in _ARRAY_FIELDS}, topology=None)
+
+
+_ARRAY_FIELDS = ("vertices", "faces", "edges", "face_edges", "face_edge_signs", "edge_faces", "edge_face_corners")
+
+
+def _assemble(**fields) -> Mesh:
+    """A `Mesh` from its fields, as equinox rebuilds a module when it unflattens one (`Mesh.__init__` is for users)."""
+    mesh = object.__new__(Mesh)
+    for name, value in fields.items():
+        object.__setattr__(mesh, name, value)
+    return mesh
+
+
+def require_mesh(name: str, value) -> Mesh:
+    """`value` if it is a `Mesh`, else `DDGInputError` naming the argument and saying how to make one."""
+    if isinstance(value, Mesh):
+        return value
+    if isinstance(value, tuple) and len(value) == 2:
+        hint = "for a (vertices, faces) pair use ddgjax.Mesh.from_arrays(vertices, faces)"
+    else:
+        hint = "build one with ddgjax.Mesh.from_arrays(vertices, faces) or ddgjax.io.load_mesh(path)"
+    raise DDGInputError(f"{name}: expected a ddgjax Mesh, got {type(value).__name__}; {hint}")
 
 
 def _as_float_array(vertices) -> Float[Array, "nv 3"]:
