@@ -3,10 +3,7 @@
 XLA:CPU (jax 0.10) hands some fusions to the YNNPACK library once the arrays pass a size: the
 reductions over a short axis that geometry is made of (`sum(v * v, axis=-1)` for a length or a dot
 product of 2- or 3-vectors) become `__ynn_fusion` kernels that run several times slower than XLA's
-own loops. Measured with and without them in one process (benchmarks/README.md): the A flow on a
-4,000-vertex curve 147 -> 48 ms for 1,000 steps (B 61 -> 17, C 83 -> 27; the D gradient 900 -> 216
-ms), on an 82k-face mesh `face_edge_lengths_sq` 4.8 -> 0.64 ms, `vertex_dual_areas` 12.3 -> 3.1,
-`vertex_pointwise_mean_curvatures` 44 -> 9.2. Below ~2,000 elements XLA emits none, so small inputs
+own loops (figures in benchmarks/README.md). Below ~2,000 elements XLA emits none, so small inputs
 are unchanged. The empty list `xla_cpu_experimental_ynn_fusion_type=""` turns them off.
 
 JAX accepts compiler options only on a top-level `jit`, not on one nested in another
@@ -55,8 +52,8 @@ def cpu_compiler_options(extra: object = None) -> dict[str, str]:
 
     `jax.jit(f, compiler_options=ddgjax.cpu_compiler_options())` compiles `f` as ddgjax compiles its
     kernels on CPU: without YNNPACK library fusions, which make the short reductions of geometry
-    (lengths, dot products of 2- and 3-vectors) 1.1-7.5x slower once arrays pass ~2,000 elements
-    (module docstring; a 4,000-vertex B flow of 1,000 steps under `jax.jit`: 56 -> 17 ms). Same
+    (lengths, dot products of 2- and 3-vectors) several times slower once arrays pass ~2,000
+    elements (module docstring; benchmarks/README.md). Same
     effect for every `jit` of a process: `XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=` set
     before JAX starts. Options the installed jaxlib does not accept are left out, so the result is
     always safe to pass (and may be empty). `extra` adds options of your own (a mapping of option

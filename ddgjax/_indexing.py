@@ -4,9 +4,8 @@
 index`), a compare and select per index that XLA fuses into the gather; `jnp.take(..., mode="fill")`
 does the same before its bounds check. Topology and sparsity-pattern indices are built once on the
 host (DESIGN.md, two phases) and are never negative, so the gathers here are single `lax.gather`s
-without that step: the ELL product `L @ x` 7-30% faster from 20k faces up, the re-assembly of the
-cotan Laplacian 5-12% (the Dirichlet energy and its gradient unchanged within noise; interleaved A/B
-in one process, benchmarks/README.md).
+without that step, which makes the ELL product `L @ x` and the re-assembly of the cotan Laplacian
+measurably faster from 20k faces up (benchmarks/README.md).
 
 Both are ordinary gathers for JAX: differentiable (the transpose is a scatter-add), batchable,
 any backend.

@@ -128,10 +128,8 @@ def half_angle_ratio(cosine: Float[Array, "..."]) -> Float[Array, "..."]:
     about one ulp of 1, and `h / sin h = 1 + u / 3 + ...`, so the result stays within a few ulps
     (tests/test_numerics.py; no small-angle special case). It is the ratio
     `kappa^A / kappa^B = (theta/2) / sin(theta/2)` of the curve flows, `h = |theta| / 2`, computed from
-    multiply-adds: XLA lowers a float64 arctangent to a scalar libm call on CPU (~17 ns per
-    element, 8x NumPy), so the flows avoid it. Needing only the cosine saves the flow step a
-    reduction (an earlier form took `sin(h)^2` too: the A flow's 10,000 steps went from 90-103 to
-    68-83 ms, benchmarks/README.md).
+    multiply-adds: XLA lowers a float64 arctangent to a scalar libm call on CPU, so the flows avoid
+    it; needing only the cosine saves the flow step a reduction.
     Inputs slightly off `[0, 1]` (rounding) are harmless: `u` stays near `[0, 1]`.
 
     Args:

@@ -5,7 +5,7 @@ Convention (DESIGN.md): `L` is the positive semidefinite weak (integrated) Lapla
     (L u)_i = 1/2 sum_j (cot a_ij + cot b_ij) (u_i - u_j),
 
 so `L == -igl.cotmatrix(V, F) == gpytoolbox.cotangent_laplacian(V, F)`, and the pointwise
-Laplace-Beltrami operator is `-M^{-1} L`. Both routes land on `mesh.vertex_pattern`: the edge
+Laplace-Beltrami operator is `-M^{-1} L`. Both routes land on the vertex pattern (`ddgjax.laplacian._plan`): the edge
 entries `-w_ij` are gathered from per-corner values (no scatter), the diagonal is minus the
 off-diagonal row sum (`L 1 = 0` by construction, exactly the partition of unity `sum_j grad phi_j = 0`).
 
@@ -21,25 +21,23 @@ corner -> pattern gather is `ddgjax.sparse.gather_sum`, whose transpose is a fix
 
 from __future__ import annotations
 
-import weakref
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError, is_traced
+from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_div, safe_reciprocal, safe_sqrt
 from ..dec import d0, hodge1
 from ..mesh._compiled import compiled_kernel
-from ..mesh._mesh import Mesh
-from ..mesh._topology import MeshTopology
-from ..sparse import CongruencePlan, SparseMatrix, SparsityPattern, congruence, congruence_plan, gather_sum
+from ..mesh._mesh import Mesh, require_mesh
+from ..sparse import SparseMatrix, congruence, gather_sum
+from ._plan import VertexPlan, dec_plan, vertex_plan
 
 
 def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
-    """The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on `mesh.vertex_pattern`.
+    """The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on the vertex pattern (`ddgjax.laplacian._plan`).
 
     `L_ij = -(cot a_ij + cot b_ij) / 2` for an edge `ij`, `L_ii = -sum_{j != i} L_ij`.
 
@@ -50,7 +48,7 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
       to `A_f <grad phi_i, grad phi_j> = <e_i, e_j> / (4 A_f)` with `4 A_f = 2 |e_i x e_j|`: two dot
       products and one cross product per face, no normal or gradient is formed. It equals the cotan
       formula since `<e_i, e_j> / (2 A_f) = -cot(angle at the third corner)`. The per-corner values are
-      gathered straight into the pattern's storage order (`Mesh.vertex_pattern_corners`) and the
+      gathered straight into the pattern's storage order (`VertexPlan.slot_corners`) and the
       diagonal is minus the ELL row sum.
     - `method="dec"`: `d0^T *1 d0` from `ddgjax.dec.d0` and the circumcentric `ddgjax.dec.hodge1`,
       summed by `ddgjax.sparse.congruence` (a cross-check of the derivation; slower). Its product ->
@@ -73,19 +71,19 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     (1993); K. Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), ch. 6.
     libigl `cotmatrix` (negated); gpytoolbox `cotangent_laplacian`.
     """
+    check_choice("method", method, ("fem", "dec"))
+    plan = vertex_plan(mesh)
     if method == "fem":
-        return SparseMatrix(_fem_values(mesh), mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
-    if method == "dec":
-        star = hodge1(mesh).diagonal()
-        values = congruence(d0(mesh), star, mesh.vertex_pattern, _dec_plan(mesh.topology)).values
-        return SparseMatrix(values, mesh.vertex_pattern, symmetric=True, positive_semidefinite=True)
-    raise DDGInputError(f"method: expected 'fem' or 'dec', got {method!r}")
+        values = _fem_values(mesh, plan)
+    else:
+        values = congruence(d0(mesh), hodge1(mesh).diagonal(), plan.pattern, dec_plan(mesh)).values
+    return SparseMatrix(values, plan.pattern, symmetric=True, positive_semidefinite=True)
 
 
 @compiled_kernel
-def _fem_values(mesh: Mesh) -> Float[Array, " nnz"]:
-    """Values of the FEM cotan Laplacian on `mesh.vertex_pattern` (one compiled program per mesh size)."""
-    rows_off = _off_diagonal(mesh, _edge_entries(mesh))
+def _fem_values(mesh: Mesh, plan: VertexPlan) -> Float[Array, " nnz"]:
+    """Values of the FEM cotan Laplacian on `plan.pattern` (one compiled program per mesh size)."""
+    rows_off = _off_diagonal(plan, _edge_entries(mesh, plan))
     return _with_diagonal(rows_off, -rows_off.row_sums(), positive_semidefinite=True).values
 
 
@@ -94,7 +92,7 @@ def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k
 
     `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)` with `w_ij = 1/2 (cot a_ij + cot b_ij)`, evaluated term by
     term: each face's corner values `-cot(alpha) / 2 = <e_i, e_j> / (4 A_f)` are gathered onto the
-    directed edges `i -> j` leaving each vertex (the off-diagonal slots of `mesh.vertex_pattern`, which
+    directed edges `i -> j` leaving each vertex (the off-diagonal slots of the vertex pattern (`ddgjax.laplacian._plan`), which
     list them row by row), multiplied by the edge differences `u_j - u_i`, and summed per vertex. No
     matrix is assembled: no diagonal, no `SparseMatrix`. Equals `cotan_laplacian(mesh) @ u` to
     round-off. Every step is a fixed gather or a contiguous sum, no scatter-add (only the few
@@ -114,24 +112,24 @@ def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k
     Returns:
         `L u`, the shape of `u`.
     """
-    return _compiled_apply(mesh, _vertex_values(mesh, u))
+    return _compiled_apply(mesh, vertex_plan(mesh), _vertex_values(mesh, u))
 
 
 def _vertex_values(mesh: Mesh, u) -> Float[Array, "nv *k"]:
-    """`u` as a JAX array, after checking (outside any trace) that it has shape `(nv,)` or `(nv, k)`."""
-    n = mesh.n_vertices
-    if not is_traced(u) and (np.ndim(u) not in (1, 2) or np.shape(u)[0] != n):
+    """`u` as a JAX array, after checking that it has shape `(nv,)` or `(nv, k)` (shapes are known under jit too)."""
+    n = require_mesh("mesh", mesh).n_vertices
+    if np.ndim(u) not in (1, 2) or np.shape(u)[0] != n:
         raise DDGInputError(f"u: expected shape ({n},) or ({n}, k), got {np.shape(u)}")
     return u if isinstance(u, jax.Array) else jnp.asarray(u)
 
 
-def _apply_laplacian(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
+def _apply_laplacian(mesh: Mesh, plan: VertexPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
     """`laplacian_apply` without the input check (see there)."""
     n = mesh.n_vertices
     shape = jnp.shape(u)
     columns = u.reshape(n, -1)
-    pattern = mesh.vertex_pattern
-    weights = _edge_entries(mesh)[:, None]  # L_ij on the off-diagonal slots nv.. (row i, column j)
+    pattern = plan.pattern
+    weights = _edge_entries(mesh, plan)[:, None]  # L_ij on the off-diagonal slots nv.. (row i, column j)
     ell_end = n * pattern.width
     ell_weights = weights[: ell_end - n].reshape(pattern.width - 1, n, 1)
     ell_heads = pattern.cols[n:ell_end].reshape(pattern.width - 1, n)
@@ -156,16 +154,16 @@ def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
     positions, in forward and reverse mode and to second order (Hessian-vector products by
     forward-over-reverse, as optimistix / lineax Newton operators use them). The derivative in the
     vertex positions is written out per face (`_face_energy_gradients`, a custom JVP): autodiff
-    of the assembly would carry the per-corner values through the corner -> edge gather and back,
-    1.5x slower (benchmarks/README.md). Reference: Pinkall & Polthier 1993. libigl / gpytoolbox:
+    of the assembly would carry the per-corner values through the corner -> edge gather and back.
+    Reference: Pinkall & Polthier 1993. libigl / gpytoolbox:
     `0.5 * u @ (L @ u)` with `L = -igl.cotmatrix(V, F)`.
     """
-    return _compiled_energy(mesh, _vertex_values(mesh, u))
+    return _compiled_energy(mesh, vertex_plan(mesh), _vertex_values(mesh, u))
 
 
 @jax.custom_jvp
-def _dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
-    return 0.5 * jnp.sum(u * _apply_laplacian(mesh, u))
+def _dirichlet_energy(mesh: Mesh, plan: VertexPlan, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
+    return 0.5 * jnp.sum(u * _apply_laplacian(mesh, plan, u))
 
 
 _compiled_energy = compiled_kernel(_dirichlet_energy)
@@ -174,16 +172,15 @@ _compiled_energy = compiled_kernel(_dirichlet_energy)
 @_dirichlet_energy.defjvp
 def _dirichlet_energy_jvp(primals, tangents):
     """`dE = <L u, du> + sum_f sum_j <G_fj, dp_fj>` (`G` from `_face_energy_gradients`; linear in the tangents)."""
-    mesh, u = primals
-    d_mesh, d_u = tangents
-    applied = _apply_laplacian(mesh, u)
+    mesh, plan, u = primals
+    d_mesh, _, d_u = tangents  # the plan is integer data: no tangent
+    applied = _apply_laplacian(mesh, plan, u)
     d_energy = jnp.sum(applied * d_u)
     gradients = _face_energy_gradients(mesh, u)
     for c in range(3):
         for j in range(3):
-            # One (nf,) gather per corner and coordinate: reverse mode scatters each G[j][c] as it is.
-            # (Stacking G into (nf, 3, 3) for one row scatter makes XLA concatenate, which it does
-            # not vectorise: 1.8x slower gradients at 20k faces, ~10% faster on armadillo_loop1.)
+            # One (nf,) gather per corner and coordinate: reverse mode scatters each G[j][c] as it is
+            # (stacking G into (nf, 3, 3) would make XLA concatenate, which it does not vectorise).
             d_energy = d_energy + jnp.sum(gradients[j][c] * take_rows(d_mesh.vertices[:, c], mesh.faces[:, j]))
     return 0.5 * jnp.sum(u * applied), d_energy
 
@@ -233,8 +230,7 @@ def _face_edges(mesh: Mesh) -> tuple[list[list[Float[Array, " nf"]]], list[Float
     corner `k` (`p_{k+2} - p_{k+1}`), and `normal[c] = (e_1 x e_2)[c] = 2 A N` (counterclockwise corners).
 
     Coordinate by coordinate on `(nf,)` arrays: XLA's CPU backend does not vectorise reductions over a
-    size-3 axis, and this form assembles 2x faster than `(nf, 3, 3)` arrays with `sum(axis=-1)` /
-    `jnp.cross` (benchmarks/README.md).
+    size-3 axis, which `(nf, 3, 3)` arrays with `sum(axis=-1)` / `jnp.cross` would need.
     """
     corners = [take_rows(mesh.vertices[:, c], mesh.faces) for c in range(3)]  # coordinate c of each face's corners, (nf, 3)
     points = [[corners[c][:, k] for c in range(3)] for k in range(3)]  # points[k][c], (nf,)
@@ -251,26 +247,26 @@ def _cross(a, b):
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
-def vertex_operator(mesh: Mesh, edge_values: Float[Array, " ne"]) -> SparseMatrix:
-    """Symmetric matrix on `mesh.vertex_pattern` with `edge_values` off the diagonal and 0 on it (one gather)."""
-    zeros = jnp.zeros(mesh.n_vertices, edge_values.dtype)
+def vertex_operator(plan: VertexPlan, edge_values: Float[Array, " ne"]) -> SparseMatrix:
+    """Symmetric matrix on `plan.pattern` with `edge_values` off the diagonal and 0 on it (one gather)."""
+    zeros = jnp.zeros(plan.pattern.shape[0], edge_values.dtype)
     entries = jnp.concatenate([zeros, edge_values, edge_values])
-    values = take_rows_or_zero(entries, mesh.vertex_pattern_source)
-    return SparseMatrix(values, mesh.vertex_pattern, symmetric=True)
+    values = take_rows_or_zero(entries, plan.source)
+    return SparseMatrix(values, plan.pattern, symmetric=True)
 
 
-def _edge_entries(mesh: Mesh) -> Float[Array, " n_off"]:
-    """FEM stiffness `L_ij = sum_f <e_i, e_j> / (4 A_f)` on each off-diagonal slot of `mesh.vertex_pattern`."""
+def _edge_entries(mesh: Mesh, plan: VertexPlan) -> Float[Array, " n_off"]:
+    """FEM stiffness `L_ij = sum_f <e_i, e_j> / (4 A_f)` on each off-diagonal slot of `plan.pattern`."""
     edges, normal = _face_edges(mesh)
     four_areas = 2.0 * safe_sqrt(_dot(normal, normal))
     # <e_i, e_j> / (4 A) per corner k (the entry of the edge opposite it); 0 on zero-area faces.
     entries = jnp.stack([safe_div(_dot(edges[(k + 1) % 3], edges[(k + 2) % 3]), four_areas) for k in range(3)], axis=1)
-    return gather_sum(entries.reshape(-1), mesh.vertex_pattern_corners, mesh.corner_pattern_slots)
+    return gather_sum(entries.reshape(-1), plan.slot_corners, plan.corner_slots)
 
 
-def _off_diagonal(mesh: Mesh, edge_entries: Float[Array, " n_off"]) -> SparseMatrix:
-    values = jnp.concatenate([jnp.zeros(mesh.n_vertices, edge_entries.dtype), edge_entries])
-    return SparseMatrix(values, mesh.vertex_pattern, symmetric=True)
+def _off_diagonal(plan: VertexPlan, edge_entries: Float[Array, " n_off"]) -> SparseMatrix:
+    values = jnp.concatenate([jnp.zeros(plan.pattern.shape[0], edge_entries.dtype), edge_entries])
+    return SparseMatrix(values, plan.pattern, symmetric=True)
 
 
 def _with_diagonal(
@@ -279,17 +275,3 @@ def _with_diagonal(
     # The vertex pattern stores the diagonal first (slots 0..nv-1).
     values = matrix.values.at[: diagonal.shape[0]].set(diagonal)
     return SparseMatrix(values, matrix.pattern, symmetric=True, positive_semidefinite=positive_semidefinite)
-
-
-_DEC_PLANS: "weakref.WeakKeyDictionary[MeshTopology, CongruencePlan]" = weakref.WeakKeyDictionary()
-
-
-def _dec_plan(topology: MeshTopology) -> CongruencePlan:
-    """The `d0^T W d0` plan on the vertex pattern, built on the host once per topology (rows of `d0` are `[tail, head]`)."""
-    plan = _DEC_PLANS.get(topology)
-    if plan is None:
-        # Host work even when called inside a trace (mesh.vertex_pattern is traced there).
-        with jax.ensure_compile_time_eval():
-            pattern, _ = SparsityPattern.from_edges(topology.edges, topology.n_vertices)
-            plan = _DEC_PLANS[topology] = congruence_plan(topology.edges, pattern)
-    return plan

@@ -38,8 +38,8 @@ def gather_sum(
     `index[s, k] >= n` pads (reads 0); `transpose_index[c]` lists every `s` with `c` among
     `index[s, :]` (each occurrence once, padded with an index `>= m`), so that the transpose is
     `x_bar[c] = sum_j y_bar[transpose_index[c, j]]`. The caller guarantees that the two arrays
-    describe the same incidence (built together on the host, e.g. `Mesh.vertex_pattern_corners` and
-    `Mesh.corner_pattern_slots`); negative indices are not allowed.
+    describe the same incidence (built together on the host, e.g. `VertexPlan.slot_corners` and
+    `VertexPlan.corner_slots` in `ddgjax.laplacian._plan`); negative indices are not allowed.
 
     Linear in `x`; works under `jit`, `grad`, `jvp`, `jacfwd`, `vmap` and nested combinations (module
     docstring). No libigl / gpytoolbox equivalent; in SciPy terms it is `S @ x` (and its transpose
@@ -68,9 +68,8 @@ def gather_sum(
 
 
 def _gather(x, index):
-    # One gather per column of `index`, added up: a single elementwise kernel. (Gathering the
-    # `(m, k)` block and reducing over its short last axis makes XLA's CPU backend emit a separate
-    # reduction, 3x slower for the cotan assembly's k = 2.)
+    # One gather per column of `index`, added up: a single elementwise kernel (a reduction over the
+    # short last axis of an `(m, k)` block becomes a separate, slower kernel on XLA's CPU backend).
     total = jnp.zeros((index.shape[0],) + x.shape[1:], x.dtype)
     for k in range(index.shape[1]):
         total = total + take_rows_or_zero(x, index[:, k])
@@ -86,8 +85,7 @@ def _lower(x, index, transpose_index):
     """The compiled form: `_impl` between two fusion boundaries (`_materialized`).
 
     The result's boundary matters in reverse mode, where the transposed gather feeds several
-    per-coordinate kernels: fused into each, it was re-gathered three times (autodiff of the
-    Dirichlet energy through the assembly took 2x longer).
+    per-coordinate kernels: fused into each, it would be re-gathered once per kernel.
     """
     return _materialized(_impl(_materialized(x, index), index, transpose_index), index)
 
@@ -97,8 +95,7 @@ def _materialized(x, index):
 
     Each element of `x` is read by several rows of `index` in scattered order, so a fused producer
     (e.g. the per-face cotangent formulas) would be recomputed per read, with random access to its
-    own inputs: the cotan assembly ran 2-3x slower that way (armadillo_loop1: 122 against 38 ms
-    for the corner -> slot step; benchmarks/README.md). XLA's CPU pipeline drops
+    own inputs, several times slower for the cotan assembly. XLA's CPU pipeline drops
     `lax.optimization_barrier` before fusion but keeps a conditional, which it cannot fuse across;
     the predicate (indices are non-negative by contract) is a run-time value, so the conditional
     stays, and the other branch (NaN, never taken for valid input) keeps XLA from merging the two.

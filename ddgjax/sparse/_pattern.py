@@ -19,7 +19,7 @@ Three storage layouts:
   row already holds (its diagonal or first entry; `(i, 0)` for an empty row) and always has value 0,
   so exports merge it away. `width` minimises `n_rows * width + 3 * tail` (the tail costs about three
   ELL slots). `A @ x` is then `width` contiguous multiply-adds with gathers of `x`, at the speed of
-  SciPy's CSR product on CPU (a flat gather-and-`segment_sum` is 3x slower; DESIGN.md, measured facts).
+  SciPy's CSR product on CPU (a flat gather-and-`segment_sum` is several times slower; DESIGN.md).
 
 Host-built patterns also carry their transpose: a symmetric pattern the permutation of its own slots
 (`(i, j) -> (j, i)`), any other its transposed pattern and the slot each transposed entry reads.
@@ -29,12 +29,12 @@ Host-built patterns also carry their transpose: a symmetric pattern the permutat
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
 from .._errors import DDGInputError, is_traced
-from .._host import to_device
 
 # Cost of one COO-tail entry relative to one ELL slot (scatter vs contiguous multiply-add).
 _TAIL_COST = 3
@@ -44,7 +44,7 @@ def stable_order(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`(order, keys[order])` for a stable ascending sort of non-negative integer `keys` (host, NumPy).
 
     When each key and its position fit together in 63 bits, one value sort of `key << b | position`
-    does it (3.5x faster than a stable argsort at a million keys: NumPy's value sort is vectorised);
+    does it (NumPy's value sort is vectorised, its stable argsort is not);
     otherwise a stable argsort.
     """
     keys = np.asarray(keys, dtype=np.int64)
@@ -230,12 +230,14 @@ class SparsityPattern(eqx.Module):
         transpose_slot[slot_low_high] = slot_high_low
         transpose_slot[slot_high_low] = slot_low_high
         pattern = SparsityPattern(
-            **to_device(
-                rows=storage_rows,
-                cols=storage_cols,
-                indptr=indptr,
-                transpose_slot=transpose_slot,
-                row_cols=_row_major(storage_cols, n, width, first=1),
+            **jax.device_put(
+                {
+                    "rows": storage_rows,
+                    "cols": storage_cols,
+                    "indptr": indptr,
+                    "transpose_slot": transpose_slot,
+                    "row_cols": _row_major(storage_cols, n, width, first=1),
+                }
             ),
             shape=(n, n),
             layout="ell",
