@@ -21,3 +21,14 @@ def shared_path(*parts: str) -> pathlib.Path:
     if not path.exists():
         pytest.skip(f"shared test data not found: {path} (tests that read ../shared need it beside the repo)")
     return path
+
+
+@pytest.fixture
+def without_type_checker():
+    """Turn off the suite's run-time type checker (jaxtyping + beartype) for one test: what a user sees,
+    for tests of the library's own `DDGInputError` messages on arguments of the wrong type."""
+    import jaxtyping
+
+    jaxtyping.config.update("jaxtyping_disable", True)
+    yield
+    jaxtyping.config.update("jaxtyping_disable", False)

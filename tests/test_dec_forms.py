@@ -301,15 +301,15 @@ def test_sharp_against_libigl_grad_and_hirani_weights():
 
 def test_forms_bad_input():
     mesh = load("tet.obj")
-    with pytest.raises(DDGInputError, match="at: expected 'faces' or 'vertices'"):
+    with pytest.raises(DDGInputError, match="at: expected one of 'faces', 'vertices', got 'edges'"):
         dec.flat(mesh, jnp.zeros((4, 3)), at="edges")
-    with pytest.raises(DDGInputError, match="at: expected 'faces' or 'vertices'"):
+    with pytest.raises(DDGInputError, match="at: expected one of 'faces', 'vertices'"):
         dec.sharp(mesh, jnp.zeros(6), at="corners")
     with pytest.raises(DDGInputError, match="field: expected leading dimension nf"):
         dec.flat(mesh, jnp.zeros((5, 3)))
     with pytest.raises(DDGInputError, match="alpha: expected leading dimension ne = 6"):
         dec.sharp(mesh, jnp.zeros(5))
-    with pytest.raises(DDGInputError, match="degree: expected a nonnegative int"):
+    with pytest.raises(DDGInputError, match="degree: expected an integer >= 0, got -1"):
         dec.integrate_1form(mesh, lambda p: p, degree=-1)
     with pytest.raises(DDGInputError, match=r"alpha: expected values of shape \(3,\)"):
         dec.integrate_1form(mesh, lambda p: p[0])

@@ -7,6 +7,7 @@ Compile time dominates on small meshes, so each mesh's operators are built by on
 from __future__ import annotations
 
 import functools
+import inspect
 
 import gpytoolbox
 import igl
@@ -19,6 +20,16 @@ from conftest import shared_path
 
 import ddgjax.dec as dec
 from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax.laplacian import mass_matrix
+from ddgjax.mesh import (
+    corner_dual_areas,
+    corner_dual_areas_from_lengths_sq,
+    vertex_dual_areas,
+    vertex_pointwise_gaussian_curvatures,
+    vertex_pointwise_mean_curvature_normals,
+    vertex_pointwise_mean_curvatures,
+    vertex_principal_curvatures,
+)
 from ddgjax.mesh._geometry import edge_cotan_weights, face_areas
 from ddgjax.mesh._mesh import Mesh
 
@@ -48,6 +59,9 @@ def operators(name: str) -> dict:
         for dual in ("circumcentric", "barycentric"):
             out[f"h1 {dual}"] = dec.hodge1(mesh, dual=dual).diagonal()
             out[f"h1inv {dual}"] = dec.hodge1(mesh, dual=dual, inverse=True).diagonal()
+        out["default h0"] = dec.hodge0(mesh).diagonal()
+        out["default h1"] = dec.hodge1(mesh).diagonal()
+        out["mass"] = mass_matrix(mesh).diagonal()
         if oriented:
             out["d1"] = dec.d1(mesh)
             out["h2"] = dec.hodge2(mesh).diagonal()
@@ -117,12 +131,77 @@ def test_orientation_policy(name, reason):
 
 def test_bad_arguments():
     mesh = load("tet.obj")
-    with pytest.raises(DDGInputError, match="dual: expected one of"):
+    with pytest.raises(DDGInputError, match="dual: expected one of 'voronoi', 'circumcentric', 'barycentric', got 'dual'"):
         dec.hodge0(mesh, dual="dual")
     with pytest.raises(DDGInputError, match="dual: expected one of"):
-        dec.edge_dual_length_ratios(mesh, dual="voronoi")
-    with pytest.raises(DDGInputError, match="degree: expected 0, 1 or 2"):
+        dec.edge_dual_length_ratios(mesh, dual="mixed")
+    with pytest.raises(DDGInputError, match="degree: expected one of 0, 1, 2, got 3"):
         dec.hodge_star_entries(mesh, 3)
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        dec.d0,
+        dec.d1,
+        dec.hodge0,
+        dec.hodge1,
+        dec.hodge2,
+        dec.edge_dual_length_ratios,
+        lambda m: dec.hodge_star_entries(m, 0),
+        lambda m: dec.integrate_0form(m, jnp.sum),
+        lambda m: dec.integrate_1form(m, lambda p: p),
+        lambda m: dec.integrate_2form(m, lambda p: p),
+        lambda m: dec.flat(m, jnp.zeros((4, 3))),
+        lambda m: dec.sharp(m, jnp.zeros(6)),
+        lambda m: dec.gradient(m, jnp.zeros(4)),
+        lambda m: dec.divergence(m, jnp.zeros((4, 3))),
+        lambda m: dec.curl(m, jnp.zeros((4, 3))),
+        lambda m: dec.codifferential(m, jnp.zeros(6), degree=1),
+        lambda m: dec.hodge_laplacian0(m, jnp.zeros(4)),
+        lambda m: dec.hodge_laplacian1(m, jnp.zeros(6)),
+        lambda m: dec.hodge_laplacian2(m, jnp.zeros(4)),
+    ],
+)
+def test_every_operator_refuses_what_is_not_a_mesh(call, without_type_checker):
+    """A (vertices, faces) pair or a bare array where a Mesh is expected: `DDGInputError` saying what to
+    call (checked as a user sees it, without the suite's run-time type checker, which refuses first)."""
+    mesh = load("tet.obj")
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    with pytest.raises(DDGInputError, match=r"mesh: expected a ddgjax Mesh, got tuple; .*Mesh\.from_arrays"):
+        call((V, F))
+    with pytest.raises(DDGInputError, match="mesh: expected a ddgjax Mesh, got ndarray"):
+        call(V)
+
+
+def test_one_dual_vocabulary_and_default():
+    """`dual=` is keyword-only with the default "voronoi" in ddgjax.mesh and ddgjax.dec alike, and the
+    default *0 is the default mass matrix (libigl's Voronoi pairing with the cotan Laplacian)."""
+    functions = [
+        corner_dual_areas_from_lengths_sq,
+        corner_dual_areas,
+        vertex_dual_areas,
+        vertex_pointwise_gaussian_curvatures,
+        vertex_pointwise_mean_curvature_normals,
+        vertex_pointwise_mean_curvatures,
+        vertex_principal_curvatures,
+        dec.edge_dual_length_ratios,
+        dec.hodge_star_entries,
+        dec.hodge0,
+        dec.hodge1,
+        dec.codifferential,
+        dec.hodge_laplacian0,
+        dec.hodge_laplacian1,
+        dec.hodge_laplacian2,
+    ]
+    for function in functions:
+        parameter = inspect.signature(function).parameters["dual"]
+        assert parameter.kind is inspect.Parameter.KEYWORD_ONLY and parameter.default == "voronoi", function
+    ops = operators("bob_small.ply")
+    np.testing.assert_array_equal(ops["default h0"], ops["h0 voronoi"])
+    np.testing.assert_array_equal(ops["default h0"], ops["mass"])
+    # The Voronoi dual changes *0 only: its *1 is the circumcentric cotan ratio.
+    np.testing.assert_array_equal(ops["default h1"], ops["h1 circumcentric"])
 
 
 @pytest.fixture(scope="module")
@@ -151,8 +230,13 @@ def ddg_reference():
 def test_ddg_reference_solution(ddg_reference):
     mesh, ref, index, sign = ddg_reference
     assert (mesh.n_vertices, mesh.n_faces, mesh.n_edges, mesh.topology.genus) == (3070, 6144, 9216, 2)
+    # The course's *0 is barycentric (ddgjax's default dual is Voronoi); its *1 is the cotan ratio.
     stars = jax.jit(
-        lambda m: (dec.hodge0(m, dual="barycentric").diagonal(), dec.hodge1(m).diagonal(), dec.hodge2(m).diagonal())
+        lambda m: (
+            dec.hodge0(m, dual="barycentric").diagonal(),
+            dec.hodge1(m, dual="circumcentric").diagonal(),
+            dec.hodge2(m).diagonal(),
+        )
     )(mesh)
     # The file's stars agree with ours to ~1e-6 relative only: evaluating ours in float32 moves them
     # 10x less than that, so the file's values came from slightly different positions than the
@@ -224,11 +308,12 @@ def test_single_right_triangle_closed_forms():
     mesh = Mesh.from_arrays(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
     values = jax.jit(
         lambda m: {
-            "h1": dec.hodge1(m).diagonal(),
-            "h1inv": dec.hodge1(m, inverse=True).diagonal(),
+            "h1": dec.hodge1(m, dual="circumcentric").diagonal(),
+            "h1inv": dec.hodge1(m, dual="circumcentric", inverse=True).diagonal(),
             "h1 bary": dec.hodge1(m, dual="barycentric").diagonal(),
             "h0 bary": dec.hodge0(m, dual="barycentric").diagonal(),
-            "h0": dec.hodge0(m).diagonal(),
+            "h0": dec.hodge0(m, dual="circumcentric").diagonal(),
+            "h0 voronoi": dec.hodge0(m).diagonal(),
             "h2": dec.hodge2(m).diagonal(),
             "h2inv": dec.hodge2(m, inverse=True).diagonal(),
         }
@@ -239,8 +324,10 @@ def test_single_right_triangle_closed_forms():
     # Barycentre (1/3, 1/3) to the midpoints: sqrt(5)/6, sqrt(5)/6, sqrt(2)/6; lengths 1, 1, sqrt(2).
     np.testing.assert_allclose(values["h1 bary"], [np.sqrt(5) / 6, np.sqrt(5) / 6, 1 / 6], rtol=1e-15)
     np.testing.assert_allclose(values["h0 bary"], [1 / 6] * 3, rtol=1e-15)
-    # Circumcentre at the hypotenuse midpoint: the right-angle corner gets 1/4, the others 1/8.
+    # Circumcentre at the hypotenuse midpoint: the right-angle corner gets 1/4, the others 1/8; the
+    # mixed (Voronoi) rule counts a right angle as non-obtuse and agrees.
     np.testing.assert_allclose(values["h0"], [0.25, 0.125, 0.125], rtol=1e-15)
+    np.testing.assert_allclose(values["h0 voronoi"], [0.25, 0.125, 0.125], rtol=1e-15)
     np.testing.assert_allclose(values["h2"], [2.0], rtol=1e-15)
     np.testing.assert_allclose(values["h2inv"], [0.5], rtol=1e-15)
 

@@ -128,8 +128,37 @@ def test_check_mesh_on_clean_and_problem_meshes():
 
     bunny = check_mesh(load_mesh(shared_path("meshes", "stanford-bunny.obj")))
     assert bunny.unreferenced_vertices.size == 1113 and bunny.n_boundary_loops == 5
+    assert bunny.duplicate_faces.size == 0
     assert "unreferenced vertices: [8, 16, 18, 72, 86, 99, 104, 117, 157, 177], ... (1113 in all)" in str(bunny)
     assert "boundary loops: 5 (vertices per loop: [22, 42, 39, 40, 80])" in str(bunny)
+
+
+def test_check_mesh_names_duplicate_faces():
+    """A face whose three vertices repeat an earlier face's, in any order or orientation, is named as a
+    duplicate (the later copies), not only through the non-manifold edges it creates."""
+    assert check_mesh(Mesh.from_arrays(TET_V, TET_F)).duplicate_faces.size == 0
+    # Face 1 again as it is, reversed, and rotated (same orientation, other starting corner).
+    copies = np.vstack([TET_F, TET_F[1], TET_F[1, ::-1], TET_F[1, [1, 2, 0]]])
+    report = check_mesh(Mesh.from_arrays(TET_V, copies))
+    assert report.duplicate_faces.tolist() == [4, 5, 6] and not report.is_clean
+    assert "duplicate faces (same three vertices as an earlier face): [4, 5, 6] (3 in all)" in str(report)
+    # A copy placed first: the later face (here the original, index 1) is the one listed.
+    first = np.vstack([TET_F[1, ::-1], TET_F])
+    assert check_mesh(Mesh.from_arrays(TET_V, first)).duplicate_faces.tolist() == [2]
+    # A triangle and its reversed copy: a closed, oriented, manifold "pillow" that no edge check
+    # flags; only the duplicate test makes it unclean.
+    pillow = check_mesh(Mesh.from_arrays(TET_V[:3], np.array([[0, 1, 2], [0, 2, 1]])))
+    assert pillow.duplicate_faces.tolist() == [1] and not pillow.is_clean
+
+    # Real meshes: none of ../shared/meshes has duplicate faces (checked for all 25); triple_vierbein's
+    # 20 non-manifold edges come from distinct faces. bob with one face appended reversed names it.
+    vierbein = check_mesh(load_mesh(shared_path("meshes", "triple_vierbein.obj")))
+    assert vierbein.nonmanifold_edges.size == 20 and vierbein.duplicate_faces.size == 0
+    assert "duplicate faces (same three vertices as an earlier face): none" in str(vierbein)
+    bob = load_mesh(shared_path("meshes", "bob_small.ply"))
+    faces = np.asarray(bob.faces)
+    doubled = check_mesh(Mesh.from_arrays(np.asarray(bob.vertices), np.vstack([faces, faces[7, ::-1]])))
+    assert doubled.duplicate_faces.tolist() == [faces.shape[0]] and check_mesh(bob).is_clean
 
 
 def test_check_mesh_finds_zero_area_faces_at_current_positions():

@@ -17,7 +17,7 @@ from jax.test_util import check_grads
 from conftest import shared_path
 from ddgjax.io import _read_obj, _read_with_trimesh, load_mesh
 from ddgjax.laplacian import laplacian_apply
-from ddgjax._errors import MeshDataError
+from ddgjax._errors import DDGInputError, MeshDataError
 from ddgjax.mesh import (
     Mesh,
     disk,
@@ -27,6 +27,7 @@ from ddgjax.mesh import (
     total_area,
     total_mean_curvature,
     vertex_angle_defects,
+    vertex_dual_areas,
     vertex_gauss_curvature_normals,
     vertex_mean_curvature_normals,
     vertex_mean_curvatures,
@@ -385,3 +386,35 @@ def test_jit_and_vmap_equal_eager(small_batch):
     np.testing.assert_allclose(small_batch["H"][1], small_batch["H"][0] / 2, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(small_batch["K"][2], small_batch["K"][0], rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(small_batch["H"][2], -small_batch["H"][0], rtol=1e-12, atol=1e-14)
+
+
+
+def test_pointwise_curvatures_divide_by_the_chosen_dual():
+    """`dual=` picks the area every pointwise curvature divides by (default "voronoi", the mixed area)."""
+
+    @jax.jit
+    def by_dual(mesh):
+        return {
+            dual: {
+                "areas": vertex_dual_areas(mesh, dual=dual),
+                "K": vertex_pointwise_gaussian_curvatures(mesh, dual=dual),
+                "H": vertex_pointwise_mean_curvatures(mesh, dual=dual),
+                "HN": vertex_pointwise_mean_curvature_normals(mesh, dual=dual),
+                "principal": vertex_principal_curvatures(mesh, dual=dual),
+            }
+            for dual in ("voronoi", "circumcentric", "barycentric")
+        }
+
+    values = jax.tree_util.tree_map(np.asarray, by_dual(SMALL))
+    default = jax.tree_util.tree_map(np.asarray, curvatures(SMALL))
+    for dual, got in values.items():
+        areas = got["areas"]
+        np.testing.assert_allclose(got["K"], default["defects"] / areas, rtol=1e-13, err_msg=dual)
+        np.testing.assert_allclose(got["H"], default["H_integrated"] / areas, rtol=1e-13, err_msg=dual)
+        np.testing.assert_allclose(got["HN"], default["HN_integrated"] / areas[:, None], rtol=1e-13, err_msg=dual)
+        np.testing.assert_allclose(got["principal"].sum(axis=1), 2 * got["H"], rtol=1e-13, err_msg=dual)
+    assert np.abs(values["barycentric"]["areas"] - values["voronoi"]["areas"]).max() > 1e-3
+    for key in ("K", "H", "HN", "principal"):
+        np.testing.assert_allclose(default[key], values["voronoi"][key], rtol=1e-14, err_msg=key)
+    with pytest.raises(DDGInputError, match="dual: expected one of 'voronoi', 'circumcentric', 'barycentric'"):
+        vertex_pointwise_gaussian_curvatures(SMALL, dual="mixed")

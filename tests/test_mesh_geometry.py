@@ -41,9 +41,9 @@ from mesh_union import disjoint_union
 def geometry(mesh: Mesh) -> dict:
     """Every quantity of the module in one compiled call."""
     return {
-        "voronoi": vertex_dual_areas(mesh, kind="voronoi"),
-        "barycentric": vertex_dual_areas(mesh, kind="barycentric"),
-        "circumcentric": vertex_dual_areas(mesh, kind="circumcentric"),
+        "voronoi": vertex_dual_areas(mesh),
+        "barycentric": vertex_dual_areas(mesh, dual="barycentric"),
+        "circumcentric": vertex_dual_areas(mesh, dual="circumcentric"),
         "normals_area": vertex_normals(mesh, weighting="area"),
         "normals_angle": vertex_normals(mesh, weighting="angle"),
         "normals_uniform": vertex_normals(mesh, weighting="uniform"),
@@ -115,12 +115,12 @@ DEGENERATE_VERTICES = SMALL.vertices.at[11].set(SMALL.vertices[0]).at[4].set(0.5
 # ---------------------------------------------------------------- dual areas
 
 @pytest.mark.parametrize("name", REAL_NAMES)
-@pytest.mark.parametrize("kind", ["voronoi", "barycentric"])
-def test_dual_areas_match_libigl_massmatrix(real, name, kind):
+@pytest.mark.parametrize("dual", ["voronoi", "barycentric"])
+def test_dual_areas_match_libigl_massmatrix(real, name, dual):
     V, F = real["arrays"][name]
-    igl_kind = igl.MASSMATRIX_TYPE_VORONOI if kind == "voronoi" else igl.MASSMATRIX_TYPE_BARYCENTRIC
+    igl_kind = igl.MASSMATRIX_TYPE_VORONOI if dual == "voronoi" else igl.MASSMATRIX_TYPE_BARYCENTRIC
     expected = igl.massmatrix(V, F, igl_kind).diagonal()
-    got = part(real, name, kind)
+    got = part(real, name, dual)
     assert relative_error(got, expected) < 1e-10
     # Entrywise too (slivers to 179.6 degrees on nefertiti): the per-vertex relative error stays at round-off.
     referenced = expected > 0
@@ -128,12 +128,12 @@ def test_dual_areas_match_libigl_massmatrix(real, name, kind):
     assert np.all(got[real["meshes"][name].topology.unreferenced_vertices] == 0.0)
 
 
-def test_dual_areas_all_kinds_sum_to_total_area(real):
+def test_dual_areas_of_every_dual_sum_to_total_area(real):
     V, F = real["arrays"]["beetle.off"]
     area = igl.doublearea(V, F).sum() / 2
     assert abs(part(real, "beetle.off", "face_areas").sum() - area) < 1e-13 * area
-    for kind in ("voronoi", "barycentric", "circumcentric"):
-        assert abs(part(real, "beetle.off", kind).sum() - area) < 1e-12 * area
+    for dual in ("voronoi", "barycentric", "circumcentric"):
+        assert abs(part(real, "beetle.off", dual).sum() - area) < 1e-12 * area
     total = sum(igl.doublearea(V, F).sum() / 2 for V, F in real["arrays"].values())
     assert abs(float(real["values"]["area"]) - total) < 1e-12 * total
 
@@ -159,8 +159,8 @@ def test_circumcentric_equals_voronoi_without_obtuse_triangles():
 )
 def test_corner_dual_areas_closed_form(points, voronoi, circumcentric):
     values = triangle_dual_areas(points)
-    for kind, expected in [("voronoi", voronoi), ("circumcentric", circumcentric), ("barycentric", [1 / 3] * 3)]:
-        np.testing.assert_allclose(values[kind], values["area"] * np.asarray(expected), rtol=1e-13, atol=1e-16)
+    for dual, expected in [("voronoi", voronoi), ("circumcentric", circumcentric), ("barycentric", [1 / 3] * 3)]:
+        np.testing.assert_allclose(values[dual], values["area"] * np.asarray(expected), rtol=1e-13, atol=1e-16)
 
 
 def test_circumcentric_share_is_negative_beyond_ninety_degrees():
@@ -175,11 +175,11 @@ def test_circumcentric_share_is_negative_beyond_ninety_degrees():
 def test_dual_areas_intrinsic_core_matches_extrinsic(real):
     V, F = real["arrays"]["camelhead.off"]
     l2 = np.stack([np.sum((V[F[:, (k + 2) % 3]] - V[F[:, (k + 1) % 3]]) ** 2, axis=1) for k in range(3)], axis=1)
-    intrinsic = jax.jit(lambda l2: {kind: corner_dual_areas_from_lengths_sq(l2, kind=kind) for kind in ("voronoi", "circumcentric")})(l2)
-    for kind, corners in intrinsic.items():
+    intrinsic = jax.jit(lambda l2: {dual: corner_dual_areas_from_lengths_sq(l2, dual=dual) for dual in ("voronoi", "circumcentric")})(l2)
+    for dual, corners in intrinsic.items():
         summed = np.bincount(F.ravel(), weights=np.asarray(corners).ravel(), minlength=V.shape[0])
         # Kahan's area vs the cross-product area on camelhead's 0.55-degree slivers: agree to ~1e-12.
-        assert relative_error(summed, part(real, "camelhead.off", kind)) < 1e-11
+        assert relative_error(summed, part(real, "camelhead.off", dual)) < 1e-11
 
 
 @jax.jit
@@ -216,9 +216,11 @@ def test_intrinsic_cores_match_the_extrinsic_routes(real):
     assert np.degrees(r["angles"][0].min()) < 0.1 and np.degrees(r["angles"][0].max()) > 179.5
 
 
-def test_dual_areas_reject_unknown_kind():
-    with pytest.raises(DDGInputError, match="kind: expected one of"):
-        vertex_dual_areas(SMALL, kind="mixed")
+def test_dual_areas_reject_unknown_dual():
+    with pytest.raises(DDGInputError, match="dual: expected one of 'voronoi', 'circumcentric', 'barycentric', got 'mixed'"):
+        vertex_dual_areas(SMALL, dual="mixed")
+    with pytest.raises(DDGInputError, match="dual: expected one of"):
+        corner_dual_areas_from_lengths_sq(jnp.ones((1, 3)), dual="mixed")
 
 
 # ---------------------------------------------------------------- normals
@@ -248,7 +250,7 @@ def test_face_normals_match_libigl_and_are_unit(real):
 
 
 def test_vertex_normals_reject_unknown_weighting():
-    with pytest.raises(DDGInputError, match="weighting"):
+    with pytest.raises(DDGInputError, match="weighting: expected one of 'area', 'angle', 'uniform', got 'mean'"):
         vertex_normals(SMALL, weighting="mean")
 
 
@@ -318,7 +320,7 @@ def test_jit_and_vmap_equal_eager():
     # Eager (op-by-op) evaluation compiles every primitive separately, so only a representative set is
     # compared: the mixed dual area (contains the circumcentric path), dihedral angles, the volume.
     eager_functions = {
-        "voronoi": lambda m: vertex_dual_areas(m, kind="voronoi"),
+        "voronoi": vertex_dual_areas,
         "dihedral": edge_dihedral_angles,
         "volume": enclosed_volume,
     }

@@ -18,10 +18,26 @@ offending edges):
   rotation: `d1`, `hodge2`, `integrate_2form`, `curl`, `codifferential(degree=2)`,
   `hodge_laplacian1`, `hodge_laplacian2`.
 
+Dual mesh: the Hodge stars, the codifferential and the Hodge Laplacians take the keyword-only
+`dual=`, with the same choices and default as the dual areas and pointwise curvatures of
+`ddgjax.mesh`:
+
+- `"voronoi"` (default): `*0` is the mixed area of Meyer et al. 2003 (never negative; libigl's
+  Voronoi mass matrix, `ddgjax.laplacian.mass_matrix`'s default), `*1` the circumcentric cotan
+  ratio, so `d0^T *1 d0 = L` with the mass matrix libigl pairs with it;
+- `"circumcentric"`: the DEC dual of Desbrun et al. 2005, `*1` the same cotan ratio, `*0` the
+  circumcentric dual area (negative next to obtuse faces);
+- `"barycentric"`: `*0` a third of each incident face, `*1` through the face barycentres (both
+  never negative; the DDG exercises' `hodge0` and gpytoolbox `dec_h0`).
+
+The default is the dual without negative areas that the rest of ddgjax uses; pass `dual=` to match a
+reference that uses another (the DDG exercises' `*0` is barycentric).
+
 Sign conventions (DESIGN.md): `(d0 u)_e = u[head] - u[tail]`; `d0^T *1 d0 = L`, the PSD cotan
-Laplacian; the codifferential is the adjoint of `d` (`delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`), so the
-weak Hodge Laplacians are symmetric, and PSD wherever the stars are positive (always for the
-barycentric dual; for the circumcentric one on Delaunay meshes); `divergence(gradient(u)) = -L u`.
+Laplacian (Voronoi and circumcentric duals); the codifferential is the adjoint of `d`
+(`delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`), so the weak Hodge Laplacians are symmetric, and PSD wherever
+the stars are positive (always for the barycentric dual; for the others on Delaunay meshes);
+`divergence(gradient(u)) = -L u`.
 Degenerate (zero-area) faces contribute nothing and keep values and gradients finite; zero star entries invert to zero.
 
 Reference: Crane, de Goes, Desbrun, Schroeder, *Digital Geometry Processing with Discrete Exterior

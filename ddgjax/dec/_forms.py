@@ -28,11 +28,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._errors import DDGInputError
+from .._errors import DDGInputError, check_choice, check_count
 from .._indexing import take_rows
 from .._numerics import safe_div
 from ..mesh._geometry import corner_dual_areas, face_hat_gradients, face_vertex_positions, scatter_corners_to_vertices
-from ..mesh._mesh import Mesh
+from ..mesh._mesh import Mesh, require_mesh
 from ._vector_calculus import _as_array
 
 
@@ -40,11 +40,6 @@ def _gauss_legendre(n_points: int, dtype) -> tuple[Float[Array, " q"], Float[Arr
     """Gauss-Legendre nodes and weights on `[0, 1]` (exact for polynomials of degree `2 n - 1`)."""
     nodes, weights = np.polynomial.legendre.leggauss(n_points)
     return jnp.asarray(0.5 * (nodes + 1.0), dtype), jnp.asarray(0.5 * weights, dtype)
-
-
-def _check_degree(degree) -> None:
-    if not isinstance(degree, (int, np.integer)) or isinstance(degree, bool) or degree < 0:
-        raise DDGInputError(f"degree: expected a nonnegative int (polynomial degree made exact), got {degree!r}")
 
 
 def _evaluate(name: str, function: Callable, points: Float[Array, "q 3"], trailing: tuple[int, ...]) -> Array:
@@ -64,6 +59,7 @@ def integrate_0form(mesh: Mesh, f: Callable[[Float[Array, "3"]], Float[Array, ""
     the quadrature error of the right-hand side). Reference: Desbrun et al., *Discrete Exterior
     Calculus* (2005), section 3 (the de Rham map). libigl / gpytoolbox: `f(V)` evaluated on the rows of `V`.
     """
+    mesh = require_mesh("mesh", mesh)
     return _evaluate("f", f, mesh.vertices, ())
 
 
@@ -77,7 +73,8 @@ def integrate_1form(
     position. `alpha` maps one position `(3,)` to a covector `(3,)` (module docstring). Works on any
     mesh. Reference: Desbrun et al., *Discrete Exterior Calculus* (2005), section 3.
     """
-    _check_degree(degree)
+    mesh = require_mesh("mesh", mesh)
+    degree = check_count("degree", degree, minimum=0)
     nodes, weights = _gauss_legendre(degree // 2 + 1, mesh.vertices.dtype)
     tails = take_rows(mesh.vertices, mesh.edges[:, 0])
     vectors = take_rows(mesh.vertices, mesh.edges[:, 1]) - tails
@@ -101,8 +98,9 @@ def integrate_2form(
     Exterior Calculus* (2005), section 3; quadrature: Duffy, "Quadrature over a pyramid or cube of
     integrands with a singularity at a vertex" (1982). No libigl / gpytoolbox equivalent.
     """
+    mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.dec.integrate_2form")
-    _check_degree(degree)
+    degree = check_count("degree", degree, minimum=0)
     nodes, weights = _gauss_legendre((degree + 3) // 2, mesh.vertices.dtype)
     # (s, t) = (a, b (1 - a)) maps the unit square onto the reference triangle, with Jacobian 1 - a.
     s = jnp.repeat(nodes, nodes.shape[0])
@@ -116,11 +114,6 @@ def integrate_2form(
 
 
 _PLACES = ("faces", "vertices")
-
-
-def _check_at(at: str) -> None:
-    if at not in _PLACES:
-        raise DDGInputError(f"at: expected 'faces' or 'vertices', got {at!r}")
 
 
 def flat(
@@ -138,7 +131,8 @@ def flat(
     Works on any mesh. Reference: Hirani, *Discrete Exterior Calculus* (2003), section 5. libigl /
     gpytoolbox have no flat (gpytoolbox's `dec_*` operators start from 1-forms).
     """
-    _check_at(at)
+    mesh = require_mesh("mesh", mesh)
+    check_choice("at", at, _PLACES)
     edge_vectors = take_rows(mesh.vertices, mesh.edges[:, 1]) - take_rows(mesh.vertices, mesh.edges[:, 0])
     if at == "vertices":
         field = _as_array("field", field, mesh.n_vertices, "nv")
@@ -192,9 +186,8 @@ def sharp(mesh: Mesh, alpha: Float[ArrayLike, " ne"], *, at: str = "faces") -> F
       planes, not in one tangent plane. Vertices with zero dual area (unreferenced, or only
       degenerate faces around them) get the zero vector.
 
-    Alternatives not taken: a least-squares fit of a linear field per one-ring reproduces every
-    linear field but is underdetermined at boundary vertices with one or two faces, and a global
-    least-squares inverse of `flat(at="vertices")` is not local; neither is a Whitney interpolation.
+    Whitney interpolation is local and defined at every vertex (a per-one-ring least-squares fit is
+    underdetermined at boundary vertices with one or two faces).
 
     Independent of the face orientation: works on any mesh (edges carry their own orientation).
 
@@ -211,11 +204,12 @@ def sharp(mesh: Mesh, alpha: Float[ArrayLike, " ne"], *, at: str = "faces") -> F
     forms at faces, libigl / gpytoolbox `grad` (above); libigl and gpytoolbox have no sharp of a
     general 1-form and no vertex sharp.
     """
-    _check_at(at)
+    mesh = require_mesh("mesh", mesh)
+    check_choice("at", at, _PLACES)
     alpha = _as_array("alpha", alpha, mesh.n_edges, "ne")
     corner_values = _whitney_corner_values(mesh, alpha)
     if at == "faces":
         return jnp.mean(corner_values, axis=1)
-    weights = corner_dual_areas(mesh, kind="voronoi")
+    weights = corner_dual_areas(mesh, dual="voronoi")
     weighted = scatter_corners_to_vertices(mesh, weights[..., None] * corner_values)
     return safe_div(weighted, scatter_corners_to_vertices(mesh, weights)[:, None])

@@ -1,4 +1,4 @@
-"""Diagonal Hodge stars `*0`, `*1`, `*2` on the circumcentric or barycentric dual, and their inverses.
+"""Diagonal Hodge stars `*0`, `*1`, `*2` on the Voronoi (mixed), circumcentric or barycentric dual, and their inverses.
 
 Each star maps primal k-forms (integrated over k-simplices) to dual (2-k)-forms (integrated over the
 dual cells) by the ratio `|dual cell| / |primal simplex|`:
@@ -6,6 +6,9 @@ dual cells) by the ratio `|dual cell| / |primal simplex|`:
 - `*0`: vertex dual area (`|v| = 1`);
 - `*1`: dual edge length over primal edge length;
 - `*2`: one over the face area (the dual of a face is a point).
+
+The dual is the keyword-only `dual=` shared with `ddgjax.mesh` (`ddgjax.dec` module docstring):
+`"voronoi"` (default), `"circumcentric"` or `"barycentric"`; `*2` does not depend on it.
 
 Inverses (`inverse=True`) take the reciprocal of each diagonal entry, with one policy everywhere:
 **an exactly zero entry inverts to zero** (the Moore-Penrose pseudo-inverse of a diagonal matrix).
@@ -21,37 +24,31 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError
+from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_reciprocal
-from ..mesh._geometry import edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
+from ..mesh._geometry import DUALS, edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
 from ..mesh._compiled import compiled_kernel
-from ..mesh._mesh import Mesh
+from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix, diagonal_matrix
 
-_DUALS = ("circumcentric", "barycentric", "voronoi")
-
-
-def _check_dual(dual: str, allowed: tuple[str, ...] = _DUALS) -> None:
-    if dual not in allowed:
-        raise DDGInputError(f"dual: expected one of {allowed}, got {dual!r}")
-
-
 @compiled_kernel(static_argnames=("dual",))
-def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "circumcentric") -> Float[Array, " ne"]:
+def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " ne"]:
     """`|e*| / |e|` per edge, `(ne,)`: the diagonal of `*1`.
 
-    - `"circumcentric"`: the dual edge joins the circumcentres of the adjacent faces, so
-      `|e*| / |e| = (cot a + cot b) / 2` (`edge_cotan_weights`; one term on a boundary edge). Negative
-      on non-Delaunay edges, zero where `a + b = pi`.
+    - `"voronoi"` (default) and `"circumcentric"`: the dual edge joins the circumcentres of the
+      adjacent faces, so `|e*| / |e| = (cot a + cot b) / 2` (`edge_cotan_weights`; one term on a
+      boundary edge). Negative on non-Delaunay edges, zero where `a + b = pi`. The Voronoi dual
+      differs from the circumcentric one in `*0` only, as libigl pairs its cotan Laplacian with
+      the Voronoi mass matrix.
     - `"barycentric"`: the dual edge is the polyline from each adjacent face's barycentre to the edge
       midpoint (two segments on an interior edge, one on a boundary edge), so
       `|e*| = sum_f |c_f - m_e|`; always >= 0 (0 on a zero-length edge).
 
     Non-manifold edges get one term per face (`*1` itself needs no orientation).
     """
-    _check_dual(dual, ("circumcentric", "barycentric"))
-    if dual == "circumcentric":
+    check_choice("dual", dual, DUALS)
+    if dual != "barycentric":
         return edge_cotan_weights(mesh)
     barycentres = jnp.mean(face_vertex_positions(mesh), axis=1)
     midpoints = 0.5 * (take_rows(mesh.vertices, mesh.edges[:, 0]) + take_rows(mesh.vertices, mesh.edges[:, 1]))
@@ -62,48 +59,51 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "circumcentric") -> Float
 
 
 def hodge_star_entries(
-    mesh: Mesh, degree: int, *, dual: str = "circumcentric", inverse: bool = False
+    mesh: Mesh, degree: int, *, dual: str = "voronoi", inverse: bool = False
 ) -> Float[Array, " n"]:
     """Diagonal of the Hodge star `*_k` (or of its inverse) on primal `degree`-forms, as a vector.
 
-    `degree` 0: vertex dual areas `(nv,)`; 1: `|e*| / |e|` `(ne,)`; 2: `1 / area` `(nf,)`. `dual` picks
-    the dual mesh: `"circumcentric"`, `"barycentric"`, or `"voronoi"` (mixed areas for `*0`; `*1` is
-    then the circumcentric one, the pairing of libigl's cotan Laplacian with its Voronoi mass matrix).
-    `*2` does not depend on `dual`. Zero entries invert to zero (module docstring). See `hodge0`,
-    `hodge1`, `hodge2` for the matrices and the orientation requirement of `*2`.
+    `degree` 0, 1 or 2 (forms on a triangle mesh): vertex dual areas `(nv,)`, `|e*| / |e|` `(ne,)`,
+    `1 / area` `(nf,)`. `dual` picks the dual mesh: `"voronoi"` (default; mixed areas for `*0`, the
+    circumcentric `*1`: the pairing of libigl's cotan Laplacian with its Voronoi mass matrix),
+    `"circumcentric"` or `"barycentric"`. `*2` does not depend on `dual`. Zero entries invert to zero
+    (module docstring). See `hodge0`, `hodge1`, `hodge2` for the matrices and the orientation
+    requirement of `*2`.
     """
-    _check_dual(dual)
+    mesh = require_mesh("mesh", mesh)
+    check_choice("dual", dual, DUALS)
+    check_choice("degree", degree, (0, 1, 2))
     if degree == 0:
-        entries = vertex_dual_areas(mesh, kind=dual)
+        entries = vertex_dual_areas(mesh, dual=dual)
     elif degree == 1:
-        entries = edge_dual_length_ratios(mesh, dual="barycentric" if dual == "barycentric" else "circumcentric")
-    elif degree == 2:
+        entries = edge_dual_length_ratios(mesh, dual=dual)
+    else:
         mesh.topology.require_oriented("ddgjax.dec.hodge2")
         areas = face_areas(mesh)
         return areas if inverse else safe_reciprocal(areas)
-    else:
-        raise DDGInputError(f"degree: expected 0, 1 or 2 (forms on a triangle mesh), got {degree!r}")
     return safe_reciprocal(entries) if inverse else entries
 
 
-def hodge0(mesh: Mesh, *, dual: str = "circumcentric", inverse: bool = False) -> SparseMatrix:
+def hodge0(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> SparseMatrix:
     """Hodge star on primal 0-forms, diagonal `(nv, nv)` with entries `|v*|`, the vertex dual areas.
 
-    `dual` picks the dual cell (`ddgjax.mesh.vertex_dual_areas`): `"circumcentric"` (the DEC dual of
-    Desbrun et al. 2005; negative shares on obtuse faces, so an entry can be <= 0), `"barycentric"`
-    (a third of each incident face: the DDG exercises' `hodge0`, gpytoolbox `dec_h0`) or `"voronoi"`
-    (mixed area, Meyer et al. 2003; always >= 0; libigl's Voronoi mass matrix). Unreferenced vertices
+    `dual` picks the dual cell (`ddgjax.mesh.vertex_dual_areas`): `"voronoi"` (default; mixed area,
+    Meyer et al. 2003; always >= 0; libigl's Voronoi mass matrix, `ddgjax.laplacian.mass_matrix`),
+    `"circumcentric"` (the DEC dual of Desbrun et al. 2005; negative shares on obtuse faces, so an
+    entry can be <= 0) or `"barycentric"` (a third of each incident face: the DDG exercises'
+    `hodge0`, gpytoolbox `dec_h0`). Unreferenced vertices
     get 0 (and 0 in the inverse). Works on every mesh. `inverse=True` gives `*0^{-1}`, zero entries
     staying zero (module docstring). Reference: Crane et al., *Digital Geometry Processing with
     Discrete Exterior Calculus* (2013), section 3.8.
     """
+    mesh = require_mesh("mesh", mesh)
     return diagonal_matrix(hodge_star_entries(mesh, 0, dual=dual, inverse=inverse))
 
 
-def hodge1(mesh: Mesh, *, dual: str = "circumcentric", inverse: bool = False) -> SparseMatrix:
+def hodge1(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> SparseMatrix:
     """Hodge star on primal 1-forms, diagonal `(ne, ne)` with entries `|e*| / |e|`.
 
-    Circumcentric (default; also used for `dual="voronoi"`): `(*1)_ee = (cot a_e + cot b_e) / 2`, the
+    Voronoi (default) and circumcentric: `(*1)_ee = (cot a_e + cot b_e) / 2`, the
     cotan weight, so that the PSD cotan Laplacian is `L = d0^T *1 d0` (DESIGN.md). Barycentric: the
     dual edge runs through the adjacent face barycentres and the edge midpoint (see
     `edge_dual_length_ratios`). `inverse=True` gives `*1^{-1}`, zero entries staying zero (module
@@ -111,6 +111,7 @@ def hodge1(mesh: Mesh, *, dual: str = "circumcentric", inverse: bool = False) ->
     *Discrete Exterior Calculus* (2005). DDG exercises: `DEC::buildHodgeStar1Form`; gpytoolbox:
     `dec_h1` (circumcentric, its own edge order).
     """
+    mesh = require_mesh("mesh", mesh)
     return diagonal_matrix(hodge_star_entries(mesh, 1, dual=dual, inverse=inverse))
 
 
@@ -123,4 +124,5 @@ def hodge2(mesh: Mesh, *, inverse: bool = False) -> SparseMatrix:
     face's orientation (raises `MeshDataError` otherwise). DDG exercises: `DEC::buildHodgeStar2Form`.
     gpytoolbox's `dec_h2` is the face area, i.e. `hodge2(mesh, inverse=True)` (and `dec_h2inv` is ours).
     """
+    mesh = require_mesh("mesh", mesh)
     return diagonal_matrix(hodge_star_entries(mesh, 2, inverse=inverse))

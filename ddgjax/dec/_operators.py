@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ..mesh._mesh import Mesh
+from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix, SparsityPattern
 
 
@@ -39,6 +39,7 @@ def d0(mesh: Mesh) -> SparseMatrix:
     `DEC::buildExteriorDerivative0Form` (opposite global sign). gpytoolbox: `dec_d0`, on its own edge
     order and orientation `E` (`halfedge_edge_map`) and with the opposite sign, `u[E0] - u[E1]`.
     """
+    mesh = require_mesh("mesh", mesh)
     values = jnp.broadcast_to(jnp.asarray([-1.0, 1.0], mesh.vertices.dtype), mesh.edges.shape)
     return _row_blocks(mesh.edges, values, mesh.n_vertices)
 
@@ -53,6 +54,7 @@ def d1(mesh: Mesh) -> SparseMatrix:
     depend on an arbitrary choice per face. DDG exercises: `DEC::buildExteriorDerivative1Form`;
     gpytoolbox: `dec_d1` (on its own edge order and orientation).
     """
+    mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.dec.d1")
     edges = mesh.face_edges
     signs = mesh.face_edge_signs.astype(mesh.vertices.dtype)

@@ -14,7 +14,10 @@ Conventions (DESIGN.md):
 - The codifferential is the adjoint of `d` for the inner products `<a, b>_k = a^T *_k b`:
   `delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`, and the Hodge Laplacian `Delta_k = d delta + delta d` is
   self-adjoint and positive semidefinite where the stars are positive (`Delta_0 = *0^{-1} L`, minus
-  the Laplace-Beltrami operator; circumcentric stars turn negative on non-Delaunay meshes).
+  the Laplace-Beltrami operator; the cotan `*1` of the Voronoi and circumcentric duals turns negative
+  on non-Delaunay meshes).
+- The stars come from the keyword-only `dual=` shared with `ddgjax.mesh` (`"voronoi"`, the default,
+  `"circumcentric"` or `"barycentric"`; `ddgjax.dec` module docstring).
 
 Orientation: `gradient`, `divergence`, `codifferential(degree=1)` and `hodge_laplacian0` work on any
 mesh; `curl` (which needs a sense of rotation), `codifferential(degree=2)`, `hodge_laplacian1` and
@@ -27,13 +30,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .._errors import DDGInputError
+from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows
-from ..mesh._geometry import face_hat_gradients
-from ..mesh._geometry import corner_cotangents, face_edge_vectors, scatter_corners_to_vertices
-from ..mesh._mesh import Mesh
+from ..mesh._geometry import DUALS, corner_cotangents, face_edge_vectors, face_hat_gradients, scatter_corners_to_vertices
+from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix
-from ._hodge import _check_dual, hodge_star_entries
+from ._hodge import hodge_star_entries
 from ._operators import d0, d1
 
 
@@ -44,6 +46,7 @@ def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"]) -> Float[Array, "nf 3"]:
     libigl: `igl.grad(V, F) @ u` reshaped `(3, nf).T`; gpytoolbox: `grad(V, F) @ u`, likewise.
     Reference: Crane et al., *The heat method for distance computation* (2017), eq. (2).
     """
+    mesh = require_mesh("mesh", mesh)
     u = _as_array("u", u, mesh.n_vertices, "nv")
     return jnp.einsum("fk,fkd->fd", take_rows(u, mesh.faces), face_hat_gradients(mesh))
 
@@ -59,6 +62,7 @@ def divergence(mesh: Mesh, field: Float[ArrayLike, "nf 3"]) -> Float[Array, " nv
     contribute 0). Reference: Crane et al. 2017 (heat method), section 3.2.1; the DDG exercises' `div`
     in `test-heat-soln.txt` is `-divergence`.
     """
+    mesh = require_mesh("mesh", mesh)
     field = _as_array("field", field, mesh.n_faces, "nf")
     edge_terms = 0.5 * corner_cotangents(mesh) * jnp.sum(face_edge_vectors(mesh) * field[:, None, :], axis=-1)
     # Corner j leaves along e_{j+2} (to p_{j+1}) and against e_{j+1} (to p_{j+2}).
@@ -77,6 +81,7 @@ def curl(mesh: Mesh, field: Float[ArrayLike, "nf 3"]) -> Float[Array, " nv"]:
     consistently oriented faces (`MeshDataError` otherwise). Reference: Polthier & Preuss,
     *Identifying vector field singularities using a discrete Hodge decomposition* (2003).
     """
+    mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.dec.curl")
     field = _as_array("field", field, mesh.n_faces, "nf")
     return scatter_corners_to_vertices(mesh, 0.5 * jnp.sum(face_edge_vectors(mesh) * field[:, None, :], axis=-1))
@@ -115,7 +120,7 @@ def _codifferential(mesh: Mesh, form, degree: int, dual: str):
 
 
 def codifferential(
-    mesh: Mesh, form: Float[ArrayLike, "n *batch"], *, degree: int, dual: str = "circumcentric"
+    mesh: Mesh, form: Float[ArrayLike, "n *batch"], *, degree: int, dual: str = "voronoi"
 ) -> Float[Array, "m *batch"]:
     """Codifferential `delta_k` of a primal `degree`-form (`degree` 1 or 2), a primal (k-1)-form.
 
@@ -127,9 +132,9 @@ def codifferential(
     Degree 2 needs consistently oriented faces. Reference: Desbrun et al. 2005, section 9; Crane et
     al. 2013, section 6 (Hodge decomposition uses `*1^{-1} d1^T *2`).
     """
-    _check_dual(dual)
-    if degree not in (1, 2):
-        raise DDGInputError(f"degree: the codifferential acts on 1- or 2-forms, got degree {degree!r}")
+    mesh = require_mesh("mesh", mesh)
+    check_choice("dual", dual, DUALS)
+    check_choice("degree", degree, (1, 2))
     if degree == 2:
         mesh.topology.require_oriented("ddgjax.dec.codifferential(degree=2)")
     return _codifferential(mesh, _as_form("form", mesh, form, degree), degree, dual)
@@ -138,7 +143,7 @@ def codifferential(
 def _hodge_laplacian(mesh: Mesh, name: str, form, degree: int, dual: str, weak: bool):
     if degree > 0:
         mesh.topology.require_oriented(f"ddgjax.dec.hodge_laplacian{degree}")
-    _check_dual(dual)
+    check_choice("dual", dual, DUALS)
     form = _as_form(name, mesh, form, degree)
     result = jnp.zeros_like(form)
     if degree < 2:
@@ -152,26 +157,27 @@ def _hodge_laplacian(mesh: Mesh, name: str, form, degree: int, dual: str, weak: 
 
 
 def hodge_laplacian0(
-    mesh: Mesh, u: Float[ArrayLike, "nv *batch"], *, dual: str = "circumcentric", weak: bool = False
+    mesh: Mesh, u: Float[ArrayLike, "nv *batch"], *, dual: str = "voronoi", weak: bool = False
 ) -> Float[Array, "nv *batch"]:
     """Hodge Laplacian on 0-forms, `Delta_0 u = delta_1 d0 u = *0^{-1} d0^T *1 d0 u`, `(nv, *batch)`.
 
     `u` is `(nv,)` or `(nv, k)` (columns transformed independently). PSD convention: with the
-    circumcentric (default) or Voronoi dual, `d0^T *1 d0 = L`, the cotan Laplacian
+    Voronoi (default) or circumcentric dual, `d0^T *1 d0 = L`, the cotan Laplacian
     (`ddgjax.laplacian.cotan_laplacian`), so `Delta_0 = *0^{-1} L` is minus the pointwise
     Laplace-Beltrami operator (pointwise: divided by the dual areas). `weak=True` returns the
     symmetric, integrated `*0 Delta_0 u = d0^T *1 d0 u` (no division by dual areas). `dual="barycentric"`
     uses the barycentric `*0` and `*1` (`hodge_star_entries`). Works on any mesh; vertices with zero
     dual area get 0 (pseudo-inverse). Reference: Desbrun et al., *Discrete Exterior Calculus* (2005);
     Crane et al. 2013, section 6. Equivalents: `weak=True` is `-igl.cotmatrix(V, F) @ u` and
-    `gpytoolbox.cotangent_laplacian(V, F) @ u`; with `dual="voronoi"` the strong form is
+    `gpytoolbox.cotangent_laplacian(V, F) @ u`; with the default `dual="voronoi"` the strong form is
     `-(igl.cotmatrix(V, F) @ u) / M.diagonal()` with `M = igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI)`.
     """
+    mesh = require_mesh("mesh", mesh)
     return _hodge_laplacian(mesh, "u", u, 0, dual, weak)
 
 
 def hodge_laplacian1(
-    mesh: Mesh, alpha: Float[ArrayLike, "ne *batch"], *, dual: str = "circumcentric", weak: bool = False
+    mesh: Mesh, alpha: Float[ArrayLike, "ne *batch"], *, dual: str = "voronoi", weak: bool = False
 ) -> Float[Array, "ne *batch"]:
     """Hodge Laplacian on 1-forms, `Delta_1 = d0 delta_1 + delta_2 d1`, `(ne, *batch)`.
 
@@ -181,22 +187,24 @@ def hodge_laplacian1(
     the harmonic 1-forms (dimension `2 * genus` on a closed surface, for positive stars). Needs
     consistently oriented faces. Reference: Desbrun et al. 2005; Crane et al. 2013, section 6.
     """
+    mesh = require_mesh("mesh", mesh)
     return _hodge_laplacian(mesh, "alpha", alpha, 1, dual, weak)
 
 
 def hodge_laplacian2(
-    mesh: Mesh, omega: Float[ArrayLike, "nf *batch"], *, dual: str = "circumcentric", weak: bool = False
+    mesh: Mesh, omega: Float[ArrayLike, "nf *batch"], *, dual: str = "voronoi", weak: bool = False
 ) -> Float[Array, "nf *batch"]:
     """Hodge Laplacian on 2-forms, `Delta_2 = d1 delta_2 = d1 *1^{-1} d1^T *2`, `(nf, *batch)`.
 
     `omega` is `(nf,)` or `(nf, k)`, integrated over the faces (module docstring); so is the result.
     `Delta_2 omega = d1 *1^{-1} d1^T *2 omega`: `*2` turns the face integrals into densities, `d1^T`
     takes their jumps across the edges, `*1^{-1}` and `d1` sum the resulting dual fluxes around each
-    face. PSD for positive stars (barycentric always; circumcentric on Delaunay meshes); on a closed
-    surface its kernel is the constant density (`omega` proportional to the face areas). `weak=True`
-    returns the symmetric `*2 d1 *1^{-1} d1^T *2 omega`. Zero `*1` entries invert to 0. Needs
+    face. PSD for positive stars (barycentric always; Voronoi and circumcentric on Delaunay meshes);
+    on a closed surface its kernel is the constant density (`omega` proportional to the face areas).
+    `weak=True` returns the symmetric `*2 d1 *1^{-1} d1^T *2 omega`. Zero `*1` entries invert to 0. Needs
     consistently oriented faces (`MeshDataError` otherwise). Reference: Desbrun et al., *Discrete
     Exterior Calculus* (2005); Crane et al. 2013, section 6. gpytoolbox (its own edge order, which
     cancels here): `dec_d1(F) @ dec_h1inv(V, F) @ dec_d1(F).T @ dec_h2inv(V, F) @ omega`.
     """
+    mesh = require_mesh("mesh", mesh)
     return _hodge_laplacian(mesh, "omega", omega, 2, dual, weak)

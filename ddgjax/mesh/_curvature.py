@@ -2,12 +2,17 @@
 
 Conventions (DESIGN.md): every function says whether it is **integrated** (a sum over the vertex's
 dual cell, scale-invariant for Gaussian curvature) or **pointwise** (the integrated value divided by
-the vertex dual area, `vertex_dual_areas(mesh, kind=kind)`, Voronoi by default). Names follow: the
+the vertex dual area, `vertex_dual_areas(mesh, dual=dual)`). Names follow: the
 integrated quantities are `vertex_angle_defects`, `vertex_mean_curvatures`,
 `vertex_mean_curvature_normals`, `vertex_gauss_curvature_normals`; their pointwise counterparts carry
 `pointwise` (`vertex_pointwise_gaussian_curvatures`, ...), and `vertex_principal_curvatures` is
 pointwise. Mean curvature is `H = (k1 + k2) / 2`, positive on a sphere with outward normals; the
 smooth identities behind the discrete ones are `Delta x = -2 H N` and `K = k1 k2`.
+
+Dual areas: the pointwise functions take the keyword-only `dual=` shared by `ddgjax.mesh` and
+`ddgjax.dec` (`"voronoi"`, `"circumcentric"`, `"barycentric"`; see `vertex_dual_areas`). The default
+`"voronoi"` (mixed) area is never negative, so `K / A` and `H / A` keep the sign of `K` and `H` on
+obtuse meshes, where the circumcentric area can vanish or turn negative.
 
 Orientation: angle defects and the mean curvature normal from `L V` need none and work on every
 mesh. The signed scalar mean curvature (and so the principal curvatures, the total mean curvature and
@@ -46,11 +51,6 @@ def _operation(name: str) -> str:
     return f"ddgjax.mesh.{name} (signed dihedral angles)"
 
 
-def _require_orientation(mesh: Mesh, name: str) -> None:
-    """Signed dihedral angles need consistently oriented faces (module docstring)."""
-    mesh.topology.require_oriented(_operation(name))
-
-
 @compiled_kernel
 def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     """Integrated Gaussian curvature: the angle defect at each vertex, `(nv,)`.
@@ -79,18 +79,18 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     return jnp.where(referenced, 2.0 * jnp.pi - angle_sums - corrections, 0.0)
 
 
-@compiled_kernel(static_argnames=("kind",))
-def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
+@compiled_kernel(static_argnames=("dual",))
+def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise Gaussian curvature, `(nv,)`: `K_i / A_i`, the angle defect over the vertex dual area.
 
-    `K_i = vertex_angle_defects(mesh)` (integrated), `A_i = vertex_dual_areas(mesh, kind=kind)`
-    (`"voronoi"` mixed areas by default, `"barycentric"`, `"circumcentric"`). 0 where the dual area
+    `K_i = vertex_angle_defects(mesh)` (integrated), `A_i = vertex_dual_areas(mesh, dual=dual)`
+    (`"voronoi"` mixed areas by default, `"circumcentric"`, `"barycentric"`). 0 where the dual area
     is 0 (unreferenced vertices). Works on every mesh. Converges at `O(h^2)` on regular meshes.
     Reference: Meyer et al. 2003. libigl tutorial:
     `igl.gaussian_curvature(V, F) / igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI).diagonal()`
     (equal on interior vertices; libigl's defect omits the boundary's `-pi`).
     """
-    return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, kind=kind))
+    return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, dual=dual))
 
 
 @compiled_kernel
@@ -116,16 +116,16 @@ def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     return scatter_corners_to_vertices(mesh, corner_terms)
 
 
-@compiled_kernel(static_argnames=("kind",))
-def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 3"]:
+@compiled_kernel(static_argnames=("dual",))
+def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, "nv 3"]:
     """Pointwise mean curvature normal `H N`, `(nv, 3)`: `vertex_mean_curvature_normals / A_i`.
 
-    `A_i = vertex_dual_areas(mesh, kind=kind)`. Its length is `|H|` (tending to `1/r` on a sphere of
+    `A_i = vertex_dual_areas(mesh, dual=dual)`. Its length is `|H|` (tending to `1/r` on a sphere of
     radius r); 0 where the dual area is 0. Works on every mesh (no orientation needed). Reference:
     Meyer et al. 2003 (their mean curvature normal operator `K(x_i) = 2 H N`). libigl tutorial: `HN = -Minv @ (L @ V)` with `L = igl.cotmatrix`,
     `M` the Voronoi mass matrix, equals `2 H N` here.
     """
-    return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, kind=kind)[:, None])
+    return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, dual=dual)[:, None])
 
 
 @compiled_kernel(requires_orientation=_operation("vertex_mean_curvatures"))
@@ -141,7 +141,6 @@ def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
     Reference: Crane 2020, "Discrete curvature II" (Steiner formula). libigl and gpytoolbox have no
     dihedral-angle mean curvature (libigl's tutorial uses the unsigned `|L V|`).
     """
-    _require_orientation(mesh, "vertex_mean_curvatures")
     edge_terms = 0.25 * edge_lengths(mesh) * edge_dihedral_angles(mesh)
     return jax.ops.segment_sum(jnp.repeat(edge_terms, 2), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
 
@@ -155,7 +154,6 @@ def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
     Signed: needs consistently oriented faces (`MeshDataError` otherwise). Reference: Crane 2020,
     "Discrete curvature II".
     """
-    _require_orientation(mesh, "total_mean_curvature")
     return 0.5 * jnp.sum(edge_lengths(mesh) * edge_dihedral_angles(mesh))
 
 
@@ -170,28 +168,26 @@ def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     consistently oriented faces (`MeshDataError` otherwise). Reference: Crane 2020, "Discrete
     curvature II". No libigl / gpytoolbox equivalent.
     """
-    _require_orientation(mesh, "vertex_gauss_curvature_normals")
     vectors = take_rows(mesh.vertices, mesh.edges[:, 0]) - take_rows(mesh.vertices, mesh.edges[:, 1])
     terms = 0.5 * safe_div(edge_dihedral_angles(mesh), safe_norm(vectors))[:, None] * vectors
     n = mesh.n_vertices
     return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(terms, mesh.edges[:, 1], num_segments=n)
 
 
-@compiled_kernel(static_argnames=("kind",), requires_orientation=_operation("vertex_pointwise_mean_curvatures"))
-def vertex_pointwise_mean_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
+@compiled_kernel(static_argnames=("dual",), requires_orientation=_operation("vertex_pointwise_mean_curvatures"))
+def vertex_pointwise_mean_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise signed mean curvature, `(nv,)`: `vertex_mean_curvatures / A_i`.
 
-    `A_i = vertex_dual_areas(mesh, kind=kind)`. `H = (k1 + k2) / 2`, `1/r` on a sphere of radius r
+    `A_i = vertex_dual_areas(mesh, dual=dual)`. `H = (k1 + k2) / 2`, `1/r` on a sphere of radius r
     with outward normals; 0 where the dual area is 0. Needs consistently oriented faces
     (`MeshDataError` otherwise). Reference: Crane 2020, "Discrete curvature II". libigl's tutorial
     computes the unsigned `|H|` from `L V` instead (see `vertex_pointwise_mean_curvature_normals`).
     """
-    _require_orientation(mesh, "vertex_pointwise_mean_curvatures")
-    return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, kind=kind))
+    return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, dual=dual))
 
 
-@compiled_kernel(static_argnames=("kind",), requires_orientation=_operation("vertex_principal_curvatures"))
-def vertex_principal_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nv 2"]:
+@compiled_kernel(static_argnames=("dual",), requires_orientation=_operation("vertex_principal_curvatures"))
+def vertex_principal_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, "nv 2"]:
     """Pointwise principal curvatures `(k1, k2)`, `(nv, 2)`, `k1 >= k2`, from `K` and `H`.
 
     `k1,2 = H +- sqrt(max(H^2 - K, 0))` with `vertex_pointwise_mean_curvatures` and
@@ -202,7 +198,6 @@ def vertex_principal_curvatures(mesh: Mesh, *, kind: str = "voronoi") -> Float[A
     Meyer et al. 2003, section 6. libigl's `principal_curvature` fits quadrics instead (and also
     returns directions).
     """
-    _require_orientation(mesh, "vertex_principal_curvatures")
-    h = vertex_pointwise_mean_curvatures(mesh, kind=kind)
-    root = safe_sqrt(h * h - vertex_pointwise_gaussian_curvatures(mesh, kind=kind))
+    h = vertex_pointwise_mean_curvatures(mesh, dual=dual)
+    root = safe_sqrt(h * h - vertex_pointwise_gaussian_curvatures(mesh, dual=dual))
     return jnp.stack([h + root, h - root], axis=-1)

@@ -7,6 +7,16 @@ follow the libigl order: entry `k` belongs to the edge opposite corner `k`.
 Degenerate faces (zero area, collinear corners) have no defined cotangent; their cotangents are set
 to 0, so such a face contributes nothing to the cotan Laplacian or the circumcentric dual, and every
 value and gradient stays finite (libigl returns inf / NaN there). See DESIGN.md, Numerics.
+
+Dual cells: every function that needs the dual cell of a vertex (the dual areas here, the pointwise
+curvatures, the DEC Hodge stars) takes the same keyword-only option `dual=`, one of `DUALS`:
+
+- `"voronoi"` (the default everywhere): the mixed area of Meyer et al. 2003, circumcentric on faces
+  without an obtuse angle, `A/2, A/4, A/4` on obtuse ones; never negative; libigl's Voronoi mass
+  matrix and the default of `ddgjax.laplacian.mass_matrix`.
+- `"circumcentric"`: the DEC dual of Desbrun et al. 2005; a vertex next to an obtuse face gets a
+  negative share of it, so its area can be negative.
+- `"barycentric"`: a third of each incident face.
 """
 
 from __future__ import annotations
@@ -15,7 +25,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError
+from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_div, safe_norm, safe_normalize, safe_sqrt, unsigned_angle
 from ._compiled import compiled_kernel
@@ -178,11 +188,12 @@ def scatter_corners_to_vertices(mesh: Mesh, corner_values: Float[Array, "nf 3 *d
     return jax.ops.segment_sum(flat, mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
 
 
-_DUAL_AREA_KINDS = ("voronoi", "barycentric", "circumcentric")
+DUALS = ("voronoi", "circumcentric", "barycentric")
+"""The choices of the `dual=` option, shared by `ddgjax.mesh` and `ddgjax.dec` (module docstring)."""
 
 
 def corner_dual_areas_from_lengths_sq(
-    lengths_sq: Float[Array, "nf 3"], *, kind: str = "voronoi", areas: Float[Array, " nf"] | None = None
+    lengths_sq: Float[Array, "nf 3"], *, dual: str = "voronoi", areas: Float[Array, " nf"] | None = None
 ) -> Float[Array, "nf 3"]:
     """Share of each face's area assigned to each of its corners, `(nf, 3)` (intrinsic core).
 
@@ -200,11 +211,12 @@ def corner_dual_areas_from_lengths_sq(
       nonnegative. Exactly libigl's `massmatrix(..., MASSMATRIX_TYPE_VORONOI)` rule (a right angle
       counts as non-obtuse; both rules agree there).
 
-    `areas` defaults to Kahan's formula from the lengths. Zero-area faces give 0 shares (every kind).
+    `areas` defaults to Kahan's formula from the lengths. Zero-area faces give 0 shares (every dual).
 
     Args:
         lengths_sq: `(nf, 3)` squared length of the edge opposite each corner.
-        kind: one of `"voronoi"`, `"barycentric"`, `"circumcentric"` (keyword-only, static).
+        dual: one of `"voronoi"` (default), `"circumcentric"`, `"barycentric"` (keyword-only, static;
+            module docstring).
         areas: optional `(nf,)` face areas.
 
     Returns:
@@ -213,17 +225,17 @@ def corner_dual_areas_from_lengths_sq(
     Reference: M. Meyer, M. Desbrun, P. Schroeder, A. Barr, "Discrete differential-geometry operators
     for triangulated 2-manifolds" (2003), Section 3.3 and Fig. 4.
     """
-    _check_dual_area_kind(kind)
+    check_choice("dual", dual, DUALS)
     if areas is None:
         areas = face_areas_from_lengths_sq(lengths_sq)
-    if kind == "barycentric":
+    if dual == "barycentric":
         return jnp.broadcast_to(areas[:, None] / 3.0, lengths_sq.shape)
     # l_k^2 cot(alpha_k) / 8 = l_k^2 (l_{k+1}^2 + l_{k+2}^2 - l_k^2) / (32 A): the law-of-cosines
     # numerator is also the (sign of the) cosine, so the obtuse test needs no extra work.
     cosine_numerators = _cosine_numerators(lengths_sq)
     halves = safe_div(lengths_sq * cosine_numerators, 32.0 * areas[:, None])
     circumcentric = jnp.sum(halves, axis=-1, keepdims=True) - halves
-    if kind == "circumcentric":
+    if dual == "circumcentric":
         return circumcentric
     obtuse = cosine_numerators < 0
     has_obtuse = jnp.any(obtuse, axis=-1, keepdims=True)
@@ -231,33 +243,27 @@ def corner_dual_areas_from_lengths_sq(
     return jnp.where(has_obtuse, split, circumcentric)
 
 
-def _check_dual_area_kind(kind: str) -> None:
-    if kind not in _DUAL_AREA_KINDS:
-        raise DDGInputError(f"kind: expected one of {_DUAL_AREA_KINDS}, got {kind!r}")
-
-
-@compiled_kernel(static_argnames=("kind",))
-def corner_dual_areas(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, "nf 3"]:
+@compiled_kernel(static_argnames=("dual",))
+def corner_dual_areas(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, "nf 3"]:
     """Per-corner dual areas, `(nf, 3)`, from the embedding (see `corner_dual_areas_from_lengths_sq`)."""
-    _check_dual_area_kind(kind)
-    return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), kind=kind, areas=face_areas(mesh))
+    return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), dual=dual, areas=face_areas(mesh))
 
 
-@compiled_kernel(static_argnames=("kind",))
-def vertex_dual_areas(mesh: Mesh, *, kind: str = "voronoi") -> Float[Array, " nv"]:
+@compiled_kernel(static_argnames=("dual",))
+def vertex_dual_areas(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv"]:
     """Area of the dual cell of each vertex, `(nv,)`: the corner shares of its faces, summed.
 
-    `"voronoi"` (default) is the mixed area of Meyer et al. 2003, `"barycentric"` a third of each
-    incident face, `"circumcentric"` the (possibly negative, on obtuse meshes) circumcentric dual
-    cell; see `corner_dual_areas_from_lengths_sq` for the formulas. Every kind sums to the total
-    surface area. Unreferenced vertices get 0. Dividing an integrated quantity (e.g. the angle
+    `dual="voronoi"` (default) is the mixed area of Meyer et al. 2003, `"barycentric"` a third of
+    each incident face, `"circumcentric"` the (possibly negative, on obtuse meshes) circumcentric
+    dual cell; see `corner_dual_areas_from_lengths_sq` for the formulas. Every dual sums to the
+    total surface area. Unreferenced vertices get 0. Dividing an integrated quantity (e.g. the angle
     defect) by these areas gives the pointwise one.
 
     Equivalents: `igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI / _BARYCENTRIC).diagonal()`;
-    gpytoolbox `massmatrix(V, F, type="voronoi" / "barycentric").diagonal()`. The circumcentric
-    kind is the diagonal of the DEC Hodge star on 0-forms (Desbrun et al. 2005).
+    gpytoolbox `massmatrix(V, F, type="voronoi" / "barycentric").diagonal()`. Each dual is the
+    diagonal of the DEC Hodge star on 0-forms of that dual (`ddgjax.dec.hodge0`).
     """
-    return scatter_corners_to_vertices(mesh, corner_dual_areas(mesh, kind=kind))
+    return scatter_corners_to_vertices(mesh, corner_dual_areas(mesh, dual=dual))
 
 
 _NORMAL_WEIGHTINGS = ("area", "angle", "uniform")
@@ -276,8 +282,7 @@ def vertex_normals(mesh: Mesh, *, weighting: str = "area", normalize: bool = Tru
     Equivalent: `igl.per_vertex_normals(V, F, igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA / _ANGLE /
     _UNIFORM)` (libigl returns NaN or an arbitrary vector where the sum vanishes).
     """
-    if weighting not in _NORMAL_WEIGHTINGS:
-        raise DDGInputError(f"weighting: expected one of {_NORMAL_WEIGHTINGS}, got {weighting!r}")
+    check_choice("weighting", weighting, _NORMAL_WEIGHTINGS)
     area_vectors = face_area_vectors(mesh)
     if weighting == "area":
         corner_vectors = jnp.broadcast_to(area_vectors[:, None, :], (mesh.n_faces, 3, 3))
