@@ -61,3 +61,14 @@ def check_positive(name: str, value) -> float:
     if not (np.isscalar(value) and np.isreal(value) and np.isfinite(value) and value > 0) or isinstance(value, (bool, np.bool_)):
         raise DDGInputError(f"{name}: expected a finite number > 0, got {value!r}")
     return float(value)
+
+
+def check_choice(name: str, value, choices) -> object:
+    """`value` if it is one of `choices`, else `DDGInputError` naming the argument and listing the choices.
+
+    The one validator for option arguments (`kind=`, `method=`, ...) across ddgjax. The type is
+    compared first, so `True` is not taken for `1` and an array is refused without being compared.
+    """
+    if not any(type(value) is type(choice) and value == choice for choice in choices):
+        raise DDGInputError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
+    return value
