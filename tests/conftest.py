@@ -32,3 +32,10 @@ def without_type_checker():
     jaxtyping.config.update("jaxtyping_disable", True)
     yield
     jaxtyping.config.update("jaxtyping_disable", False)
+
+
+@pytest.fixture(autouse=True)
+def _no_compilation_cache_in_the_home_directory(monkeypatch):
+    """CLI tests must not write JAX's persistent cache under the user's home (tests that test the
+    cache point it at a temporary directory themselves)."""
+    monkeypatch.setenv("DDGJAX_COMPILATION_CACHE", "0")

@@ -1,15 +1,18 @@
-"""The `ddgjax flow` subcommand (ddgjax/curves/_demo.py), driven through `ddgjax.cli.main`."""
+"""The `ddgjax flow` subcommand (ddgjax/_cli/flow.py), driven through `ddgjax.cli.main`."""
 
 from __future__ import annotations
 
 import contextlib
 import io
+import os
 import re
+from unittest import mock
 
 import matplotlib.image
 import numpy as np
 import pytest
 
+from ddgjax._cli import CACHE_VARIABLE
 from ddgjax.cli import main
 from ddgjax.curves import figure3_polygon
 
@@ -18,9 +21,13 @@ INVARIANTS = ("total curvature", "centroid", "cyclic residual", "length", "area"
 
 
 def _run(argv):
-    """`main(argv)` with its exit status (also from SystemExit), stdout and stderr."""
+    """`main(argv)` with its exit status (also from SystemExit), stdout and stderr.
+
+    Without the persistent compilation cache: a test writes nothing to the user's cache directory
+    (tests/test_cli.py tests the cache).
+    """
     out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with mock.patch.dict(os.environ, {CACHE_VARIABLE: "0"}), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             status = main(argv)
         except SystemExit as exit_:
@@ -122,3 +129,11 @@ def test_flow_reads_and_reorients_a_clockwise_file(tmp_path):
     assert "clockwise.csv is clockwise; reversing" in out
     changes = _table(out)
     assert abs(changes["B", "centroid"]) < 1e-12 and changes["B", "simple"] == "yes"
+
+
+def test_a_self_intersecting_flow_is_reported_not_raised():
+    # Far above the explicit stability limit: the first step already crosses the polygon over itself.
+    status, out, err = _run(["flow", "--kinds", "B", "--tau", "10", *SHORT, "--no-plot"])
+    assert status == 0, err
+    assert re.search(r"simple \(at every step\)\s+yes\s+no \(step 1\)", out), out
+    assert "warning: flow B: the curve self-intersected at step 1" in out

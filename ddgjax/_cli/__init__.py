@@ -1,10 +1,74 @@
 """The `ddgjax` command line: `ddgjax flow` (curve-shortening flows, the reading report's Figure 3)
-and `ddgjax info` (topology and curvature report of a mesh)."""
+and `ddgjax info` (topology and curvature report of a mesh).
+
+Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
+know nothing of argparse, files or figures; this package parses options, reads files, prints and
+plots. The console script `ddgjax` runs `ddgjax.cli.main`, which is `main` here.
+
+Start-up: a command runs with JAX's persistent compilation cache in `$XDG_CACHE_HOME/ddgjax/jax`
+(`~/.cache/ddgjax/jax` without `XDG_CACHE_HOME`), so a second run on inputs of a size seen before
+reads its compiled programs from disk instead of compiling them. `--no-compilation-cache` or
+`DDGJAX_COMPILATION_CACHE=0` turns it off; a cache directory the user already gave JAX
+(`JAX_COMPILATION_CACHE_DIR`) is used as it is.
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
+from collections.abc import Iterator
+
+import jax
+from jax.experimental.compilation_cache import compilation_cache
+
+from . import flow, info
+
+#: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
+CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
+_OFF = ("0", "false", "no", "off")
+# ddgjax's kernels compile in 0.05-0.5 s each, under JAX's default threshold of 1 s for caching a
+# program: cache every program, whatever its compile time and size.
+_CACHE_SETTINGS = {"jax_persistent_cache_min_compile_time_secs": 0.0, "jax_persistent_cache_min_entry_size_bytes": -1}
+
+
+def cache_directory() -> str:
+    """`$XDG_CACHE_HOME/ddgjax/jax`, or `~/.cache/ddgjax/jax` when that variable is unset or relative."""
+    base = os.environ.get("XDG_CACHE_HOME", "")
+    if not os.path.isabs(base):
+        base = os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "ddgjax", "jax")
+
+
+@contextlib.contextmanager
+def persistent_compilation_cache(directory: str | None) -> Iterator[None]:
+    """Run the body with JAX's persistent compilation cache in `directory` (`None`: leave JAX as it is).
+
+    JAX's own settings are restored afterwards, so `main` called from Python leaves the process
+    as it found it. A cache directory already configured in JAX is kept, and one that cannot be
+    created is skipped with a note on stderr (the command still runs, compiling as usual).
+    """
+    if directory is None or jax.config.jax_compilation_cache_dir:
+        yield
+        return
+    try:
+        os.makedirs(directory, exist_ok=True)
+    except OSError as error:
+        print(f"ddgjax: note: no compilation cache ({error})", file=sys.stderr)
+        yield
+        return
+    settings = {"jax_compilation_cache_dir": directory, **_CACHE_SETTINGS}
+    previous = {name: getattr(jax.config, name) for name in settings}
+    for name, value in settings.items():
+        jax.config.update(name, value)
+    try:
+        yield
+    finally:
+        for name, value in previous.items():
+            jax.config.update(name, value)
+        # JAX opens its cache once per process at the first compile; forget it so a later one reopens.
+        compilation_cache.reset_cache()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -12,21 +76,26 @@ def build_parser() -> argparse.ArgumentParser:
         prog="ddgjax",
         description="Discrete differential geometry in JAX. Run a subcommand with --help for its options.",
     )
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument(
+        "--no-compilation-cache",
+        action="store_true",
+        help=f"compile every program afresh instead of keeping compiled programs in {cache_directory()} "
+        f"(same as {CACHE_VARIABLE}=0)",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    from .curves._demo import add_flow_arguments
-
-    add_flow_arguments(
+    flow.add_arguments(
         sub.add_parser(
             "flow",
+            parents=[common],
             help="discrete curve-shortening flows A, B, D on a polygon (the report's Figure 3)",
             description="Evolve one polygon by the discrete curve-shortening flows and plot the invariants.",
         )
     )
-    from .mesh._report import add_info_arguments
-
-    add_info_arguments(
+    info.add_arguments(
         sub.add_parser(
             "info",
+            parents=[common],
             help="topology, area, volume, Gauss-Bonnet and curvature statistics of a mesh",
             description="Print the topology report and curvature statistics of a mesh.",
         )
@@ -35,9 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the `ddgjax` console script."""
-    import jax
-
+    """Entry point of the `ddgjax` console script; returns the exit status."""
     # Geometry wants float64; the CLI, like tests and notebooks, enables it explicitly (DESIGN.md).
     jax.config.update("jax_enable_x64", True)
     parser = build_parser()
@@ -45,8 +112,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
-    return int(args.run(args) or 0)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    off = args.no_compilation_cache or os.environ.get(CACHE_VARIABLE, "").strip().lower() in _OFF
+    with persistent_compilation_cache(None if off else cache_directory()):
+        return int(args.run(args) or 0)

@@ -4,8 +4,8 @@ The same non-convex polygon is evolved by the flows of `kappa^A`, `kappa^B` and 
 `kappa^C` on request). The figure shows overlaid snapshots of each flow side by side, and below them
 what each flow keeps: `kappa^A` its total curvature `2 pi`, `kappa^B` the vertex centroid, and
 `kappa^D` drives the polygon to a cyclic one. A table of every invariant at the start and the end of
-each flow is printed. The plotting uses matplotlib's object API with the Agg canvas (no display, no
-change to pyplot's global backend).
+each flow is printed. The figure uses matplotlib's object API with the Agg canvas (no display, no
+change to pyplot's global backend) and the snapshot panels of `ddgjax.plot.plot_flow`.
 """
 
 from __future__ import annotations
@@ -23,11 +23,22 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .._errors import DDGInputError
-from . import _shapes
-from ._curvature import curvature, edge_lengths, length
-from ._curve import Curve
-from ._flow import CurveFlowResult, curve_shortening_flow
-from ._invariants import enclosed_area
+from ..curves import (
+    RESULTS,
+    Curve,
+    CurveFlowResult,
+    curvature,
+    curve_shortening_flow,
+    edge_lengths,
+    enclosed_area,
+    figure3_polygon,
+    flower,
+    length,
+    load_polygon,
+    random_polygon,
+    regular_polygon,
+    star,
+)
 
 SHAPES = ("figure3", "flower", "star", "random", "regular")
 # One colour per kind, the same in every panel.
@@ -58,7 +69,7 @@ def _positive(kind):
     return parse
 
 
-def add_flow_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of `ddgjax flow` to `parser` and make `run_flow` its action."""
     parser.formatter_class = argparse.ArgumentDefaultsHelpFormatter
     parser.add_argument(
@@ -120,11 +131,11 @@ def add_flow_arguments(parser: argparse.ArgumentParser) -> None:
 def _initial_curve(args):
     """The polygon named by `--shape`, counterclockwise, with a description for the title."""
     builders = {
-        "figure3": _shapes.figure3_polygon,
-        "flower": lambda: _shapes.flower(args.vertices),
-        "star": lambda: _shapes.star(subdivisions=max(1, round(args.vertices / 10))),
-        "random": lambda: _shapes.random_polygon(args.vertices, seed=args.seed),
-        "regular": lambda: _shapes.regular_polygon(args.vertices),
+        "figure3": figure3_polygon,
+        "flower": lambda: flower(args.vertices),
+        "star": lambda: star(subdivisions=max(1, round(args.vertices / 10))),
+        "random": lambda: random_polygon(args.vertices, seed=args.seed),
+        "regular": lambda: regular_polygon(args.vertices),
     }
     if args.shape in builders:
         curve = builders[args.shape]()
@@ -132,7 +143,7 @@ def _initial_curve(args):
         return curve, name
     if not os.path.isfile(args.shape):
         raise DDGInputError(f"--shape: expected one of {', '.join(SHAPES)} or an existing .npy / CSV file, got {args.shape!r}")
-    curve = _shapes.load_polygon(args.shape)
+    curve = load_polygon(args.shape)
     name = os.path.basename(args.shape)
     if float(enclosed_area(curve)) < 0:
         # The flows and the sign conventions assume counterclockwise order (positive turning angles).
@@ -169,7 +180,7 @@ class FlowRun(NamedTuple):
 
 def _own_total_curvature(points, kind: str) -> np.ndarray:
     """Integrated total curvature `sum_i kappa^kind_i` of every saved state (`kind`'s own, not `sum theta`)."""
-    return np.asarray(jax.vmap(lambda p: jnp.sum(curvature(Curve(p), kind, pointwise=False)))(points))
+    return np.asarray(jax.vmap(lambda p: jnp.sum(curvature(Curve(p), kind=kind, pointwise=False)))(points))
 
 
 def _run_flows(curve, kinds, tau, args):
@@ -192,6 +203,7 @@ def _run_flows(curve, kinds, tau, args):
             method=args.method,
             rescale=rescale,
             progress=args.progress,
+            throw=False,  # a failed run is reported in the table and the warnings, not raised
         )
         times = tau * np.asarray(result.steps, dtype=float)
         runs[kind] = FlowRun(result, _own_total_curvature(result.points, kind), kind_tau, times)
@@ -216,8 +228,8 @@ def _table(runs) -> list[str]:
         for index, (name, first, last, change) in enumerate(rows):
             prefix = f"{kind:<5}{kind_tau:>10.3g}  " if index == 0 else " " * 17
             lines.append(f"{prefix}{name:<26}{_cell(first):>22}{_cell(last):>22}{change:>+12.2e}")
-        first_nonsimple = int(result.first_nonsimple_step)
-        throughout = "yes" if first_nonsimple < 0 else f"no (step {first_nonsimple})"
+        failure, step = _failure(result), int(result.first_failure_step)
+        throughout = {"": "yes", "self_intersection": f"no (step {step})", "nonfinite": f"no (non-finite, step {step})"}[failure]
         lines.append(" " * 17 + f"{'simple (at every step)':<26}{_yes(simple[0]):>22}{throughout:>22}")
     return lines
 
@@ -236,62 +248,45 @@ def _yes(flag) -> str:
     return "yes" if bool(flag) else "no"
 
 
+def _failure(result: CurveFlowResult) -> str:
+    """How the flow failed, `"nonfinite"` or `"self_intersection"` (`RESULTS` names), or `""` if it did not."""
+    return next((name for name in ("nonfinite", "self_intersection") if bool(result.result == getattr(RESULTS, name))), "")
+
+
 def _warnings(runs) -> tuple[list[str], bool]:
     """Self-intersection and divergence messages, and whether any flow diverged."""
     messages, diverged = [], False
     for kind, (result, *_) in runs.items():
-        nonfinite = int(result.first_nonfinite_step)
-        nonsimple = int(result.first_nonsimple_step)
-        if nonfinite >= 0:
+        failure, step = _failure(result), int(result.first_failure_step)
+        if failure == "nonfinite":
             diverged = True
-            messages.append(f"flow {kind}: non-finite points by step {nonfinite}: lower --tau or use --method semi-implicit")
-        elif nonsimple >= 0:
-            messages.append(
-                f"flow {kind}: the curve self-intersected at step {nonsimple} (none of the flows guarantees simplicity)"
-            )
+            messages.append(f"flow {kind}: non-finite points by step {step}: lower --tau or use --method semi-implicit")
+        elif failure == "self_intersection":
+            messages.append(f"flow {kind}: the curve self-intersected at step {step} (none of the flows guarantees simplicity)")
     return messages, diverged
-
-
-def _closed(points):
-    """The polygon's points with the first repeated at the end, for drawing the closing edge."""
-    return np.vstack([points, points[:1]])
 
 
 def _figure(runs, name, args, tau):
     """The Figure 3 reproduction: snapshot panels on top, invariant panels below."""
     # Imported here: matplotlib is only needed when a figure is written (not for --no-plot or --help).
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import to_rgb
     from matplotlib.figure import Figure
+
+    from ..plot import plot_flow
 
     kinds = list(runs)
     # Every flow runs the same steps and saves, so the snapshot indices and times are shared.
     times = runs[kinds[0]].times
-    chosen = np.unique(np.linspace(0, len(times) - 1, args.snapshots).round().astype(int))
-    snapshot_times = ", ".join(f"{t:.3g}" for t in times[chosen[1:]])
     figure = Figure(figsize=(16, 8.8), layout="constrained")
     FigureCanvasAgg(figure)
     grid = figure.add_gridspec(2, 12, height_ratios=[1.25, 1])
     width = 12 // len(kinds)
     for column, kind in enumerate(kinds):
-        result = runs[kind].result
         axes = figure.add_subplot(grid[0, column * width : (column + 1) * width])
-        points = np.asarray(result.points)
-        base = np.array(to_rgb(COLORS[kind]))
-        axes.plot(*_closed(points[0]).T, color="black", lw=1.2, ls="--")
-        later = chosen[1:]
-        for order, index in enumerate(later, start=1):
-            # Lighter early snapshots, full colour (and thicker) at the end.
-            shade = 0.25 + 0.75 * order / len(later)
-            axes.plot(*_closed(points[index]).T, color=1 - shade * (1 - base), lw=1.0 + (index == chosen[-1]))
-        axes.plot(*points[-1].T, "o", color=base, ms=2.5)
-        centroid = np.asarray(result.centroid)
-        axes.plot(*centroid.T, color="black", lw=1)
-        axes.plot(*centroid[0], "k+", ms=9)
-        axes.plot(*centroid[-1], "kx", ms=7)
-        axes.set_aspect("equal")
+        chosen = plot_flow(axes, runs[kind].result, snapshots=args.snapshots, color=COLORS[kind])
         axes.set_title(rf"$\kappa^{kind} = {CURVATURE_NAMES[kind]}$ flow  ($\tau$ = {runs[kind].tau:.3g})")
         axes.tick_params(labelsize=8)
+    snapshot_times = ", ".join(f"{t:.3g}" for t in times[chosen[1:]])
     panels = [
         (
             r"total curvature $|\Sigma_i\,\kappa_i(t) - \Sigma_i\,\kappa_i(0)|$",

@@ -12,22 +12,24 @@ import numpy as np
 from .._compile import tuned_jit
 from .._errors import DDGInputError, MeshDataError
 from ..io import load_mesh
-from ._check import MeshReport, check_mesh
-from ._curvature import (
+from ..mesh import (
+    Mesh,
+    MeshReport,
+    check_mesh,
+    enclosed_volume,
+    torus,
+    total_area,
     vertex_angle_defects,
     vertex_pointwise_gaussian_curvatures,
     vertex_pointwise_mean_curvatures,
     vertex_principal_curvatures,
 )
-from ._geometry import enclosed_volume, total_area
-from ._mesh import Mesh
-from ._shapes import torus
 
 _DEFAULT_SHAPE = "built-in torus(R=1.0, r=0.25, n_major=48, n_minor=16)"
 
 
-def add_info_arguments(parser: argparse.ArgumentParser) -> None:
-    """Arguments of `ddgjax info`; sets `parser.set_defaults(run=run_info)`."""
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `ddgjax info` to `parser` and make `run_info` its action."""
     parser.add_argument(
         "mesh",
         nargs="?",

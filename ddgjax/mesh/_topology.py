@@ -18,7 +18,6 @@ import hashlib
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from .._errors import DDGInputError, MeshDataError, first_indices
 from ..sparse._pattern import stable_order
@@ -293,6 +292,14 @@ def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
     )
 
 
+def _connected_components(graph: sp.coo_matrix) -> tuple[int, np.ndarray]:
+    # Imported on first use: scipy.sparse.csgraph is a tenth of ddgjax's import time, and only the
+    # lazily computed checks need it.
+    from scipy.sparse.csgraph import connected_components
+
+    return connected_components(graph, directed=False)
+
+
 def _face_components(faces, edges, corner_pairs, vertex_manifold: bool) -> tuple[int, np.ndarray]:
     """Components of the faces, two faces joined when they share an edge, numbered by their first face.
 
@@ -303,11 +310,11 @@ def _face_components(faces, edges, corner_pairs, vertex_manifold: bool) -> tuple
     if not vertex_manifold:
         a, b = corner_pairs
         graph = sp.coo_matrix((np.ones(a.size, dtype=np.int8), (a // 3, b // 3)), shape=(nf, nf))
-        n, labels = connected_components(graph, directed=False)
+        n, labels = _connected_components(graph)
         return int(n), labels.astype(np.int32)
     nv = int(faces.max()) + 1
     graph = sp.coo_matrix((np.ones(edges.shape[0], dtype=np.int8), (edges[:, 0], edges[:, 1])), shape=(nv, nv))
-    n_vertex_labels, vertex_labels = connected_components(graph, directed=False)
+    n_vertex_labels, vertex_labels = _connected_components(graph)
     raw = vertex_labels[faces[:, 0]]
     # Renumber as a face-graph search would: components in order of their first face.
     first_face = np.full(n_vertex_labels, nf, dtype=np.int64)
@@ -342,7 +349,7 @@ def _nonmanifold_vertices(faces, corner_pairs, n_vertices, edge_manifold: bool) 
     src = np.concatenate([a0, b0])
     dst = np.concatenate([np.where(direct, a1, b1), np.where(direct, b1, a1)])
     graph = sp.coo_matrix((np.ones(src.size, dtype=np.int8), (src, dst)), shape=(3 * nf, 3 * nf))
-    _, labels = connected_components(graph, directed=False)
+    _, labels = _connected_components(graph)
     # Links join only corners at the same vertex, so each fan (component) has exactly one vertex:
     # count the fans of each vertex without a sort (the vertex of each label, then a bincount).
     vertex_of_fan = np.empty(int(labels.max()) + 1, dtype=np.int32)

@@ -1,0 +1,115 @@
+"""The `ddgjax` command line as a whole (ddgjax/_cli/__init__.py): the persistent compilation cache,
+the options shared by the subcommands, and the command line kept apart from the mathematics."""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+
+import jax
+import pytest
+
+import ddgjax
+from ddgjax._cli import CACHE_VARIABLE, cache_directory
+from ddgjax.cli import main
+
+PACKAGE = pathlib.Path(ddgjax.__file__).parent
+#: Modules that serve the command line, files and figures; every other module is mathematics.
+OUTSIDE_MATHEMATICS = {"__init__.py", "cli.py", "io.py", "plot.py", "_cli"}
+FORBIDDEN = ("ddgjax.io", "ddgjax._cli", "ddgjax.cli", "ddgjax.plot", "matplotlib", "argparse")
+
+
+@pytest.fixture
+def user_cache(tmp_path, monkeypatch):
+    """An empty `XDG_CACHE_HOME`, the cache switched on, and no cache directory configured in JAX."""
+    if jax.config.jax_compilation_cache_dir:
+        pytest.skip("JAX already has a compilation cache directory (JAX_COMPILATION_CACHE_DIR); the CLI keeps it")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv(CACHE_VARIABLE, raising=False)
+    return tmp_path / "ddgjax" / "jax"
+
+
+def _compile_requests(argv) -> tuple[int, int]:
+    """`main(argv)`, from empty in-memory caches; (compilations that asked the persistent cache, its hits)."""
+    events = []
+
+    def listen(event, **kwargs):
+        events.append(event)
+
+    # Only the persistent cache may serve the run: drop every program compiled in this process.
+    jax.clear_caches()
+    jax.monitoring.register_event_listener(listen)
+    try:
+        assert main(argv) == 0
+    finally:
+        jax.monitoring.unregister_event_listener(listen)
+    return events.count("/jax/compilation_cache/compile_requests_use_cache"), events.count("/jax/compilation_cache/cache_hits")
+
+
+def test_a_second_run_compiles_nothing(user_cache, capsys):
+    requests, _ = _compile_requests(["info"])
+    first = capsys.readouterr().out
+    assert requests > 0 and any(user_cache.iterdir())
+    # A new process would start here: same command, every program read from the cache.
+    requests, hits = _compile_requests(["info"])
+    assert requests > 0 and hits == requests
+    assert capsys.readouterr().out == first
+    # JAX's settings are back as they were: nothing else in this process writes to the cache.
+    assert jax.config.jax_compilation_cache_dir is None
+
+
+@pytest.mark.parametrize("switch", [None, "option", "environment"])
+def test_the_cache_can_be_switched_off(user_cache, monkeypatch, capsys, tmp_path, switch):
+    # A missing file: the command stops before any compilation, after choosing where to cache.
+    argv = ["info", str(tmp_path / "missing.obj")]
+    if switch == "option":
+        argv.append("--no-compilation-cache")
+    elif switch == "environment":
+        monkeypatch.setenv(CACHE_VARIABLE, "0")
+    assert main(argv) == 2
+    assert "missing.obj" in capsys.readouterr().err
+    assert user_cache.exists() == (switch is None)
+
+
+def test_cache_directory(monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert cache_directory() == str(tmp_path / "ddgjax" / "jax")
+    # XDG: a relative (or empty) XDG_CACHE_HOME is ignored.
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    for value in ("relative/cache", ""):
+        monkeypatch.setenv("XDG_CACHE_HOME", value)
+        assert cache_directory() == str(tmp_path / "home" / ".cache" / "ddgjax" / "jax")
+
+
+def test_help_lists_the_commands_and_the_cache_switch(capsys):
+    assert main([]) == 0
+    out = capsys.readouterr().out
+    assert "flow" in out and "info" in out
+    with pytest.raises(SystemExit) as exit_:
+        main(["info", "--help"])
+    assert exit_.value.code == 0
+    assert "--no-compilation-cache" in capsys.readouterr().out
+
+
+def _imported_modules(path: pathlib.Path) -> set[str]:
+    """Absolute names of the modules `path` imports (relative imports resolved within ddgjax)."""
+    package = ".".join(("ddgjax", *path.relative_to(PACKAGE).parent.parts)).split(".")
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = ".".join(package[: len(package) - node.level + 1]) if node.level else ""
+            module = ".".join(part for part in (base, node.module) if part)
+            names.add(module)
+            names.update(f"{module}.{alias.name}" for alias in node.names)
+    return names
+
+
+def test_the_mathematics_imports_no_command_line_files_or_figures():
+    """DESIGN.md's layout: the math packages import neither `ddgjax.io`, the CLI, matplotlib nor argparse."""
+    modules = [path for path in PACKAGE.rglob("*.py") if path.relative_to(PACKAGE).parts[0] not in OUTSIDE_MATHEMATICS]
+    assert any("mesh" in path.parts for path in modules) and any("curves" in path.parts for path in modules)
+    for path in modules:
+        bad = {name for name in _imported_modules(path) if name.startswith(FORBIDDEN)}
+        assert not bad, f"{path.relative_to(PACKAGE)} imports {sorted(bad)}"

@@ -1,0 +1,45 @@
+"""Drawing curves and flows (ddgjax/plot.py) on matplotlib axes with the Agg canvas."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+import ddgjax.curves as dc
+from ddgjax.plot import plot_curve, plot_flow, polyline
+
+
+@pytest.fixture
+def axes():
+    figure = Figure()
+    FigureCanvasAgg(figure)
+    return figure.add_subplot()
+
+
+def test_polyline_closes_only_closed_curves():
+    points = np.arange(8.0).reshape(4, 2)
+    np.testing.assert_array_equal(polyline(points), np.vstack([points, points[:1]]))
+    np.testing.assert_array_equal(polyline(points, closed=False), points)
+
+
+@pytest.mark.parametrize("closed", [True, False])
+def test_plot_curve_draws_the_polygon(axes, closed):
+    curve = dc.Curve(dc.regular_polygon(5).points, closed=closed)
+    (line,) = plot_curve(axes, curve, color="red")
+    assert line.get_xydata().shape == (5 + closed, 2) and line.get_color() == "red"
+
+
+def test_plot_flow_overlays_snapshots_and_the_centroid_path(axes):
+    result = dc.curve_shortening_flow(dc.regular_polygon(12), kind="B", tau=1e-2, steps=20, save_every=2, check_simple="saved")
+    chosen = plot_flow(axes, result, snapshots=4, color="tab:orange")
+    np.testing.assert_array_equal(chosen, [0, 3, 7, 10])
+    lines = axes.get_lines()
+    # start, three later snapshots, final vertices, centroid path, its two ends
+    assert len(lines) == 1 + 3 + 1 + 1 + 2
+    np.testing.assert_allclose(lines[0].get_xydata(), polyline(result.points[0]))
+    np.testing.assert_allclose(lines[3].get_xydata(), polyline(result.points[-1]))
+    assert not np.allclose(lines[1].get_color(), lines[3].get_color())  # early snapshots lighter than the last
+    np.testing.assert_allclose(lines[5].get_xydata(), np.asarray(result.centroid))
+    assert axes.get_aspect() == 1.0
