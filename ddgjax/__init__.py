@@ -11,7 +11,8 @@ Importing ddgjax never changes `jax.config`; enable float64 yourself
 (`jax.jit(f, compiler_options=ddgjax.cpu_compiler_options())`) to get their speed inside it.
 """
 
-from importlib.metadata import PackageNotFoundError, version as _version
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
 
 from . import curves as curves
 from . import dec as dec

@@ -70,10 +70,7 @@ def unsigned_angle(a: Float[Array, "... d"], b: Float[Array, "... d"]) -> Float[
     `|a x b|` comes from the cross product itself (not `sqrt(|a|^2 |b|^2 - (a.b)^2)`, which cancels
     for small angles), so the angle is accurate near 0 and pi alike (DESIGN.md, Numerics).
     """
-    if a.shape[-1] == 2:
-        sin_part = jnp.abs(cross2(a, b))
-    else:
-        sin_part = safe_norm(jnp.cross(a, b))
+    sin_part = jnp.abs(cross2(a, b)) if a.shape[-1] == 2 else safe_norm(jnp.cross(a, b))
     return safe_atan2(sin_part, jnp.sum(a * b, axis=-1))
 
 

@@ -11,13 +11,14 @@ import jax.numpy as jnp
 import jax.test_util
 import numpy as np
 import pytest
-from conftest import shared_path
 
 import ddgjax.dec as dec
 from ddgjax._errors import DDGInputError
 from ddgjax.mesh import grid, icosphere
 from ddgjax.mesh._geometry import face_normals
 from ddgjax.mesh._mesh import Mesh
+
+from conftest import shared_path
 
 
 @functools.cache

@@ -16,7 +16,6 @@ import jax.numpy as jnp
 import jax.test_util
 import numpy as np
 import pytest
-from conftest import shared_path
 
 import ddgjax.dec as dec
 from ddgjax._errors import DDGInputError, MeshDataError
@@ -32,6 +31,8 @@ from ddgjax.mesh import (
 )
 from ddgjax.mesh._geometry import edge_cotan_weights, face_areas
 from ddgjax.mesh._mesh import Mesh
+
+from conftest import shared_path
 
 ORIENTED = ["small_disk.obj", "bob_small.ply", "hourglass_ico.obj"]
 ANY = ["small_disk.obj", "bob_small.ply", "hourglass_ico.obj", "moebius.obj", "triple_vierbein.obj"]

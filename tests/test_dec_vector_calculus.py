@@ -11,12 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import shared_path
 
 import ddgjax.dec as dec
 from ddgjax._errors import DDGInputError
 from ddgjax.mesh._geometry import face_areas, face_normals, face_vertex_positions
 from ddgjax.mesh._mesh import Mesh
+
+from conftest import shared_path
 
 
 @functools.cache

@@ -43,7 +43,7 @@ def test_derivatives_and_vmap_match_plain_indexing(gather):
     def loss(gather_fn, v):
         return jnp.sum(weights * gather_fn(v, index) ** 2)
 
-    plain = lambda v, i: v[i]  # noqa: E731
+    plain = lambda v, i: v[i]
     np.testing.assert_allclose(jax.grad(lambda v: loss(gather, v))(x), jax.grad(lambda v: loss(plain, v))(x), rtol=1e-15)
     tangent = jnp.sin(jnp.arange(12.0)).reshape(6, 2)
     np.testing.assert_allclose(

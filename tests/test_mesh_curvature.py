@@ -14,10 +14,9 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from conftest import shared_path
+from ddgjax._errors import DDGInputError, MeshDataError
 from ddgjax.io import _read_obj, _read_with_trimesh, load_mesh
 from ddgjax.laplacian import laplacian_apply
-from ddgjax._errors import DDGInputError, MeshDataError
 from ddgjax.mesh import (
     Mesh,
     disk,
@@ -37,6 +36,8 @@ from ddgjax.mesh import (
     vertex_pointwise_mean_curvatures,
     vertex_principal_curvatures,
 )
+
+from conftest import shared_path
 from mesh_union import disjoint_union
 
 
@@ -301,7 +302,7 @@ def identity_gradients(V) -> dict:
         "total_H": total_mean_curvature,
         "total_K": lambda m: jnp.sum(vertex_angle_defects(m)),
     }
-    gradients = {name: jax.grad(lambda V: f(BUMPY.with_vertices(V)))(V) for name, f in functions.items()}
+    gradients = {name: jax.grad(lambda V, f=f: f(BUMPY.with_vertices(V)))(V) for name, f in functions.items()}
     gradients["LV"] = laplacian_apply(mesh, V)
     gradients["2HN"] = 2.0 * vertex_mean_curvature_normals(mesh)
     gradients["normals/3"] = vertex_normals(mesh, weighting="area", normalize=False) / 3.0

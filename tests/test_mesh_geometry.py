@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from conftest import shared_path
 from ddgjax._errors import DDGInputError
 from ddgjax.io import load_mesh
 from ddgjax.mesh import (
@@ -34,6 +33,8 @@ from ddgjax.mesh import (
     vertex_dual_areas,
     vertex_normals,
 )
+
+from conftest import shared_path
 from mesh_union import disjoint_union
 
 
@@ -90,7 +91,8 @@ SYNTHETIC = disjoint_union([(np.asarray(SPHERE.vertices), np.asarray(SPHERE.face
 TRIANGLE_VERTICES = SYNTHETIC.vertices_of(1)
 
 
-def synthetic(triangle_points=np.eye(3), scale=(1.0, 1.0, 1.0)) -> dict:
+def synthetic(triangle_points=None, scale=(1.0, 1.0, 1.0)) -> dict:
+    triangle_points = np.eye(3) if triangle_points is None else triangle_points
     V = np.asarray(SYNTHETIC.mesh.vertices).copy() * np.asarray(scale)
     V[TRIANGLE_VERTICES] = triangle_points
     return jax.tree_util.tree_map(np.asarray, geometry(SYNTHETIC.mesh.with_vertices(V)))

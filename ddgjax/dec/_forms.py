@@ -23,6 +23,7 @@ and `hodge2`.
 from __future__ import annotations
 
 from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 import numpy as np

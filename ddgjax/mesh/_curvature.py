@@ -34,6 +34,7 @@ from jaxtyping import Array, Float
 
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_sqrt
+from ._compiled import compiled_kernel
 from ._geometry import (
     corner_angles,
     edge_dihedral_angles,
@@ -43,7 +44,6 @@ from ._geometry import (
     scatter_corners_to_vertices,
     vertex_dual_areas,
 )
-from ._compiled import compiled_kernel
 from ._mesh import Mesh
 
 
