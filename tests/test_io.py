@@ -6,10 +6,11 @@ import igl
 import numpy as np
 import pytest
 
-from conftest import shared_path
 from ddgjax._errors import DDGInputError
 from ddgjax.io import load_mesh, save_mesh
 from ddgjax.mesh import Mesh
+
+from conftest import shared_path
 
 # From ../shared/meshes/SOURCES.md: V, F, E, chi, genus (None: not defined), boundary loops
 # (None: not listed, non-manifold). Small and special meshes plus the large ones with UV seams,
