@@ -39,6 +39,9 @@ def raise_if_failed(value: PyTree, result: RESULTS, throw: bool) -> PyTree:
     """`value`, unchanged; when `throw` is true, an `equinox.error_if` that raises `result`'s message unless successful."""
     if not throw:
         return value
+    # A concrete success needs no check threaded onto `value` (equinox's check costs a dispatch).
+    if not result.is_traced() and not bool(is_failure(result)):
+        return value
     return result.error_if(value, is_failure(result))
 
 

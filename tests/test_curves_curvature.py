@@ -47,11 +47,11 @@ def summary(curve):
         "total": total_curvature(curve),
     }
     for kind in KINDS:
-        out[kind] = curvature(curve, kind)
-        out[kind + "_pointwise"] = curvature(curve, kind, pointwise=True)
-        out[kind + "_integrated"] = curvature(curve, kind, pointwise=False)
-        out[kind + "_normals"] = curvature_normals(curve, kind)
-        out[kind + "_vectors"] = curvature_vectors(curve, kind)
+        out[kind] = curvature(curve, kind=kind)
+        out[kind + "_pointwise"] = curvature(curve, kind=kind, pointwise=True)
+        out[kind + "_integrated"] = curvature(curve, kind=kind, pointwise=False)
+        out[kind + "_normals"] = curvature_normals(curve, kind=kind)
+        out[kind + "_vectors"] = curvature_vectors(curve, kind=kind)
     return out
 
 
@@ -86,7 +86,7 @@ def test_regular_polygon_closed_forms(n):
 def test_pointwise_curvatures_converge_to_one_over_r_with_rate_two():
     r = 0.8
     ns = np.array([16, 32, 64, 128])
-    pointwise = jax.jit(lambda curve: jnp.stack([curvature(curve, kind, pointwise=True)[0] for kind in ("A", "C")]))
+    pointwise = jax.jit(lambda curve: jnp.stack([curvature(curve, kind=kind, pointwise=True)[0] for kind in ("A", "C")]))
     errors = np.abs(np.array([pointwise(regular_polygon(int(n), radius=r)) for n in ns]) - 1 / r)
     rates = -np.polyfit(np.log(ns), np.log(errors), 1)[0]
     # A: (pi/n) / sin(pi/n) - 1 ~ (pi/n)^2 / 6, C: tan(pi/n) / (pi/n) ... second order; fit within 1%.
@@ -107,7 +107,7 @@ def test_kinds_from_the_turning_angle(wobbly, wobbly_summary):
     theta = np.asarray(wobbly_summary["theta"])
     P = np.asarray(wobbly.points)
     chord = np.linalg.norm(np.roll(P, -1, 0) - np.roll(P, 1, 0), axis=1)
-    np.testing.assert_allclose(curvature(wobbly, "A"), theta, rtol=1e-15)  # the public call, as users make it
+    np.testing.assert_allclose(curvature(wobbly, kind="A"), theta, rtol=1e-15)  # the public call, as users make it
     np.testing.assert_allclose(wobbly_summary["B"], 2 * np.sin(theta / 2), rtol=1e-14)
     np.testing.assert_allclose(wobbly_summary["C"], 2 * np.tan(theta / 2), rtol=1e-14)
     np.testing.assert_allclose(wobbly_summary["D"], 2 * np.sin(theta) / chord, rtol=1e-13)
@@ -161,7 +161,9 @@ def test_rigid_motion_and_scaling(wobbly, wobbly_summary):
         base = np.asarray(wobbly_summary[kind])
         # rotation by 0.7 rad costs a few ulps of the coordinates
         np.testing.assert_allclose(moved[kind], base, rtol=1e-12, atol=1e-14)
-        np.testing.assert_allclose(moved[kind + "_normals"], np.asarray(wobbly_summary[kind + "_normals"]) @ _rotation(0.7).T, atol=1e-13)
+        np.testing.assert_allclose(
+            moved[kind + "_normals"], np.asarray(wobbly_summary[kind + "_normals"]) @ _rotation(0.7).T, atol=1e-13
+        )
         np.testing.assert_allclose(scaled[kind], base / s if kind == "D" else base, rtol=1e-13, atol=1e-15)
         # reversing the orientation flips the sign of kappa, and of N, leaving kappa N unchanged
         np.testing.assert_allclose(reversed_[kind][::-1], -base, rtol=1e-13, atol=1e-15)
@@ -224,9 +226,13 @@ def _curve_energy(points, closed=True):
     """A scalar touching every curvature, normal and form, for gradient checks."""
     curve = Curve(points, closed=closed)
     weights = jnp.linspace(0.5, 1.5, points.shape[0])
-    total = length(curve) + total_curvature(curve) + jnp.sum(weights * curvature(curve, "A", pointwise=True) ** 2)
+    total = length(curve) + total_curvature(curve) + jnp.sum(weights * curvature(curve, kind="A", pointwise=True) ** 2)
     for kind in KINDS:
-        total = total + jnp.sum(weights * curvature(curve, kind)) + jnp.sum(weights[:, None] * curvature_vectors(curve, kind))
+        total = (
+            total
+            + jnp.sum(weights * curvature(curve, kind=kind))
+            + jnp.sum(weights[:, None] * curvature_vectors(curve, kind=kind))
+        )
     return total
 
 
@@ -265,7 +271,7 @@ def test_gradients_match_finite_differences(wobbly):
     )
 
     def bending(P):  # a smaller energy for the Hessian check (second derivatives compile slowly)
-        return length(Curve(P)) + jnp.sum(curvature(Curve(P), "A") ** 2)
+        return length(Curve(P)) + jnp.sum(curvature(Curve(P), kind="A") ** 2)
 
     # gradient and Hessian-vector product from one compiled program
     gradient_and_hessian_times = jax.jit(lambda x, v: jax.jvp(jax.grad(bending), (x,), (v,)))
@@ -278,22 +284,28 @@ def test_gradients_match_finite_differences(wobbly):
 def test_jit_equals_eager_and_vmap(wobbly, wobbly_summary):
     batch = jnp.stack([wobbly.points, 2 * wobbly.points])
     with jax.disable_jit():
-        eager = curvature(wobbly, "A")
+        eager = curvature(wobbly, kind="A")
     np.testing.assert_allclose(wobbly_summary["A"], eager, rtol=1e-14, atol=1e-16)  # XLA fusion reorders a few operations
-    batched = jax.vmap(lambda P: curvature_vectors(Curve(P), "D"))(batch)  # the idiom from the docs
+    batched = jax.vmap(lambda P: curvature_vectors(Curve(P), kind="D"))(batch)  # the idiom from the docs
     np.testing.assert_allclose(batched[0], wobbly_summary["D_vectors"], rtol=1e-14, atol=1e-15)
     np.testing.assert_allclose(batched[1], wobbly_summary["D_vectors"] / 2, rtol=1e-14, atol=1e-15)
 
 
 def test_bad_kind():
     with pytest.raises(DDGInputError, match="kind: expected one of 'A', 'B', 'C', 'D'"):
-        curvature(regular_polygon(5), "E")
+        curvature(regular_polygon(5), kind="E")
 
 
 @jax.jit
 def _identities(points):
     curve = Curve(points)
-    return total_curvature(curve), turning_number(curve), jnp.sum(vertex_dual_lengths(curve)), length(curve), turning_angles(curve)
+    return (
+        total_curvature(curve),
+        turning_number(curve),
+        jnp.sum(vertex_dual_lengths(curve)),
+        length(curve),
+        turning_angles(curve),
+    )
 
 
 @settings(max_examples=25, deadline=None)

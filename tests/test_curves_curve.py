@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import inspect
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import ddgjax.curves as dc
 from ddgjax._errors import DDGInputError
 from ddgjax.curves import Curve, length
 
@@ -118,3 +121,65 @@ def test_property_any_repeated_consecutive_point_is_named(n, row):
     points[(row + 1) % n] = points[row]
     with pytest.raises(DDGInputError, match=rf"at i = \[{row}\]"):
         Curve(points)
+
+
+# Every public function of ddgjax.curves that takes a curve, with the options it needs.
+CURVE_FUNCTIONS = {
+    "area_centroid": {},
+    "centroid": {},
+    "curvature": {"kind": "A"},
+    "curvature_normals": {"kind": "A"},
+    "curvature_vectors": {"kind": "A"},
+    "curve_shortening_flow": {"kind": "B", "tau": 1e-3, "steps": 1},
+    "cyclic_residual": {},
+    "edge_lengths": {},
+    "enclosed_area": {},
+    "interior_vertex_mask": {},
+    "is_simple": {},
+    "isoperimetric_ratio": {},
+    "length": {},
+    "simplicity_and_clearance": {},
+    "total_curvature": {},
+    "turning_angles": {},
+    "turning_number": {},
+    "vertex_dual_lengths": {},
+}
+
+
+def test_the_list_of_curve_functions_is_complete():
+    takes_a_curve = {
+        name
+        for name, value in vars(dc).items()
+        if inspect.isfunction(value) and next(iter(inspect.signature(value).parameters), None) == "curve"
+    }
+    assert takes_a_curve == set(CURVE_FUNCTIONS)
+
+
+@pytest.mark.parametrize("name", sorted(CURVE_FUNCTIONS))
+@pytest.mark.parametrize(
+    ("value", "given"),
+    [
+        (SQUARE, r"an array of shape \(4, 2\)"),
+        (jnp.asarray(SQUARE), r"an array of shape \(4, 2\)"),
+        ((SQUARE, True), "a tuple"),
+        (SQUARE.tolist(), "a list"),
+    ],
+    ids=["numpy", "jax", "tuple", "list"],
+)
+def test_a_non_curve_is_refused_naming_the_argument(name, value, given):
+    with pytest.raises(DDGInputError, match=rf"^curve: expected a ddgjax Curve, got {given}; .*Curve\(points, closed=True\)"):
+        getattr(dc, name)(value, **CURVE_FUNCTIONS[name])
+
+
+def test_a_non_curve_is_refused_under_jit():
+    with pytest.raises(DDGInputError, match=r"curve: expected a ddgjax Curve, got an array of shape \(4, 2\)"):
+        jax.jit(lambda P: length(P))(SQUARE)
+
+
+def test_options_are_keyword_only():
+    with pytest.raises(
+        TypeError, match=r"curvature\(\) takes 1 positional argument.*curvature\(curve, kind=\.\.\., pointwise=\.\.\.\)"
+    ):
+        dc.curvature(Curve(SQUARE), "A")
+    with pytest.raises(TypeError, match=r"curvature_normals\(\) takes 1 positional argument.*kind=\.\.\."):
+        dc.curvature_normals(Curve(SQUARE), "A")

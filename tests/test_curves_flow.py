@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import curvey
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,6 +15,7 @@ from curvey.flow import CurveShorteningFlow
 
 from ddgjax._errors import DDGInputError
 from ddgjax.curves import (
+    RESULTS,
     Curve,
     curvature_vectors,
     curve_shortening_flow,
@@ -56,6 +58,7 @@ def shape_runs(request):
     D; `l` the shortest edge). A and B run to about the time of least rescaled length: beyond it the
     integrated flows bunch the vertices and the rescaled length grows again (measured, e.g. 0.83 ->
     0.98 of the initial length on random-5 at 5x this time), so they are not run to a limit shape.
+    `throw=False`: the A and B flows self-intersect for a moment (`test_no_flow_guarantees_simplicity`).
     """
     curve = SHAPES[request.param]()
     shortest = float(jnp.min(edge_lengths(curve)))
@@ -63,7 +66,7 @@ def shape_runs(request):
     steps_d = 1000 * math.ceil(8 / tau_d / 1000)  # the D flow runs to time 8
     settings = {"A": (shortest / 20, 1000), "B": (shortest / 20, 1000), "D": (tau_d, steps_d)}
     runs = {
-        kind: curve_shortening_flow(curve, kind=kind, tau=tau, steps=steps, save_every=steps // 10, rescale="area")
+        kind: curve_shortening_flow(curve, kind=kind, tau=tau, steps=steps, save_every=steps // 10, rescale="area", throw=False)
         for kind, (tau, steps) in settings.items()
     }
     return request.param, curve, runs
@@ -78,7 +81,7 @@ def test_saved_states_and_times(shape_runs):
     np.testing.assert_array_equal(result.points[0], curve.points)
     assert bool(jnp.any(turning_angles(curve) < 0)), f"{name} should be non-convex"
     for run in runs.values():
-        assert int(run.first_nonfinite_step) == -1 and np.all(np.asarray(run.is_simple))
+        assert bool(run.result != RESULTS.nonfinite) and np.all(np.asarray(run.is_simple))
         # rescale="area" holds |A| at its initial value; the length falls (curve shortening)
         np.testing.assert_allclose(run.area, run.area[0], rtol=1e-12)
         assert float(run.length[-1]) < 0.9 * float(run.length[0])
@@ -132,17 +135,19 @@ def test_no_flow_guarantees_simplicity(shape_runs):
     and the symmetric, evenly spaced flower stay simple.
     """
     name, curve, runs = shape_runs
-    assert int(runs["D"].first_nonsimple_step) == -1
+    assert bool(runs["D"].result == RESULTS.successful)
+    assert int(runs["D"].first_failure_step) == int(runs["D"].steps[-1]) + 1  # "after the run"
     for kind in "AB":
         run = runs[kind]
-        first = int(run.first_nonsimple_step)
+        first = int(run.first_failure_step)
         if name == "flower":
-            assert first == -1
+            assert bool(run.result == RESULTS.successful) and first == int(run.steps[-1]) + 1
             continue
-        assert first > 0, (name, kind)
+        assert bool(run.result == RESULTS.self_intersection), (name, kind)
+        assert 0 < first <= int(run.steps[-1]), (name, kind)
         # Independent confirmation with shapely (exact predicates) on the states around that step.
         around = curve_shortening_flow(
-            curve, kind=kind, tau=run.tau, steps=first + 1, save_every=1, rescale="area", check_simple="saved"
+            curve, kind=kind, tau=run.tau, steps=first + 1, save_every=1, rescale="area", check_simple="saved", throw=False
         ).points
         assert shapely.LinearRing(np.asarray(around[first - 1])).is_simple
         assert not shapely.LinearRing(np.asarray(around[first])).is_simple
@@ -152,7 +157,7 @@ def test_b_flow_shrinks_every_edge_at_a_length_free_rate(polygon):
     # d|e_i|/dt = t_i . (t_{i+1} - 2 t_i + t_{i-1}) = cos(theta_i) + cos(theta_{i+1}) - 2 under
     # dp/dt = kappa^B N = t_i - t_{i-1}: independent of |e_i|, so the shortest edges at the corners
     # reach zero length in finite time (the collapse behind the transient self-intersections).
-    velocity = curvature_vectors(polygon, "B")
+    velocity = curvature_vectors(polygon, kind="B")
     _, rate = jax.jvp(lambda P: edge_lengths(Curve(P)), (polygon.points,), (velocity,))
     theta = turning_angles(polygon)
     np.testing.assert_allclose(rate, np.cos(theta) + np.cos(np.roll(theta, -1)) - 2, rtol=1e-12, atol=1e-15)
@@ -188,33 +193,78 @@ def test_one_step_is_the_reports_iteration(polygon):
     # the public path for one kind, the step function for all four
     np.testing.assert_allclose(
         curve_shortening_flow(polygon, kind="A", tau=1e-3, steps=1).points[-1],
-        polygon.points + 1e-3 * curvature_vectors(polygon, "A"),
+        polygon.points + 1e-3 * curvature_vectors(polygon, kind="A"),
         rtol=1e-14,
         atol=1e-15,
     )
     steps = _one_step_each(polygon.points)
     for kind in "ABCD":
-        expected = polygon.points + 1e-3 * curvature_vectors(polygon, kind)
+        expected = polygon.points + 1e-3 * curvature_vectors(polygon, kind=kind)
         np.testing.assert_allclose(steps[kind, "explicit"], expected, rtol=1e-14, atol=1e-15)
 
 
+def _tangling_star_flow(**options):
+    """A flow that self-intersects: a star with sharp tips, `tau` far above the explicit limit."""
+    curve = star(5, inner_radius=0.3, subdivisions=2)
+    return curve_shortening_flow(curve, kind="A", tau=0.4, steps=20, save_every=5, **options)
+
+
 def test_self_intersection_is_reported():
-    curve = star(5, inner_radius=0.3, subdivisions=2)  # sharp tips; tau far above the explicit limit
-    saved = curve_shortening_flow(curve, kind="A", tau=0.4, steps=20, save_every=5, check_simple="saved")
-    every = curve_shortening_flow(curve, kind="A", tau=0.4, steps=20, save_every=5, check_simple="every_step")
-    certified = curve_shortening_flow(curve, kind="A", tau=0.4, steps=20, save_every=5)
-    assert bool(saved.self_intersected) and bool(every.self_intersected)
+    saved = _tangling_star_flow(check_simple="saved", throw=False)
+    every = _tangling_star_flow(check_simple="every_step", throw=False)
+    certified = _tangling_star_flow(throw=False)
+    for run in (saved, every, certified):
+        assert bool(run.result == RESULTS.self_intersection)
     first_saved = int(np.argmin(np.asarray(saved.is_simple)))
-    assert int(saved.first_nonsimple_step) == int(saved.steps[first_saved])
+    assert int(saved.first_failure_step) == int(saved.steps[first_saved])
     # the exact step lies after the last simple saved state and no later than the first non-simple one
-    assert int(saved.steps[first_saved - 1]) < int(every.first_nonsimple_step) <= int(saved.first_nonsimple_step)
-    assert float(every.first_nonsimple_time) == pytest.approx(0.4 * int(every.first_nonsimple_step))
-    assert int(certified.first_nonsimple_step) == int(every.first_nonsimple_step)
+    assert int(saved.steps[first_saved - 1]) < int(every.first_failure_step) <= int(saved.first_failure_step)
+    assert float(every.first_failure_time) == pytest.approx(0.4 * int(every.first_failure_step))
+    assert int(certified.first_failure_step) == int(every.first_failure_step)
+
+
+def test_throw_raises_on_failure_eagerly_and_under_jit():
+    # Eagerly (and under equinox.filter_jit) equinox raises its own error; a plain jax.jit wraps the
+    # same message in a JaxRuntimeError. Both are RuntimeErrors.
+    with pytest.raises(eqx.EquinoxRuntimeError, match="The curve was not simple"):
+        _tangling_star_flow()
+    with pytest.raises(jax.errors.JaxRuntimeError, match="The curve was not simple"):
+        jax.block_until_ready(jax.jit(lambda: _tangling_star_flow().points)())
+    # nothing raises on a successful run, and throw=False never raises
+    assert bool(curve_shortening_flow(star(5), kind="A", tau=1e-3, steps=20).result == RESULTS.successful)
+    assert int(_tangling_star_flow(throw=False).first_failure_step) <= 20
+
+
+def test_nonfinite_input_is_reported():
+    # Traced points are not validated (Curve's checks need concrete values), so NaN reaches the flow.
+    points = star(5).points.at[3, 0].set(jnp.nan)
+    flow = jax.jit(lambda P, throw: curve_shortening_flow(Curve(P), kind="B", tau=1e-3, steps=4, throw=throw), static_argnums=1)
+    result = flow(points, False)
+    assert bool(result.result == RESULTS.nonfinite) and int(result.first_failure_step) == 0
+    assert float(result.first_failure_time) == 0.0
+    with pytest.raises(jax.errors.JaxRuntimeError, match="NaN or inf"):
+        jax.block_until_ready(flow(points, True).points)
+
+
+def test_throw_under_vmap_raises_if_any_member_failed():
+    simple = star(5).points
+    tangled = simple.at[jnp.array([0, 40])].set(simple[jnp.array([40, 0])])  # two far vertices swapped
+    mixed = jnp.stack([simple, tangled])
+
+    def run(P, throw):
+        return curve_shortening_flow(Curve(P), kind="B", tau=1e-3, steps=4, check_simple="saved", throw=throw)
+
+    inspected = jax.vmap(lambda P: run(P, False))(mixed)
+    np.testing.assert_array_equal(inspected.result == RESULTS.self_intersection, [False, True])
+    np.testing.assert_array_equal(inspected.first_failure_step, [5, 0])
+    jax.block_until_ready(jax.vmap(lambda P: run(P, True).points)(jnp.stack([simple, 2 * simple])))  # no failure, no error
+    with pytest.raises(eqx.EquinoxRuntimeError, match="The curve was not simple"):
+        jax.vmap(lambda P: run(P, True))(mixed)
 
 
 def _step_by_step_simplicity(curve, kind, tau, steps):
     """`is_simple` of every state, one explicit step at a time (the reference for the trackers)."""
-    states = curve_shortening_flow(curve, kind=kind, tau=tau, steps=steps, save_every=1, check_simple="saved")
+    states = curve_shortening_flow(curve, kind=kind, tau=tau, steps=steps, save_every=1, check_simple="saved", throw=False)
     return np.asarray(states.is_simple)
 
 
@@ -226,20 +276,24 @@ def test_a_transient_crossing_between_saves_is_reported(polygon):
     first = int(np.argmin(reference))
     assert first > 0 and reference[-1], "the reference run should cross and untangle"
     saved = curve_shortening_flow(polygon, kind="B", tau=tau, steps=100, save_every=50, check_simple="saved")
-    assert int(saved.first_nonsimple_step) == -1  # what a check of the saved states alone reports
+    assert bool(saved.result == RESULTS.successful)  # what a check of the saved states alone reports
+    assert int(saved.first_failure_step) == 101  # one past the last step: no failure
     for check in ("certified", "every_step"):
-        result = curve_shortening_flow(polygon, kind="B", tau=tau, steps=100, save_every=50, check_simple=check)
-        assert int(result.first_nonsimple_step) == first, check
+        result = curve_shortening_flow(polygon, kind="B", tau=tau, steps=100, save_every=50, check_simple=check, throw=False)
+        assert bool(result.result == RESULTS.self_intersection), check
+        assert int(result.first_failure_step) == first, check
 
 
 def test_certified_tracking_is_exact_on_a_simple_run(polygon):
     # up to flow time 0.2, before the edge collapse of the test above (at 0.23)
     result = curve_shortening_flow(polygon, kind="B", tau=2e-3, steps=100, save_every=100)
-    assert int(result.first_nonsimple_step) == -1
+    assert bool(result.result == RESULTS.successful) and int(result.first_failure_step) == 101
+    assert float(result.first_failure_time) == np.inf
     assert _step_by_step_simplicity(polygon, "B", 2e-3, 100).all()
     # a non-simple start is step 0
     bow_tie = Curve(np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]))
-    assert int(curve_shortening_flow(bow_tie, kind="B", tau=1e-3, steps=4).first_nonsimple_step) == 0
+    started = curve_shortening_flow(bow_tie, kind="B", tau=1e-3, steps=4, throw=False)
+    assert bool(started.result == RESULTS.self_intersection) and int(started.first_failure_step) == 0
 
 
 def _plain_explicit_step(points, tau, closed, kind):
@@ -260,11 +314,11 @@ def test_closed_form_step_derivatives_match_autodiff(polygon, closed):
     rotation = jnp.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]])
     P = P.at[5].set(0.5 * (P[4] + P[6])).at[20].set(P[19] + 0.9 * rotation @ (P[19] - P[21]))
     for kind in "ABCD":
-        ours = jax.jvp(lambda Q, t: _explicit_step(Q, t, closed, kind), (P, 1e-2), (V, 0.3))[1]
-        plain = jax.jvp(lambda Q, t: _plain_explicit_step(Q, t, closed, kind), (P, 1e-2), (V, 0.3))[1]
+        ours = jax.jvp(lambda Q, t, kind=kind: _explicit_step(Q, t, closed, kind), (P, 1e-2), (V, 0.3))[1]
+        plain = jax.jvp(lambda Q, t, kind=kind: _plain_explicit_step(Q, t, closed, kind), (P, 1e-2), (V, 0.3))[1]
         np.testing.assert_allclose(ours, plain, rtol=1e-12, atol=1e-14, err_msg=kind)
         grads = [
-            jax.grad(lambda Q, t: jnp.sum(G * step(Q, t, closed, kind)), argnums=(0, 1))(P, 1e-2)
+            jax.grad(lambda Q, t, step=step, kind=kind: jnp.sum(G * step(Q, t, closed, kind)), argnums=(0, 1))(P, 1e-2)
             for step in (_explicit_step, _plain_explicit_step)
         ]
         np.testing.assert_allclose(grads[0][0], grads[1][0], rtol=1e-12, atol=1e-14, err_msg=kind)
@@ -275,8 +329,8 @@ def test_step_derivatives_are_finite_on_degenerate_curves():
     # coincident consecutive points (a zero-length edge) and an exact reversal (theta = pi)
     points = jnp.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 1.0], [0.2, 1.0]])
     for kind in "ABCD":
-        value, tangent = jax.jvp(lambda Q: _explicit_step(Q, 1e-2, True, kind), (points,), (jnp.ones_like(points),))
-        gradient = jax.grad(lambda Q: jnp.sum(_explicit_step(Q, 1e-2, True, kind) ** 2))(points)
+        value, tangent = jax.jvp(lambda Q, kind=kind: _explicit_step(Q, 1e-2, True, kind), (points,), (jnp.ones_like(points),))
+        gradient = jax.grad(lambda Q, kind=kind: jnp.sum(_explicit_step(Q, 1e-2, True, kind) ** 2))(points)
         assert np.isfinite(np.asarray(value)).all() and np.isfinite(np.asarray(tangent)).all(), kind
         assert np.isfinite(np.asarray(gradient)).all(), kind
 
@@ -296,10 +350,10 @@ def test_semi_implicit_solves_the_linearly_implicit_system(polygon):
 
 def test_semi_implicit_is_stable_far_beyond_the_explicit_limit(polygon):
     tau = 0.5  # ~16x the shortest edge: explicit B is unstable
-    explicit = curve_shortening_flow(polygon, kind="B", tau=tau, steps=20, save_every=2)
+    explicit = curve_shortening_flow(polygon, kind="B", tau=tau, steps=20, save_every=2, throw=False)
     implicit = curve_shortening_flow(polygon, kind="B", tau=tau, steps=20, save_every=2, method="semi-implicit")
-    assert bool(explicit.self_intersected)
-    assert not bool(implicit.self_intersected) and int(implicit.first_nonfinite_step) == -1
+    assert bool(explicit.result == RESULTS.self_intersection)
+    assert bool(implicit.result == RESULTS.successful)
     assert np.all(np.diff(np.asarray(implicit.length)) < 0)
     np.testing.assert_allclose(implicit.total_curvature, 2 * np.pi, rtol=1e-14)
 
@@ -311,7 +365,9 @@ def test_semi_implicit_agrees_with_explicit_to_first_order(polygon):
 
 
 def test_rescale_length_keeps_the_length(polygon):
-    result = curve_shortening_flow(polygon, kind="B", tau=2e-3, steps=200, save_every=50, rescale="length")
+    # throw=False: rescaled or not, the B flow collapses a short edge of this polygon and crosses
+    # itself for a moment (test_a_transient_crossing_between_saves_is_reported); the length is kept all the same.
+    result = curve_shortening_flow(polygon, kind="B", tau=2e-3, steps=200, save_every=50, rescale="length", throw=False)
     np.testing.assert_allclose(result.length, length(polygon), rtol=1e-13)
     assert float(result.isoperimetric_ratio[-1]) > float(result.isoperimetric_ratio[0])
 
@@ -330,6 +386,7 @@ def small():
 
 
 def _loss(points, tau, method):
+    # throw=True (the default): the gradient passes through the failure check's equinox.error_if
     final = curve_shortening_flow(Curve(points), kind="A", tau=tau, steps=40, method=method).points[-1]
     return jnp.sum(final[:, 0] ** 2 + 0.3 * final[:, 1]) + enclosed_area(Curve(final))
 

@@ -11,8 +11,6 @@ import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ddgjax.curves._invariants import NEAR_EDGES, near_and_far_clearances
-
 from ddgjax.curves import (
     Curve,
     area_centroid,
@@ -20,12 +18,13 @@ from ddgjax.curves import (
     cyclic_residual,
     enclosed_area,
     is_simple,
-    simplicity_and_clearance,
     isoperimetric_ratio,
     random_polygon,
     regular_polygon,
+    simplicity_and_clearance,
     star,
 )
+from ddgjax.curves._invariants import NEAR_EDGES, near_and_far_clearances
 
 
 @jax.jit
@@ -74,7 +73,9 @@ def test_orientation_sign_and_motions(wobbly):
     np.testing.assert_allclose(moved["area"], 2.5**2 * base["area"], rtol=1e-13)
     for key in ("ratio", "residual"):  # scale and rigid-motion invariant
         np.testing.assert_allclose(moved[key], base[key], rtol=1e-12)
-    np.testing.assert_allclose(moved["area_centroid"], 2.5 * rotation @ np.asarray(base["area_centroid"]) + [10.0, 4.0], rtol=1e-13)
+    np.testing.assert_allclose(
+        moved["area_centroid"], 2.5 * rotation @ np.asarray(base["area_centroid"]) + [10.0, 4.0], rtol=1e-13
+    )
     flipped = invariants(Curve(P[::-1]))
     np.testing.assert_allclose(flipped["area"], -base["area"], rtol=1e-14)
     np.testing.assert_allclose(flipped["ratio"], base["ratio"], rtol=1e-14)
@@ -163,13 +164,22 @@ def test_gradients_against_closed_forms(wobbly):
     P = np.asarray(wobbly.points)
     # d(area)/dp_i = (1/2) J^T (p_{i+1} - p_{i-1}) with J the 90-degree rotation
     chord = np.roll(P, -1, 0) - np.roll(P, 1, 0)
-    np.testing.assert_allclose(jax.grad(lambda Q: enclosed_area(Curve(Q)))(wobbly.points), 0.5 * np.stack([chord[:, 1], -chord[:, 0]], 1), rtol=1e-14, atol=1e-16)
-    np.testing.assert_allclose(jax.grad(lambda Q: centroid(Curve(Q))[0])(wobbly.points), np.stack([np.full(24, 1 / 24), np.zeros(24)], 1), rtol=1e-15)
+    np.testing.assert_allclose(
+        jax.grad(lambda Q: enclosed_area(Curve(Q)))(wobbly.points),
+        0.5 * np.stack([chord[:, 1], -chord[:, 0]], 1),
+        rtol=1e-14,
+        atol=1e-16,
+    )
+    np.testing.assert_allclose(
+        jax.grad(lambda Q: centroid(Curve(Q))[0])(wobbly.points), np.stack([np.full(24, 1 / 24), np.zeros(24)], 1), rtol=1e-15
+    )
     # the cyclic residual is differentiable: compare a directional derivative with central differences
     f = jax.jit(lambda Q: cyclic_residual(Curve(Q)) + isoperimetric_ratio(Curve(Q)) + jnp.sum(area_centroid(Curve(Q))))
     v = jnp.asarray(np.random.default_rng(0).normal(size=P.shape))
     numeric = (f(wobbly.points + 1e-6 * v) - f(wobbly.points - 1e-6 * v)) / 2e-6
-    np.testing.assert_allclose(jnp.sum(jax.jit(jax.grad(f))(wobbly.points) * v), numeric, rtol=1e-7)  # central differences: ~1e-10
+    np.testing.assert_allclose(
+        jnp.sum(jax.jit(jax.grad(f))(wobbly.points) * v), numeric, rtol=1e-7
+    )  # central differences: ~1e-10
 
 
 @settings(max_examples=30, deadline=None)
@@ -239,4 +249,3 @@ def test_clearance_gradient_matches_finite_differences_and_stays_finite():
     touching = jnp.asarray(np.insert(np.asarray(P), 3, np.asarray(P)[3], axis=0))
     assert float(clearance(touching)) == 0.0
     assert np.isfinite(np.asarray(jax.grad(clearance)(touching))).all()
-

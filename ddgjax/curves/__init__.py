@@ -1,9 +1,14 @@
 """Plane curves: the `Curve` type, the reading report's four discrete curvatures, invariants and flows.
 
 Every function is a pure JAX function of `curve.points` (jit, grad, vmap). Conventions: DESIGN.md,
-Plane curves, and the docstring of `ddgjax.curves._curvature`.
+Plane curves, and the docstring of `ddgjax.curves._curvature`. Options are keyword-only
+(`curvature(curve, kind="B")`); a function given anything but a `Curve` for its curve (an array, a
+tuple) raises `DDGInputError` saying to build one with `Curve(points, closed=...)`. A flow reports
+self-intersection and non-finite states through `RESULTS` (`ddgjax._results`): it raises by default,
+and with `throw=False` the caller reads `CurveFlowResult.result`.
 """
 
+from .._results import RESULTS as RESULTS
 from ._curvature import curvature as curvature
 from ._curvature import curvature_normals as curvature_normals
 from ._curvature import curvature_vectors as curvature_vectors
@@ -22,8 +27,8 @@ from ._invariants import centroid as centroid
 from ._invariants import cyclic_residual as cyclic_residual
 from ._invariants import enclosed_area as enclosed_area
 from ._invariants import is_simple as is_simple
-from ._invariants import simplicity_and_clearance as simplicity_and_clearance
 from ._invariants import isoperimetric_ratio as isoperimetric_ratio
+from ._invariants import simplicity_and_clearance as simplicity_and_clearance
 from ._shapes import figure3_polygon as figure3_polygon
 from ._shapes import flower as flower
 from ._shapes import load_polygon as load_polygon

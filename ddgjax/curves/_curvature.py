@@ -36,19 +36,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from .._compile import tuned_jit
-from .._errors import DDGInputError
+from .._errors import DDGInputError, check_choice
 from .._numerics import cross2, safe_div, safe_norm, safe_normalize, signed_angle_2d
-from ._curve import Curve
+from ._curve import Curve, curve_kernel, takes_curve
 
 KINDS = ("A", "B", "C", "D")
-
-
-def check_kind(kind) -> str:
-    """The curvature kind, or a DDGInputError naming the allowed values."""
-    if kind not in KINDS:
-        raise DDGInputError(f"kind: expected one of 'A', 'B', 'C', 'D' (the reading report's curvatures), got {kind!r}")
-    return kind
+"""The reading report's four curvatures, the choices of every `kind=` option in `ddgjax.curves`."""
 
 
 def _left(x: Float[Array, "... 2"]) -> Float[Array, "... 2"]:
@@ -74,6 +67,7 @@ def _vertex_edges(points: Float[Array, "n 2"]):
     return u, v
 
 
+@takes_curve
 def interior_vertex_mask(curve: Curve) -> Bool[Array, " n"]:
     """`(n,)` booleans: true where a vertex has a turning angle (all of a closed curve; not the endpoints of an open one)."""
     return jnp.asarray(_interior_mask(curve.n_points, curve.closed))
@@ -84,7 +78,7 @@ def _edge_lengths(points: Float[Array, "n 2"], closed: bool) -> Float[Array, " n
     return safe_norm(following - points[: following.shape[0]])
 
 
-@tuned_jit
+@curve_kernel
 def edge_lengths(curve: Curve) -> Float[Array, " ne"]:
     """Length of every edge: `(n,)` for a closed curve (edge `i` is `p_i -> p_{(i+1) mod n}`), `(n-1,)` when open.
 
@@ -94,19 +88,19 @@ def edge_lengths(curve: Curve) -> Float[Array, " ne"]:
     return _edge_lengths(curve.points, curve.closed)
 
 
-@tuned_jit
+@curve_kernel
 def length(curve: Curve) -> Float[Array, ""]:
     """Total length `L = sum_i |p_{i+1} - p_i|` (including the closing edge of a closed curve).
 
     Its gradient is the integrated B curvature vector with a minus sign: at every vertex with a
     turning angle, `jax.grad(lambda P: length(Curve(P)))(P)[i] == -kappa^B_i N_i`
-    (`-curvature_vectors(curve, "B")`); at the endpoints of an open curve it is the unit edge
+    (`-curvature_vectors(curve, kind="B")`); at the endpoints of an open curve it is the unit edge
     pointing away from the curve. Equivalent: `curvey.Curve.length`.
     """
     return jnp.sum(edge_lengths(curve))
 
 
-@tuned_jit
+@curve_kernel
 def vertex_dual_lengths(curve: Curve) -> Float[Array, " n"]:
     """Dual length `d_i = (|p_i - p_{i-1}| + |p_{i+1} - p_i|) / 2` of every vertex, `(n,)`.
 
@@ -126,7 +120,7 @@ def _turning_angles(points: Float[Array, "n 2"], closed: bool) -> Float[Array, "
     return jnp.where(_interior_mask(points.shape[0], closed), signed_angle_2d(u, v), 0.0)
 
 
-@tuned_jit
+@curve_kernel
 def turning_angles(curve: Curve) -> Float[Array, " n"]:
     """Signed turning angle `theta_i` from edge `p_{i-1} p_i` to edge `p_i p_{i+1}`, `(n,)`, in `(-pi, pi)`.
 
@@ -138,7 +132,7 @@ def turning_angles(curve: Curve) -> Float[Array, " n"]:
     return _turning_angles(curve.points, curve.closed)
 
 
-@tuned_jit
+@curve_kernel
 def total_curvature(curve: Curve) -> Float[Array, ""]:
     """Total signed curvature `sum_i theta_i` (integrated `kappa^A`).
 
@@ -148,7 +142,7 @@ def total_curvature(curve: Curve) -> Float[Array, ""]:
     return jnp.sum(turning_angles(curve))
 
 
-@tuned_jit
+@curve_kernel
 def turning_number(curve: Curve) -> Array:
     """Turning number of a closed curve, the integer `round(total_curvature / (2 pi))` (int32 scalar).
 
@@ -198,8 +192,8 @@ def _to_form(curve: Curve, kind: str, kappa: Float[Array, " n"], pointwise: bool
     return safe_div(kappa, dual) if pointwise else kappa * dual
 
 
-@tuned_jit(static_argnames=("kind", "pointwise"))
-def curvature(curve: Curve, kind: str, *, pointwise: bool | None = None) -> Float[Array, " n"]:
+@curve_kernel(static_argnames=("kind", "pointwise"))
+def curvature(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, " n"]:
     """Discrete curvature of `kind` (`"A"`, `"B"`, `"C"` or `"D"`) at every vertex, `(n,)`, signed.
 
     With `theta_i` the turning angle (`turning_angles`) and `d_i` the dual length
@@ -214,7 +208,7 @@ def curvature(curve: Curve, kind: str, *, pointwise: bool | None = None) -> Floa
 
     Args:
         curve: the curve.
-        kind: `"A"`, `"B"`, `"C"` or `"D"`.
+        kind: `"A"`, `"B"`, `"C"` or `"D"` (keyword-only, as everywhere in `ddgjax.curves`).
         pointwise: `None` (default) returns the reading report's natural form (A, B, C integrated, D
             pointwise); `True` returns the pointwise curvature (A, B, C divided by `d_i`);
             `False` the integrated one (D multiplied by `d_i`).
@@ -223,16 +217,19 @@ def curvature(curve: Curve, kind: str, *, pointwise: bool | None = None) -> Floa
         `(n,)` curvatures, positive where a counterclockwise curve turns left; 0 at the endpoints of
         an open curve. Finite, with finite gradients, at coincident points.
 
+    Raises:
+        DDGInputError: `kind` not one of `KINDS`, or `curve` not a `Curve`.
+
     On a regular `n`-gon of circumradius `r`: `kappa^D = 1 / r` exactly and every pointwise form
     tends to `1 / r` as `n` grows. Equivalent: `curvey.Curve.curvature` is the pointwise A form.
     """
-    kind = check_kind(kind)
+    check_choice("kind", kind, KINDS)
     kappa, _ = _curvature_and_normals(curve.points, curve.closed, kind)
     return _to_form(curve, kind, kappa, pointwise)
 
 
-@tuned_jit(static_argnames=("kind",))
-def curvature_normals(curve: Curve, kind: str) -> Float[Array, "n 2"]:
+@curve_kernel(static_argnames=("kind",))
+def curvature_normals(curve: Curve, *, kind: str) -> Float[Array, "n 2"]:
     """Unit normal the reading report pairs with curvature `kind`, `(n, 2)`.
 
     A, B, C: the internal angle bisector, the left normal of `u/|u| + v/|v|` (inside a
@@ -240,18 +237,18 @@ def curvature_normals(curve: Curve, kind: str) -> Float[Array, "n 2"]:
     `|v|^2 u + |u|^2 v` (the circumcircle's tangent at `p_i`), so that `kappa^D N^D` points to the
     circumcentre. Zero at the endpoints of an open curve. For equal edge lengths the two normals agree.
     """
-    kind = check_kind(kind)
+    check_choice("kind", kind, KINDS)
     return _curvature_and_normals(curve.points, curve.closed, kind)[1]
 
 
-@tuned_jit(static_argnames=("kind", "pointwise"))
-def curvature_vectors(curve: Curve, kind: str, *, pointwise: bool | None = None) -> Float[Array, "n 2"]:
+@curve_kernel(static_argnames=("kind", "pointwise"))
+def curvature_vectors(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, "n 2"]:
     """Curvature vector `kappa_i N_i` of `kind`, `(n, 2)`: the velocity of the curve-shortening flow.
 
     `pointwise` as in `curvature`. The integrated B vector is minus the length gradient (the
     reading report's length variation): `kappa^B_i N_i = v/|v| - u/|u| =
     -jax.grad(lambda P: length(Curve(P)))(P)[i]` at every vertex with a turning angle.
     """
-    kind = check_kind(kind)
+    check_choice("kind", kind, KINDS)
     kappa, normals = _curvature_and_normals(curve.points, curve.closed, kind)
     return _to_form(curve, kind, kappa, pointwise)[:, None] * normals

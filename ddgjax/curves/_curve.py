@@ -1,12 +1,16 @@
-"""The `Curve` pytree: an ordered polygon in the plane, open or closed."""
+"""The `Curve` pytree: an ordered polygon in the plane, open or closed; the check every curve function makes."""
 
 from __future__ import annotations
+
+import functools
+import inspect
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._compile import tuned_jit
 from .._errors import DDGInputError, check_finite, check_float_array, first_indices, is_traced
 
 
@@ -17,7 +21,7 @@ class Curve(eqx.Module):
 
         jax.grad(lambda P: length(Curve(P)))(curve.points)
 
-    and batch with `jax.vmap(lambda P: curvature(Curve(P), "A"))(Ps)` for `Ps` of shape `(b, n, 2)`.
+    and batch with `jax.vmap(lambda P: curvature(Curve(P), kind="A"))(Ps)` for `Ps` of shape `(b, n, 2)`.
 
     Conventions (DESIGN.md, Plane curves): a closed curve traversed counterclockwise has positive
     turning angles and total curvature `2 pi * turning number`. Edge `i` of a closed curve joins
@@ -101,3 +105,44 @@ def unchecked_curve(points: Float[Array, "n 2"], closed: bool) -> Curve:
     object.__setattr__(curve, "points", points)
     object.__setattr__(curve, "closed", closed)
     return curve
+
+
+def require_curve(name: str, value) -> Curve:
+    """`value` if it is a `Curve`, else `DDGInputError` naming the argument and saying how to make one."""
+    if isinstance(value, Curve):
+        return value
+    shape = getattr(value, "shape", None)
+    given = f"an array of shape {tuple(shape)}" if shape is not None else f"a {type(value).__name__}"
+    raise DDGInputError(
+        f"{name}: expected a ddgjax Curve, got {given}; wrap the (n, 2) points with "
+        "ddgjax.curves.Curve(points, closed=True) (closed=False for an open polyline)"
+    )
+
+
+def takes_curve(function):
+    """Wrap `function(curve, ...)` so that its curve is checked before anything else sees it.
+
+    A first argument that is not a `Curve` gets `require_curve`'s message rather than an
+    `AttributeError` (or a `jit` or type checker's complaint) from inside, and an option passed by
+    position gets Python's message naming the keyword-only options.
+    """
+    parameters = inspect.signature(function).parameters.values()
+    positional = sum(parameter.kind in (parameter.POSITIONAL_ONLY, parameter.POSITIONAL_OR_KEYWORD) for parameter in parameters)
+    options = ", ".join(f"{parameter.name}=..." for parameter in parameters if parameter.kind == parameter.KEYWORD_ONLY)
+    name = function.__name__
+
+    @functools.wraps(function)
+    def checked(curve, *args, **kwargs):
+        if 1 + len(args) > positional:
+            hint = f"; pass its options by keyword: {name}(curve, {options})" if options else ""
+            raise TypeError(f"{name}() takes {positional} positional argument(s) but {1 + len(args)} were given{hint}")
+        return function(require_curve("curve", curve), *args, **kwargs)
+
+    return checked
+
+
+def curve_kernel(function=None, *, static_argnames: tuple[str, ...] = ()):
+    """`takes_curve(tuned_jit(function))`: a compiled function of a curve whose curve is checked before `jit` sees it."""
+    if function is None:
+        return functools.partial(curve_kernel, static_argnames=static_argnames)
+    return takes_curve(tuned_jit(function, static_argnames=static_argnames))

@@ -54,11 +54,20 @@ from jaxtyping import Array, Bool, Float, Int
 
 from .._compile import tuned_jit
 from .._cyclic import cyclic_shift
-from .._errors import DDGInputError, check_count, is_traced
+from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._numerics import cross2, half_angle_ratio, safe_div, safe_norm, safe_reciprocal, safe_sqrt
-from ._curvature import _interior_mask, check_kind, length, total_curvature
-from ._curve import Curve, unchecked_curve
-from ._invariants import NEAR_EDGES, centroid, cyclic_residual, enclosed_area, is_simple, isoperimetric_ratio, near_and_far_clearances
+from .._results import RESULTS, is_failure, raise_if_failed
+from ._curvature import KINDS, _interior_mask, length, total_curvature
+from ._curve import Curve, takes_curve, unchecked_curve
+from ._invariants import (
+    NEAR_EDGES,
+    centroid,
+    cyclic_residual,
+    enclosed_area,
+    is_simple,
+    isoperimetric_ratio,
+    near_and_far_clearances,
+)
 
 METHODS = ("explicit", "semi-implicit")
 RESCALES = (None, "length", "area")
@@ -83,11 +92,16 @@ class CurveFlowResult(eqx.Module):
         cyclic_residual: `(s,)` relative spread of the vertices' distances to the fitted circle's
             centre (the D-flow drives it to 0).
         is_simple: `(s,)` no self-intersection (False also for non-finite points).
-        first_nonsimple_step: int scalar, the first step at which the curve was not simple, -1 if
-            none: exact with `check_simple="certified"` (the default) or `"every_step"`, the first
-            non-simple saved step with `"saved"`.
-        first_nonfinite_step: int scalar, the first saved step with NaN/inf points (an unstable
-            explicit step), -1 if none.
+        result: `RESULTS.successful`; `RESULTS.nonfinite` if a saved state holds NaN/inf
+            (non-finite traced input, or an overflow); else `RESULTS.self_intersection` if a
+            checked state was not simple.
+            `curve_shortening_flow(..., throw=True)` (the default) raises instead of returning a
+            failed result.
+        first_failure_step: int scalar, the first step whose state was not simple or not finite,
+            and `steps + 1` (one past the last step) when none was: so a saved state precedes every
+            failure exactly when `steps < first_failure_step`, and `result` is successful exactly
+            when `first_failure_step == steps[-1] + 1`. Exact with `check_simple="certified"` (the
+            default) or `"every_step"`; the first failing saved step with `"saved"`.
         tau: the time step.
         kind, method, rescale, closed: the flow's settings (static).
     """
@@ -102,8 +116,8 @@ class CurveFlowResult(eqx.Module):
     isoperimetric_ratio: Float[Array, " s"]
     cyclic_residual: Float[Array, " s"]
     is_simple: Bool[Array, " s"]
-    first_nonsimple_step: Int[Array, ""]
-    first_nonfinite_step: Int[Array, ""]
+    result: RESULTS
+    first_failure_step: Int[Array, ""]
     tau: Float[Array, ""]
     kind: str = eqx.field(static=True)
     method: str = eqx.field(static=True)
@@ -111,14 +125,9 @@ class CurveFlowResult(eqx.Module):
     closed: bool = eqx.field(static=True)
 
     @property
-    def self_intersected(self) -> Bool[Array, ""]:
-        """True if a checked step made the curve self-intersect (see `first_nonsimple_step`)."""
-        return self.first_nonsimple_step >= 0
-
-    @property
-    def first_nonsimple_time(self) -> Float[Array, ""]:
-        """Flow time of `first_nonsimple_step`, `inf` if the curve stayed simple."""
-        return jnp.where(self.self_intersected, self.first_nonsimple_step * self.tau, jnp.inf)
+    def first_failure_time(self) -> Float[Array, ""]:
+        """Flow time `first_failure_step * tau` of the first failing state, `inf` when the run succeeded."""
+        return jnp.where(is_failure(self.result), self.first_failure_step * self.tau, jnp.inf)
 
     def curve(self, index: int = -1) -> Curve:
         """Saved state `index` (default: the final curve) as a `Curve` (not re-validated: it may be degenerate)."""
@@ -200,9 +209,9 @@ def _ratio_and_slope(unit_u, unit_v, kind):
 def _explicit_step_jvp(closed, kind, primals, tangents):
     """Closed-form tangent of the explicit step: linear in `(dp, dtau)`, so reverse mode is its transpose.
 
-    Autodiff of the step's own formulas works too, but differentiates every helper (NaN-safe
-    wheres, the rational `half_angle_ratio`) and runs several times slower in reverse mode
-    (benchmarks/README.md). With `e_i = p_{i+1} - p_i`, `u = e_{i-1}`, `t = e / |e|`:
+    Written out rather than left to autodiff, which would differentiate every helper of the primal
+    (NaN-safe wheres, the rational `half_angle_ratio`) and transpose all of it per step. With
+    `e_i = p_{i+1} - p_i`, `u = e_{i-1}`, `t = e / |e|`:
 
     - A, B, C: `kappa N = r d`, `d_i = t_i - t_{i-1}`. In the plane `I - t t^T = n n^T` with `n` the
       unit normal (`t` turned a quarter counterclockwise), so `dt_i = n_i a_i` with one scalar per
@@ -211,16 +220,14 @@ def _explicit_step_jvp(closed, kind, primals, tangents):
 
           d(kappa N)_i = s_i d_i (a_i - a_{i-1}) + r_i (n_i a_i - n_{i-1} a_{i-1}),
 
-      differences of per-edge terms, whose transpose is as short: one dot product per term
-      (A and C gradients 10-16% faster than the equivalent `(s d + r n_i) a_i - (s d + r n_{i-1})
-      a_{i-1}`, which transposes into two).
+      differences of per-edge terms, whose transpose is as short: one dot product per term (the
+      equivalent grouping `(s d + r n_i) a_i - (s d + r n_{i-1}) a_{i-1}` transposes into two).
     - D: `kappa N = q (b e - a u)` with `w = u + e`, `a = u.w / |u|^2`, `b = e.w / |e|^2`,
       `q = 2 / |w|^2`; `da = (du.w + u.dw - 2 a u.du) / |u|^2` (likewise `db`), `dq = -q^2 w.dw`.
 
     The tangent's rolls are `cyclic_shift`, whose transpose is the opposite roll (`jnp.roll`
-    transposes into padded copies, each its own kernel): with the compact form above, the
-    gradient through 1,000 steps got 1.3-1.7x faster (benchmarks/README.md). Zero-length edges
-    keep the NaN-safe zeros of the primal (every reciprocal is `safe_reciprocal`).
+    transposes into padded copies, each its own kernel). Zero-length edges keep the NaN-safe zeros
+    of the primal (every reciprocal is `safe_reciprocal`).
     """
     points, tau = primals
     d_points, d_tau = tangents
@@ -236,14 +243,15 @@ def _explicit_step_jvp(closed, kind, primals, tangents):
         dq = -q * q * _dot(w, dw)
         direction = b[:, None] * edges - a[:, None] * u
         vector = q[:, None] * direction
-        d_vector = dq[:, None] * direction + q[:, None] * (db[:, None] * edges + b[:, None] * d_edges - da[:, None] * u - a[:, None] * du)
+        d_vector = dq[:, None] * direction + q[:, None] * (
+            db[:, None] * edges + b[:, None] * d_edges - da[:, None] * u - a[:, None] * du
+        )
     else:
         inverse = safe_reciprocal(safe_norm(edges))
         unit_v = edges * inverse[:, None]
         unit_u = jnp.roll(unit_v, 1, axis=0)
         # n = (-t_y, t_x) as a reversal of the last axis, which XLA fuses into a vectorised kernel
-        # (a stack of the two components is a concatenation, which it does not vectorise: ~10%
-        # slower gradients).
+        # (a stack of the two components is a concatenation, which it does not vectorise).
         normal_v = unit_v[:, ::-1] * jnp.array([-1.0, 1.0], unit_v.dtype)
         vector = unit_v - unit_u
         a = _dot(normal_v, d_edges) * inverse
@@ -340,15 +348,21 @@ def _certified(p, reference) -> Bool[Array, ""]:
     return jnp.max(jnp.maximum(far, near * inverse_margins_sq[0])) < 1
 
 
+# The tracked first failing step before any failure: above every step, so that a failure at step k
+# is `minimum(first, k)` and "a failure lies before step k" is `first < k`. `_saved_invariants`
+# lowers it to `steps + 1` for the result.
+_NO_FAILURE_YET = np.iinfo(np.int32).max
+
+
 def _tracker_start(points, closed, check):
-    """Initial simplicity-tracking state `(first non-simple step, reference)` (reference: `_certificate`)."""
+    """Initial simplicity-tracking state `(first failing step, reference)` (reference: `_certificate`)."""
     if check != "certified":
-        return jnp.full((), -1, jnp.int32), None
+        return jnp.full((), _NO_FAILURE_YET, jnp.int32), None
     simple, reference = _certificate(jax.lax.stop_gradient(points), closed)
-    return jnp.where(simple, -1, 0).astype(jnp.int32), reference
+    return jnp.where(simple, _NO_FAILURE_YET, 0).astype(jnp.int32), reference
 
 
-def _track(p, k, bad, reference, closed, check):
+def _track(p, k, first, reference, closed, check):
     """Update the tracking state after step `k` produced `p` (see `curve_shortening_flow`, `check_simple`).
 
     Certified mode: `p` is simple if every pair of edges that must not meet stays apart. A pair
@@ -363,50 +377,42 @@ def _track(p, k, bad, reference, closed, check):
     When either bound fails, a full O(n^2) test at `p` decides and becomes the new reference.
     """
     if check == "every_step":
-        return jnp.where((bad < 0) & ~_simple_and_finite(p, closed), k, bad), reference
+        return jnp.where(_simple_and_finite(p, closed), first, jnp.minimum(first, k)), reference
     if check != "certified":
-        return bad, reference
+        return first, reference
     p = jax.lax.stop_gradient(p)  # bookkeeping only: nothing here is differentiated
 
-    def full_test(_):
+    def full_test(_):  # only runs before the first failure, so a failure here is the first one
         simple, new_reference = _certificate(p, closed)
-        return jnp.where(simple, bad, k), new_reference
+        return jnp.where(simple, first, k), new_reference
 
-    keep = (bad >= 0) | _certified(p, reference)
-    return jax.lax.cond(keep, lambda _: (bad, reference), full_test, None)
+    keep = (first < k) | _certified(p, reference)
+    return jax.lax.cond(keep, lambda _: (first, reference), full_test, None)
 
 
-# Below this many vertices a flow step's arrays fit in the L1/L2 caches and each fused kernel takes a
-# few microseconds; XLA's CPU backend still splits the costlier ones across threads, and waking the
-# second thread costs more than it saves (the A step ran 1.7x slower with the split at 1,000
-# vertices, and 15% faster with it at 200,000; benchmarks/README.md).
-_SERIAL_BELOW = 20_000
+# XLA:CPU splits a flow step's costliest kernels across threads; below this size a kernel is too
+# short for the thread handoff to pay (benchmarks/curves.py times both).
+_SERIAL_BELOW = 100_000
 _SERIAL_KERNELS = {"xla_disable_hlo_passes": "cpu-parallel-task-assigner"}
 
 
-def _serial_below_threshold(points, *args, **kwargs) -> dict[str, str]:
-    """Extra CPU compiler options for a flow on `points` (`tuned_jit`): single-threaded kernels for small curves."""
+def _serial_kernels(points, *args, **kwargs) -> dict[str, str]:
+    """Extra CPU compiler options for a flow on `points` (`tuned_jit`): single-threaded kernels below `_SERIAL_BELOW` vertices.
+
+    Chosen from the static shape at call time; under a caller's own `jit`, `grad` or `vmap` the
+    caller's compilation settings apply instead (`ddgjax._compile`).
+    """
     return _SERIAL_KERNELS if points.shape[-2] < _SERIAL_BELOW else {}
 
 
-def _jit_by_size(static_argnames: tuple[str, ...]):
-    """`tuned_jit` that compiles curves below `_SERIAL_BELOW` vertices with single-threaded kernels on CPU.
-
-    The choice is made from the (static) shape at call time. Under a caller's own transformation
-    (`jit`, `grad`, `vmap`) JAX allows compiler options only on the outermost `jit`, so the plain
-    version is used and the caller's compilation settings apply (`ddgjax._compile`).
-    """
-    return tuned_jit(static_argnames=static_argnames, extra_cpu_options=_serial_below_threshold)
-
-
-@_jit_by_size(("closed", "kind", "method", "rescale", "count", "check"))
+@tuned_jit(static_argnames=("closed", "kind", "method", "rescale", "count", "check"), extra_cpu_options=_serial_kernels)
 def _advance(points, step, tracker, tau, target, *, closed, kind, method, rescale, count, check):
     """`count` steps from `points` at step number `step`, tracking simplicity as `check` says."""
     update = _explicit_step if method == "explicit" else _semi_implicit_step
 
-    # Checkpointing each step makes reverse mode store only the positions per step and recompute
-    # the step's internals: 3x faster gradients here than storing every intermediate (measured,
-    # benchmarks/README.md), and O(steps * n) memory.
+    # Checkpointing each step makes reverse mode store only the positions per step (O(steps n)
+    # memory) and recompute the step's few cheap internals, which costs less than writing and
+    # rereading them all.
     @jax.checkpoint
     def body(carry, _):
         p, k, tracker = carry
@@ -437,7 +443,9 @@ def _frame_invariants(frames, closed):
     return jax.vmap(one)(frames)
 
 
-@_jit_by_size(("closed", "kind", "method", "rescale", "steps", "save_every", "check"))
+@tuned_jit(
+    static_argnames=("closed", "kind", "method", "rescale", "steps", "save_every", "check"), extra_cpu_options=_serial_kernels
+)
 def _run(points, tau, *, closed, kind, method, rescale, steps, save_every, check):
     """The whole flow as one scan over saved chunks (each an inner scan of `save_every` steps)."""
     settings = {"closed": closed, "kind": kind, "method": method, "rescale": rescale, "count": save_every, "check": check}
@@ -448,17 +456,11 @@ def _run(points, tau, *, closed, kind, method, rescale, steps, save_every, check
         return carry, carry[0]
 
     start = (points, jnp.zeros((), jnp.int32), _tracker_start(points, closed, check))
-    (_, _, (first_nonsimple, *_)), frames = jax.lax.scan(chunk, start, None, length=steps // save_every)
-    return jnp.concatenate([points[None], frames]), first_nonsimple
+    (_, _, (first_failure, *_)), frames = jax.lax.scan(chunk, start, None, length=steps // save_every)
+    return jnp.concatenate([points[None], frames]), first_failure
 
 
-
-
-def _check_choice(name: str, value, choices) -> None:
-    if value not in choices:
-        raise DDGInputError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
-
-
+@takes_curve
 def curve_shortening_flow(
     curve: Curve,
     *,
@@ -470,10 +472,11 @@ def curve_shortening_flow(
     rescale: str | None = None,
     check_simple: str = "certified",
     progress: bool = False,
+    throw: bool = True,
 ) -> CurveFlowResult:
     """Evolve a curve by the discrete curve-shortening flow of `kind`: `p_i <- p_i + tau kappa_i N_i`.
 
-    `kappa_i N_i` is `curvature_vectors(curve, kind)` in the reading report's natural form
+    `kappa_i N_i` is `curvature_vectors(curve, kind=kind)` in the reading report's natural form
     (integrated for `"A"`, `"B"`, `"C"`; pointwise for `"D"`). The whole run is one `lax.scan`
     under `jit` (a scan over saved chunks of `save_every` steps), differentiable end to end with
     respect to the initial points and `tau`, and `vmap`-able over a batch of curves:
@@ -484,14 +487,23 @@ def curve_shortening_flow(
 
     What the report says each flow keeps (and the tests measure): A keeps the total curvature
     `2 pi`; B keeps the vertex centroid; D tends to a cyclic polygon; none keeps all three, and
-    none is guaranteed to stay simple, so self-intersection is reported (`first_nonsimple_step`),
-    never hidden. Endpoints of an open curve stay fixed (they have no curvature).
+    none is guaranteed to stay simple. Endpoints of an open curve stay fixed (they have no
+    curvature).
+
+    Failures follow ddgjax's results convention (`ddgjax._results`): a state that is not simple
+    (self-intersecting or touching, the initial curve included) gives
+    `RESULTS.self_intersection`, NaN/inf positions give `RESULTS.nonfinite`, with
+    `first_failure_step` saying when. With `throw=True` (the default) such a run raises through
+    `equinox.error_if` with the item's message: `equinox.EquinoxRuntimeError` when called
+    eagerly or under `equinox.filter_jit`, a `jax.errors.JaxRuntimeError` carrying the same
+    message under a plain `jax.jit`; under `vmap` it raises when any member failed. With
+    `throw=False` it returns the states and the caller inspects `result`.
 
     Stability (see the module docstring): explicit A, B, C need `tau` below about half the
-    shortest edge; explicit D needs `tau` below about `(shortest edge)^2 / 4`. Unstable runs show
-    up as `first_nonfinite_step >= 0` or a non-simple curve. `method="semi-implicit"` solves
-    `(I - tau L(p)) p_new = p` with the curvature weights frozen at the current curve: stable for
-    steps far beyond the explicit limit.
+    shortest edge; explicit D needs `tau` below about `(shortest edge)^2 / 4`; above it the
+    curve tangles (self-intersects; the NaN-safe weights keep it finite).
+    `method="semi-implicit"` solves `(I - tau L(p)) p_new = p` with the curvature weights frozen
+    at the current curve: stable for steps far beyond the explicit limit.
 
     Args:
         curve: initial curve (open or closed).
@@ -504,7 +516,7 @@ def curve_shortening_flow(
         rescale: `None`, `"length"` or `"area"`: after each step scale the curve about its vertex
             centroid back to the initial length / absolute area, so the limit shape can be watched.
             Closed curves only.
-        check_simple: how `first_nonsimple_step` watches the steps between saves (the saved
+        check_simple: how the steps between saves are watched for self-intersection (the saved
             states are always tested).
             - `"certified"` (default): the exact first non-simple step at O(n) cost per step. A
               full O(n^2) test also measures the clearances (`near_and_far_clearances`: how far
@@ -513,32 +525,33 @@ def curve_shortening_flow(
               the best rotation + scaling + translation), and while that stays under the clearance
               the curve provably is still simple (`_track`). A new full test runs when it does not
               (a few times per ten thousand steps in a smooth flow; every step once edges nearly
-              touch). On the benchmark (1,000 vertices, 10,000 A steps, 2-core CPU) it makes the run
-              2.5x as long as with `"saved"`: about 13 us per step plus four full tests
-              (benchmarks/README.md).
-              Under `jax.vmap` the lazy test becomes an every-step test (`lax.cond` turns into a
-              select): use `"saved"` there.
+              touch). Under `jax.vmap` the lazy test becomes an every-step test (`lax.cond` turns
+              into a select): use `"saved"` there.
             - `"saved"`: only the saved states; a self-intersection that appears and disappears
               between two saves goes unseen.
             - `"every_step"`: the full O(n^2) test after every step.
         progress: show a tqdm progress bar over the saved chunks (runs one jitted chunk per save
             from a host loop; needs concrete points, i.e. not inside jit / vmap / grad).
+        throw: raise when the run failed (default), or return the failed run to be inspected
+            through `result` and `first_failure_step`.
 
     Returns:
-        `CurveFlowResult` with the saved points `(s, n, 2)`, times and invariants.
+        `CurveFlowResult` with the saved points `(s, n, 2)`, times, invariants and `result`.
 
     Raises:
-        DDGInputError: bad `kind`, `method`, `rescale`, `check_simple`, `steps`, `save_every`, a
-            concrete `tau` that is not finite and positive, `rescale` on an open curve, or
-            `progress=True` on traced points.
+        DDGInputError: `curve` not a `Curve`; bad `kind`, `method`, `rescale`, `check_simple`,
+            `steps`, `save_every`; a concrete `tau` that is not finite and positive;
+            `rescale` on an open curve; `progress=True` on traced points.
+        equinox.EquinoxRuntimeError: with `throw=True`, a run that self-intersected or went
+            non-finite (a `jax.errors.JaxRuntimeError` under a plain `jax.jit`; see above).
 
     Equivalent: curvey's `CurveShorteningFlow(resample_mode=None, curvature_fn=...)` (explicit,
     with curvey's finite-difference normals, host loop).
     """
-    kind = check_kind(kind)
-    _check_choice("method", method, METHODS)
-    _check_choice("rescale", rescale, RESCALES)
-    _check_choice("check_simple", check_simple, SIMPLICITY_CHECKS)
+    check_choice("kind", kind, KINDS)
+    check_choice("method", method, METHODS)
+    check_choice("rescale", rescale, RESCALES)
+    check_choice("check_simple", check_simple, SIMPLICITY_CHECKS)
     steps = check_count("steps", steps)
     save_every = steps if save_every is None else check_count("save_every", save_every)
     if steps % save_every:
@@ -552,15 +565,37 @@ def curve_shortening_flow(
     closed = curve.closed
     if progress:
         if is_traced(points) or is_traced(tau):
-            raise DDGInputError("progress: expected concrete points and tau (a host loop drives the bar); use progress=False under jit / vmap / grad")
-        frames, first_nonsimple = _run_with_progress(
-            points, tau, closed=closed, kind=kind, method=method, rescale=rescale, steps=steps, save_every=save_every, check=check_simple
+            raise DDGInputError(
+                "progress: expected concrete points and tau (a host loop drives the bar); use progress=False under jit / vmap / grad"
+            )
+        frames, first_failure = _run_with_progress(
+            points,
+            tau,
+            closed=closed,
+            kind=kind,
+            method=method,
+            rescale=rescale,
+            steps=steps,
+            save_every=save_every,
+            check=check_simple,
         )
     else:
-        frames, first_nonsimple = _run(
-            points, tau, closed=closed, kind=kind, method=method, rescale=rescale, steps=steps, save_every=save_every, check=check_simple
+        frames, first_failure = _run(
+            points,
+            tau,
+            closed=closed,
+            kind=kind,
+            method=method,
+            rescale=rescale,
+            steps=steps,
+            save_every=save_every,
+            check=check_simple,
         )
-    return _result(frames, first_nonsimple, tau, save_every, closed=closed, kind=kind, method=method, rescale=rescale)
+    # save_every goes in as an array: a new value does not recompile.
+    fields = _saved_invariants(frames, first_failure, tau, jnp.asarray(save_every, jnp.int32), closed=closed)
+    flow = CurveFlowResult(**fields, kind=kind, method=method, rescale=rescale, closed=closed)
+    # Outside `_saved_invariants`' jit, so that an eager call raises equinox's own error type.
+    return raise_if_failed(flow, flow.result, throw)
 
 
 def _run_with_progress(points, tau, *, closed, kind, method, rescale, steps, save_every, check):
@@ -572,7 +607,9 @@ def _run_with_progress(points, tau, *, closed, kind, method, rescale, steps, sav
     frames = [points]
     with tqdm(total=steps, desc=f"curve-shortening flow {kind}", unit="step") as bar:
         for _ in range(steps // save_every):
-            carry = _advance(*carry, tau, target, closed=closed, kind=kind, method=method, rescale=rescale, count=save_every, check=check)
+            carry = _advance(
+                *carry, tau, target, closed=closed, kind=kind, method=method, rescale=rescale, count=save_every, check=check
+            )
             carry[0].block_until_ready()
             frames.append(carry[0])
             bar.update(save_every)
@@ -580,13 +617,18 @@ def _run_with_progress(points, tau, *, closed, kind, method, rescale, steps, sav
 
 
 @tuned_jit(static_argnames=("closed",))
-def _saved_invariants(frames, first_nonsimple, tau, save_every, *, closed) -> dict:
-    """The invariant fields of `CurveFlowResult` (one compiled program per shape, whatever the kind / method / rescale)."""
+def _saved_invariants(frames, tracked_failure, tau, save_every, *, closed) -> dict:
+    """The array fields of `CurveFlowResult` (one compiled program per shape, whatever the kind / method / rescale)."""
     total, middle, size, area, ratio, residual, simple, finite = _frame_invariants(frames, closed)
     steps = save_every * jnp.arange(frames.shape[0], dtype=jnp.int32)
-    never = jnp.iinfo(jnp.int32).max
-    first_saved_nonsimple = jnp.where(jnp.any(~simple), steps[jnp.argmax(~simple)], never)
-    first_nonsimple = jnp.minimum(first_saved_nonsimple, jnp.where(first_nonsimple >= 0, first_nonsimple, never))
+    # `simple` is false for non-finite states too; `steps[-1] + 1` stands for "after the run".
+    saved_failure = jnp.min(jnp.where(simple, steps[-1] + 1, steps))
+    first_failure = jnp.minimum(tracked_failure, saved_failure)
+    result = RESULTS.where(
+        jnp.any(~finite),
+        RESULTS.nonfinite,
+        RESULTS.where(first_failure <= steps[-1], RESULTS.self_intersection, RESULTS.successful),
+    )
     return {
         "points": frames,
         "times": steps * tau,
@@ -598,13 +640,7 @@ def _saved_invariants(frames, first_nonsimple, tau, save_every, *, closed) -> di
         "isoperimetric_ratio": ratio,
         "cyclic_residual": residual,
         "is_simple": simple,
-        "first_nonsimple_step": jnp.where(first_nonsimple < never, first_nonsimple, -1),
-        "first_nonfinite_step": jnp.where(jnp.any(~finite), steps[jnp.argmax(~finite)], -1),
+        "result": result,
+        "first_failure_step": first_failure,
         "tau": tau,
     }
-
-
-def _result(frames, first_nonsimple, tau, save_every, *, closed, kind, method, rescale) -> CurveFlowResult:
-    # save_every goes in as an array: a new value does not recompile.
-    fields = _saved_invariants(frames, first_nonsimple, tau, jnp.asarray(save_every, jnp.int32), closed=closed)
-    return CurveFlowResult(**fields, kind=kind, method=method, rescale=rescale, closed=closed)

@@ -11,13 +11,12 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._compile import tuned_jit
 from .._numerics import cross2, safe_div, safe_norm, safe_reciprocal, safe_sqrt
 from ._curvature import _edge_lengths
-from ._curve import Curve
+from ._curve import Curve, curve_kernel
 
 
-@tuned_jit
+@curve_kernel
 def centroid(curve: Curve) -> Float[Array, "2"]:
     """Vertex centroid `(1/n) sum_i p_i`, `(2,)`: the centre of mass the reading report's B-flow keeps.
 
@@ -34,7 +33,7 @@ def _shoelace_terms(points: Float[Array, "n 2"]):
     return origin, relative, following, cross2(relative, following)
 
 
-@tuned_jit
+@curve_kernel
 def enclosed_area(curve: Curve) -> Float[Array, ""]:
     """Signed enclosed area by the shoelace formula, `A = (1/2) sum_i p_i x p_{i+1}`.
 
@@ -45,7 +44,7 @@ def enclosed_area(curve: Curve) -> Float[Array, ""]:
     return 0.5 * jnp.sum(_shoelace_terms(curve.points)[3])
 
 
-@tuned_jit
+@curve_kernel
 def area_centroid(curve: Curve) -> Float[Array, "2"]:
     """Centre of mass of the enclosed region, `(2,)`: `(1 / 6A) sum_i (p_i + p_{i+1}) (p_i x p_{i+1})`.
 
@@ -57,7 +56,7 @@ def area_centroid(curve: Curve) -> Float[Array, "2"]:
     return origin + safe_div(moment, 0.5 * jnp.sum(cross))
 
 
-@tuned_jit
+@curve_kernel
 def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     """Isoperimetric ratio `4 pi |A| / L^2`: 1 for a circle, `pi / (n tan(pi / n))` for a regular n-gon, less otherwise.
 
@@ -68,7 +67,7 @@ def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     return safe_div(4 * jnp.pi * jnp.abs(enclosed_area(curve)), perimeter**2)
 
 
-@tuned_jit
+@curve_kernel
 def cyclic_residual(curve: Curve) -> Float[Array, ""]:
     """How far the vertices are from lying on one circle: `std_i |p_i - c| / mean_i |p_i - c|`.
 
@@ -137,9 +136,11 @@ def _point_segment_distances_sq(point, start, direction, inverse_length_sq) -> F
 
 
 # Edge pairs at most this far apart along the curve are "near" in `near_and_far_clearances`. The
-# flows' certified tracking bounds their relative motion step by step (O(NEAR_EDGES n)) and the far
-# ones by a similarity fit; 8 made the fewest full tests on the benchmark flower (4 in 10,000 A
-# steps, against 12 with 2 and 11 with 32).
+# flows' certified tracking bounds their relative motion step by step (O(NEAR_EDGES n) per step) and
+# the far ones by a similarity fit. Too few near pairs leave close, non-rigidly moving neighbours to
+# the far bound; too many put vertices far apart along the curve, whose relative motion is large,
+# under the near bound. Either failure costs a full O(n^2) test; 8 gave the fewest on the benchmark
+# flower.
 NEAR_EDGES = 8
 
 
@@ -195,7 +196,7 @@ def _edge_pair_sweep(curve: Curve, block: int, with_clearance: bool):
     return ~jnp.any(hits), safe_sqrt(jnp.min(near_sq)), safe_sqrt(jnp.min(far_sq))
 
 
-@tuned_jit(static_argnames=("block",))
+@curve_kernel(static_argnames=("block",))
 def simplicity_and_clearance(curve: Curve, *, block: int = 128) -> tuple[Bool[Array, ""], Float[Array, ""]]:
     """`(is_simple(curve), clearance)`: whether the curve is simple, and by how much.
 
@@ -227,7 +228,7 @@ def near_and_far_clearances(curve: Curve, *, block: int = 128) -> tuple[Bool[Arr
     return _edge_pair_sweep(curve, block, with_clearance=True)
 
 
-@tuned_jit(static_argnames=("block",))
+@curve_kernel(static_argnames=("block",))
 def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
     """True when the curve does not intersect or touch itself (boolean scalar, jit-compatible).
 

@@ -20,10 +20,6 @@ from ._curve import Curve
 __all__ = ["figure3_polygon", "flower", "load_polygon", "random_polygon", "regular_polygon", "star"]
 
 
-
-
-
-
 def _radial(angles: np.ndarray, radii: np.ndarray, center=(0.0, 0.0)) -> Curve:
     """The closed polygon with vertices `center + radii * (cos, sin)(angles)`.
 
