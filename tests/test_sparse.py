@@ -345,6 +345,16 @@ def test_gather_sum_transpose_is_a_gather_not_a_scatter():
     assert "scatter-add" not in primitives(hvp)
 
 
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="the fusion boundaries are lowered on CPU only")
+def test_gather_sum_keeps_its_fusion_boundaries_with_constant_indices():
+    """A user's jit closes over host-built indices (an operator plan) as constants: the boundaries
+    around the gather (conditionals XLA cannot fuse across) must not be constant-folded away."""
+    x = jnp.linspace(0.5, 2.0, 6)
+    constant = jax.jit(lambda x: gather_sum(jnp.sin(x), INDEX, TRANSPOSE_INDEX)).lower(x).compile().as_text()
+    argument = jax.jit(lambda x, i, t: gather_sum(jnp.sin(x), i, t)).lower(x, INDEX, TRANSPOSE_INDEX).compile().as_text()
+    assert constant.count("conditional(") == argument.count("conditional(") == 2
+
+
 def test_gather_sum_vmap_over_index_arrays():
     # A second incidence: the outputs in reverse order.
     index = jnp.stack([INDEX, INDEX[::-1]])

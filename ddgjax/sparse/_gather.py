@@ -99,10 +99,13 @@ def _materialized(x, index):
     `lax.optimization_barrier` before fusion but keeps a conditional, which it cannot fuse across;
     the predicate (indices are non-negative by contract) is a run-time value, so the conditional
     stays, and the other branch (NaN, never taken for valid input) keeps XLA from merging the two.
+    The predicate passes through an optimization barrier so that constant indices (an operator plan
+    closed over in a user's `jit`) cannot fold it away before fusion.
     """
     if index.size == 0:
         return x
-    return jax.lax.cond(index[0, 0] >= 0, lambda v: v, lambda v: jnp.full_like(v, jnp.nan), x)
+    always = jax.lax.optimization_barrier(index[0, 0]) >= 0
+    return jax.lax.cond(always, lambda v: v, lambda v: jnp.full_like(v, jnp.nan), x)
 
 
 def _abstract_eval(x, index, transpose_index):
