@@ -126,6 +126,7 @@ def bench_mesh(name, V, F, repeats, run_robust):
     )
     if tx_mesh is not None:
         try:
+
             def tx_build(V, F):
                 hemesh = tx_mesh.HeMesh.from_triangles(nv, jnp.asarray(F))
                 return tx_linops.cotan_laplace_sparse(jnp.asarray(V), hemesh).data
@@ -208,8 +209,10 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--robust-max-faces", type=int, default=400_000, help="robust_laplacian is slow; skip beyond")
     args = parser.parse_args(argv)
-    print(f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"python {platform.python_version()}, jax {jax.__version__} ({jax.default_backend()}), float64")
+    print(
+        f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"python {platform.python_version()}, jax {jax.__version__} ({jax.default_backend()}), float64"
+    )
     meshes = []
     for s in range(4, 9):
         if 20 * 4**s <= args.max_faces:

@@ -3,7 +3,11 @@
 Subpackages: `ddgjax.curves` (plane curves, four discrete curvatures, curve-shortening flows),
 `ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes), `ddgjax.dec` (discrete exterior
 calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices), `ddgjax.sparse` (fixed-pattern sparse
-matrices), `ddgjax.io` (mesh files). Conventions: see DESIGN.md and the README.
+matrices), `ddgjax.io` (mesh files), `ddgjax.plot` (figures). Conventions: see DESIGN.md and the README.
+
+Failures that depend on values inside `jit` (a flow that self-intersects, later a solve that does not
+converge) are reported through one results convention, as lineax and optimistix do: a `result`
+field holding an item of `ddgjax.RESULTS`, and `throw=True` by default.
 
 Importing ddgjax never changes `jax.config`; enable float64 yourself
 (`jax.config.update("jax_enable_x64", True)`) for geometry work. ddgjax's own kernels compile with
@@ -23,6 +27,7 @@ from . import sparse as sparse
 from ._compile import cpu_compiler_options as cpu_compiler_options
 from ._errors import DDGInputError as DDGInputError
 from ._errors import MeshDataError as MeshDataError
+from ._results import RESULTS as RESULTS
 from .curves import Curve as Curve
 from .mesh import Mesh as Mesh
 

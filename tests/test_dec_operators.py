@@ -282,7 +282,7 @@ def test_dec_laplacian_and_mass_match_libigl(name):
     mesh, ops = load(name), operators(name)
     V, F = np.asarray(mesh.vertices), mesh.topology.faces
     D0 = ops["d0"].to_scipy()
-    L = (D0.T @ (ops["h1 circumcentric"][:, None] * D0.toarray()))
+    L = D0.T @ (ops["h1 circumcentric"][:, None] * D0.toarray())
     expected = -igl.cotmatrix(V, F).toarray()
     np.testing.assert_allclose(L, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
     np.testing.assert_array_equal(ops["h1 circumcentric"], ops["cotan"])

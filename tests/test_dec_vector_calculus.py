@@ -74,9 +74,7 @@ def test_gradient_and_divergence_against_libigl_and_gpytoolbox(name):
     G = igl.grad(V, F)
     scale = np.abs(r["grad u"]).max()
     np.testing.assert_allclose(r["grad u"], (G @ r["u"]).reshape(3, -1).T, rtol=0, atol=1e-12 * scale)
-    np.testing.assert_allclose(
-        r["grad u"], (gpytoolbox.grad(V, F) @ r["u"]).reshape(3, -1).T, rtol=0, atol=1e-12 * scale
-    )
+    np.testing.assert_allclose(r["grad u"], (gpytoolbox.grad(V, F) @ r["u"]).reshape(3, -1).T, rtol=0, atol=1e-12 * scale)
     # The weak divergence -sum_f A_f grad phi_i . X_f, normal components of X included (and ignored).
     expected = -G.T @ (np.tile(r["areas"], 3) * r["X"].T.ravel())
     np.testing.assert_allclose(r["div X"], expected, rtol=0, atol=1e-12 * np.abs(expected).max())

@@ -29,9 +29,7 @@ def test_or_zero_reads_zero_at_padding_indices():
     index = jnp.array([[0, 4], [3, 100], [4, 2]], dtype=jnp.int32)
     expected = np.where((np.asarray(index) < 4)[..., None], np.asarray(x)[np.minimum(index, 3)], 0.0)
     np.testing.assert_array_equal(take_rows_or_zero(x, index), expected)
-    np.testing.assert_array_equal(
-        take_rows_or_zero(x, index), jnp.take(x, index, axis=0, mode="fill", fill_value=0)
-    )
+    np.testing.assert_array_equal(take_rows_or_zero(x, index), jnp.take(x, index, axis=0, mode="fill", fill_value=0))
 
 
 @pytest.mark.parametrize("gather", [take_rows, take_rows_or_zero])
@@ -46,9 +44,7 @@ def test_derivatives_and_vmap_match_plain_indexing(gather):
     plain = lambda v, i: v[i]
     np.testing.assert_allclose(jax.grad(lambda v: loss(gather, v))(x), jax.grad(lambda v: loss(plain, v))(x), rtol=1e-15)
     tangent = jnp.sin(jnp.arange(12.0)).reshape(6, 2)
-    np.testing.assert_allclose(
-        jax.jvp(lambda v: gather(v, index), (x,), (tangent,))[1], tangent[index], rtol=1e-15
-    )
+    np.testing.assert_allclose(jax.jvp(lambda v: gather(v, index), (x,), (tangent,))[1], tangent[index], rtol=1e-15)
     batch = jnp.stack([x, 2 * x, -x])
     np.testing.assert_array_equal(jax.vmap(lambda v: gather(v, index))(batch), batch[:, index])
     indices = jnp.stack([index, index[::-1], 5 - index])

@@ -156,7 +156,15 @@ CUBE_F = [
 
 @pytest.fixture(scope="module")
 def elements():
-    return {name: _single(*data) for name, data in {"right": RIGHT, "equilateral": EQUILATERAL, "tetrahedron": TETRAHEDRON, "cube": (CUBE_V, CUBE_F)}.items()}
+    return {
+        name: _single(*data)
+        for name, data in {
+            "right": RIGHT,
+            "equilateral": EQUILATERAL,
+            "tetrahedron": TETRAHEDRON,
+            "cube": (CUBE_V, CUBE_F),
+        }.items()
+    }
 
 
 def _closed_forms(mesh, scale):
@@ -249,7 +257,10 @@ def test_degenerate_faces_contribute_nothing_with_finite_gradients():
 
     def energies(W):
         moved = mesh.with_vertices(W)
-        return jnp.stack([dirichlet_energy(moved, u)] + [jnp.sum(mass_matrix(moved, kind=k) @ u) for k in ("voronoi", "barycentric", "galerkin")])
+        return jnp.stack(
+            [dirichlet_energy(moved, u)]
+            + [jnp.sum(mass_matrix(moved, kind=k) @ u) for k in ("voronoi", "barycentric", "galerkin")]
+        )
 
     jacobian = jax.jit(jax.jacrev(energies))
     for W in (V, V.at[5].set(V[1])):  # also a collapsed (zero-length) edge
@@ -275,9 +286,7 @@ def test_jit_vmap_and_gradients():
     energy_dec = jax.jit(lambda W: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W), method="dec") @ u))
     check_grads(energy_dec, (batch[0],), order=1, modes=("fwd",))
     # grad_u of the energy is L u.
-    np.testing.assert_allclose(
-        jax.jit(jax.grad(lambda w: dirichlet_energy(mesh, w)))(u), _apply(mesh, u), rtol=1e-13, atol=1e-14
-    )
+    np.testing.assert_allclose(jax.jit(jax.grad(lambda w: dirichlet_energy(mesh, w)))(u), _apply(mesh, u), rtol=1e-13, atol=1e-14)
     # Dirichlet energy = 1/2 int |grad u|^2 from the hat gradients: exact for linear u on a flat grid.
     flat = grid(3, 3, size=2.0)
     linear = 2.0 * flat.vertices[:, 0] + 3.0 * flat.vertices[:, 1]
@@ -437,7 +446,9 @@ def test_energy_gradient_closed_form_equals_autodiff_of_the_assembly(real):
     rng = np.random.default_rng(3)
     for u in (jnp.asarray(rng.standard_normal(mesh.n_vertices)), jnp.asarray(rng.standard_normal((mesh.n_vertices, 2)))):
         closed = jax.jit(jax.grad(lambda W, u=u: dirichlet_energy(mesh.with_vertices(W), u)))(jnp.asarray(V))
-        assembled = jax.jit(jax.grad(lambda W, u=u: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W)) @ u)))(jnp.asarray(V))
+        assembled = jax.jit(jax.grad(lambda W, u=u: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W)) @ u)))(
+            jnp.asarray(V)
+        )
         assert np.all(np.isfinite(closed))
         np.testing.assert_allclose(closed, assembled, rtol=0, atol=1e-11 * np.abs(assembled).max())
 

@@ -22,6 +22,7 @@ TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
 
 # ---------------------------------------------------------------- construction refuses bad input
 
+
 @pytest.mark.parametrize(
     "vertices, faces, message",
     [
@@ -77,7 +78,10 @@ def test_construction_accepts_exactly_the_valid_face_lists(n_vertices, faces):
         (np.zeros((5, 3)), r"vertices: expected shape \(4, 3\), got \(5, 3\)"),
         (np.zeros((4, 2)), r"vertices: expected shape \(4, 3\), got \(4, 2\)"),
         (np.zeros(12), r"vertices: expected shape \(4, 3\), got \(12,\)"),
-        (np.where(np.arange(12).reshape(4, 3) == 4, np.nan, TET_V), r"vertices: expected finite coordinates, got NaN/inf at rows \[1\]"),
+        (
+            np.where(np.arange(12).reshape(4, 3) == 4, np.nan, TET_V),
+            r"vertices: expected finite coordinates, got NaN/inf at rows \[1\]",
+        ),
         (jnp.asarray(TET_V).at[3, 2].set(-jnp.inf), r"NaN/inf at rows \[3\]"),
         (TET_V.astype(complex), "vertices: expected a real floating-point array, got dtype complex128"),
     ],
@@ -110,6 +114,7 @@ def test_operators_needing_a_manifold_refuse_clearly():
 
 
 # ---------------------------------------------------------------- check_mesh
+
 
 def test_check_mesh_on_clean_and_problem_meshes():
     clean = check_mesh(Mesh.from_arrays(TET_V, TET_F))
@@ -180,6 +185,7 @@ def test_check_mesh_finds_zero_area_faces_at_current_positions():
 
 
 # ---------------------------------------------------------------- ddgjax info
+
 
 def test_info_default_shape(capsys):
     assert main(["info"]) == 0

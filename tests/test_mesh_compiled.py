@@ -116,8 +116,16 @@ def test_operator_plans_are_built_on_first_use_and_shared_per_connectivity():
 
 @pytest.mark.parametrize(
     "function",
-    [face_areas, vertex_pointwise_gaussian_curvatures, cotan_laplacian, mass_matrix, vertex_plan,
-     lambda m: laplacian_apply(m, np.zeros(3)), lambda m: dirichlet_energy(m, np.zeros(3)), check_mesh],
+    [
+        face_areas,
+        vertex_pointwise_gaussian_curvatures,
+        cotan_laplacian,
+        mass_matrix,
+        vertex_plan,
+        lambda m: laplacian_apply(m, np.zeros(3)),
+        lambda m: dirichlet_energy(m, np.zeros(3)),
+        check_mesh,
+    ],
 )
 @pytest.mark.parametrize("wrong", [np.zeros((3, 3)), (np.zeros((3, 3)), np.array([[0, 1, 2]])), "mesh.obj"])
 def test_anything_but_a_mesh_is_refused_with_what_to_call(function, wrong, without_type_checker):

@@ -106,7 +106,8 @@ def real() -> dict:
     union = disjoint_union([arrays(mesh) for mesh in meshes])
     values = jax.tree_util.tree_map(np.asarray, curvatures(union.mesh))
     return {
-        name: {"mesh": mesh, "V": arrays(mesh)[0], "F": arrays(mesh)[1]} | {key: value[union.vertices_of(k)] for key, value in values.items()}
+        name: {"mesh": mesh, "V": arrays(mesh)[0], "F": arrays(mesh)[1]}
+        | {key: value[union.vertices_of(k)] for key, value in values.items()}
         for k, (name, mesh) in enumerate(zip(REAL_NAMES, meshes))
     }
 
@@ -137,6 +138,7 @@ BUMPY, N_CLOSED = bumpy_union()
 
 
 # ---------------------------------------------------------------- Gauss-Bonnet and references
+
 
 def test_gauss_bonnet_on_every_shared_mesh():
     """sum K_i = 2 pi chi on all meshes in ../shared/meshes, non-manifold and non-orientable ones included.
@@ -226,6 +228,7 @@ def test_signed_curvatures_refuse_meshes_without_an_orientation(name, problem):
 
 # ---------------------------------------------------------------- convergence to analytic curvature
 
+
 def test_sphere_curvatures_converge(synthetic):
     errors = {"K": [], "H": [], "HN": [], "k1": [], "k2": []}
     for part in synthetic[: len(SPHERE_LEVELS)]:
@@ -245,7 +248,7 @@ def test_sphere_curvatures_converge(synthetic):
     # a sphere) H^2 - K is an O(h^2) error whose square root is O(h): measured rates 1.1 (k1), 0.8 (k2).
     minimum = {"K": 1.8, "H": 1.8, "HN": 1.8, "k1": 0.7, "k2": 0.7}
     for name, error in errors.items():
-        assert fitted_rate(h[first.get(name, 0):], error[first.get(name, 0):]) > minimum[name], (name, error)
+        assert fitted_rate(h[first.get(name, 0) :], error[first.get(name, 0) :]) > minimum[name], (name, error)
     # Total mean curvature 1/2 sum l theta -> 4 pi r (measured relative error 1.6e-3 at level 3: O(h^2)).
     total = float(np.sum(synthetic[len(SPHERE_LEVELS) - 1]["H_integrated"]))
     assert abs(total - 4 * np.pi * RADIUS) < 3e-3 * 4 * np.pi * RADIUS
@@ -292,6 +295,7 @@ def test_flat_disk_has_zero_curvature_inside(synthetic):
 
 
 # ---------------------------------------------------------------- variational identities
+
 
 @jax.jit
 def identity_gradients(V) -> dict:
@@ -387,7 +391,6 @@ def test_jit_and_vmap_equal_eager(small_batch):
     np.testing.assert_allclose(small_batch["H"][1], small_batch["H"][0] / 2, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(small_batch["K"][2], small_batch["K"][0], rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(small_batch["H"][2], -small_batch["H"][0], rtol=1e-12, atol=1e-14)
-
 
 
 def test_pointwise_curvatures_divide_by_the_chosen_dual():

@@ -116,6 +116,7 @@ DEGENERATE_VERTICES = SMALL.vertices.at[11].set(SMALL.vertices[0]).at[4].set(0.5
 
 # ---------------------------------------------------------------- dual areas
 
+
 @pytest.mark.parametrize("name", REAL_NAMES)
 @pytest.mark.parametrize("dual", ["voronoi", "barycentric"])
 def test_dual_areas_match_libigl_massmatrix(real, name, dual):
@@ -177,7 +178,9 @@ def test_circumcentric_share_is_negative_beyond_ninety_degrees():
 def test_dual_areas_intrinsic_core_matches_extrinsic(real):
     V, F = real["arrays"]["camelhead.off"]
     l2 = np.stack([np.sum((V[F[:, (k + 2) % 3]] - V[F[:, (k + 1) % 3]]) ** 2, axis=1) for k in range(3)], axis=1)
-    intrinsic = jax.jit(lambda l2: {dual: corner_dual_areas_from_lengths_sq(l2, dual=dual) for dual in ("voronoi", "circumcentric")})(l2)
+    intrinsic = jax.jit(
+        lambda l2: {dual: corner_dual_areas_from_lengths_sq(l2, dual=dual) for dual in ("voronoi", "circumcentric")}
+    )(l2)
     for dual, corners in intrinsic.items():
         summed = np.bincount(F.ravel(), weights=np.asarray(corners).ravel(), minlength=V.shape[0])
         # Kahan's area vs the cross-product area on camelhead's 0.55-degree slivers: agree to ~1e-12.
@@ -227,6 +230,7 @@ def test_dual_areas_reject_unknown_dual():
 
 # ---------------------------------------------------------------- normals
 
+
 @pytest.mark.parametrize("name", ["beetle.off", "stanford-bunny.obj"])
 def test_vertex_normals_match_libigl(real, name):
     V, F = real["arrays"][name]
@@ -267,6 +271,7 @@ def test_vertex_normals_point_outward_on_sphere():
 
 # ---------------------------------------------------------------- dihedral angles, area, volume
 
+
 def test_dihedral_angles_match_normal_angles_and_sign(real):
     mesh = real["meshes"]["beetle.off"]
     V, F = real["arrays"]["beetle.off"]
@@ -304,6 +309,7 @@ def test_enclosed_volume_against_trimesh():
 
 
 # ---------------------------------------------------------------- jit, vmap, gradients
+
 
 def weighted_outputs(V):
     """A fixed random weighting of every output of `geometry`: a wrong or non-finite gradient of any

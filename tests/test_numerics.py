@@ -46,7 +46,9 @@ def test_nonfinite_input_propagates_instead_of_vanishing():
 def test_safe_norm_values_and_zero_gradient_at_zero():
     x = jnp.array([[3.0, 4.0], [0.0, 0.0], [-1.0, 0.0]])
     np.testing.assert_allclose(safe_norm(x), np.linalg.norm(np.asarray(x), axis=1), rtol=1e-15)
-    np.testing.assert_allclose(safe_norm(x, axis=0, keepdims=True), np.linalg.norm(np.asarray(x), axis=0, keepdims=True), rtol=1e-15)
+    np.testing.assert_allclose(
+        safe_norm(x, axis=0, keepdims=True), np.linalg.norm(np.asarray(x), axis=0, keepdims=True), rtol=1e-15
+    )
     gradient = jax.jacobian(lambda v: safe_norm(v))(x)  # (3, 3, 2)
     np.testing.assert_allclose(gradient[0, 0], [0.6, 0.8], rtol=1e-15)
     np.testing.assert_array_equal(gradient[1, 1], [0.0, 0.0])

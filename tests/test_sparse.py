@@ -238,8 +238,9 @@ def test_eager_product_is_one_compiled_call_per_structure(spd):
     x = np.random.default_rng(14).random(25)
     np.testing.assert_allclose(matrix @ x, reference @ x, rtol=1e-13)
     compiled = programs()
-    doubled = SparseMatrix(2 * matrix.values, matrix.pattern, symmetric=matrix.symmetric,
-                           positive_semidefinite=matrix.positive_semidefinite)
+    doubled = SparseMatrix(
+        2 * matrix.values, matrix.pattern, symmetric=matrix.symmetric, positive_semidefinite=matrix.positive_semidefinite
+    )
     np.testing.assert_allclose(doubled @ jnp.asarray(x), 2 * (reference @ x), rtol=1e-13)
     assert programs() == compiled
 
@@ -338,8 +339,10 @@ def test_gather_sum_all_modes_equal_the_plain_gather():
 
 def test_gather_sum_transpose_is_a_gather_not_a_scatter():
     x = jnp.linspace(0.5, 2.0, 6)
-    for jaxpr in (jax.make_jaxpr(jax.grad(_custom))(x), jax.make_jaxpr(jax.linear_transpose(
-        lambda x: gather_sum(x, INDEX, TRANSPOSE_INDEX), x))(jnp.ones(4))):
+    for jaxpr in (
+        jax.make_jaxpr(jax.grad(_custom))(x),
+        jax.make_jaxpr(jax.linear_transpose(lambda x: gather_sum(x, INDEX, TRANSPOSE_INDEX), x))(jnp.ones(4)),
+    ):
         assert "scatter-add" not in primitives(jaxpr) and "ddgjax_gather_sum" in primitives(jaxpr)
     hvp = jax.make_jaxpr(lambda x, v: jax.jvp(jax.grad(_custom), (x,), (v,))[1])(x, x)
     assert "scatter-add" not in primitives(hvp)

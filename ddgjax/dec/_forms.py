@@ -117,9 +117,7 @@ def integrate_2form(
 _PLACES = ("faces", "vertices")
 
 
-def flat(
-    mesh: Mesh, field: Float[ArrayLike, "n 3"], *, at: str = "faces"
-) -> Float[Array, " ne"]:
+def flat(mesh: Mesh, field: Float[ArrayLike, "n 3"], *, at: str = "faces") -> Float[Array, " ne"]:
     """Flat of a discrete vector field: the 1-form `X^flat` on the edges, `(ne,)`.
 
     - `at="faces"`, `field` `(nf, 3)`, one vector per face: `(X^flat)_e = mean_{f ni e} X_f . (p_h - p_t)`,

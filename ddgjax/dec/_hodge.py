@@ -59,9 +59,7 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array
     return safe_div(dual_lengths, edge_lengths(mesh))
 
 
-def hodge_star_entries(
-    mesh: Mesh, degree: int, *, dual: str = "voronoi", inverse: bool = False
-) -> Float[Array, " n"]:
+def hodge_star_entries(mesh: Mesh, degree: int, *, dual: str = "voronoi", inverse: bool = False) -> Float[Array, " n"]:
     """Diagonal of the Hodge star `*_k` (or of its inverse) on primal `degree`-forms, as a vector.
 
     `degree` 0, 1 or 2 (forms on a triangle mesh): vertex dual areas `(nv,)`, `|e*| / |e|` `(ne,)`,

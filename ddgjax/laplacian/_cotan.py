@@ -269,9 +269,7 @@ def _off_diagonal(plan: VertexPlan, edge_entries: Float[Array, " n_off"]) -> Spa
     return SparseMatrix(values, plan.pattern, symmetric=True)
 
 
-def _with_diagonal(
-    matrix: SparseMatrix, diagonal: Float[Array, " nv"], *, positive_semidefinite: bool
-) -> SparseMatrix:
+def _with_diagonal(matrix: SparseMatrix, diagonal: Float[Array, " nv"], *, positive_semidefinite: bool) -> SparseMatrix:
     # The vertex pattern stores the diagonal first (slots 0..nv-1).
     values = matrix.values.at[: diagonal.shape[0]].set(diagonal)
     return SparseMatrix(values, matrix.pattern, symmetric=True, positive_semidefinite=positive_semidefinite)

@@ -171,7 +171,9 @@ def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     vectors = take_rows(mesh.vertices, mesh.edges[:, 0]) - take_rows(mesh.vertices, mesh.edges[:, 1])
     terms = 0.5 * safe_div(edge_dihedral_angles(mesh), safe_norm(vectors))[:, None] * vectors
     n = mesh.n_vertices
-    return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(terms, mesh.edges[:, 1], num_segments=n)
+    return jax.ops.segment_sum(terms, mesh.edges[:, 0], num_segments=n) - jax.ops.segment_sum(
+        terms, mesh.edges[:, 1], num_segments=n
+    )
 
 
 @compiled_kernel(static_argnames=("dual",), requires_orientation=_operation("vertex_pointwise_mean_curvatures"))

@@ -124,7 +124,6 @@ class Mesh(eqx.Module):
         characteristic when no vertex is unreferenced. libigl: `igl.edges(F).shape[0]`."""
         return self.edges.shape[0]
 
-
     def without_topology(self) -> "Mesh":
         """The same arrays with `topology=None`: what ddgjax's compiled kernels trace (`ddgjax.mesh._compiled`)."""
         if self.topology is None:

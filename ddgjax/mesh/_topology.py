@@ -33,9 +33,7 @@ def validate_faces(faces, n_vertices: int) -> np.ndarray:
     if not np.issubdtype(host.dtype, np.integer):
         # Floats are refused even when they hold whole numbers: a float face array is almost always a
         # mix-up (vertices passed as faces, or indices that went through float arithmetic).
-        raise DDGInputError(
-            f"faces: expected an integer array of vertex indices (e.g. int32 or int64), got dtype {host.dtype}"
-        )
+        raise DDGInputError(f"faces: expected an integer array of vertex indices (e.g. int32 or int64), got dtype {host.dtype}")
     out_of_range = (host < 0) | (host >= n_vertices)
     if out_of_range.any():
         raise DDGInputError(

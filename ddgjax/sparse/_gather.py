@@ -156,4 +156,3 @@ mlir.register_lowering(gather_sum_p, mlir.lower_fun(_lower, multiple_results=Fal
 ad.defjvp(gather_sum_p, _jvp, None, None)
 ad.primitive_transposes[gather_sum_p] = _transpose
 batching.primitive_batchers[gather_sum_p] = _batch
-

@@ -122,9 +122,7 @@ class SparseMatrix(eqx.Module):
         if pattern.transpose_pattern is not None:
             values = take_rows_or_zero(self.values, pattern.transpose_slot)
             return SparseMatrix(values, pattern.transpose_pattern, **flags)
-        swapped = SparsityPattern(
-            rows=pattern.cols, cols=pattern.rows, indptr=None, shape=pattern.shape[::-1], layout="coo"
-        )
+        swapped = SparsityPattern(rows=pattern.cols, cols=pattern.rows, indptr=None, shape=pattern.shape[::-1], layout="coo")
         return SparseMatrix(self.values, swapped, **flags)
 
     def __add__(self, other: "SparseMatrix") -> "SparseMatrix":
@@ -162,9 +160,7 @@ class SparseMatrix(eqx.Module):
         pattern = self.pattern
         n_rows = self.shape[0]
         if pattern.layout != "ell":
-            return jax.ops.segment_sum(
-                self.values, pattern.rows, num_segments=n_rows, indices_are_sorted=pattern.layout == "csr"
-            )
+            return jax.ops.segment_sum(self.values, pattern.rows, num_segments=n_rows, indices_are_sorted=pattern.layout == "csr")
         ell_size = n_rows * pattern.width
         ell_values = self.values[:ell_size].reshape(pattern.width, n_rows)
         sums = ell_values[0]
@@ -284,9 +280,7 @@ def _scaled(matrix: SparseMatrix, values: Float[Array, " nnz"], scalar) -> Spars
         psd = nsd = matrix.symmetric
     elif sign < 0:
         psd, nsd = nsd, psd
-    return SparseMatrix(
-        values, matrix.pattern, symmetric=matrix.symmetric, positive_semidefinite=psd, negative_semidefinite=nsd
-    )
+    return SparseMatrix(values, matrix.pattern, symmetric=matrix.symmetric, positive_semidefinite=psd, negative_semidefinite=nsd)
 
 
 def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
@@ -373,9 +367,6 @@ def _ell_product(values, index, tail, x, n_rows: int, width: int, diagonal_first
             _broadcast(values[n_rows * width :], x) * take_rows(x, cols), rows, num_segments=n_rows, indices_are_sorted=True
         )
     return result
-
-
-
 
 
 def _static(pattern: SparsityPattern) -> tuple:

@@ -131,9 +131,7 @@ class SparsityPattern(eqx.Module):
         return result
 
     @classmethod
-    def from_coo(
-        cls, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]
-    ) -> tuple["SparsityPattern", np.ndarray]:
+    def from_coo(cls, rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> tuple["SparsityPattern", np.ndarray]:
         """Pattern of a COO list that may repeat positions, and where each entry lands.
 
         Args:

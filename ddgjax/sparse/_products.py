@@ -69,9 +69,7 @@ def congruence_plan(d_cols: np.ndarray, pattern: SparsityPattern) -> CongruenceP
     )
 
 
-def congruence(
-    d: SparseMatrix, weights: Float[ArrayLike, " m"], pattern: SparsityPattern, plan: CongruencePlan
-) -> SparseMatrix:
+def congruence(d: SparseMatrix, weights: Float[ArrayLike, " m"], pattern: SparsityPattern, plan: CongruencePlan) -> SparseMatrix:
     """`D^T diag(w) D` with values on a given `(n, n)` pattern: no sort and no search inside jit.
 
     `(D^T W D)_ij = sum_r w_r D_ri D_rj`. Every row of `D` holds the same number `k` of stored entries
@@ -117,9 +115,7 @@ def congruence(
     else:
         raise DDGInputError(f"d: expected a 'csr' pattern or an ELL pattern of width {per_row}, got {d.pattern.layout!r}")
     if not (is_traced(cols) or is_traced(plan.d_cols)) and not np.array_equal(np.asarray(cols), np.asarray(plan.d_cols)):
-        raise DDGInputError(
-            "plan: built for a D with other columns (congruence_plan(d_cols, pattern) must use D's own columns)"
-        )
+        raise DDGInputError("plan: built for a D with other columns (congruence_plan(d_cols, pattern) must use D's own columns)")
     products = weights[:, None, None] * values[:, :, None] * values[:, None, :]
     in_slot_order = gather_sum(products.reshape(-1), plan.order, plan.inverse_order)
     summed = jax.ops.segment_sum(in_slot_order, plan.sorted_slots, num_segments=pattern.nnz, indices_are_sorted=True)
