@@ -563,34 +563,22 @@ def curve_shortening_flow(
     points = curve.points
     tau = jnp.asarray(tau, dtype=points.dtype)
     closed = curve.closed
-    if progress:
-        if is_traced(points) or is_traced(tau):
-            raise DDGInputError(
-                "progress: expected concrete points and tau (a host loop drives the bar); use progress=False under jit / vmap / grad"
-            )
-        frames, first_failure = _run_with_progress(
-            points,
-            tau,
-            closed=closed,
-            kind=kind,
-            method=method,
-            rescale=rescale,
-            steps=steps,
-            save_every=save_every,
-            check=check_simple,
+    if progress and (is_traced(points) or is_traced(tau)):
+        raise DDGInputError(
+            "progress: expected concrete points and tau (a host loop drives the bar); use progress=False under jit / vmap / grad"
         )
-    else:
-        frames, first_failure = _run(
-            points,
-            tau,
-            closed=closed,
-            kind=kind,
-            method=method,
-            rescale=rescale,
-            steps=steps,
-            save_every=save_every,
-            check=check_simple,
-        )
+    run = _run_with_progress if progress else _run
+    frames, first_failure = run(
+        points,
+        tau,
+        closed=closed,
+        kind=kind,
+        method=method,
+        rescale=rescale,
+        steps=steps,
+        save_every=save_every,
+        check=check_simple,
+    )
     # save_every goes in as an array: a new value does not recompile.
     fields = _saved_invariants(frames, first_failure, tau, jnp.asarray(save_every, jnp.int32), closed=closed)
     flow = CurveFlowResult(**fields, kind=kind, method=method, rescale=rescale, closed=closed)
