@@ -31,15 +31,25 @@ def check_finite(name: str, array: np.ndarray) -> None:
 def check_float_array(name: str, array, trailing: tuple[int, ...], min_rows: int = 1) -> np.ndarray:
     """Host copy of a float array of shape `(n, *trailing)`, refusing bad shape, dtype, NaN/inf."""
     host = np.asarray(array)
-    expected = "(n, " + ", ".join(map(str, trailing)) + ")"
-    if host.ndim != 1 + len(trailing) or host.shape[1:] != trailing:
-        raise DDGInputError(f"{name}: expected shape {expected}, got {host.shape}")
-    if not (np.issubdtype(host.dtype, np.floating) or np.issubdtype(host.dtype, np.integer)):
-        raise DDGInputError(f"{name}: expected a real floating-point array, got dtype {host.dtype}")
-    if host.shape[0] < min_rows:
-        raise DDGInputError(f"{name}: expected at least {min_rows} rows, got {host.shape[0]}")
+    check_float_shape(name, host, trailing, min_rows)
     check_finite(name, host)
     return host
+
+
+def check_float_shape(name: str, array, trailing: tuple[int, ...], min_rows: int = 1) -> None:
+    """Refuse a shape other than `(n, *trailing)` with `n >= min_rows`, or a non-real dtype.
+
+    Shapes and dtypes are known under `jit` too, so traced arrays get the same message as concrete ones.
+    """
+    shape = np.shape(array)
+    dtype = array.dtype if hasattr(array, "dtype") else np.asarray(array).dtype
+    expected = "(n, " + ", ".join(map(str, trailing)) + ")"
+    if len(shape) != 1 + len(trailing) or shape[1:] != trailing:
+        raise DDGInputError(f"{name}: expected shape {expected}, got {shape}")
+    if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
+        raise DDGInputError(f"{name}: expected a real floating-point array, got dtype {dtype}")
+    if shape[0] < min_rows:
+        raise DDGInputError(f"{name}: expected at least {min_rows} rows, got {shape[0]}")
 
 
 def is_traced(array) -> bool:

@@ -183,3 +183,19 @@ def test_options_are_keyword_only():
         dc.curvature(Curve(SQUARE), "A")
     with pytest.raises(TypeError, match=r"curvature_normals\(\) takes 1 positional argument.*kind=\.\.\."):
         dc.curvature_normals(Curve(SQUARE), "A")
+
+
+@pytest.mark.parametrize(
+    "points, message",
+    [
+        (jnp.zeros((5, 3)), r"points: expected shape \(n, 2\), got \(5, 3\)"),
+        (jnp.zeros(10), r"points: expected shape \(n, 2\), got \(10,\)"),
+        (jnp.zeros((2, 2)), "points: a closed curve needs at least 3 points, got 2"),
+        (jnp.zeros((4, 2), dtype=complex), "points: expected a real floating-point array, got dtype complex128"),
+    ],
+)
+def test_bad_shapes_get_the_same_message_under_jit(points, message):
+    with pytest.raises(DDGInputError, match=message):
+        Curve(points)
+    with pytest.raises(DDGInputError, match=message):
+        jax.jit(lambda p: Curve(p).points)(points)

@@ -11,7 +11,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._compile import tuned_jit
-from .._errors import DDGInputError, check_finite, check_float_array, first_indices, is_traced
+from .._errors import DDGInputError, check_finite, check_float_array, check_float_shape, first_indices, is_traced
 
 
 class Curve(eqx.Module):
@@ -34,10 +34,11 @@ class Curve(eqx.Module):
         closed: whether the last point joins the first (static: changing it recompiles).
 
     Raises:
-        DDGInputError: on concrete input with the wrong shape or a non-real dtype, NaN/inf coordinates,
-            fewer than 3 points (closed) or 2 points (open), or two consecutive points that coincide
-            (including the last and the first point of a closed curve). Traced points (inside jit,
-            grad or vmap) are not checked: there the functions stay finite on degenerate input.
+        DDGInputError: on the wrong shape or a non-real dtype, fewer than 3 points (closed) or 2
+            points (open), and, for concrete input, NaN/inf coordinates or two consecutive points
+            that coincide (including the last and the first point of a closed curve). The values of
+            traced points (inside jit, grad or vmap) cannot be checked: there the functions stay
+            finite on degenerate input; their shape is checked all the same.
     """
 
     points: Float[Array, "n 2"]
@@ -47,8 +48,9 @@ class Curve(eqx.Module):
         if not isinstance(closed, (bool, np.bool_)):
             raise DDGInputError(f"closed: expected a Python bool, got {closed!r}")
         closed = bool(closed)
+        _check_point_shape(points, closed)  # shapes are known under jit / grad / vmap too
         if not is_traced(points):
-            _validate_points(points, closed)
+            _check_point_values(points, closed)
         array = jnp.asarray(points)
         if not jnp.issubdtype(array.dtype, jnp.floating):
             array = array.astype(jnp.result_type(float))
@@ -83,13 +85,18 @@ class Curve(eqx.Module):
         return self.n_points if self.closed else self.n_points - 1
 
 
-def _validate_points(points: ArrayLike, closed: bool) -> None:
-    """Refuse bad shape or dtype, NaN/inf, too few points and coincident consecutive points."""
+def _check_point_shape(points: ArrayLike, closed: bool) -> None:
+    """Refuse a shape other than `(n, 2)`, a non-real dtype and too few points."""
+    check_float_shape("points", points, (2,))
     minimum = 3 if closed else 2
-    host = check_float_array("points", points, (2,))
-    if host.shape[0] < minimum:
+    if np.shape(points)[0] < minimum:
         kind = "closed" if closed else "open"
-        raise DDGInputError(f"points: a {kind} curve needs at least {minimum} points, got {host.shape[0]}")
+        raise DDGInputError(f"points: a {kind} curve needs at least {minimum} points, got {np.shape(points)[0]}")
+
+
+def _check_point_values(points: ArrayLike, closed: bool) -> None:
+    """Refuse NaN/inf and coincident consecutive points (concrete arrays only)."""
+    host = check_float_array("points", points, (2,))
     following = np.roll(host, -1, axis=0) if closed else host[1:]
     repeated = np.all(following == host[: following.shape[0]], axis=1)
     if repeated.any():

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._errors import DDGInputError, check_float_array, is_traced
+from .._errors import DDGInputError, check_float_array, check_float_shape, is_traced
 from ._topology import MeshTopology, build_topology, validate_faces
 
 
@@ -102,9 +102,8 @@ class Mesh(eqx.Module):
         if np.shape(vertices) != (self.n_vertices, 3):
             raise DDGInputError(f"vertices: expected shape ({self.n_vertices}, 3), got {np.shape(vertices)}")
         if is_traced(vertices):
-            if not jnp.issubdtype(vertices.dtype, jnp.floating):
-                raise DDGInputError(f"vertices: expected a real floating-point array, got dtype {vertices.dtype}")
-            return eqx.tree_at(lambda mesh: mesh.vertices, self, vertices)
+            check_float_shape("vertices", vertices, (3,))
+            return eqx.tree_at(lambda mesh: mesh.vertices, self, _as_float_array(vertices))
         check_float_array("vertices", vertices, (3,))
         return eqx.tree_at(lambda mesh: mesh.vertices, self, _as_float_array(vertices))
 
