@@ -27,7 +27,7 @@ import pathlib
 import numpy as np
 
 from ._errors import DDGInputError
-from .mesh._mesh import Mesh
+from .mesh._mesh import Mesh, require_mesh
 
 # The public API; everything else here (the imports, the readers) is an implementation detail.
 __all__ = ["load_mesh", "save_mesh"]
@@ -77,6 +77,7 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh) -> None:
     binary float64, so `load_mesh` gives back the same arrays exactly; STL is binary float32 and
     keeps only the triangles (see the module docstring).
     """
+    mesh = require_mesh("mesh", mesh)
     path = pathlib.Path(path)
     fmt = _format_of(path)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)

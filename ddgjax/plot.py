@@ -20,6 +20,7 @@ from jaxtyping import ArrayLike
 from matplotlib.colors import to_rgb
 
 from .curves import Curve, CurveFlowResult
+from .curves._curve import require_curve
 
 
 def polyline(points: ArrayLike, closed: bool = True) -> np.ndarray:
@@ -33,6 +34,7 @@ def plot_curve(axes, curve: Curve, **style) -> list:
 
     Returns the matplotlib lines.
     """
+    curve = require_curve("curve", curve)
     return axes.plot(*polyline(curve.points, curve.closed).T, **style)
 
 

@@ -11,6 +11,7 @@ import pytest
 
 from ddgjax import cpu_compiler_options
 from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax.io import save_mesh
 from ddgjax.laplacian import cotan_laplacian, dirichlet_energy, laplacian_apply, mass_matrix
 from ddgjax.laplacian._cotan import _fem_values
 from ddgjax.laplacian._plan import _VERTEX_PLANS, vertex_plan
@@ -125,6 +126,7 @@ def test_operator_plans_are_built_on_first_use_and_shared_per_connectivity():
         lambda m: laplacian_apply(m, np.zeros(3)),
         lambda m: dirichlet_energy(m, np.zeros(3)),
         check_mesh,
+        lambda m: save_mesh("never_written.obj", m),
     ],
 )
 @pytest.mark.parametrize("wrong", [np.zeros((3, 3)), (np.zeros((3, 3)), np.array([[0, 1, 2]])), "mesh.obj"])

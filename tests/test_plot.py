@@ -43,3 +43,10 @@ def test_plot_flow_overlays_snapshots_and_the_centroid_path(axes):
     assert not np.allclose(lines[1].get_color(), lines[3].get_color())  # early snapshots lighter than the last
     np.testing.assert_allclose(lines[5].get_xydata(), np.asarray(result.centroid))
     assert axes.get_aspect() == 1.0
+
+
+def test_plot_curve_refuses_points_with_what_to_call(axes, without_type_checker):
+    from ddgjax import DDGInputError
+
+    with pytest.raises(DDGInputError, match=r"curve: expected a ddgjax Curve.*Curve\(points"):
+        plot_curve(axes, np.zeros((4, 2)))
