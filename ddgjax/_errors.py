@@ -76,9 +76,11 @@ def check_positive(name: str, value) -> float:
 def check_choice(name: str, value, choices) -> object:
     """`value` if it is one of `choices`, else `DDGInputError` naming the argument and listing the choices.
 
-    The one validator for option arguments (`kind=`, `method=`, ...) across ddgjax. The type is
-    compared first, so `True` is not taken for `1` and an array is refused without being compared.
+    The one validator for option arguments (`kind=`, `method=`, ...) across ddgjax. A NumPy scalar
+    counts as its Python value; the type is compared first, so `True` is not taken for `1` and an
+    array is refused without being compared.
     """
-    if not any(type(value) is type(choice) and value == choice for choice in choices):
+    plain = value.item() if isinstance(value, np.generic) else value
+    if not any(type(plain) is type(choice) and plain == choice for choice in choices):
         raise DDGInputError(f"{name}: expected one of {', '.join(map(repr, choices))}, got {value!r}")
-    return value
+    return plain
