@@ -28,6 +28,16 @@ class RESULTS(eqx.Enumeration):
         "a short edge collapsing at any `tau`. Pass `throw=False` to keep the states and "
         "inspect `result`."
     )
+    max_steps_reached = (
+        "The iterative solver did not reach its tolerance within `max_steps` iterations. Raise "
+        "`max_steps`, loosen `rtol`, or use a direct method (`method=\"cholesky\"`); pass `throw=False` "
+        "to inspect the result."
+    )
+    singular = (
+        "The solution does not solve the system to `residual_tolerance`: the matrix is singular (a "
+        "closed surface's Laplacian has constant null vectors: fix a value or use a problem-level "
+        "solver that projects them out) or too ill-conditioned. Pass `throw=False` to inspect it."
+    )
     nonfinite = (
         "The computation produced NaN or inf values (for a flow: non-finite input points, which "
         "are checked only outside jit, or positions that overflowed). Pass `throw=False` to keep "

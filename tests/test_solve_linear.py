@@ -1,0 +1,174 @@
+"""Tests for ddgjax.solve.linear_solve: both backends against SciPy, implicit derivatives against finite
+differences, jit / vmap / scan, and failures through the results convention."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+
+from ddgjax import RESULTS, DDGInputError
+from ddgjax.laplacian import cotan_laplacian, mass_matrix
+from ddgjax.mesh import disk, icosphere
+from ddgjax.solve import linear_solve
+from ddgjax.sparse import SparseMatrix, from_scipy
+
+METHODS = ("cholesky", "cg")
+SPHERE = icosphere(2)
+DISK = disk(6)
+
+
+def _heat_operator(mesh, t=1e-2):
+    return mass_matrix(mesh) + t * cotan_laplacian(mesh)
+
+
+def _dirichlet_block(mesh):
+    """The cotan Laplacian on the interior vertices of a mesh with boundary (SciPy slicing), and the interior."""
+    interior = np.setdiff1d(np.arange(mesh.n_vertices), mesh.topology.boundary_vertices)
+    block = cotan_laplacian(mesh).to_scipy()[interior][:, interior]
+    return from_scipy(block, positive_semidefinite=True), interior
+
+
+def _rhs(n, seed=0, k=None):
+    shape = (n,) if k is None else (n, k)
+    return jnp.asarray(np.random.default_rng(seed).standard_normal(shape))
+
+
+@pytest.mark.parametrize("method", METHODS + ("auto",))
+def test_solves_match_scipy_spsolve(method):
+    for A in (_heat_operator(SPHERE), _dirichlet_block(DISK)[0]):
+        reference = A.to_scipy().tocsc()
+        b = _rhs(A.shape[0])
+        solution = linear_solve(A, b, method=method)
+        assert solution.result == RESULTS.successful
+        expected = spla.spsolve(reference, np.asarray(b))
+        # CG stops at a relative residual of 1e-10; the error is that times the condition number at most.
+        np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
+        assert solution.residual < 1e-9
+        B = _rhs(A.shape[0], seed=1, k=3)
+        block = linear_solve(A, B, method=method).value
+        assert block.shape == B.shape
+        np.testing.assert_allclose(block, spla.spsolve(reference, np.asarray(B)), rtol=0, atol=1e-8 * np.abs(expected).max() * 10)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_jit_vmap_and_scan(method):
+    A = _heat_operator(SPHERE)
+    b = _rhs(A.shape[0])
+    eager = linear_solve(A, b, method=method).value
+    jitted = jax.jit(lambda A, b: linear_solve(A, b, method=method).value)(A, b)
+    np.testing.assert_allclose(jitted, eager, rtol=0, atol=1e-12)
+    batch = jnp.stack([b, -2 * b])
+    batched = jax.vmap(lambda b: linear_solve(A, b, method=method).value)(batch)
+    np.testing.assert_allclose(batched[1], -2 * eager, rtol=0, atol=1e-10)
+    # Ten implicit heat steps (M + t L) u_{k+1} = M u_k as one compiled scan, against SciPy's loop.
+    M = mass_matrix(SPHERE)
+
+    def step(u, _):
+        return linear_solve(A, M @ u, method=method).value, None
+
+    final, _ = jax.jit(lambda u: jax.lax.scan(step, u, None, length=10))(b)
+    u, lu = np.asarray(b), spla.splu(A.to_scipy().tocsc())
+    for _ in range(10):
+        u = lu.solve(M.to_scipy() @ u)
+    np.testing.assert_allclose(final, u, rtol=0, atol=1e-9 * np.abs(u).max())
+
+
+def _symmetric_direction(A: SparseMatrix, seed: int) -> jax.Array:
+    """A random perturbation of `A.values` that keeps the matrix symmetric (same pattern)."""
+    direction = _rhs(A.pattern.nnz, seed)
+    return 0.5 * (direction + SparseMatrix(direction, A.pattern).T.values)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_gradients_in_b_and_values_match_finite_differences(method):
+    A = _heat_operator(icosphere(1))
+    b = _rhs(A.shape[0])
+
+    def loss(values, b):
+        x = linear_solve(SparseMatrix(values, A.pattern, symmetric=True), b, method=method).value
+        return jnp.sum(jnp.sin(x)) + 0.5 * jnp.sum(x * x)
+
+    def dense_loss(matrix, b):
+        x = jnp.linalg.solve(matrix, b)
+        return jnp.sum(jnp.sin(x)) + 0.5 * jnp.sum(x * x)
+
+    grad_values, grad_b = jax.jit(jax.grad(loss, argnums=(0, 1)))(A.values, b)
+    np.testing.assert_allclose(grad_b, jax.grad(dense_loss, argnums=1)(A.todense(), b), rtol=1e-8, atol=1e-10)
+    for seed in (1, 2):
+        direction = _symmetric_direction(A, seed)
+        dense_direction = SparseMatrix(direction, A.pattern).todense()
+        _, expected = jax.jvp(lambda D: dense_loss(D, b), (A.todense(),), (dense_direction,))
+        # The dense reference solves with LU: both agree to ~1e-12 relative; 1e-8 leaves room for CG's 1e-10 tolerance.
+        np.testing.assert_allclose(jnp.vdot(grad_values, direction), expected, rtol=1e-8)
+
+
+def test_gradient_in_the_vertex_positions_matches_finite_differences():
+    mesh = icosphere(1)
+    b = _rhs(mesh.n_vertices)
+
+    def loss(V):
+        moved = mesh.with_vertices(V)
+        A = mass_matrix(moved) + 0.1 * cotan_laplacian(moved)
+        return jnp.sum(linear_solve(A, b).value ** 2)
+
+    V = mesh.vertices
+    gradient = jax.grad(loss)(V)
+    direction = _rhs(V.size, seed=3).reshape(V.shape)
+    eps = 1e-6
+    finite = (loss(V + eps * direction) - loss(V - eps * direction)) / (2 * eps)
+    # Central differences with step 1e-6: truncation ~1e-12, rounding ~1e-10 relative.
+    np.testing.assert_allclose(jnp.vdot(gradient, direction), finite, rtol=1e-7)
+
+
+def test_cg_that_does_not_converge_is_reported():
+    A = _heat_operator(SPHERE, t=1.0)
+    b = _rhs(A.shape[0])
+    solution = linear_solve(A, b, method="cg", max_steps=2, throw=False)
+    assert solution.result == RESULTS.max_steps_reached and int(solution.num_steps) == 2
+    with pytest.raises(eqx.EquinoxRuntimeError, match="max_steps"):
+        linear_solve(A, b, method="cg", max_steps=2)
+    with pytest.raises(Exception, match="max_steps"):  # under jit: raised by the XLA runtime, same message
+        jax.jit(lambda b: linear_solve(A, b, method="cg", max_steps=2).value)(b)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_singular_system_with_incompatible_rhs_is_reported_not_hidden(method):
+    # A closed surface's Laplacian is singular (constants); a right-hand side with a nonzero mean has no solution.
+    # CHOLMOD may also stop at the zero pivot ("not positive definite", an exception whatever `throw`
+    # is) or round past it and return a non-solution, reported as `singular`: never a silent answer.
+    L = cotan_laplacian(SPHERE)
+    b = jnp.ones(SPHERE.n_vertices)
+    try:
+        solution = linear_solve(L, b, method=method, throw=False, max_steps=200)
+    except ValueError as error:
+        assert method == "cholesky" and "not positive definite" in str(error)
+    else:
+        assert solution.result != RESULTS.successful
+    with pytest.raises((eqx.EquinoxRuntimeError, ValueError)):
+        linear_solve(L, b, method=method, max_steps=200)
+
+
+def test_a_matrix_that_is_not_positive_definite_fails_the_factorisation():
+    with pytest.raises(Exception, match="not positive definite"):
+        linear_solve(-_heat_operator(SPHERE), _rhs(SPHERE.n_vertices), method="cholesky")
+
+
+def test_bad_input(without_type_checker):
+    A = _heat_operator(SPHERE)
+    b = _rhs(A.shape[0])
+    cases = [
+        (lambda: linear_solve(A.to_scipy(), b), "A: expected a ddgjax SparseMatrix"),
+        (lambda: linear_solve(from_scipy(A.to_scipy()[:, :-1]), b), "A: expected a square matrix"),
+        (lambda: linear_solve(SparseMatrix(A.values, A.pattern), b), "A: expected a symmetric matrix"),
+        (lambda: linear_solve(A, b[:-1]), r"b: expected shape \(162,\) or \(162, k\), got \(161,\)"),
+        (lambda: jax.jit(lambda b: linear_solve(A, b).value)(b[:-1]), r"b: expected shape \(162,\)"),
+        (lambda: linear_solve(A, b, method="lu"), "method: expected one of 'auto', 'cholesky', 'cg'"),
+        (lambda: linear_solve(A, b, method="cg", max_steps=0), "max_steps: expected an integer >= 1"),
+    ]
+    for call, message in cases:
+        with pytest.raises(DDGInputError, match=message):
+            call()
