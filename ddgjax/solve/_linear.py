@@ -16,6 +16,8 @@ Both are differentiable with respect to `b` and to the matrix values by implicit
 
 summed over the columns of a block right-hand side. Gradients with respect to vertex positions
 follow by the chain rule through the assembly of `A`'s values (`cotan_laplacian`, `mass_matrix`).
+This is reverse mode (`jax.grad`, `jax.vjp`); forward mode (`jax.jvp`, and so forward-over-reverse
+Hessian-vector products through a solve) is not available yet.
 
 Failures that depend on the values follow the results convention (`ddgjax.RESULTS`): a CG that
 did not reach its tolerance in `max_steps` (`max_steps_reached`), a solution whose relative
@@ -99,7 +101,12 @@ def linear_solve(
     """
     method, max_steps, b = _check(A, b, method, max_steps)
     options = (method, float(rtol), max_steps)
-    value, num_steps = _solve(options, A, b)
+    value, num_steps = _solve_factored(options, A, None, b)
+    return _solution(A, b, value, num_steps, method, max_steps, residual_tolerance, throw)
+
+
+def _solution(A, b, value, num_steps, method, max_steps, residual_tolerance, throw) -> LinearSolution:
+    """The `LinearSolution` of a computed `value`: its residual and outcome (`RESULTS`), raised if `throw`."""
     residual = _relative_residual(A, value, b)
     result = RESULTS.where(
         ~jnp.all(jnp.isfinite(value)),
@@ -112,6 +119,69 @@ def linear_solve(
     )
     solution = LinearSolution(value=value, result=result, residual=residual, num_steps=num_steps, method=method)
     return raise_if_failed(solution, result, throw)
+
+
+class Factorization(eqx.Module):
+    """A factorisation of a symmetric positive definite `SparseMatrix`, kept for many right-hand sides.
+
+    Made by `factorize(A, method=...)`; `factorization.solve(b)` solves `A x = b` reusing it, with
+    the same differentiation rules as `linear_solve` (the adjoint solve reuses the factor too). For
+    `"cholesky"` the numeric CHOLMOD factor is held by `sparsax` and referenced by `token`; its cache
+    keeps a bounded number of factors per sparsity pattern (`sparsax.set_num_cache_size`), and a
+    token whose factor was evicted raises when used, it never answers wrongly. For `"cg"` there is
+    nothing to factor: `solve` runs the preconditioned iteration.
+
+    Attributes:
+        matrix: the `SparseMatrix` `A`.
+        token: CHOLMOD factor reference (`"cholesky"`), else `None`.
+        method, rtol, max_steps, residual_tolerance: as given to `factorize` (static).
+    """
+
+    matrix: SparseMatrix
+    token: Int[Array, "2"] | None
+    method: str = eqx.field(static=True)
+    rtol: float = eqx.field(static=True)
+    max_steps: int = eqx.field(static=True)
+    residual_tolerance: float = eqx.field(static=True)
+
+    def solve(self, b: Float[ArrayLike, "n *k"], *, throw: bool = True) -> LinearSolution:
+        """Solve `A x = b` for `b` of shape `(n,)` or `(n, k)`, reusing the factorisation."""
+        A = self.matrix
+        _, _, b = _check(A, b, self.method, self.max_steps)
+        options = (self.method, self.rtol, self.max_steps)
+        value, num_steps = _solve_factored(options, A, self.token, b)
+        return _solution(A, b, value, num_steps, self.method, self.max_steps, self.residual_tolerance, throw)
+
+
+def factorize(
+    A: SparseMatrix,
+    *,
+    method: str = "auto",
+    rtol: float = 1e-10,
+    max_steps: int | None = None,
+    residual_tolerance: float = 1e-6,
+) -> Factorization:
+    """Factor a symmetric positive definite `SparseMatrix` once, for `Factorization.solve(b)` many times.
+
+    Options as in `linear_solve`. Works inside `jit` (the factor is made when the program runs) and
+    differentiably (through `Factorization.solve`). A matrix that is not positive definite fails
+    CHOLMOD's factorisation, which raises from the XLA runtime.
+    SciPy: `scipy.sparse.linalg.splu(A).solve`; cholespy: `CholeskySolverD(...).solve`.
+    """
+    method, max_steps, _ = _check(A, jnp.zeros(A.shape[0], A.values.dtype), method, max_steps)
+    token = None
+    if method == "cholesky":
+        import sparsax
+
+        token = sparsax.factor(A.pattern.rows, A.pattern.cols, jax.lax.stop_gradient(A.values), A.shape[0])
+    return Factorization(
+        matrix=A,
+        token=token,
+        method=method,
+        rtol=float(rtol),
+        max_steps=max_steps,
+        residual_tolerance=float(residual_tolerance),
+    )
 
 
 def _check(A, b, method, max_steps):
@@ -163,33 +233,48 @@ def _relative_residual(A: SparseMatrix, x, b) -> Float[Array, ""]:
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
-def _solve(options, A: SparseMatrix, b):
-    return _forward_solve(options, A, b)
+def _solve_factored(options, A: SparseMatrix, token, b):
+    """`x = A^{-1} b` with the backend of `options`, from the CHOLMOD factor `token` when there is one."""
+    return _forward_solve(options, A, token, b)
 
 
-def _forward_solve(options, A: SparseMatrix, b):
+def _forward_solve(options, A: SparseMatrix, token, b):
     method, rtol, max_steps = options
-    if method == "cholesky":
-        return _cholesky(A, b), jnp.zeros((), jnp.int32)
-    return _jacobi_cg(A, b, rtol, max_steps)
+    if method == "cg":
+        return _jacobi_cg(A, b, rtol, max_steps)
+    import sparsax
+
+    if token is None:
+        # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated
+        # positions, so the storage slots go in as they are (ELL padding adds zeros).
+        x = sparsax.solve(A.pattern.rows, A.pattern.cols, A.values, b)
+    else:
+        x = sparsax.solve_factor(token, b)
+    return x, jnp.zeros((), jnp.int32)
 
 
-def _solve_fwd(options, A, b):
-    value, num_steps = _forward_solve(options, A, b)
-    return (value, num_steps), (A, value)
+def _solve_fwd(options, A, token, b):
+    if options[0] == "cholesky" and token is None:
+        # Keep the factor for the adjoint solve of the backward pass.
+        import sparsax
+
+        token = sparsax.factor(A.pattern.rows, A.pattern.cols, A.values, A.shape[0])
+    value, num_steps = _forward_solve(options, A, token, b)
+    return (value, num_steps), (A, token, value)
 
 
 def _solve_bwd(options, residuals, cotangents):
-    A, x = residuals
+    A, token, x = residuals
     g, _ = cotangents
-    adjoint, _ = _forward_solve(options, A, g)  # A symmetric: the adjoint system is A itself
+    adjoint, _ = _forward_solve(options, A, token, g)  # A symmetric: the adjoint system is A itself
     rows, cols = A.pattern.rows, A.pattern.cols
     # A_bar[i, j] = -lambda_i x_j on each stored slot (summed over the columns of a block).
     products = adjoint[rows] * x[cols]
     values_bar = -(products if products.ndim == 1 else jnp.sum(products, axis=1))
     A_bar = jax.tree.map(_zero_cotangent, A)
     A_bar = eqx.tree_at(lambda m: m.values, A_bar, values_bar.astype(A.values.dtype))
-    return A_bar, adjoint
+    token_bar = None if token is None else _zero_cotangent(token)
+    return A_bar, token_bar, adjoint
 
 
 def _zero_cotangent(leaf):
@@ -198,15 +283,7 @@ def _zero_cotangent(leaf):
     return np.zeros(np.shape(leaf), dtype=jax.dtypes.float0)
 
 
-_solve.defvjp(_solve_fwd, _solve_bwd)
-
-
-def _cholesky(A: SparseMatrix, b):
-    import sparsax
-
-    # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,
-    # so the storage slots go in as they are (ELL padding adds zeros).
-    return sparsax.solve(A.pattern.rows, A.pattern.cols, A.values, b)
+_solve_factored.defvjp(_solve_fwd, _solve_bwd)
 
 
 def _jacobi_cg(A: SparseMatrix, b, rtol: float, max_steps: int):
