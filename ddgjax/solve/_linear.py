@@ -244,13 +244,12 @@ def _forward_solve(options, A: SparseMatrix, token, b):
         return _jacobi_cg(A, b, rtol, max_steps)
     import sparsax
 
-    if token is None:
-        # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated
-        # positions, so the storage slots go in as they are (ELL padding adds zeros).
-        x = sparsax.solve(A.pattern.rows, A.pattern.cols, A.values, b)
-    else:
-        x = sparsax.solve_factor(token, b)
-    return x, jnp.zeros((), jnp.int32)
+    no_steps = jnp.zeros((), jnp.int32)
+    if token is not None:
+        return sparsax.solve_factor(token, b), no_steps
+    # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,
+    # so the storage slots go in as they are (ELL padding adds zeros).
+    return sparsax.solve(A.pattern.rows, A.pattern.cols, A.values, b), no_steps
 
 
 def _solve_fwd(options, A, token, b):
