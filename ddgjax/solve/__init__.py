@@ -1,11 +1,19 @@
-"""Laplacian linear systems: differentiable sparse solves (and, to come, Dirichlet / Poisson problems).
+"""Laplacian linear systems: energies, differentiable sparse solves (Dirichlet / Poisson problems to come).
 
-- `linear_solve(A, b, *, method=...)` and `factorize(A, *, method=...).solve(b)`: symmetric positive definite `SparseMatrix` systems, by a host
-  sparse Cholesky (CHOLMOD through `sparsax`, usable inside `jit` / `scan` / `vmap`) or a pure-JAX
+- Energies as plain scalar JAX functions of the unknowns and the mesh (`dirichlet_energy`,
+  `screened_dirichlet_energy`, `poisson_energy`, the report's `gradient_fitting_energy` `E_X`),
+  differentiable in the unknowns and the vertex positions. Sign convention: the report's Poisson
+  problem `Delta phi = rho` with `Delta = -M^{-1} L`, i.e. `L phi = -M rho` (see `_energies`).
+- `linear_solve(A, b, *, method=...)` and `factorize(A, *, method=...).solve(b)`: symmetric positive
+  definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD through `sparsax`, usable inside `jit` / `scan` / `vmap`) or a pure-JAX
   Jacobi-preconditioned conjugate gradient; differentiable in `b` and in the matrix values by
   implicit differentiation; failures through `ddgjax.RESULTS` (`throw=`).
 """
 
+from ._energies import dirichlet_energy as dirichlet_energy
+from ._energies import gradient_fitting_energy as gradient_fitting_energy
+from ._energies import poisson_energy as poisson_energy
+from ._energies import screened_dirichlet_energy as screened_dirichlet_energy
 from ._linear import Factorization as Factorization
 from ._linear import LinearSolution as LinearSolution
 from ._linear import factorize as factorize
