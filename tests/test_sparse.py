@@ -16,6 +16,7 @@ from jaxtyping import TypeCheckError
 
 from ddgjax._errors import DDGInputError
 from ddgjax.sparse import (
+    NonNegative,
     SparseMatrix,
     SparsityPattern,
     congruence,
@@ -23,6 +24,8 @@ from ddgjax.sparse import (
     diagonal_matrix,
     from_scipy,
     gather_sum,
+    identity,
+    nonnegative,
 )
 
 # jax.test_util.check_grads compares with central finite differences of step 1e-4: their truncation
@@ -458,3 +461,174 @@ def test_adding_a_diagonal_matches_scipy():
         _as_csr_layout(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30))) + d
     with pytest.raises(DDGInputError, match="equal shapes"):
         square + diagonal_matrix(jnp.ones(29))
+
+
+def test_nnz_counts_distinct_positions_as_scipy(pair):
+    matrix, reference = pair
+    assert matrix.nnz == reference.nnz == matrix.to_scipy().nnz < matrix.pattern.nnz  # ELL padding left out
+    assert matrix.T.nnz == matrix.nnz
+    # Static on host-built patterns: known inside jit, where the pattern arrays are traced.
+    assert jax.jit(lambda m: jnp.asarray(m.nnz))(matrix) == reference.nnz
+    # A hand-made pattern without the count: counted on the host, refused under jit.
+    by_hand = SparseMatrix(matrix.values, dataclasses.replace(matrix.pattern, n_entries=None, row_cols=None))
+    assert by_hand.nnz == reference.nnz
+    with pytest.raises(DDGInputError, match="concrete"):
+        jax.jit(lambda m: jnp.asarray(m.nnz))(by_hand)
+    csr = _as_csr_layout(reference)
+    assert csr.nnz == csr.T.nnz == reference.nnz
+    assert jax.jit(lambda m: jnp.asarray(m.T.nnz))(csr) == reference.nnz
+    assert diagonal_matrix(jnp.ones(7)).nnz == 7
+
+
+def test_nnz_and_export_of_explicit_zeros_and_empty_rows():
+    # SciPy counts explicitly stored zeros; an empty row has no entries (its ELL padding is no entry).
+    reference = sp.csr_matrix((np.array([0.0, 2.0, 3.0]), ([0, 0, 2], [0, 3, 1])), shape=(4, 4))
+    matrix = from_scipy(reference)
+    assert matrix.nnz == reference.nnz == 3
+    exported = matrix.to_scipy()
+    assert exported.nnz == 3 and exported.has_canonical_format
+    np.testing.assert_array_equal(exported.indptr, reference.indptr)
+    np.testing.assert_array_equal(exported.indices, reference.indices)
+    np.testing.assert_array_equal(exported.data, reference.data)
+    rows, cols, slot = matrix.pattern.entries()  # the distinct positions, in CSR order
+    np.testing.assert_array_equal(rows, np.repeat(np.arange(4), np.diff(reference.indptr)))
+    np.testing.assert_array_equal(cols, reference.indices)
+    np.testing.assert_array_equal(np.asarray(matrix.values)[slot], reference.data)
+    assert matrix.pattern.slots(np.array([1, 3]), np.array([0, 0])).tolist() == [matrix.pattern.nnz] * 2  # padding only
+
+
+@pytest.fixture(scope="module")
+def disk_operators():
+    from ddgjax.laplacian import cotan_laplacian, mass_matrix
+    from ddgjax.mesh import disk
+
+    mesh = disk()
+    return mesh, cotan_laplacian(mesh), mass_matrix(mesh), mass_matrix(mesh, kind="galerkin")
+
+
+def test_nonnegative_traced_scalar_keeps_the_psd_flag_into_lineax_cg(disk_operators):
+    from scipy.sparse.linalg import spsolve
+
+    _, laplacian, mass, galerkin = disk_operators
+    rhs = jnp.asarray(np.random.default_rng(18).random(laplacian.shape[0]))
+
+    @jax.jit
+    def heat_step(t, rhs):
+        operator = (mass + nonnegative(t) * laplacian).as_lineax_operator()
+        assert lx.is_positive_semidefinite(operator)  # static: decided while tracing
+        return lx.linear_solve(operator, rhs, lx.CG(rtol=1e-13, atol=1e-13)).value
+
+    for t in (0.0, 0.05, 2.0):
+        expected = spsolve((mass.to_scipy() + t * laplacian.to_scipy()).tocsc(), np.asarray(rhs))
+        np.testing.assert_allclose(heat_step(t, rhs), expected, rtol=1e-10, atol=1e-12)  # CG tolerance 1e-13
+    # A negative or NaN value reaches the run-time check instead of a mis-tagged operator.
+    for bad in (-0.1, np.nan):
+        with pytest.raises(Exception, match="negative or NaN"):
+            heat_step(bad, rhs).block_until_ready()
+    with pytest.raises(Exception, match="negative or NaN"):  # any member of a batch
+        jax.vmap(heat_step, in_axes=(0, None))(jnp.asarray([0.1, -0.1]), rhs).block_until_ready()
+
+
+def test_nonnegative_products_flags_and_checks(disk_operators):
+    _, laplacian, mass, galerkin = disk_operators
+    x = jnp.asarray(np.random.default_rng(19).random(laplacian.shape[0]))
+
+    def flags(matrix):
+        return (matrix.symmetric, matrix.positive_semidefinite, matrix.negative_semidefinite)
+
+    @jax.jit
+    def products(t):
+        wrapped = nonnegative(t)
+        results = {
+            "t * L": t * laplacian,
+            "nonnegative(t) * L": wrapped * laplacian,
+            "L * nonnegative(t)": laplacian * wrapped,
+            "L / nonnegative(t)": laplacian / wrapped,
+            "-(nonnegative(t) * L)": -(wrapped * laplacian),
+            "M - nonnegative(t) * (-L)": mass - wrapped * (-laplacian),
+            "G + nonnegative(t) * L": galerkin + wrapped * laplacian,  # one shared pattern
+        }
+        return {name: (flags(matrix), matrix @ x) for name, matrix in results.items()}
+
+    out = jax.tree_util.tree_map(np.asarray, products(0.5))
+    dense = np.asarray(laplacian.to_scipy() @ np.asarray(x))
+    expected = {
+        "t * L": ((True, False, False), 0.5 * dense),  # a plain traced scalar proves no sign
+        "nonnegative(t) * L": ((True, True, False), 0.5 * dense),
+        "L * nonnegative(t)": ((True, True, False), 0.5 * dense),
+        "L / nonnegative(t)": ((True, True, False), 2.0 * dense),
+        "-(nonnegative(t) * L)": ((True, False, True), -0.5 * dense),
+        "M - nonnegative(t) * (-L)": ((True, True, False), np.asarray(mass @ x) + 0.5 * dense),
+        "G + nonnegative(t) * L": ((True, True, False), np.asarray(galerkin @ x) + 0.5 * dense),
+    }
+    for name, (flag_values, product) in expected.items():
+        assert tuple(bool(f) for f in out[name][0]) == flag_values, name
+        # atol: rows of L x cancel (L 1 = 0), so small entries carry round-off of the O(1) terms.
+        np.testing.assert_allclose(out[name][1], product, rtol=1e-13, atol=1e-14, err_msg=name)
+    # Concrete scalars: as before, and nonnegative() checks them at once.
+    assert (2.0 * laplacian).positive_semidefinite and (-2.0 * laplacian).negative_semidefinite
+    assert (0.0 * laplacian).positive_semidefinite and (0.0 * laplacian).negative_semidefinite
+    assert (nonnegative(3.0) * laplacian).positive_semidefinite
+    assert nonnegative(nonnegative(1.0)).value == 1.0
+    with pytest.raises(DDGInputError, match=r"value: nonnegative\(\) needs a value >= 0, got -1.0"):
+        nonnegative(-1.0)
+    with pytest.raises(DDGInputError, match="got nan"):
+        nonnegative(np.nan)
+    with pytest.raises(DDGInputError, match="needs a value >= 0"):
+        NonNegative(jnp.asarray(-1.0))  # the type checks a concrete value itself
+    # Differentiable in the scalar: d/dt of x^T (M + t L) x is x^T L x.
+    quadratic = lambda t: x @ ((mass + nonnegative(t) * laplacian) @ x)
+    np.testing.assert_allclose(jax.grad(quadratic)(0.3), x @ (laplacian @ x), rtol=1e-13)
+    check_grads(jax.jit(quadratic), (0.3,), order=1, modes=("fwd", "rev"))
+
+
+def test_shifted_and_identity_match_scipy(disk_operators):
+    _, laplacian, _, _ = disk_operators
+    n = laplacian.shape[0]
+    reference = laplacian.to_scipy()
+    for shift in (0.0, 0.7, -0.2):
+        expected = reference + shift * sp.identity(n)
+        shifted = laplacian.shifted(shift)
+        assert shifted.pattern is laplacian.pattern
+        assert abs(shifted.to_scipy() - expected).max() < 1e-15
+        assert abs((laplacian + shift * identity(n)).to_scipy() - expected).max() < 1e-15
+        assert shifted.positive_semidefinite == (shift >= 0) == (laplacian + shift * identity(n)).positive_semidefinite
+    assert (-laplacian).shifted(-1.0).negative_semidefinite and not (-laplacian).shifted(1.0).negative_semidefinite
+
+    @jax.jit
+    def traced(s):
+        plain, declared = laplacian.shifted(s), laplacian.shifted(nonnegative(s))
+        via_identity = laplacian + nonnegative(s) * identity(n)
+        flags = [m.positive_semidefinite for m in (plain, declared, via_identity)]
+        return jnp.asarray(flags), plain.values, declared.values, via_identity.values
+
+    flags, *values = traced(0.25)
+    assert flags.tolist() == [False, True, True]  # a plain traced shift proves no sign
+    for v in values:
+        np.testing.assert_allclose(v, laplacian.shifted(0.25).values, rtol=1e-15)
+    with pytest.raises(Exception, match="negative or NaN"):
+        traced(-0.25)[1].block_until_ready()
+    check_grads(
+        lambda v, s: jnp.sum(jnp.sin(SparseMatrix(v, laplacian.pattern).shifted(s).values)), (laplacian.values, 0.3), order=1
+    )
+    # A CSR pattern holding its diagonal; patterns without it and non-square matrices are refused.
+    base = _random((12, 12), 0.3, 20) + sp.eye(12)
+    csr = _as_csr_layout(base.tocsr())
+    assert abs(csr.shifted(2.0).to_scipy() - (base + 2.0 * sp.eye(12))).max() < 1e-15
+    no_diagonal = from_scipy(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(12, 12)))
+    with pytest.raises(DDGInputError, match=r"A\.shifted\(s\): adding a diagonal needs a pattern that stores the whole diagonal"):
+        no_diagonal.shifted(1.0)
+    with pytest.raises(DDGInputError, match=r"A: A\.shifted\(s\) needs a square matrix, got shape \(40, 30\)"):
+        from_scipy(_random((40, 30), 0.15, 0)).shifted(1.0)
+    with pytest.raises(DDGInputError, match="shift: A.shifted"):
+        laplacian.shifted(jnp.ones(2))
+    assert identity(4).positive_semidefinite and identity(4, dtype=jnp.float32).dtype == jnp.float32
+    with pytest.raises(DDGInputError, match="n: expected an integer >= 1"):
+        identity(0)
+
+
+def test_nonnegative_refuses_what_is_not_a_real_scalar(without_type_checker):
+    with pytest.raises(DDGInputError, match=r"value: expected a real scalar, got shape \(2,\)"):
+        nonnegative(jnp.ones(2))
+    with pytest.raises(DDGInputError, match="dtype complex"):
+        nonnegative(1j)

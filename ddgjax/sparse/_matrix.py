@@ -11,8 +11,9 @@ import scipy.sparse as sp
 from jax.experimental import sparse as jsparse
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._errors import DDGInputError, is_traced
+from .._errors import DDGInputError, check_count, is_traced
 from .._indexing import take_rows, take_rows_or_zero
+from ._nonnegative import NonNegative
 from ._pattern import SparsityPattern
 
 
@@ -24,20 +25,23 @@ class SparseMatrix(eqx.Module):
     (`jax.grad` / `jax.jvp` / `jax.vmap` through `values` and through the right-hand side).
 
     Arithmetic: `A @ x` (`x` of shape `(n_cols,)` or `(n_cols, k)`), `A.T`, `A + B`, `A - B`, `-A`,
-    `c * A`, `A / c`, `A.diagonal()`, `A.row_sums()`; exports `todense()`, `to_scipy()`, `to_bcoo()`,
-    `as_lineax_operator()`. `A + B` needs one pattern for both, or one of them diagonal (a lumped
-    mass matrix or Hodge star) and the other square with its diagonal stored: the result lives on the
-    larger pattern, so `M + t L` and `M - t L` (heat method, implicit mean curvature flow) work.
+    `c * A`, `A / c`, `A.shifted(s)` (`A + s I`), `A.diagonal()`, `A.row_sums()`, `A.nnz`; exports
+    `todense()`, `to_scipy()`, `to_bcoo()`, `as_lineax_operator()`. `A + B` needs one pattern for
+    both, or one of them diagonal (a lumped mass matrix, a Hodge star, `identity(n)`) and the other
+    square with its diagonal stored: the result lives on the larger pattern, so `M + t L` and
+    `M - t L` (heat method, implicit mean curvature flow) and `A + s * identity(n)` work.
 
     Structure flags (static): `symmetric`, `positive_semidefinite`, `negative_semidefinite` are
     promises about the values, set by the constructors that can prove them (`cotan_laplacian` and
     `mass_matrix` are symmetric PSD; a diagonal matrix is symmetric; `from_scipy` checks symmetry)
     and carried through arithmetic while they stay provable: `A + B` keeps what both have, `-A` swaps
     the two semidefinite flags, `c * A` keeps them for a concrete `c >= 0` and swaps them for
-    `c <= 0`; a traced `c` (inside jit) cannot be checked, so only `symmetric` survives. The flags
-    become lineax tags in `as_lineax_operator()`, so `lineax.CG` accepts `M + t L` as it is. Assert a
-    flag that holds but cannot be proven with `dataclasses.replace(A, positive_semidefinite=True)` or
-    the keywords of `as_lineax_operator`. A semidefinite flag implies `symmetric` (as in lineax).
+    `c <= 0`. A traced `c` (inside jit) has no value to look at, so only `symmetric` survives,
+    unless it is declared non-negative: `nonnegative(t) * A` keeps the flags and checks `t >= 0`
+    when the program runs. The flags become lineax tags in `as_lineax_operator()`, so `lineax.CG`
+    accepts `M + t L` (concrete `t >= 0`) and `M + nonnegative(t) * L` (any `t`) as they are. Assert
+    a flag that holds but cannot be proven with `dataclasses.replace(A, positive_semidefinite=True)`
+    or the keywords of `as_lineax_operator`. A semidefinite flag implies `symmetric` (as in lineax).
 
     Attributes:
         values: `(nnz,)` entries in the pattern's storage order (see `SparsityPattern`; padding slots
@@ -69,6 +73,25 @@ class SparseMatrix(eqx.Module):
     @property
     def dtype(self):
         return self.values.dtype
+
+    @property
+    def nnz(self) -> int:
+        """Number of stored entries as SciPy counts them: distinct positions, ELL padding excluded.
+
+        `A.nnz == A.to_scipy().nnz` (explicitly stored zeros count, as in SciPy), while
+        `A.pattern.nnz >= A.nnz` is the storage length, `A.values.shape[0]`, padding included. A
+        static count: host-built patterns (`from_coo`, `from_edges`, `diagonal`, so every matrix
+        from `cotan_laplacian`, `mass_matrix`, `from_scipy`) carry it, so it is known under jit too;
+        a `"csr"` pattern stores each position once, so it is its length. Only for an ELL / COO
+        pattern made by hand is it counted on the host from the pattern arrays, which needs them
+        concrete (`DDGInputError` under jit when they are traced).
+        """
+        pattern = self.pattern
+        if pattern.n_entries is not None:
+            return pattern.n_entries
+        if pattern.layout == "csr":
+            return pattern.nnz
+        return int(pattern.entries()[0].size)
 
     def __matmul__(self, x: Float[ArrayLike, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
         """`A @ x` for a vector `(n_cols,)` or a block of right-hand sides `(n_cols, k)`."""
@@ -122,7 +145,14 @@ class SparseMatrix(eqx.Module):
         if pattern.transpose_pattern is not None:
             values = take_rows_or_zero(self.values, pattern.transpose_slot)
             return SparseMatrix(values, pattern.transpose_pattern, **flags)
-        swapped = SparsityPattern(rows=pattern.cols, cols=pattern.rows, indptr=None, shape=pattern.shape[::-1], layout="coo")
+        swapped = SparsityPattern(
+            rows=pattern.cols,
+            cols=pattern.rows,
+            indptr=None,
+            shape=pattern.shape[::-1],
+            layout="coo",
+            n_entries=pattern.nnz if pattern.layout == "csr" else pattern.n_entries,
+        )
         return SparseMatrix(self.values, swapped, **flags)
 
     def __add__(self, other: "SparseMatrix") -> "SparseMatrix":
@@ -135,6 +165,8 @@ class SparseMatrix(eqx.Module):
         return _scaled(self, -self.values, -1.0)
 
     def __mul__(self, scalar) -> "SparseMatrix":
+        if isinstance(scalar, NonNegative):
+            return _scaled(self, self.values * scalar.value, scalar)
         if isinstance(scalar, SparseMatrix) or np.ndim(scalar) != 0:
             raise DDGInputError(
                 f"scalar: SparseMatrix * c needs a scalar c (use A @ x for products), got shape {np.shape(scalar)}"
@@ -144,7 +176,43 @@ class SparseMatrix(eqx.Module):
     __rmul__ = __mul__
 
     def __truediv__(self, scalar) -> "SparseMatrix":
+        if isinstance(scalar, NonNegative):  # 1 / t >= 0 for t >= 0 (inf at 0, as for a plain scalar)
+            return self * NonNegative(1.0 / scalar.value)
         return self * (1.0 / scalar)
+
+    def shifted(self, shift) -> "SparseMatrix":
+        """`A + shift * I` on the same pattern: one add on the stored diagonal.
+
+        For a square matrix whose pattern stores the whole diagonal (every host-built square pattern
+        with its diagonal, e.g. `cotan_laplacian`, `mass_matrix`, `from_scipy(A + eye)`, or a CSR
+        pattern holding it); otherwise `DDGInputError`. On a diagonal-first pattern it adds to the
+        first `n` slots. Flags: `symmetric` is kept; `positive_semidefinite` is kept when `shift` is
+        provably `>= 0` (a concrete number, or `nonnegative(s)` for a traced one), and
+        `negative_semidefinite` when it is provably `<= 0`. Differentiable in the values and in
+        `shift`. SciPy: `A + shift * scipy.sparse.identity(n)`; the same as `A + shift * identity(n)`.
+
+        Args:
+            shift: a scalar, `()`, or `nonnegative(s)`.
+
+        Returns:
+            `(n, n)` `SparseMatrix` on `A.pattern`.
+        """
+        value = shift.value if isinstance(shift, NonNegative) else shift
+        if isinstance(value, SparseMatrix) or np.ndim(value) != 0:
+            raise DDGInputError(f"shift: A.shifted(s) needs a scalar s, got shape {np.shape(value)}")
+        n_rows, n_cols = self.shape
+        if n_rows != n_cols:
+            raise DDGInputError(f"A: A.shifted(s) needs a square matrix, got shape {self.shape}")
+        diagonal = jnp.broadcast_to(jnp.asarray(value, self.values.dtype), (n_rows,))
+        values = _add_to_diagonal(self.values, self.pattern, diagonal, "A.shifted(s)")
+        at_least_zero, at_most_zero = _sign_bounds(shift)
+        return SparseMatrix(
+            values,
+            self.pattern,
+            symmetric=self.symmetric,
+            positive_semidefinite=self.positive_semidefinite and at_least_zero,
+            negative_semidefinite=self.negative_semidefinite and at_most_zero,
+        )
 
     def diagonal(self) -> Float[Array, " n"]:
         """The main diagonal, `(min(n_rows, n_cols),)` (zeros where the pattern has no diagonal entry)."""
@@ -182,13 +250,20 @@ class SparseMatrix(eqx.Module):
         return jsparse.BCOO((self.values, indices), shape=self.shape)
 
     def to_scipy(self) -> sp.csr_matrix:
-        """Host copy as a canonical `scipy.sparse.csr_matrix` (sorted indices, padding merged away)."""
+        """Host copy as a canonical `scipy.sparse.csr_matrix` (sorted indices, padding left out; `nnz == A.nnz`)."""
         values = np.asarray(self.values)
-        rows, cols = np.asarray(self.pattern.rows), np.asarray(self.pattern.cols)
         if self.pattern.layout == "csr":
+            cols = np.asarray(self.pattern.cols)
             return sp.csr_matrix((values, cols, np.asarray(self.pattern.indptr)), shape=self.shape)
+        rows, cols = np.asarray(self.pattern.rows), np.asarray(self.pattern.cols)
+        if self.pattern.layout == "ell" and self.pattern.indptr is not None:
+            # The padding of an empty row sits at (i, 0), a position the row does not hold.
+            empty_rows = np.diff(np.asarray(self.pattern.indptr)) == 0
+            if empty_rows.any():
+                keep = ~empty_rows[rows]
+                values, rows, cols = values[keep], rows[keep], cols[keep]
         matrix = sp.csr_matrix((values, (rows, cols)), shape=self.shape)
-        matrix.sum_duplicates()
+        matrix.sum_duplicates()  # merges padding into the real entry it repeats (padding holds 0)
         return matrix
 
     def as_lineax_operator(
@@ -241,6 +316,17 @@ def diagonal_matrix(values: Float[ArrayLike, " n"], *, positive_semidefinite: bo
     )
 
 
+def identity(n: int, *, dtype=None) -> SparseMatrix:
+    """The `(n, n)` identity as a diagonal `SparseMatrix`, flagged symmetric positive semidefinite.
+
+    So `A + s * identity(n)` is `A + s I` on `A`'s pattern (the diagonal is added onto it) and keeps
+    `A`'s PSD flag for a concrete `s >= 0` or `nonnegative(s)`; `A.shifted(s)` is the same without
+    building the diagonal. `dtype`: JAX's default float when `None`. SciPy: `scipy.sparse.identity(n)`.
+    """
+    n = check_count("n", n, minimum=1)
+    return diagonal_matrix(jnp.ones(n, dtype), positive_semidefinite=True)
+
+
 def from_scipy(matrix: sp.spmatrix, *, positive_semidefinite: bool = False) -> SparseMatrix:
     """`SparseMatrix` (host-built ELL pattern) with the entries of a SciPy sparse matrix (duplicates summed).
 
@@ -270,17 +356,32 @@ def _flags(matrix: SparseMatrix) -> dict:
     }
 
 
+def _sign_bounds(scalar) -> tuple[bool, bool]:
+    """`(scalar >= 0, scalar <= 0)`, each True only where provable on the host.
+
+    A concrete real number is looked at (NaN proves neither); a `NonNegative` is `>= 0` by its check;
+    a traced or complex scalar proves nothing.
+    """
+    if isinstance(scalar, NonNegative):
+        return True, False
+    if is_traced(scalar) or np.iscomplexobj(scalar):
+        return False, False
+    value = float(np.asarray(scalar))
+    return value >= 0, value <= 0
+
+
 def _scaled(matrix: SparseMatrix, values: Float[Array, " nnz"], scalar) -> SparseMatrix:
-    """`matrix` with new `values = scalar * matrix.values`: semidefinite flags follow the sign of a concrete scalar."""
+    """`matrix` with new `values = scalar * matrix.values`: semidefinite flags follow the provable sign of `scalar`."""
     psd, nsd = matrix.positive_semidefinite, matrix.negative_semidefinite
-    sign = None if is_traced(scalar) or np.iscomplexobj(scalar) else float(np.asarray(scalar))
-    if sign is None or np.isnan(sign):
-        psd = nsd = False
-    elif sign == 0:
-        psd = nsd = matrix.symmetric
-    elif sign < 0:
-        psd, nsd = nsd, psd
-    return SparseMatrix(values, matrix.pattern, symmetric=matrix.symmetric, positive_semidefinite=psd, negative_semidefinite=nsd)
+    at_least_zero, at_most_zero = _sign_bounds(scalar)
+    zero = matrix.symmetric and at_least_zero and at_most_zero  # 0 * A = 0 is both
+    return SparseMatrix(
+        values,
+        matrix.pattern,
+        symmetric=matrix.symmetric,
+        positive_semidefinite=zero or (psd and at_least_zero) or (nsd and at_most_zero),
+        negative_semidefinite=zero or (nsd and at_least_zero) or (psd and at_most_zero),
+    )
 
 
 def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
@@ -293,9 +394,9 @@ def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
     if _same_positions(a.pattern, b.pattern, op):
         values, pattern = a.values + sign * b.values, a.pattern
     elif b.pattern.is_diagonal:
-        values, pattern = _add_to_diagonal(a.values, a.pattern, sign * b.values, op), a.pattern
+        values, pattern = _add_to_diagonal(a.values, a.pattern, sign * b.values, f"A {op} D"), a.pattern
     elif a.pattern.is_diagonal:
-        values, pattern = _add_to_diagonal(sign * b.values, b.pattern, a.values, op), b.pattern
+        values, pattern = _add_to_diagonal(sign * b.values, b.pattern, a.values, f"D {op} A"), b.pattern
     else:
         raise DDGInputError(
             f"A {op} B needs matching sparsity patterns (or one diagonal); got shape/layout/width/nnz "
@@ -314,8 +415,11 @@ def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
     )
 
 
-def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, op: str):
-    """`values` of a square matrix on `pattern` plus `diagonal` on its main diagonal (no search, no scatter)."""
+def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, what: str):
+    """`values` of a square matrix on `pattern` plus `diagonal` on its main diagonal (no search, no scatter).
+
+    `what` names the operation in error messages (`"A + D"`, `"A.shifted(s)"`).
+    """
     n = pattern.shape[0]
     if pattern.diagonal_first:
         return values.at[:n].add(diagonal)  # slots 0..n-1 are the diagonal
@@ -325,14 +429,14 @@ def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, op: str):
             missing = np.setdiff1d(np.arange(n), np.asarray(pattern.rows)[np.asarray(on_diagonal)])
             if missing.size:
                 raise DDGInputError(
-                    f"A {op} D: the pattern lacks diagonal entries (first at row {int(missing[0])}), so a diagonal "
-                    "matrix cannot be added onto it"
+                    f"{what}: the pattern lacks diagonal entries (first at row {int(missing[0])}), so a diagonal "
+                    "cannot be added onto it"
                 )
         else:
-            values = eqx.error_if(values, jnp.sum(on_diagonal) != n, f"A {op} D: the pattern lacks diagonal entries")
+            values = eqx.error_if(values, jnp.sum(on_diagonal) != n, f"{what}: the pattern lacks diagonal entries")
         return values + jnp.where(on_diagonal, diagonal[pattern.rows], 0)
     raise DDGInputError(
-        f"A {op} D: adding a diagonal matrix needs a pattern that stores the whole diagonal (a host-built "
+        f"{what}: adding a diagonal needs a pattern that stores the whole diagonal (a host-built "
         f"square pattern with every diagonal entry, or a CSR pattern); got layout {pattern.layout!r} with "
         f"diagonal_first={pattern.diagonal_first}"
     )

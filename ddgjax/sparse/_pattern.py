@@ -23,7 +23,8 @@ Three storage layouts:
 
 Host-built patterns also carry their transpose: a symmetric pattern the permutation of its own slots
 (`(i, j) -> (j, i)`), any other its transposed pattern and the slot each transposed entry reads.
-`SparsityPattern.slots` locates positions on the host (for maps built once, e.g. `congruence_plan`).
+`SparsityPattern.entries` lists the distinct positions and `SparsityPattern.slots` locates positions,
+both on the host (for maps built once, e.g. `congruence_plan`, `dirichlet_plan`).
 """
 
 from __future__ import annotations
@@ -79,6 +80,9 @@ class SparsityPattern(eqx.Module):
             (`None` for other layouts, the diagonal pattern, and ELL patterns made by hand). `A @ x`
             gathers every row's columns with it in one row-major gather; transposing the index
             inside jit instead costs as much as the product itself on each call.
+        n_entries: number of distinct stored positions (SciPy's `nnz`: ELL padding excluded), static;
+            counted once by the host builders (`from_coo`, `from_edges`, `diagonal`), `None` for
+            patterns made by hand (`SparseMatrix.nnz` then counts on the host).
     """
 
     rows: Int[Array, " nnz"]
@@ -92,10 +96,14 @@ class SparsityPattern(eqx.Module):
     transpose_slot: Int[Array, " nnz_t"] | None = None
     transpose_pattern: "SparsityPattern | None" = None
     row_cols: Int[Array, "n_rows k"] | None = None
+    n_entries: int | None = eqx.field(static=True, default=None)
 
     @property
     def nnz(self) -> int:
-        """Number of storage slots (the length of a matrix's `values`)."""
+        """Number of storage slots (the length of a matrix's `values`), ELL padding included.
+
+        SciPy's `nnz` (distinct positions) is `n_entries`, or `SparseMatrix.nnz`.
+        """
         return int(self.rows.shape[0])
 
     @property
@@ -103,21 +111,37 @@ class SparsityPattern(eqx.Module):
         """The `(n, n)` diagonal pattern (`SparsityPattern.diagonal`): exactly one slot per row, on the diagonal."""
         return self.layout == "ell" and self.diagonal_first and self.width == 1 and self.nnz == self.shape[0]
 
+    def entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Host list of the distinct stored positions in CSR order: `(rows, cols, slot)`, NumPy.
+
+        `slot[k]` is the storage slot of position `(rows[k], cols[k])`: where ELL padding repeats a
+        position, the real (lowest) slot; the padding of an empty row (at `(i, 0)`, a position the
+        row does not hold) is left out. So `rows.size` is SciPy's `nnz` and
+        `csr_matrix((values[slot], (rows, cols)))` is the matrix. Once, outside jit (a sort of the
+        pattern's keys); needs concrete pattern arrays.
+        """
+        if is_traced(self.rows) or is_traced(self.cols) or is_traced(self.indptr):
+            raise DDGInputError("pattern: a host lookup in a SparsityPattern needs concrete (non-traced) arrays")
+        rows = np.asarray(self.rows, dtype=np.int64)
+        cols = np.asarray(self.cols, dtype=np.int64)
+        order, sorted_keys = stable_order(rows * self.shape[1] + cols)  # by key, then slot: real slots first
+        first = np.ones(sorted_keys.size, dtype=bool)
+        first[1:] = sorted_keys[1:] != sorted_keys[:-1]
+        slot = order[first].astype(np.int64)
+        if self.layout == "ell" and self.indptr is not None:
+            row_counts = np.diff(np.asarray(self.indptr))
+            slot = slot[row_counts[rows[slot]] > 0]
+        return rows[slot], cols[slot], slot
+
     def slots(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Host lookup: the storage slot of each position `(rows[k], cols[k])`, or `nnz` where it has none.
 
-        NumPy, once, outside jit (a sort of the pattern's keys); needs concrete pattern arrays. Where
-        an ELL padding slot repeats a position, the real (lowest) slot is returned.
+        NumPy, once, outside jit (`entries`); needs concrete pattern arrays. Where an ELL padding
+        slot repeats a position, the real (lowest) slot is returned.
         """
-        if is_traced(self.rows) or is_traced(self.cols):
-            raise DDGInputError("pattern: SparsityPattern.slots runs on the host and needs concrete (non-traced) arrays")
         n_cols = self.shape[1]
-        keys = np.asarray(self.rows, dtype=np.int64) * n_cols + np.asarray(self.cols, dtype=np.int64)
-        order = np.argsort(keys, kind="stable")  # by key, then slot: a position's real slot comes first
-        sorted_keys = keys[order]
-        first = np.ones(sorted_keys.size, dtype=bool)
-        first[1:] = sorted_keys[1:] != sorted_keys[:-1]
-        unique_keys, unique_slots = sorted_keys[first], order[first]
+        entry_rows, entry_cols, entry_slots = self.entries()
+        unique_keys = entry_rows * n_cols + entry_cols
         rows = np.asarray(rows, dtype=np.int64)
         cols = np.asarray(cols, dtype=np.int64)
         result = np.full(rows.shape, self.nnz, dtype=np.int64)
@@ -127,7 +151,7 @@ class SparsityPattern(eqx.Module):
         inside = (rows >= 0) & (rows < self.shape[0]) & (cols >= 0) & (cols < n_cols)
         position = np.minimum(np.searchsorted(unique_keys, query), unique_keys.size - 1)
         found = inside & (unique_keys[position] == query)
-        result[found] = unique_slots[position[found]]
+        result[found] = entry_slots[position[found]]
         return result
 
     @classmethod
@@ -243,6 +267,7 @@ class SparsityPattern(eqx.Module):
             diagonal_first=True,
             symmetric=True,
             transpose_pattern=None,
+            n_entries=n + 2 * ne,
         )
         return pattern, source
 
@@ -259,6 +284,7 @@ class SparsityPattern(eqx.Module):
             width=1,
             diagonal_first=True,
             symmetric=True,
+            n_entries=n,
         )
 
 
@@ -352,5 +378,6 @@ def _ell_pattern(
         transpose_slot=None if transpose_slot is None else jnp.asarray(transpose_slot.astype(np.int32)),
         transpose_pattern=transposed,
         row_cols=jnp.asarray(_row_major(storage_cols, n_rows, width, first=int(diagonal_first))),
+        n_entries=nnz,
     )
     return pattern, storage_of_csr.astype(np.int64)
