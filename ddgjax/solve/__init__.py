@@ -18,3 +18,5 @@ from ._linear import Factorization as Factorization
 from ._linear import LinearSolution as LinearSolution
 from ._linear import factorize as factorize
 from ._linear import linear_solve as linear_solve
+from ._problems import harmonic_interpolation as harmonic_interpolation
+from ._problems import solve_poisson as solve_poisson

@@ -1,0 +1,193 @@
+"""Tests for ddgjax.solve.solve_poisson and harmonic_interpolation: references (DDG exercises, libigl),
+analytic solutions with fitted convergence rates, several components, gradients, bad input."""
+
+from __future__ import annotations
+
+import igl
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ddgjax import DDGInputError
+from ddgjax.io import load_mesh
+from ddgjax.laplacian import cotan_laplacian, mass_matrix
+from ddgjax.mesh import Mesh, disk, grid, icosphere
+from ddgjax.solve import harmonic_interpolation, solve_poisson
+
+from conftest import shared_path
+from mesh_union import disjoint_union
+
+
+def _read_reference(path):
+    records: dict[str, list] = {}
+    for line in path.read_text().splitlines():
+        tag, *numbers = line.split()
+        records.setdefault(tag, []).append([float(x) for x in numbers])
+    return {tag: np.array(rows) for tag, rows in records.items()}
+
+
+def test_poisson_matches_the_ddg_exercises_reference():
+    """test-spp-soln.txt solves (L + 1e-8 I) phi = -M (rho - mean rho) with M barycentric: our zero-mean
+    solution of L phi = -M rho equals theirs up to their constant (their regularisation picks one)."""
+    data = _read_reference(shared_path("reference", "ddg-exercises", "test-spp-soln.txt"))
+    mesh = Mesh.from_arrays(data["v"], data["f"].astype(np.int64) - 1)
+    rho, expected = data["rho"][:, 0], data["phi"][:, 0]
+    phi = np.asarray(solve_poisson(mesh, rho, mass="barycentric"))
+    mass = data["mass"][:, 0]
+    expected = expected - np.sum(mass * expected) / np.sum(mass)
+    # The course accepts 1e-5 per entry; its areas carry single-precision rounding (3.5e-8 relative).
+    np.testing.assert_allclose(phi, expected, rtol=0, atol=1e-6 * np.abs(expected).max())
+
+
+def _jittered_disk(n_rings: int) -> Mesh:
+    """The unit disk with its interior vertices moved randomly by a fifth of the ring spacing."""
+    mesh = disk(n_rings)
+    V = np.asarray(mesh.vertices).copy()
+    interior = np.setdiff1d(np.arange(V.shape[0]), mesh.topology.boundary_vertices)
+    V[interior, :2] += 0.2 / n_rings * np.random.default_rng(0).uniform(-1, 1, (interior.size, 2))
+    return mesh.with_vertices(V)
+
+
+def test_unit_disk_converges_to_the_analytic_solution_at_second_order():
+    """-Delta u = 1, u = 0 on the boundary: u = (1 - r^2) / 4; in ddgjax's sign, solve_poisson(mesh, -1)."""
+    sizes, errors = [], []
+    for n_rings in (4, 8, 16, 32):
+        mesh = _jittered_disk(n_rings)
+        u = solve_poisson(mesh, -jnp.ones(mesh.n_vertices), dirichlet_vertices=mesh.topology.boundary_vertices, mass="galerkin")
+        V = np.asarray(mesh.vertices)
+        error = np.asarray(u) - (1 - V[:, 0] ** 2 - V[:, 1] ** 2) / 4
+        sizes.append(1.0 / n_rings)
+        errors.append(np.sqrt(error @ (mass_matrix(mesh, kind="galerkin") @ error)))
+    rate = np.polyfit(np.log(sizes), np.log(errors), 1)[0]
+    assert 1.8 < rate < 2.3, (rate, errors)
+    # On the regular (rotationally symmetric) disk the quadratic is reproduced to round-off.
+    mesh = disk(8)
+    u = solve_poisson(mesh, -jnp.ones(mesh.n_vertices), dirichlet_vertices=mesh.topology.boundary_vertices)
+    V = np.asarray(mesh.vertices)
+    np.testing.assert_allclose(u, (1 - V[:, 0] ** 2 - V[:, 1] ** 2) / 4, rtol=0, atol=1e-13)
+
+
+def test_sphere_with_spherical_harmonic_right_hand_sides():
+    """On the unit sphere Delta Y_l = -l (l + 1) Y_l, so Delta phi = Y_l gives phi = -Y_l / (l (l + 1))."""
+    errors = []
+    for subdivisions in (2, 3, 4):
+        mesh = icosphere(subdivisions)
+        x, y, z = (mesh.vertices[:, k] for k in range(3))
+        block = jnp.stack([z, x * y, 3 * z**2 - 1], axis=1)  # l = 1, 2, 2
+        phi = solve_poisson(mesh, block)
+        expected = -block / jnp.asarray([2.0, 6.0, 6.0])
+        errors.append(float(jnp.abs(phi - expected).max()))
+        np.testing.assert_allclose(jnp.sum(mass_matrix(mesh) @ phi, axis=0), 0.0, atol=1e-13)  # zero mean
+    rate = np.polyfit(np.log([1, 0.5, 0.25]), np.log(errors), 1)[0]
+    assert rate > 1.8, (rate, errors)
+
+
+def test_each_closed_component_is_made_compatible_and_zero_mean():
+    big, small = icosphere(2), icosphere(1, radius=0.5)
+    union = disjoint_union(
+        [(np.asarray(big.vertices), np.asarray(big.faces)), (np.asarray(small.vertices) + 3.0, np.asarray(small.faces))]
+    )
+    mesh = union.mesh
+    rho = 1.0 + mesh.vertices[:, 2]  # a nonzero mean on each component: removed per component
+    phi = solve_poisson(mesh, rho)
+    M = mass_matrix(mesh)
+    offset = union.vertex_offsets[1]
+    for part, (start, stop) in zip((big, small), ((0, offset), (offset, mesh.n_vertices))):
+        own = solve_poisson(part, np.asarray(rho)[start:stop])
+        np.testing.assert_allclose(phi[start:stop], own, rtol=0, atol=1e-12)
+        assert abs(float(jnp.sum((M @ phi)[start:stop]))) < 1e-13
+
+
+def test_dirichlet_problem_matches_libigl_min_quad_with_fixed():
+    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    boundary = mesh.topology.boundary_vertices
+    rho = np.sin(4 * V[:, 0]) + V[:, 1] ** 2
+    values = np.cos(3 * V[boundary, 2])
+    phi = solve_poisson(mesh, rho, dirichlet_vertices=boundary, dirichlet_values=values)
+    L, M = -igl.cotmatrix(V, F), igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI)
+    theirs = igl.min_quad_with_fixed(L.tocsc(), (M @ rho)[:, None], boundary.astype(np.int64), values[:, None])[:, 0]
+    np.testing.assert_allclose(phi, theirs, rtol=0, atol=1e-9 * np.abs(theirs).max())
+
+
+def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_flat_meshes():
+    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    boundary = mesh.topology.boundary_vertices
+    values = V[boundary] ** 2  # three columns at once
+    ours = harmonic_interpolation(mesh, boundary, values)
+    theirs = igl.harmonic(V, F, boundary.astype(np.int64), values, 1)
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-9 * np.abs(theirs).max())
+    for flat in (grid(6, 5), _jittered_disk(5)):
+        W = np.asarray(flat.vertices)
+        linear = 0.3 + 2.0 * W[:, 0] - 1.5 * W[:, 1]
+        rim = flat.topology.boundary_vertices
+        np.testing.assert_allclose(harmonic_interpolation(flat, rim, linear[rim]), linear, rtol=0, atol=1e-12)
+
+
+def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_elsewhere():
+    """A harmonic function lies between its boundary extremes on a Delaunay mesh (non-negative cotan
+    weights); the obtuse slivers of beetle break it, and the result shows it rather than hiding it."""
+    mesh = _jittered_disk(6)
+    rim = mesh.topology.boundary_vertices
+    values = np.sin(5 * np.arctan2(np.asarray(mesh.vertices)[rim, 1], np.asarray(mesh.vertices)[rim, 0]))
+    u = harmonic_interpolation(mesh, rim, values)
+    assert values.min() - 1e-12 <= float(u.min()) and float(u.max()) <= values.max() + 1e-12
+    beetle = load_mesh(shared_path("meshes", "beetle.off"))
+    weights = -cotan_laplacian(beetle).to_scipy()
+    weights.setdiag(0)
+    assert weights.min() < 0  # negative cotan weights: the discrete maximum principle is not guaranteed
+
+
+def test_gradients_with_respect_to_rho_values_and_vertices():
+    mesh = _jittered_disk(3)
+    rim = mesh.topology.boundary_vertices
+    rng = np.random.default_rng(4)
+    rho, values = jnp.asarray(rng.standard_normal(mesh.n_vertices)), jnp.asarray(rng.standard_normal(rim.size))
+    V = mesh.vertices
+
+    def loss(rho, values, V):
+        phi = solve_poisson(mesh.with_vertices(V), rho, dirichlet_vertices=rim, dirichlet_values=values)
+        return jnp.sum(jnp.sin(phi)) + jnp.sum(phi**2)
+
+    gradients = jax.jit(jax.grad(loss, argnums=(0, 1, 2)))(rho, values, V)
+    eps = 1e-6
+    for k, argument in enumerate((rho, values, V)):
+        direction = jnp.asarray(rng.standard_normal(argument.shape))
+        if k == 2:
+            direction = direction.at[:, 2].set(0.0)  # in the plane: keeps the disk flat
+        shifted = [list((rho, values, V)) for _ in range(2)]
+        shifted[0][k], shifted[1][k] = argument + eps * direction, argument - eps * direction
+        finite = (loss(*shifted[0]) - loss(*shifted[1])) / (2 * eps)
+        # Central differences with step 1e-6: truncation ~1e-12, rounding ~1e-10 relative.
+        np.testing.assert_allclose(jnp.vdot(gradients[k], direction), finite, rtol=1e-6)
+
+
+def test_bad_input(without_type_checker):
+    mesh = disk(3)
+    n = mesh.n_vertices
+    rho = jnp.zeros(n)
+    rim = mesh.topology.boundary_vertices
+    cases = [
+        (lambda: solve_poisson(np.zeros((3, 3)), rho), "mesh: expected a ddgjax Mesh"),
+        (lambda: solve_poisson(mesh, rho[:-1]), rf"rho: expected shape \({n},\) or \({n}, k\)"),
+        (lambda: solve_poisson(mesh, rho, mass="lumped"), "mass: expected one of"),
+        (lambda: solve_poisson(mesh, rho, dirichlet_vertices=[0, n]), r"dirichlet_vertices: vertex indices must lie in \[0,"),
+        (lambda: solve_poisson(mesh, rho, dirichlet_vertices=[1, 1]), "dirichlet_vertices: expected distinct vertices"),
+        (lambda: solve_poisson(mesh, rho, dirichlet_vertices=[[1, 2]]), "dirichlet_vertices: expected a 1-d integer array"),
+        (
+            lambda: solve_poisson(mesh, rho, dirichlet_vertices=rim, dirichlet_values=np.zeros(rim.size + 1)),
+            "dirichlet_values: expected shape",
+        ),
+        (lambda: solve_poisson(mesh, rho, dirichlet_values=np.zeros(3)), "dirichlet_values: given without dirichlet_vertices"),
+        (lambda: harmonic_interpolation(mesh, [], []), "vertices: expected at least one vertex"),
+    ]
+    for call, message in cases:
+        with pytest.raises(DDGInputError, match=message):
+            call()
+    # Every vertex prescribed: nothing to solve, the values come back.
+    everything = np.arange(n)[::-1]
+    np.testing.assert_array_equal(
+        solve_poisson(mesh, rho, dirichlet_vertices=everything, dirichlet_values=everything * 1.0), np.arange(n)
+    )
