@@ -8,6 +8,10 @@
   definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD through `sparsax`, usable inside `jit` / `scan` / `vmap`) or a pure-JAX
   Jacobi-preconditioned conjugate gradient; differentiable in `b` and in the matrix values by
   implicit differentiation; failures through `ddgjax.RESULTS` (`throw=`).
+- `solve_poisson(mesh, rho, *, dirichlet_vertices=..., dirichlet_values=...)` and
+  `harmonic_interpolation(mesh, vertices, values)`: exact, differentiable Dirichlet / Poisson problems.
+- `SparseCholesky(pattern)`: the same solves as a lineax solver (the matrix recovered from operator
+  products by column colouring), so `optimistix.Newton` minimises an energy with them.
 """
 
 from ._energies import dirichlet_energy as dirichlet_energy
@@ -18,5 +22,6 @@ from ._linear import Factorization as Factorization
 from ._linear import LinearSolution as LinearSolution
 from ._linear import factorize as factorize
 from ._linear import linear_solve as linear_solve
+from ._lineax import SparseCholesky as SparseCholesky
 from ._problems import harmonic_interpolation as harmonic_interpolation
 from ._problems import solve_poisson as solve_poisson
