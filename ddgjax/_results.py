@@ -30,7 +30,7 @@ class RESULTS(eqx.Enumeration):
     )
     max_steps_reached = (
         "The iterative solver did not reach its tolerance within `max_steps` iterations. Raise "
-        "`max_steps`, loosen `rtol`, or use a direct method (`method=\"cholesky\"`); pass `throw=False` "
+        '`max_steps`, loosen `rtol`, or use a direct method (`method="cholesky"`); pass `throw=False` '
         "to inspect the result."
     )
     singular = (
