@@ -209,3 +209,24 @@ def test_bad_input(without_type_checker):
     for call, message in cases:
         with pytest.raises(DDGInputError, match=message):
             call()
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_forward_mode_and_hessian_vector_products(method):
+    A = _heat_operator(icosphere(1))
+    b = _rhs(A.shape[0])
+    direction = _symmetric_direction(A, 7)
+
+    def loss(values, b):
+        return jnp.sum(jnp.sin(linear_solve(SparseMatrix(values, A.pattern, symmetric=True), b, method=method).value))
+
+    def dense_loss(values, b):
+        return jnp.sum(jnp.sin(jnp.linalg.solve(SparseMatrix(values, A.pattern).todense(), b)))
+
+    _, ours = jax.jvp(lambda v: loss(v, b), (A.values,), (direction,))
+    _, expected = jax.jvp(lambda v: dense_loss(v, b), (A.values,), (direction,))
+    np.testing.assert_allclose(ours, expected, rtol=1e-8)
+    # Forward-over-reverse Hessian-vector product in b (what a Newton-Krylov step through a solve uses).
+    ours = jax.jvp(jax.grad(lambda b: loss(A.values, b)), (b,), (b,))[1]
+    expected = jax.jvp(jax.grad(lambda b: dense_loss(A.values, b)), (b,), (b,))[1]
+    np.testing.assert_allclose(ours, expected, rtol=1e-8, atol=1e-12)

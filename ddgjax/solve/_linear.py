@@ -9,15 +9,15 @@
   jit-only pipelines.
 
 Both are differentiable with respect to `b` and to the matrix values by implicit differentiation
-(a custom VJP): with `x = A^{-1} b` and `A` symmetric, the cotangent `g` of `x` gives the adjoint
-`lambda = A^{-1} g` (one more solve with the same backend), then
+(`jax.lax.custom_linear_solve`): with `x = A^{-1} b`, the tangent is `dx = A^{-1} (db - dA x)` and,
+`A` being symmetric, the cotangent `g` of `x` gives the adjoint `lambda = A^{-1} g` and
 
     b_bar = lambda,    A_bar[i, j] = -lambda_i x_j   (on the stored positions only),
 
-summed over the columns of a block right-hand side. Gradients with respect to vertex positions
-follow by the chain rule through the assembly of `A`'s values (`cotan_laplacian`, `mass_matrix`).
-This is reverse mode (`jax.grad`, `jax.vjp`); forward mode (`jax.jvp`, and so forward-over-reverse
-Hessian-vector products through a solve) is not available yet.
+each one more solve with the same backend (the same CHOLMOD factor). Forward and reverse mode to
+any order (`jax.jvp`, `jax.grad`, Hessian-vector products), `vmap`, `jit` and `lax.scan`. Gradients
+with respect to vertex positions follow by the chain rule through the assembly of `A`'s values
+(`cotan_laplacian`, `mass_matrix`).
 
 Failures that depend on the values follow the results convention (`ddgjax.RESULTS`): a CG that
 did not reach its tolerance in `max_steps` (`max_steps_reached`), a solution whose relative
@@ -108,6 +108,7 @@ def linear_solve(
 def _solution(A, b, value, num_steps, method, max_steps, residual_tolerance, throw) -> LinearSolution:
     """The `LinearSolution` of a computed `value`: its residual and outcome (`RESULTS`), raised if `throw`."""
     residual = _relative_residual(A, value, b)
+    num_steps = jnp.asarray(num_steps)
     result = RESULTS.where(
         ~jnp.all(jnp.isfinite(value)),
         RESULTS.nonfinite,
@@ -125,7 +126,7 @@ class Factorization(eqx.Module):
     """A factorisation of a symmetric positive definite `SparseMatrix`, kept for many right-hand sides.
 
     Made by `factorize(A, method=...)`; `factorization.solve(b)` solves `A x = b` reusing it, with
-    the same differentiation rules as `linear_solve` (the adjoint solve reuses the factor too). For
+    the same differentiation rules as `linear_solve` (tangent and adjoint solves reuse the factor). For
     `"cholesky"` the numeric CHOLMOD factor is held by `sparsax` and referenced by `token`; its cache
     keeps a bounded number of factors per sparsity pattern (`sparsax.set_num_cache_size`), and a
     token whose factor was evicted raises when used, it never answers wrongly. For `"cg"` there is
@@ -232,57 +233,34 @@ def _relative_residual(A: SparseMatrix, x, b) -> Float[Array, ""]:
     return jnp.where(b_norm > 0, jnp.linalg.norm(A @ x - b) / jnp.where(b_norm > 0, b_norm, 1.0), 0.0)
 
 
-@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
 def _solve_factored(options, A: SparseMatrix, token, b):
-    """`x = A^{-1} b` with the backend of `options`, from the CHOLMOD factor `token` when there is one."""
-    return _forward_solve(options, A, token, b)
+    """`(x, num_steps)` with `x = A^{-1} b`, differentiable through `lax.custom_linear_solve` (module docstring).
 
-
-def _forward_solve(options, A: SparseMatrix, token, b):
+    JAX differentiates `custom_linear_solve` implicitly: the derivative of `x` comes from `A`'s
+    product (`dx = A^{-1} (db - dA x)`), and the transposed solve (reverse mode) calls the same
+    backend, which is `A` itself as `A` is symmetric: one CHOLMOD factor serves the forward, the
+    tangent and the adjoint solves. The backend itself is never differentiated.
+    """
     method, rtol, max_steps = options
-    if method == "cg":
-        return _jacobi_cg(A, b, rtol, max_steps)
-    import sparsax
-
-    no_steps = jnp.zeros((), jnp.int32)
-    if token is not None:
-        return sparsax.solve_factor(token, b), no_steps
-    # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,
-    # so the storage slots go in as they are (ELL padding adds zeros).
-    return sparsax.solve(A.pattern.rows, A.pattern.cols, A.values, b), no_steps
-
-
-def _solve_fwd(options, A, token, b):
-    if options[0] == "cholesky" and token is None:
-        # Keep the factor for the adjoint solve of the backward pass.
+    values = jax.lax.stop_gradient(A.values)
+    if method == "cholesky":
         import sparsax
 
-        token = sparsax.factor(A.pattern.rows, A.pattern.cols, A.values, A.shape[0])
-    value, num_steps = _forward_solve(options, A, token, b)
-    return (value, num_steps), (A, token, value)
+        if token is None:
+            # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated
+            # positions, so the storage slots go in as they are (ELL padding adds zeros).
+            token = sparsax.factor(A.pattern.rows, A.pattern.cols, values, A.shape[0])
 
+        def backend(_, rhs):
+            return sparsax.solve_factor(token, rhs), jnp.zeros((), jnp.int32)
 
-def _solve_bwd(options, residuals, cotangents):
-    A, token, x = residuals
-    g, _ = cotangents
-    adjoint, _ = _forward_solve(options, A, token, g)  # A symmetric: the adjoint system is A itself
-    rows, cols = A.pattern.rows, A.pattern.cols
-    # A_bar[i, j] = -lambda_i x_j on each stored slot (summed over the columns of a block).
-    products = adjoint[rows] * x[cols]
-    values_bar = -(products if products.ndim == 1 else jnp.sum(products, axis=1))
-    A_bar = jax.tree.map(_zero_cotangent, A)
-    A_bar = eqx.tree_at(lambda m: m.values, A_bar, values_bar.astype(A.values.dtype))
-    token_bar = None if token is None else _zero_cotangent(token)
-    return A_bar, token_bar, adjoint
+    else:
+        fixed = SparseMatrix(values, A.pattern, symmetric=True)
 
+        def backend(_, rhs):
+            return _jacobi_cg(fixed, rhs, rtol, max_steps)
 
-def _zero_cotangent(leaf):
-    if jnp.issubdtype(jnp.result_type(leaf), jnp.inexact):
-        return jnp.zeros_like(leaf)
-    return np.zeros(np.shape(leaf), dtype=jax.dtypes.float0)
-
-
-_solve_factored.defvjp(_solve_fwd, _solve_bwd)
+    return jax.lax.custom_linear_solve(A._product, b, backend, symmetric=True, has_aux=True)
 
 
 def _jacobi_cg(A: SparseMatrix, b, rtol: float, max_steps: int):
