@@ -10,6 +10,8 @@
   implicit differentiation; failures through `ddgjax.RESULTS` (`throw=`).
 - `solve_poisson(mesh, rho, *, dirichlet_vertices=..., dirichlet_values=...)` and
   `harmonic_interpolation(mesh, vertices, values)`: exact, differentiable Dirichlet / Poisson problems.
+- `hodge_decomposition(mesh, omega)`: a 1-form split into exact, co-exact and harmonic parts;
+  `mean_curvature_flow(mesh, *, h, steps, modified=...)`: backward-Euler (modified) mean curvature flow.
 - `SparseCholesky(pattern)`: the same solves as a lineax solver (the matrix recovered from operator
   products by column colouring), so `optimistix.Newton` minimises an energy with them.
 """
@@ -18,6 +20,10 @@ from ._energies import dirichlet_energy as dirichlet_energy
 from ._energies import gradient_fitting_energy as gradient_fitting_energy
 from ._energies import poisson_energy as poisson_energy
 from ._energies import screened_dirichlet_energy as screened_dirichlet_energy
+from ._flow import MeanCurvatureFlowResult as MeanCurvatureFlowResult
+from ._flow import mean_curvature_flow as mean_curvature_flow
+from ._hodge_decomposition import HodgeDecomposition as HodgeDecomposition
+from ._hodge_decomposition import hodge_decomposition as hodge_decomposition
 from ._linear import Factorization as Factorization
 from ._linear import LinearSolution as LinearSolution
 from ._linear import factorize as factorize

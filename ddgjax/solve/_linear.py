@@ -5,8 +5,8 @@
 - `"cholesky"`: a sparse direct Cholesky factorisation on the host, CHOLMOD called through XLA's
   foreign-function interface by `sparsax` (so it runs inside `jit`, `lax.scan` and `vmap`, with no
   Python round trip); the symbolic analysis of a pattern is computed once and cached.
-- `"cg"`: a Jacobi-preconditioned conjugate gradient in pure JAX (`lineax.CG`), for any device and
-  jit-only pipelines.
+- `"cg"`: a Jacobi-preconditioned conjugate gradient in pure JAX (`preconditioned_cg`), for any
+  device and jit-only pipelines.
 
 Both are differentiable with respect to `b` and to the matrix values by implicit differentiation
 (`jax.lax.custom_linear_solve`): with `x = A^{-1} b`, the tangent is `dx = A^{-1} (db - dA x)` and,
@@ -29,7 +29,7 @@ whatever `throw` is (CHOLMOD reports the failing column).
 
 References: M. B. Giles, "Collected matrix derivative results for forward and reverse mode
 algorithmic differentiation" (2008), for `A_bar = -lambda x^T`; lineax (P. Kidger et al.) for the
-results convention and `lineax.CG`; Y. Chen, T. A. Davis et al., "CHOLMOD" (2008).
+results convention; Y. Chen, T. A. Davis et al., "CHOLMOD" (2008).
 SciPy: `scipy.sparse.linalg.spsolve` / `cg`; libigl: `min_quad_with_fixed` for the Dirichlet blocks.
 """
 
@@ -40,7 +40,6 @@ import functools
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
@@ -101,19 +100,19 @@ def linear_solve(
     """
     method, max_steps, b = _check(A, b, method, max_steps)
     options = (method, float(rtol), max_steps)
-    value, num_steps = _solve_factored(options, A, None, b)
-    return _solution(A, b, value, num_steps, method, max_steps, residual_tolerance, throw)
+    value, stats = _solve_factored(options, A, None, b)
+    return _solution(A, b, value, stats, method, residual_tolerance, throw)
 
 
-def _solution(A, b, value, num_steps, method, max_steps, residual_tolerance, throw) -> LinearSolution:
+def _solution(A, b, value, stats, method, residual_tolerance, throw) -> LinearSolution:
     """The `LinearSolution` of a computed `value`: its residual and outcome (`RESULTS`), raised if `throw`."""
     residual = _relative_residual(A, value, b)
-    num_steps = jnp.asarray(num_steps)
+    num_steps, converged = (jnp.asarray(stat) for stat in stats)
     result = RESULTS.where(
         ~jnp.all(jnp.isfinite(value)),
         RESULTS.nonfinite,
         RESULTS.where(
-            num_steps >= max_steps,
+            ~converged,
             RESULTS.max_steps_reached,
             RESULTS.where(residual > residual_tolerance, RESULTS.singular, RESULTS.successful),
         ),
@@ -150,8 +149,8 @@ class Factorization(eqx.Module):
         A = self.matrix
         _, _, b = _check(A, b, self.method, self.max_steps)
         options = (self.method, self.rtol, self.max_steps)
-        value, num_steps = _solve_factored(options, A, self.token, b)
-        return _solution(A, b, value, num_steps, self.method, self.max_steps, self.residual_tolerance, throw)
+        value, stats = _solve_factored(options, A, self.token, b)
+        return _solution(A, b, value, stats, self.method, self.residual_tolerance, throw)
 
 
 def factorize(
@@ -172,9 +171,7 @@ def factorize(
     method, max_steps, _ = _check(A, jnp.zeros(A.shape[0], A.values.dtype), method, max_steps)
     token = None
     if method == "cholesky":
-        import sparsax
-
-        token = sparsax.factor(A.pattern.rows, A.pattern.cols, jax.lax.stop_gradient(A.values), A.shape[0])
+        token = _cholmod_factor(A.pattern, jax.lax.stop_gradient(A.values))
     return Factorization(
         matrix=A,
         token=token,
@@ -203,7 +200,13 @@ def _check(A, b, method, max_steps):
         raise DDGInputError(f"b: expected shape ({n_rows},) or ({n_rows}, k), got {np.shape(b)}")
     check_choice("method", method, METHODS)
     if method == "auto":
-        method = "cholesky" if jax.default_backend() == "cpu" and _has_sparsax() else "cg"
+        direct = jax.default_backend() == "cpu" and _has_sparsax() and jax.config.jax_enable_x64
+        method = "cholesky" if direct else "cg"
+    if method == "cholesky" and not jax.config.jax_enable_x64:
+        raise DDGInputError(
+            "method: 'cholesky' works in float64, which JAX has off; enable it with "
+            "jax.config.update('jax_enable_x64', True), or use method='cg'"
+        )
     if method == "cholesky" and not _has_sparsax():
         raise DDGInputError(
             "method: 'cholesky' needs the sparsax package (CHOLMOD through XLA FFI), which is not installed "
@@ -217,6 +220,15 @@ def _check(A, b, method, max_steps):
     if not jnp.issubdtype(b.dtype, jnp.floating):
         b = b.astype(A.values.dtype)
     return method, int(max_steps), b
+
+
+def _cholmod_factor(pattern, values) -> Int[Array, "2"]:
+    """A CHOLMOD factor token (`sparsax.factor`) of the matrix with `values` on `pattern`, in float64."""
+    import sparsax
+
+    # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,
+    # so the storage slots go in as they are (ELL padding adds zeros).
+    return sparsax.factor(pattern.rows, pattern.cols, values.astype(jnp.float64), pattern.shape[0])
 
 
 @functools.cache
@@ -234,7 +246,7 @@ def _relative_residual(A: SparseMatrix, x, b) -> Float[Array, ""]:
 
 
 def _solve_factored(options, A: SparseMatrix, token, b):
-    """`(x, num_steps)` with `x = A^{-1} b`, differentiable through `lax.custom_linear_solve` (module docstring).
+    """`(x, (num_steps, converged))` with `x = A^{-1} b`, differentiable through `lax.custom_linear_solve` (module docstring).
 
     JAX differentiates `custom_linear_solve` implicitly: the derivative of `x` comes from `A`'s
     product (`dx = A^{-1} (db - dA x)`), and the transposed solve (reverse mode) calls the same
@@ -247,12 +259,12 @@ def _solve_factored(options, A: SparseMatrix, token, b):
         import sparsax
 
         if token is None:
-            # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated
-            # positions, so the storage slots go in as they are (ELL padding adds zeros).
-            token = sparsax.factor(A.pattern.rows, A.pattern.cols, values, A.shape[0])
+            token = _cholmod_factor(A.pattern, values)
 
         def backend(_, rhs):
-            return sparsax.solve_factor(token, rhs), jnp.zeros((), jnp.int32)
+            # CHOLMOD works in float64; a float32 system is solved in float64 and rounded back.
+            x = sparsax.solve_factor(token, rhs.astype(jnp.float64)).astype(rhs.dtype)
+            return x, (jnp.zeros((), jnp.int32), jnp.ones((), bool))
 
     else:
         fixed = SparseMatrix(values, A.pattern, symmetric=True)
@@ -264,21 +276,43 @@ def _solve_factored(options, A: SparseMatrix, token, b):
 
 
 def _jacobi_cg(A: SparseMatrix, b, rtol: float, max_steps: int):
-    """`lineax.CG` on `A @ x`, preconditioned by `diag(A)^{-1}`; a block `b` column by column."""
+    """Conjugate gradient on `A @ x`, preconditioned by `diag(A)^{-1}`; a block `b` column by column."""
     diagonal = A.diagonal()
     inverse = jnp.where(diagonal > 0, 1.0 / jnp.where(diagonal > 0, diagonal, 1.0), 1.0)
-    structure = jax.ShapeDtypeStruct((A.shape[0],), A.values.dtype)
-    tags = (lx.symmetric_tag, lx.positive_semidefinite_tag)
-    operator = lx.FunctionLinearOperator(A._product, structure, tags)
-    preconditioner = lx.DiagonalLinearOperator(inverse)
-    solver = lx.CG(rtol=rtol, atol=0.0, max_steps=max_steps)
-    options = {"preconditioner": lx.TaggedLinearOperator(preconditioner, tags)}
 
     def one(column):
-        solution = lx.linear_solve(operator, column, solver, options=options, throw=False)
-        return solution.value, solution.stats["num_steps"]
+        return preconditioned_cg(A._product, column, lambda r: inverse * r, rtol, max_steps)
 
     if b.ndim == 1:
         return one(b)
-    values, steps = jax.vmap(one, in_axes=1, out_axes=(1, 0))(b)
-    return values, jnp.max(steps)
+    values, (steps, converged) = jax.vmap(one, in_axes=1, out_axes=(1, 0))(b)
+    return values, (jnp.max(steps), jnp.all(converged))
+
+
+def preconditioned_cg(matvec, b, preconditioner, rtol: float, max_steps: int):
+    """`(x, (num_steps, converged))`: preconditioned conjugate gradient for `A x = b`, `A` and the preconditioner SPD.
+
+    Stops when `|b - A x|_2 <= rtol |b|_2` (a norm-wise test: entries of `b` that are exactly zero
+    need no special care; `converged`) or after `max_steps` iterations. Pure JAX
+    (`lax.while_loop`), any device; `x0 = 0`. Reference: Y. Saad, "Iterative Methods for Sparse
+    Linear Systems" (2003), Algorithm 9.1. SciPy: `scipy.sparse.linalg.cg(A, b, M=..., rtol=...)`.
+    """
+    threshold = (rtol * jnp.linalg.norm(b)) ** 2
+
+    def unfinished(state):
+        _, r, _, _, step = state
+        return (step < max_steps) & (jnp.vdot(r, r) > threshold)
+
+    def iteration(state):
+        x, r, p, rz, step = state
+        q = matvec(p)
+        alpha = rz / jnp.vdot(p, q)
+        x, r = x + alpha * p, r - alpha * q
+        z = preconditioner(r)
+        rz_next = jnp.vdot(r, z)
+        return x, r, z + (rz_next / rz) * p, rz_next, step + 1
+
+    z = preconditioner(b)
+    start = (jnp.zeros_like(b), b, z, jnp.vdot(b, z), jnp.zeros((), jnp.int32))
+    x, r, _, _, step = jax.lax.while_loop(unfinished, iteration, start)
+    return x, (step, jnp.vdot(r, r) <= threshold)
