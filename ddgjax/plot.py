@@ -1,4 +1,4 @@
-"""Drawing curves and curve-shortening flows with matplotlib.
+"""Drawing curves, curve-shortening flows and functions on meshes with matplotlib.
 
 Every function draws on a matplotlib `Axes` the caller made (`plt.subplots()` in a notebook, or
 `matplotlib.figure.Figure().add_subplot()` in a script, as `ddgjax flow` does), and changes no
@@ -11,16 +11,35 @@ global state (no pyplot, no backend). `import ddgjax` does not import this modul
     result = dc.curve_shortening_flow(dc.flower(64), kind="B", tau=1e-3, steps=2000, save_every=100)
     fig, ax = plt.subplots()
     plot_flow(ax, result, color="tab:orange")
+
+A function on a mesh is drawn by `plot_mesh_function(ax, mesh, values)`: an orthographic view,
+faces painted back to front (no 3-D axes needed), returning the collection for `fig.colorbar`.
 """
 
 from __future__ import annotations
 
+from numbers import Real
+
 import numpy as np
 from jaxtyping import ArrayLike
-from matplotlib.colors import to_rgb
+from matplotlib.collections import PolyCollection
+from matplotlib.colors import Normalize, to_rgb
 
+from ._errors import DDGInputError, check_choice
 from .curves import Curve, CurveFlowResult
 from .curves._curve import require_curve
+from .mesh._mesh import Mesh, require_mesh
+
+#: `(azimuth, elevation)` in degrees of `plot_mesh_function`'s default view of a non-flat mesh.
+OBLIQUE_VIEW = (-60.0, 20.0)
+#: The view from `+z` (x to the right, y up): the default for a mesh flat in z.
+TOP_VIEW = (0.0, 90.0)
+# Rotations that carry the named axis to +z (a proper rotation each, so orientation is kept).
+_UP = {
+    "z": np.eye(3),
+    "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
+    "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+}
 
 
 def polyline(points: ArrayLike, closed: bool = True) -> np.ndarray:
@@ -66,3 +85,96 @@ def plot_flow(axes, result: CurveFlowResult, *, snapshots: int = 6, color="tab:b
     axes.plot(*centroid[-1], "kx", ms=7)
     axes.set_aspect("equal")
     return chosen
+
+
+def view_rotation(azimuth: Real, elevation: Real) -> np.ndarray:
+    """`(3, 3)` rotation of an orthographic camera: rows 0 and 2 are screen x and up, row 1 the depth.
+
+    The camera turns by `azimuth` degrees about `z`, then looks down by `elevation` degrees; `(0, 90)`
+    looks from `+z` with `x` to the right and `y` up, `(0, 0)` from `-y` with `z` up.
+    """
+    a, e = np.radians(azimuth), np.radians(elevation)
+    about_z = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    about_x = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(e), -np.sin(e)], [0.0, np.sin(e), np.cos(e)]])
+    return about_x @ about_z
+
+
+def is_flat(mesh: Mesh) -> bool:
+    """Whether every vertex of `mesh` lies in one plane `z = const` (to 1e-12 of its extent)."""
+    vertices = np.asarray(mesh.vertices)
+    extent = float(np.ptp(vertices, axis=0).max())
+    return bool(np.ptp(vertices[:, 2]) <= 1e-12 * max(extent, np.finfo(float).tiny))
+
+
+def plot_mesh_function(
+    axes,
+    mesh: Mesh,
+    values: ArrayLike,
+    *,
+    view: tuple[Real, Real] | None = None,
+    up: str = "z",
+    shading: str = "gouraud",
+    cmap="viridis",
+    vmin: Real | None = None,
+    vmax: Real | None = None,
+    edgecolor="none",
+    linewidth: Real = 0.3,
+):
+    """Draw `mesh` coloured by a function on it, in an orthographic view on ordinary 2-D `axes`.
+
+    Faces are projected by `view_rotation(*view)` and painted from the farthest to the nearest
+    (painter's algorithm), so a closed surface hides its back; the axes get an equal aspect ratio
+    and no frame (screen coordinates carry no meaning for an oblique view).
+
+    Args:
+        axes: a matplotlib `Axes` (2-D).
+        mesh: the mesh.
+        values: `(nv,)` values at the vertices, or `(nf,)` one value per face (vertex values when
+            `nv == nf`).
+        view: `(azimuth, elevation)` in degrees; default `TOP_VIEW` for a mesh flat in z
+            (`is_flat`), else `OBLIQUE_VIEW`.
+        up: the coordinate axis that points up in the view, `"z"` (default), `"y"` (as in many
+            scanned models, e.g. spot) or `"x"`.
+        shading: `"gouraud"` (vertex values interpolated across each face) or `"flat"` (each face
+            the mean of its vertex values); face values are always flat.
+        cmap, vmin, vmax: colour map and limits (default: the values' range).
+        edgecolor, linewidth: face edges (`"none"`: not drawn; flat shading only).
+
+    Returns:
+        The matplotlib collection, a `ScalarMappable` for `figure.colorbar`.
+    """
+    mesh = require_mesh("mesh", mesh)
+    check_choice("shading", shading, ("gouraud", "flat"))
+    check_choice("up", up, tuple(_UP))
+    values = np.asarray(values, dtype=float)
+    if values.shape not in ((mesh.n_vertices,), (mesh.n_faces,)):
+        raise DDGInputError(
+            f"values: expected shape ({mesh.n_vertices},) (one value per vertex) or ({mesh.n_faces},) (per face), "
+            f"got {values.shape}"
+        )
+    if view is None:
+        view = TOP_VIEW if is_flat(mesh) else OBLIQUE_VIEW
+    projected = np.asarray(mesh.vertices, dtype=float) @ (view_rotation(*view) @ _UP[up]).T
+    screen, depth = projected[:, [0, 2]], projected[:, 1]
+    faces = np.asarray(mesh.faces)
+    order = np.argsort(-depth[faces].mean(axis=1), kind="stable")  # farthest first
+    faces = faces[order]
+    finite = values[np.isfinite(values)]
+    norm = Normalize(
+        vmin=vmin if vmin is not None else (finite.min() if finite.size else 0.0),
+        vmax=vmax if vmax is not None else (finite.max() if finite.size else 1.0),
+    )
+    per_vertex = values.shape == (mesh.n_vertices,)  # vertex values when nv == nf
+    if per_vertex and shading == "gouraud":
+        # tripcolor draws its triangles in the given (back-to-front) order.
+        collection = axes.tripcolor(screen[:, 0], screen[:, 1], values, triangles=faces, shading="gouraud", cmap=cmap, norm=norm)
+    else:
+        face_values = values[faces].mean(axis=1) if per_vertex else values[order]
+        collection = PolyCollection(screen[faces], cmap=cmap, norm=norm, edgecolors=edgecolor, linewidths=linewidth)
+        collection.set_array(face_values)
+        axes.add_collection(collection)
+    axes.update_datalim(screen)
+    axes.autoscale_view()
+    axes.set_aspect("equal")
+    axes.set_axis_off()
+    return collection

@@ -1,5 +1,6 @@
-"""The `ddgjax` command line: `ddgjax flow` (curve-shortening flows, the reading report's Figure 3)
-and `ddgjax info` (topology and curvature report of a mesh).
+"""The `ddgjax` command line: `ddgjax flow` (curve-shortening flows, the reading report's Figure 3),
+`ddgjax info` (topology and curvature report of a mesh) and `ddgjax poisson` (a Poisson or harmonic
+problem solved on a mesh, with a picture of the solution).
 
 Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
@@ -23,7 +24,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import flow, info
+from . import flow, info, poisson
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -98,6 +99,15 @@ def build_parser() -> argparse.ArgumentParser:
             parents=[common],
             help="topology, area, volume, Gauss-Bonnet and curvature statistics of a mesh",
             description="Print the topology report and curvature statistics of a mesh.",
+        )
+    )
+    poisson.add_arguments(
+        sub.add_parser(
+            "poisson",
+            parents=[common],
+            help="solve a Poisson or harmonic problem on a mesh and draw the solution",
+            description="Solve Delta phi = rho (Delta = -M^{-1} L) or a harmonic interpolation problem on a mesh, "
+            "print the solver's numbers and write a figure of the solution.",
         )
     )
     return parser

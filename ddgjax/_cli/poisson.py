@@ -1,0 +1,402 @@
+"""`ddgjax poisson [MESH]`: solve a Poisson or harmonic problem on a mesh and draw the solution.
+
+The Poisson problem is the reading report's `Delta phi = rho` with `Delta = -M^{-1} L`, solved by
+`ddgjax.solve.solve_poisson` (`L phi = -M rho`); `--harmonic` solves the harmonic interpolation
+problem instead (`ddgjax.solve.harmonic_interpolation`, `L phi = 0` away from the prescribed
+vertices). The built-in shapes need no file: `disk` (the unit disk, with a boundary) and `sphere`
+(the unit icosphere, closed); on them the printed table also compares with the exact solution
+where one is known. The figure shows the solution coloured on the mesh (with isolines on a flat
+mesh) beside its error, or the right-hand side when no exact solution is known, drawn with
+`ddgjax.plot.plot_mesh_function` on the Agg canvas (no pyplot, no display).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import re
+import sys
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._compile import tuned_jit
+from .._errors import DDGInputError, MeshDataError
+from ..io import load_mesh
+from ..laplacian import cotan_laplacian, mass_matrix
+from ..mesh import Mesh, disk, icosphere
+from ..solve import dirichlet_energy, poisson_energy, solve_poisson
+
+SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)"}
+DEFAULT_RESOLUTION = {"disk": 24, "sphere": 4}
+RHOS = ("auto", "one", "y2", "source")
+SOLVERS = {"cholesky": "cholesky (CHOLMOD through sparsax)", "cg": "cg (Jacobi-preconditioned conjugate gradient in JAX)"}
+RHO_HELP = {
+    "one": "rho = -1, i.e. -Delta phi = 1 (torsion problem; exact (1 - r^2)/4 on the unit disk)",
+    "y2": "rho = P2(cos theta) = (3 cos^2 theta - 1)/2 of the direction from the bounding-box centre, a degree-2 "
+    "spherical harmonic (exact phi = -rho/6 on the unit sphere)",
+    "source": "a unit point source at the free vertex nearest the bounding-box centre (rho = 1/area there, 0 "
+    "elsewhere): a discrete Green's function",
+}
+
+
+def _at_least(minimum: int):
+    """argparse type: an integer >= `minimum`."""
+
+    def parse(text: str) -> int:
+        value = int(text)
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _view(text: str) -> tuple[float, float]:
+    """argparse type for `--view`: two finite numbers separated by a comma."""
+    try:
+        azimuth, elevation = (float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected AZIMUTH,ELEVATION in degrees, e.g. -60,20, got {text!r}") from None
+    if not (np.isfinite(azimuth) and np.isfinite(elevation)):
+        raise argparse.ArgumentTypeError(f"expected finite angles, got {text!r}")
+    return azimuth, elevation
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options of `ddgjax poisson` to `parser` and make `run_poisson` its action."""
+    parser.formatter_class = argparse.ArgumentDefaultsHelpFormatter
+    parser.add_argument(
+        "mesh",
+        nargs="?",
+        default="disk",
+        help="built-in shape: " + ", ".join(f"{name} ({what})" for name, what in SHAPES.items()) + "; or a mesh file "
+        "(.obj, .off, .ply, .stl)",
+    )
+    parser.add_argument(
+        "--resolution",
+        type=_at_least(1),
+        default=None,
+        help="size of the built-in shape: rings of the disk (default 24: 1,801 vertices), subdivisions of the "
+        "icosphere (default 4: 2,562 vertices)",
+    )
+    problem = parser.add_mutually_exclusive_group()
+    problem.add_argument(
+        "--rho",
+        choices=RHOS,
+        default="auto",
+        help="right-hand side of Delta phi = rho: "
+        + "; ".join(f"{name}: {text}" for name, text in RHO_HELP.items())
+        + "; auto: one with Dirichlet boundary values, y2 otherwise",
+    )
+    problem.add_argument(
+        "--harmonic",
+        action="store_true",
+        help="harmonic interpolation instead (rho = 0): on a mesh with boundary, the boundary takes the values "
+        "(a^2 - b^2) / R^2 of the two longest bounding-box coordinates a, b about its centre (x^2 - y^2 on the "
+        "unit disk, whose harmonic extension is exact); on a closed mesh, the extreme vertices along the longest "
+        "bounding-box axis take 0 and 1",
+    )
+    parser.add_argument(
+        "--boundary",
+        choices=("dirichlet", "neumann"),
+        default="dirichlet",
+        help="boundary condition of the Poisson problem on a mesh with boundary: phi = 0 there (dirichlet), or "
+        "zero normal derivative (neumann: rho made compatible, zero-mean phi, as on a closed mesh)",
+    )
+    parser.add_argument("--mass", choices=("voronoi", "barycentric", "galerkin"), default="voronoi", help="mass matrix M")
+    parser.add_argument(
+        "--method",
+        choices=("auto", "cholesky", "cg"),
+        default="auto",
+        help="linear solver: cholesky (CHOLMOD through sparsax), cg (Jacobi-preconditioned conjugate gradient in "
+        "JAX), auto (cholesky on CPU when sparsax is installed)",
+    )
+    parser.add_argument(
+        "--view",
+        type=_view,
+        default=None,
+        metavar="AZIMUTH,ELEVATION",
+        help="camera angles of the figure in degrees; default: from above for a mesh flat in z, else -60,20",
+    )
+    parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the mesh's up axis in the figure (y for spot.obj)")
+    parser.add_argument("--output", "-o", default="ddgjax_poisson.png", help="PNG file to write the figure to")
+    parser.add_argument("--no-plot", action="store_true", help="print the table only, write no figure")
+    parser.set_defaults(run=run_poisson)
+
+
+class Problem(NamedTuple):
+    """What is solved: the mesh, the right-hand side, the Dirichlet data, and how to describe them."""
+
+    name: str  # the mesh, for the table and the title
+    mesh: Mesh
+    rho: np.ndarray  # (nv,) pointwise right-hand side (zeros for --harmonic)
+    fixed: np.ndarray  # (n_fixed,) Dirichlet vertices
+    values: np.ndarray  # (n_fixed,) their values
+    statement: str  # the equation and boundary condition, in words
+    exact: np.ndarray | None  # (nv,) exact solution at the vertices, where one is known
+    exact_name: str
+    source: int | None = None  # the vertex of a point source (--rho source)
+
+
+def _mesh(args) -> tuple[str, Mesh, str | None]:
+    """The mesh named by the positional argument: (description, mesh, built-in shape name or None)."""
+    if args.mesh in SHAPES:
+        resolution = args.resolution or DEFAULT_RESOLUTION[args.mesh]
+        if args.mesh == "disk":
+            return f"built-in disk(n_rings={resolution})", disk(resolution, dtype=jnp.float64), "disk"
+        return f"built-in icosphere(subdivisions={resolution})", icosphere(resolution, dtype=jnp.float64), "sphere"
+    if args.resolution is not None:
+        raise DDGInputError(f"--resolution: applies to the built-in shapes ({', '.join(SHAPES)}), not to the file {args.mesh!r}")
+    if not os.path.isfile(args.mesh):
+        raise DDGInputError(f"MESH: expected one of {', '.join(SHAPES)} or an existing mesh file, got {args.mesh!r}")
+    try:
+        mesh = load_mesh(args.mesh, dtype=jnp.float64)
+    except (DDGInputError, MeshDataError) as error:
+        raise type(error)(f"{args.mesh}: {error}") from error
+    return os.path.basename(args.mesh), mesh, None
+
+
+def _frame(vertices: np.ndarray, referenced: np.ndarray):
+    """Centre of the bounding box of the referenced vertices and its axes, longest first."""
+    low, high = vertices[referenced].min(axis=0), vertices[referenced].max(axis=0)
+    return (low + high) / 2, np.argsort(-(high - low), kind="stable")
+
+
+def _problem(args) -> Problem:
+    name, mesh, shape = _mesh(args)
+    topology = mesh.topology
+    vertices = np.asarray(mesh.vertices)
+    referenced = np.ones(mesh.n_vertices, dtype=bool)
+    referenced[topology.unreferenced_vertices] = False
+    centre, axes = _frame(vertices, referenced)
+    boundary = np.asarray(topology.boundary_vertices, dtype=np.int64)
+    zeros = np.zeros(mesh.n_vertices)
+    if args.harmonic:
+        if args.boundary != "dirichlet":
+            raise DDGInputError("--boundary: applies to the Poisson problem; --harmonic prescribes its own values")
+        if boundary.size:
+            a, b = (vertices[:, axes[:2]] - centre[axes[:2]]).T
+            data = (a**2 - b**2) / np.max(a[boundary] ** 2 + b[boundary] ** 2)
+            coordinates = "xyz"[axes[0]] + "^2 - " + "xyz"[axes[1]] + "^2"
+            statement = f"harmonic: L phi = 0 inside, phi = ({coordinates}) / R^2 on the {boundary.size} boundary vertices"
+            exact = data if shape == "disk" else None
+            return Problem(name, mesh, zeros, boundary, data[boundary], statement, exact, "(x^2 - y^2)")
+        along = np.where(referenced, vertices[:, axes[0]], np.nan)
+        ends = np.array([np.nanargmin(along), np.nanargmax(along)])
+        statement = f"harmonic: L phi = 0 except phi = 0, 1 at vertices {ends[0]}, {ends[1]} (extremes along {'xyz'[axes[0]]})"
+        return Problem(name, mesh, zeros, ends, np.array([0.0, 1.0]), statement, None, "")
+    fixed = boundary if args.boundary == "dirichlet" else np.zeros(0, dtype=np.int64)
+    rho_kind = args.rho if args.rho != "auto" else ("one" if fixed.size else "y2")
+    if rho_kind == "one" and not fixed.size:
+        raise DDGInputError(
+            "--rho one: without Dirichlet boundary values a constant right-hand side is removed by the compatibility "
+            "condition (int rho = 0) and the solution is 0; choose --rho y2 or source, or a mesh with boundary"
+        )
+    condition = f"phi = 0 on the {fixed.size} boundary vertices" if fixed.size else "zero-mean phi, rho made compatible"
+    if boundary.size and not fixed.size:
+        condition = "Neumann boundary, " + condition
+    exact, exact_name = None, ""
+    if rho_kind == "one":
+        rho, equation = -np.ones(mesh.n_vertices), "-Delta phi = 1 (rho = -1)"
+        if shape == "disk" and fixed.size:
+            exact, exact_name = (1 - np.sum(vertices[:, :2] ** 2, axis=1)) / 4, "(1 - r^2)/4"
+    elif rho_kind == "y2":
+        offsets = vertices - centre
+        norms = np.linalg.norm(offsets, axis=1)
+        cosine = np.divide(offsets[:, 2], norms, out=np.zeros_like(norms), where=norms > 0)
+        rho, equation = (3 * cosine**2 - 1) / 2, "Delta phi = P2(cos theta) (degree-2 spherical harmonic)"
+        if shape == "sphere":
+            exact, exact_name = -rho / 6, "(-P2/6)"
+    else:
+        free = referenced.copy()
+        free[fixed] = False
+        if not free.any():
+            raise DDGInputError("--rho source: every vertex is a Dirichlet vertex; there is nowhere to put the source")
+        distances = np.where(free, np.linalg.norm(vertices - centre, axis=1), np.inf)
+        source = int(np.argmin(distances))
+        area = float(mass_matrix(mesh, kind=args.mass).row_sums()[source])
+        rho = np.where(np.arange(mesh.n_vertices) == source, 1.0 / area, 0.0)
+        statement = f"Delta phi = delta at vertex {source}, {condition}"
+        return Problem(name, mesh, rho, fixed, np.zeros(fixed.size), statement, None, "", source)
+    return Problem(name, mesh, rho, fixed, np.zeros(fixed.size), f"{equation}, {condition}", exact, exact_name)
+
+
+@tuned_jit(static_argnames=("fixed", "mass", "method"))
+def _solve(mesh: Mesh, rho, values, *, fixed: tuple, mass: str, method: str) -> dict:
+    """The solution and what the table reports about it, in one compiled program.
+
+    `residual` is `|L phi + M rho~|` over the free vertices divided by the norm of the right-hand
+    side there (`M rho~` and the Dirichlet values' contribution `L phi_D`), with `rho~` the
+    compatible right-hand side (`_compatible`).
+    """
+    dirichlet = np.asarray(fixed, dtype=np.int64)
+    phi = solve_poisson(
+        mesh,
+        rho,
+        dirichlet_vertices=dirichlet if dirichlet.size else None,
+        dirichlet_values=values if dirichlet.size else None,
+        mass=mass,
+        method=method,
+    )
+    laplacian, mass_matrix_ = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+    free = np.ones(mesh.n_vertices, dtype=bool)
+    free[dirichlet] = False
+    free[mesh.topology.unreferenced_vertices] = False
+    compatible = _compatible(mesh, rho, mass_matrix_, dirichlet)
+    lift = jnp.zeros_like(phi).at[dirichlet].set(values)
+    residual = (laplacian @ phi + mass_matrix_ @ compatible)[free]
+    scale = jnp.linalg.norm((mass_matrix_ @ compatible - laplacian @ lift)[free])
+    return {
+        "phi": phi,
+        "rho": compatible,
+        "residual": jnp.linalg.norm(residual) / jnp.where(scale > 0, scale, 1.0),
+        "energy": poisson_energy(mesh, phi, compatible, mass=mass),
+        "dirichlet": dirichlet_energy(mesh, phi),
+    }
+
+
+def _compatible(mesh: Mesh, rho, mass_matrix_, dirichlet: np.ndarray):
+    """`rho` less its area-weighted mean on every connected component without a Dirichlet vertex.
+
+    What `solve_poisson` solves with, restated here from the mesh's components so that the residual
+    checks the library's answer instead of repeating its computation.
+    """
+    topology = mesh.topology
+    labels = np.full(mesh.n_vertices, topology.n_components, dtype=np.int64)  # unreferenced: a label of their own
+    labels[topology.faces.ravel()] = np.repeat(topology.face_components, 3)
+    floating = np.ones(topology.n_components + 1, dtype=bool)
+    floating[labels[dirichlet]] = False
+    floating[-1] = False
+    count = topology.n_components + 1
+    integral = jax.ops.segment_sum(mass_matrix_ @ rho, labels, count)
+    area = jax.ops.segment_sum(mass_matrix_.row_sums(), labels, count)
+    mean = jnp.where(floating, integral / jnp.where(area > 0, area, 1.0), 0.0)
+    return rho - mean[labels]
+
+
+def _solve_timed(problem: Problem, args) -> tuple[dict, float, float]:
+    """`_solve` twice: the outputs as NumPy arrays, the first call's time (compilation included), the second's."""
+    arguments = (problem.mesh, jnp.asarray(problem.rho), jnp.asarray(problem.values))
+    options = {"fixed": tuple(int(i) for i in problem.fixed), "mass": args.mass, "method": args.method}
+    times = []
+    # A failed solve raises from a JAX callback, which also logs the whole traceback; the command
+    # reports the reason itself (run_poisson).
+    callback_logger = logging.getLogger("jax._src.callback")
+    level = callback_logger.level
+    callback_logger.setLevel(logging.CRITICAL)
+    try:
+        for _ in range(2):
+            start = time.perf_counter()
+            outputs = jax.block_until_ready(_solve(*arguments, **options))
+            times.append(time.perf_counter() - start)
+    finally:
+        callback_logger.setLevel(level)
+    return jax.tree_util.tree_map(np.asarray, outputs), times[0], times[1]
+
+
+def _solver_name(method: str) -> str:
+    """The backend `linear_solve` runs for `--method`, in words (`"auto"` resolved as it resolves it)."""
+    from ..solve._linear import _has_sparsax
+
+    if method == "auto":
+        method = "cholesky" if jax.default_backend() == "cpu" and _has_sparsax() else "cg"
+    return SOLVERS[method]
+
+
+def format_table(problem: Problem, outputs: dict, first: float, second: float, args) -> str:
+    """The text `ddgjax poisson` prints: the mesh, the problem and the numbers of its solution."""
+    mesh, phi = problem.mesh, outputs["phi"]
+    loops = len(mesh.topology.boundary_loops)
+    rows = [
+        ("mesh", f"{problem.name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces, {loops} boundary loop{'s' * (loops != 1)}"),
+        ("problem", problem.statement),
+        ("solver", f"{_solver_name(args.method)}, {args.mass} mass matrix"),
+        ("time", f"{first:.3g} s first call (compilation included), {second * 1e3:.3g} ms again"),
+        ("relative residual", f"{float(outputs['residual']):.2e}  (|L phi + M rho| / |right-hand side| on the free vertices)"),
+        ("energy", f"{float(outputs['energy']):.10g}  (1/2 phi^T L phi + phi^T M rho, minimised by phi)"),
+        ("Dirichlet energy", f"{float(outputs['dirichlet']):.10g}  (1/2 int |grad phi|^2)"),
+        ("solution", f"min {phi.min():.6g}, max {phi.max():.6g}"),
+    ]
+    if problem.exact is not None:
+        error = np.abs(phi - problem.exact).max()
+        rows.append(("error", f"{error:.2e}  (max |phi - {problem.exact_name}| over the vertices)"))
+    width = max(len(label) for label, _ in rows) + 2
+    return "\n".join(f"{label:<{width}}{text}" for label, text in rows)
+
+
+def _figure(problem: Problem, outputs: dict, args):
+    """The solution on the mesh, beside its error (or the right-hand side, when no exact solution is known)."""
+    # Imported here: matplotlib is only needed when a figure is written (not for --no-plot or --help).
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ..plot import is_flat, plot_mesh_function
+
+    mesh, phi = problem.mesh, outputs["phi"]
+    # A point source's solution has a logarithmic spike at the source: colour the rest of it.
+    low = np.percentile(phi, 2) if problem.source is not None else None
+    title = "solution $\\phi$" + ("" if low is None else " (colours clipped below its 2nd percentile)")
+    panels = [(title, phi, "viridis", low, None)]
+    if problem.exact is not None:
+        panels.append((f"error $|\\phi - {problem.exact_name}|$", np.abs(phi - problem.exact), "magma", None, None))
+    elif problem.source is None and np.any(outputs["rho"]):
+        limit = np.abs(outputs["rho"]).max()
+        panels.append(("right-hand side $\\rho$ (made compatible)", outputs["rho"], "RdBu_r", -limit, limit))
+    figure = Figure(figsize=(5.6 * len(panels) + 1.0, 5.4), layout="constrained")
+    FigureCanvasAgg(figure)
+    isolines = args.view is None and args.up == "z" and is_flat(mesh)  # seen from above: the plane's own coordinates
+    for index, (title, values, cmap, vmin, vmax) in enumerate(panels):
+        axes = figure.add_subplot(1, len(panels), index + 1)
+        collection = plot_mesh_function(axes, mesh, values, view=args.view, up=args.up, cmap=cmap, vmin=vmin, vmax=vmax)
+        if index == 0 and isolines:
+            x, y = np.asarray(mesh.vertices)[:, :2].T
+            levels = np.linspace(low if low is not None else values.min(), values.max(), 14)[1:-1]
+            axes.tricontour(x, y, np.asarray(mesh.faces), values, levels=levels, colors="k", linewidths=0.5, linestyles="solid")
+        axes.set_title(title, fontsize=10)
+        figure.colorbar(collection, ax=axes, shrink=0.8, extend="min" if vmin is not None and cmap == "viridis" else "neither")
+    figure.suptitle(f"{problem.name}\n{problem.statement}", fontsize=10)
+    return figure
+
+
+def _first_reason(error: Exception) -> str:
+    """The message of a failed run, without the traceback JAX's callbacks wrap around it."""
+    text = str(error)
+    match = re.search(r"EquinoxRuntimeError: (.+)", text)
+    return match.group(1).strip() if match else text.strip().splitlines()[0]
+
+
+def run_poisson(args: argparse.Namespace) -> int:
+    """Action of `ddgjax poisson`: solve, print the table, write the figure; 2 on bad input, 1 on a failed solve."""
+    try:
+        problem = _problem(args)
+    except (OSError, DDGInputError, MeshDataError) as error:
+        print(f"ddgjax poisson: error: {error}", file=sys.stderr)
+        return 2
+    try:
+        outputs, first, second = _solve_timed(problem, args)
+    except (DDGInputError, MeshDataError) as error:
+        print(f"ddgjax poisson: error: {error}", file=sys.stderr)
+        return 2
+    except RuntimeError as error:  # a failed solve (ddgjax.RESULTS through equinox, or CHOLMOD from XLA)
+        other = "cg" if _solver_name(args.method).startswith("cholesky") else "cholesky"
+        print(
+            f"ddgjax poisson: error: the solve failed: {_first_reason(error)}\n"
+            f"(try --method {other}, or look for degenerate faces with `ddgjax info`)",
+            file=sys.stderr,
+        )
+        return 1
+    print(format_table(problem, outputs, first, second, args))
+    if not args.no_plot:
+        figure = _figure(problem, outputs, args)
+        try:
+            figure.savefig(args.output, dpi=110)
+        except OSError as error:
+            print(f"ddgjax poisson: error: --output: could not write {args.output!r}: {error}", file=sys.stderr)
+            return 2
+        print(f"figure written to {args.output}")
+    return 0
