@@ -27,6 +27,8 @@ References: the reading report, "The Poisson problem" (Crane's DDG notes, ch. 6)
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -74,10 +76,17 @@ def solve_poisson(
     dirichlet = _DirichletData(mesh, dirichlet_vertices, dirichlet_values, rho.shape[1:])
     if dirichlet.plan is None:  # every vertex prescribed: nothing to solve
         return jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
+    fixed_values = dirichlet.fixed_values(rho.dtype)
+    floating = dirichlet.floating[dirichlet.labels]  # vertices whose component has no Dirichlet vertex
+    return _solve(mesh, rho, fixed_values, dirichlet.plan, dirichlet.labels, floating, dirichlet.n_components, mass, method)
+
+
+# One compiled program per connectivity and size (the mesh's topology is static): an eager call does
+# not dispatch (and compile) each operation separately.
+@functools.partial(jax.jit, static_argnums=(6, 7, 8))
+def _solve(mesh, rho, fixed_values, plan, labels, floating, n_components, mass, method):
     laplacian, mass_matrix_ = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
     areas = mass_matrix_.row_sums()  # M 1: the area of each vertex (Galerkin rows sum to it too)
-    labels, n_components = dirichlet.labels, dirichlet.n_components
-    floating = dirichlet.floating[labels]  # vertices whose component has no Dirichlet vertex
     component_area = jax.ops.segment_sum(areas, labels, n_components)
 
     def component_mean(values):
@@ -87,11 +96,9 @@ def solve_poisson(
 
     compatible = rho - jnp.where(_broadcast(floating, rho), component_mean(rho), 0.0)
     rhs = -(mass_matrix_ @ compatible)
-    free_free, free_fixed = dirichlet_blocks(laplacian, dirichlet.plan)
-    fixed_values = dirichlet.fixed_values(rho.dtype)
-    free = dirichlet.plan.free
-    phi_free = linear_solve(free_free, rhs[free] - free_fixed @ fixed_values, method=method).value
-    phi = dirichlet.plan.join(phi_free, fixed_values)
+    free_free, free_fixed = dirichlet_blocks(laplacian, plan)
+    phi_free = linear_solve(free_free, rhs[plan.free] - free_fixed @ fixed_values, method=method).value
+    phi = plan.join(phi_free, fixed_values)
     return phi - jnp.where(_broadcast(floating, phi), component_mean(phi), 0.0)
 
 
