@@ -243,5 +243,7 @@ def test_right_hand_sides_with_zeros_and_float32_systems(method):
     assert linear_solve(A, jnp.zeros_like(b), method=method).result == RESULTS.successful
     # A float32 system keeps its dtype (CHOLMOD solves it in float64); float32 round-off sets the tolerances.
     single = SparseMatrix(A.values.astype(jnp.float32), A.pattern, symmetric=True, positive_semidefinite=True)
-    solution = jax.jit(lambda A, b: linear_solve(A, b, method=method, rtol=1e-6, residual_tolerance=1e-5))(single, b.astype(jnp.float32))
+    solution = jax.jit(lambda A, b: linear_solve(A, b, method=method, rtol=1e-6, residual_tolerance=1e-5))(
+        single, b.astype(jnp.float32)
+    )
     assert solution.value.dtype == jnp.float32 and solution.result == RESULTS.successful

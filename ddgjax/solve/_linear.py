@@ -4,7 +4,9 @@
 
 - `"cholesky"`: a sparse direct Cholesky factorisation on the host, CHOLMOD called through XLA's
   foreign-function interface by `sparsax` (so it runs inside `jit`, `lax.scan` and `vmap`, with no
-  Python round trip); the symbolic analysis of a pattern is computed once and cached.
+  Python round trip); the symbolic analysis of a pattern is computed once and cached. Installed by
+  the `cholmod` extra (`pip install "ddgjax[cholmod]"`): its wheels bundle GPL-2+ CHOLMOD modules,
+  so the MIT bare install leaves it out (benchmarks/README.md compares the candidates).
 - `"cg"`: a Jacobi-preconditioned conjugate gradient in pure JAX (`preconditioned_cg`), for any
   device and jit-only pipelines.
 
@@ -209,8 +211,8 @@ def _check(A, b, method, max_steps):
         )
     if method == "cholesky" and not _has_sparsax():
         raise DDGInputError(
-            "method: 'cholesky' needs the sparsax package (CHOLMOD through XLA FFI), which is not installed "
-            "for this platform; install it with `pip install sparsax`, or use method='cg'"
+            "method: 'cholesky' needs the sparsax package (CHOLMOD through XLA FFI), which is not installed; "
+            "install it with `pip install \"ddgjax[cholmod]\"` (its wheels bundle GPL-2+ CHOLMOD code), or use method='cg'"
         )
     if max_steps is None:
         max_steps = 10 * n_rows
