@@ -5,6 +5,7 @@ from __future__ import annotations
 import pathlib
 
 import jax
+import numpy as np
 import pytest
 
 jax.config.update("jax_enable_x64", True)
@@ -13,6 +14,16 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 MESHES = SHARED / "meshes"
 EXERCISES = SHARED / "reference" / "ddg-exercises"
+
+
+def read_ddg_reference(name: str) -> dict:
+    """`{tag: (rows, numbers) array}` of a DDG exercises reference file (`../shared/reference/ddg-exercises`,
+    FORMAT.md: one record a line, a tag then numbers); skips the test when `../shared` is absent."""
+    records: dict[str, list] = {}
+    for line in shared_path("reference", "ddg-exercises", name).read_text().splitlines():
+        tag, *numbers = line.split()
+        records.setdefault(tag, []).append([float(x) for x in numbers])
+    return {tag: np.array(rows) for tag, rows in records.items()}
 
 
 def shared_path(*parts: str) -> pathlib.Path:

@@ -24,7 +24,7 @@ from ddgjax.solve._energies import (
     screened_dirichlet_energy,
 )
 
-from conftest import shared_path
+from conftest import read_ddg_reference
 
 # Exact identities (autodiff gradient = the stated matrix formula) are checked to round-off: a
 # relative 1e-12 of the largest term, since L, M and the libigl matrices sum the same per-face terms
@@ -199,18 +199,10 @@ def test_minimiser_with_dirichlet_boundary_is_libigl_and_gpytoolbox_min_quad_wit
         np.testing.assert_allclose(grad[interior], 0, atol=1e-10 * scale)  # sparse direct solve round-off
 
 
-def _read_reference(path):
-    records: dict[str, list] = {}
-    for line in path.read_text().splitlines():
-        tag, *numbers = line.split()
-        records.setdefault(tag, []).append([float(x) for x in numbers])
-    return {tag: np.array(rows) for tag, rows in records.items()}
-
-
 def test_sign_matches_the_ddg_exercises_poisson_reference():
     """Crane's DDG exercises (test-spp-soln.txt) solve (L + 1e-8 I) phi = -M (rho - mean rho), M barycentric:
     the same Delta phi = rho, so the gradient of poisson_energy vanishes at their phi (up to -1e-8 phi)."""
-    data = _read_reference(shared_path("reference", "ddg-exercises", "test-spp-soln.txt"))
+    data = read_ddg_reference("test-spp-soln.txt")
     mesh = Mesh.from_arrays(data["v"], data["f"].astype(np.int64) - 1)
     mass, rho, phi = data["mass"][:, 0], data["rho"][:, 0], data["phi"][:, 0]
     # The reference's areas carry single-precision rounding (3.5e-8 relative here); its phi solves its

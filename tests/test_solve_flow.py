@@ -13,15 +13,7 @@ from ddgjax import DDGInputError
 from ddgjax.mesh import Mesh, enclosed_volume, icosphere, torus
 from ddgjax.solve._flow import MeanCurvatureFlowResult, mean_curvature_flow
 
-from conftest import shared_path
-
-
-def _read_reference(path):
-    records: dict[str, list] = {}
-    for line in path.read_text().splitlines():
-        tag, *numbers = line.split()
-        records.setdefault(tag, []).append([float(x) for x in numbers])
-    return {tag: np.array(rows) for tag, rows in records.items()}
+from conftest import read_ddg_reference
 
 
 @pytest.mark.parametrize("modified, tag", [(False, "mcf"), (True, "mmcf")])
@@ -30,7 +22,7 @@ def test_matches_the_ddg_exercises_reference(modified, tag):
     exercises' massMatrix), M and L rebuilt each step (mcf) or L frozen at the start and M rebuilt
     (mmcf, Kazhdan et al.), then translated so the unweighted vertex mean is 0. Their test asks each
     vertex to be within 1e-6; their input carries single-precision rounding, we are within ~1.5e-7."""
-    data = _read_reference(shared_path("reference", "ddg-exercises", "test-flow-soln.txt"))
+    data = read_ddg_reference("test-flow-soln.txt")
     mesh = Mesh.from_arrays(data["v"], data["f"].astype(np.int64) - 1)
     h, steps = float(data["h"][0, 0]), int(data["steps"][0, 0])
     result = mean_curvature_flow(mesh, h=h, steps=steps, modified=modified, mass="barycentric", shift=1e-8)

@@ -17,16 +17,8 @@ from ddgjax.dec import d0, d1, hodge_star_entries
 from ddgjax.mesh import Mesh, icosphere, torus
 from ddgjax.solve._hodge_decomposition import HodgeDecomposition, closed_cocycle_basis, hodge_decomposition
 
-from conftest import shared_path
+from conftest import read_ddg_reference
 from mesh_union import disjoint_union
-
-
-def _read_reference(path):
-    records: dict[str, list] = {}
-    for line in path.read_text().splitlines():
-        tag, *numbers = line.split()
-        records.setdefault(tag, []).append([float(x) for x in numbers])
-    return {tag: np.array(rows) for tag, rows in records.items()}
 
 
 def _ddg_edges(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -45,7 +37,7 @@ def _ddg_edges(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def reference():
-    data = _read_reference(shared_path("reference", "ddg-exercises", "test-decomp-soln.txt"))
+    data = read_ddg_reference("test-decomp-soln.txt")
     mesh = Mesh.from_arrays(data["v"], data["f"].astype(np.int64) - 1)
     index, sign = _ddg_edges(mesh)
     omega = np.zeros(mesh.n_edges)

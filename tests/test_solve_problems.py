@@ -15,22 +15,14 @@ from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import Mesh, disk, grid, icosphere
 from ddgjax.solve import harmonic_interpolation, solve_poisson
 
-from conftest import shared_path
+from conftest import read_ddg_reference, shared_path
 from mesh_union import disjoint_union
-
-
-def _read_reference(path):
-    records: dict[str, list] = {}
-    for line in path.read_text().splitlines():
-        tag, *numbers = line.split()
-        records.setdefault(tag, []).append([float(x) for x in numbers])
-    return {tag: np.array(rows) for tag, rows in records.items()}
 
 
 def test_poisson_matches_the_ddg_exercises_reference():
     """test-spp-soln.txt solves (L + 1e-8 I) phi = -M (rho - mean rho) with M barycentric: our zero-mean
     solution of L phi = -M rho equals theirs up to their constant (their regularisation picks one)."""
-    data = _read_reference(shared_path("reference", "ddg-exercises", "test-spp-soln.txt"))
+    data = read_ddg_reference("test-spp-soln.txt")
     mesh = Mesh.from_arrays(data["v"], data["f"].astype(np.int64) - 1)
     rho, expected = data["rho"][:, 0], data["phi"][:, 0]
     phi = np.asarray(solve_poisson(mesh, rho, mass="barycentric"))
