@@ -50,3 +50,26 @@ def _no_compilation_cache_in_the_home_directory(monkeypatch):
     """CLI tests must not write JAX's persistent cache under the user's home (tests that test the
     cache point it at a temporary directory themselves)."""
     monkeypatch.setenv("DDGJAX_COMPILATION_CACHE", "0")
+
+
+def run_cli(argv: list[str]) -> tuple[int, str, str]:
+    """`ddgjax.cli.main(argv)` with its exit status (also from SystemExit), stdout and stderr.
+
+    Without the persistent compilation cache: a test writes nothing to the user's cache directory
+    (tests/test_cli.py tests the cache).
+    """
+    import contextlib
+    import io
+    import os
+    from unittest import mock
+
+    from ddgjax._cli import CACHE_VARIABLE
+    from ddgjax.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with mock.patch.dict(os.environ, {CACHE_VARIABLE: "0"}), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            status = main(argv)
+        except SystemExit as exit_:
+            status = exit_.code
+    return status, out.getvalue(), err.getvalue()

@@ -2,37 +2,21 @@
 
 from __future__ import annotations
 
-import contextlib
-import io
-import os
 import re
-from unittest import mock
 
 import matplotlib.image
 import numpy as np
 import pytest
 
-from ddgjax._cli import CACHE_VARIABLE
-from ddgjax.cli import main
 from ddgjax.curves import figure3_polygon
+
+from conftest import run_cli
 
 SHORT = ["--steps", "40", "--save-every", "10"]
 INVARIANTS = ("total curvature", "centroid", "cyclic residual", "length", "area", "isoperimetric ratio", "simple")
 
 
-def _run(argv):
-    """`main(argv)` with its exit status (also from SystemExit), stdout and stderr.
-
-    Without the persistent compilation cache: a test writes nothing to the user's cache directory
-    (tests/test_cli.py tests the cache).
-    """
-    out, err = io.StringIO(), io.StringIO()
-    with mock.patch.dict(os.environ, {CACHE_VARIABLE: "0"}), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            status = main(argv)
-        except SystemExit as exit_:
-            status = exit_.code
-    return status, out.getvalue(), err.getvalue()
+_run = run_cli
 
 
 def _table(text):

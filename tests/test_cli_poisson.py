@@ -3,9 +3,6 @@ mesh figure it draws with (`ddgjax.plot.plot_mesh_function`)."""
 
 from __future__ import annotations
 
-import contextlib
-import io
-import os
 import re
 from unittest import mock
 
@@ -17,25 +14,15 @@ from matplotlib.collections import PolyCollection, TriMesh
 from matplotlib.figure import Figure
 
 from ddgjax import DDGInputError
-from ddgjax._cli import CACHE_VARIABLE
-from ddgjax.cli import main
 from ddgjax.mesh import disk, icosphere
 from ddgjax.plot import TOP_VIEW, is_flat, plot_mesh_function
 
-from conftest import shared_path
+from conftest import run_cli, shared_path
 
 ROWS = ("mesh", "problem", "solver", "time", "relative residual", "energy", "Dirichlet energy", "solution")
 
 
-def _run(argv):
-    """`main(argv)` with its exit status (also from SystemExit), stdout and stderr; no compilation cache."""
-    out, err = io.StringIO(), io.StringIO()
-    with mock.patch.dict(os.environ, {CACHE_VARIABLE: "0"}), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            status = main(argv)
-        except SystemExit as exit_:
-            status = exit_.code
-    return status, out.getvalue(), err.getvalue()
+_run = run_cli
 
 
 def _table(text: str) -> dict[str, str]:
