@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Inexact, Int
 
 
 def _row_gather(x, index, mode, fill_value=None):
@@ -27,12 +27,12 @@ def _row_gather(x, index, mode, fill_value=None):
     return jax.lax.gather(x, index[..., None], numbers, slice_sizes=(1, *rest), mode=mode, fill_value=fill_value)
 
 
-def take_rows(x: Float[Array, "n *rest"], index: Int[ArrayLike, "..."]) -> Float[Array, "... *rest"]:
+def take_rows(x: Inexact[Array, "n *rest"], index: Int[ArrayLike, "..."]) -> Inexact[Array, "... *rest"]:
     """`x[index]` for indices in `[0, n)`, promised in bounds (out-of-range indices are undefined behaviour)."""
     return _row_gather(x, index, jax.lax.GatherScatterMode.PROMISE_IN_BOUNDS)
 
 
-def take_rows_or_zero(x: Float[Array, "n *rest"], index: Int[ArrayLike, "..."]) -> Float[Array, "... *rest"]:
+def take_rows_or_zero(x: Inexact[Array, "n *rest"], index: Int[ArrayLike, "..."]) -> Inexact[Array, "... *rest"]:
     """`x[index]` for indices `>= 0`, where an index `>= n` (padding) reads 0: `jnp.take(x, index, axis=0,
     mode="fill", fill_value=0)` for non-negative indices."""
     return _row_gather(x, index, jax.lax.GatherScatterMode.FILL_OR_DROP, fill_value=0)

@@ -1,7 +1,7 @@
 """Tests for the algebraic-multigrid preconditioner (ddgjax.solve._amg): the V-cycle is symmetric positive
 definite, AMG-preconditioned CG reaches 1e-10 on camelhead's Dirichlet system in few iterations and
 agrees with SciPy's spsolve, jit / vmap equal eager, amg_refresh rebuilds the hierarchy inside jit,
-and the host pyamg path."""
+and linear_solve's AMG paths (JAX and host pyamg)."""
 
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ from ddgjax import DDGInputError
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, icosphere
+from ddgjax.solve import linear_solve
 from ddgjax.solve._amg import (
     amg_hierarchy,
     amg_preconditioner,
     amg_refresh,
     amg_v_cycle,
-    host_amg_cg,
 )
 from ddgjax.sparse import dirichlet_blocks, dirichlet_plan, from_scipy
 
@@ -160,16 +160,15 @@ def test_semidefinite_laplacian_gets_a_semidefinite_preconditioner():
     assert eigenvalues[0] > -1e-12 * eigenvalues[-1]
 
 
-def test_host_amg_cg_matches_spsolve(camelhead_block):
+def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead_block):
     A = camelhead_block
-    b = np.asarray(_rhs(A.shape[0]))
-    x, num_steps = host_amg_cg(A, b, rtol=1e-10)
-    assert np.linalg.norm(A.to_scipy() @ x - b) <= 1e-10 * np.linalg.norm(b)
-    assert num_steps <= 40  # measured: 18 (pyamg's default symmetric strength: 65)
-    expected = spla.spsolve(A.to_scipy().tocsc(), b)
-    np.testing.assert_allclose(x, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
-    x_scipy, _ = host_amg_cg(A.to_scipy(), b, rtol=1e-10)
-    np.testing.assert_allclose(x_scipy, x, rtol=0, atol=1e-10 * np.abs(expected).max())
+    b = _rhs(A.shape[0])
+    expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
+    # Pure-JAX CG with the V-cycle (hierarchy built inside linear_solve), and pyamg's CG on the host.
+    for options, most_steps in (({"method": "cg", "preconditioner": "amg"}, 40), ({"method": "pyamg"}, 40)):
+        solution = linear_solve(A, b, rtol=1e-10, **options)
+        assert solution.residual <= 1e-10 and 0 < int(solution.num_steps) <= most_steps  # measured: 28 and 18
+        np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 
 def test_float32_hierarchy_keeps_the_dtype():
@@ -201,8 +200,10 @@ def test_bad_input():
     refreshable = amg_hierarchy(A, max_coarse=30, refreshable=True)
     with pytest.raises(DDGInputError, match="pattern"):
         amg_refresh(refreshable, _heat_operator(icosphere(3)))
-    with pytest.raises(DDGInputError, match="b: expected shape"):
-        host_amg_cg(A, np.ones(3))
+    with pytest.raises(DDGInputError, match="preconditioner: 'amg' builds its hierarchy on the host"):
+        jax.jit(lambda A: linear_solve(A, jnp.ones(A.shape[0]), method="cg", preconditioner="amg").value)(A)
+    with pytest.raises(DDGInputError, match=r"preconditioner: an AMGHierarchy of shape \(642, 642\)"):
+        linear_solve(A, jnp.ones(A.shape[0]), preconditioner=amg_hierarchy(_heat_operator(icosphere(3))))
 
 
 def _skew(A):

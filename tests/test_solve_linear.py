@@ -1,5 +1,5 @@
-"""Tests for ddgjax.solve.linear_solve: both backends against SciPy, implicit derivatives against finite
-differences, jit / vmap / scan, and failures through the results convention."""
+"""Tests for ddgjax.solve.linear_solve: every backend against SciPy, implicit derivatives against finite
+differences, jit / vmap / scan, complex Hermitian systems, and failures through the results convention."""
 
 from __future__ import annotations
 
@@ -8,15 +8,30 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddgjax import RESULTS, DDGInputError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, icosphere
 from ddgjax.solve import factorize, linear_solve
+from ddgjax.solve._amg import amg_hierarchy
+from ddgjax.solve._linear import _real_form
 from ddgjax.sparse import SparseMatrix, from_scipy
 
-METHODS = ("cholesky", "cg")
+# Backends: the methods, and CG with the AMG V-cycle as preconditioner ("cg-amg").
+METHODS = ("cholesky", "superlu", "cg", "cg-amg", "pyamg")
+ITERATIVE = ("cg", "cg-amg", "pyamg")
+
+
+def _options(backend: str, A: SparseMatrix) -> dict:
+    """`linear_solve` keywords of a backend; the AMG hierarchy is built here, outside any trace."""
+    if backend == "cg-amg":
+        system = _real_form(A) if jnp.iscomplexobj(A.values) else A
+        return {"method": "cg", "preconditioner": amg_hierarchy(system, max_coarse=30)}
+    return {"method": backend}
+
+
 SPHERE = icosphere(2)
 DISK = disk(6)
 
@@ -40,16 +55,17 @@ def _rhs(n, seed=0, k=None):
 @pytest.mark.parametrize("method", METHODS + ("auto",))
 def test_solves_match_scipy_spsolve(method):
     for A in (_heat_operator(SPHERE), _dirichlet_block(DISK)[0]):
+        options = {"method": "auto"} if method == "auto" else _options(method, A)
         reference = A.to_scipy().tocsc()
         b = _rhs(A.shape[0])
-        solution = linear_solve(A, b, method=method)
+        solution = linear_solve(A, b, **options)
         assert solution.result == RESULTS.successful
         expected = spla.spsolve(reference, np.asarray(b))
         # CG stops at a relative residual of 1e-10; the error is that times the condition number at most.
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
         assert solution.residual < 1e-9
         B = _rhs(A.shape[0], seed=1, k=3)
-        block = linear_solve(A, B, method=method).value
+        block = linear_solve(A, B, **options).value
         assert block.shape == B.shape
         np.testing.assert_allclose(block, spla.spsolve(reference, np.asarray(B)), rtol=0, atol=1e-8 * np.abs(expected).max() * 10)
 
@@ -57,18 +73,19 @@ def test_solves_match_scipy_spsolve(method):
 @pytest.mark.parametrize("method", METHODS)
 def test_jit_vmap_and_scan(method):
     A = _heat_operator(SPHERE)
+    options = _options(method, A)
     b = _rhs(A.shape[0])
-    eager = linear_solve(A, b, method=method).value
-    jitted = jax.jit(lambda A, b: linear_solve(A, b, method=method).value)(A, b)
+    eager = linear_solve(A, b, **options).value
+    jitted = jax.jit(lambda A, b: linear_solve(A, b, **options).value)(A, b)
     np.testing.assert_allclose(jitted, eager, rtol=0, atol=1e-12)
     batch = jnp.stack([b, -2 * b])
-    batched = jax.vmap(lambda b: linear_solve(A, b, method=method).value)(batch)
+    batched = jax.vmap(lambda b: linear_solve(A, b, **options).value)(batch)
     np.testing.assert_allclose(batched[1], -2 * eager, rtol=0, atol=1e-10)
     # Ten implicit heat steps (M + t L) u_{k+1} = M u_k as one compiled scan, against SciPy's loop.
     M = mass_matrix(SPHERE)
 
     def step(u, _):
-        return linear_solve(A, M @ u, method=method).value, None
+        return linear_solve(A, M @ u, **options).value, None
 
     final, _ = jax.jit(lambda u: jax.lax.scan(step, u, None, length=10))(b)
     u, lu = np.asarray(b), spla.splu(A.to_scipy().tocsc())
@@ -80,7 +97,8 @@ def test_jit_vmap_and_scan(method):
 @pytest.mark.parametrize("method", METHODS)
 def test_a_kept_factorisation_solves_many_right_hand_sides(method):
     A = _heat_operator(SPHERE)
-    factorization = jax.jit(lambda A: factorize(A, method=method))(A)
+    options = _options(method, A)
+    factorization = jax.jit(lambda A: factorize(A, **options))(A)
     lu = spla.splu(A.to_scipy().tocsc())
     for seed, k in ((0, None), (1, 4)):
         b = _rhs(A.shape[0], seed, k)
@@ -97,11 +115,11 @@ def test_a_kept_factorisation_solves_many_right_hand_sides(method):
     for _ in range(100):
         u = lu.solve(M.to_scipy() @ u)
     # Each CG step stops at a relative residual of 1e-10; over 100 steps the errors add up to ~1e-8.
-    np.testing.assert_allclose(final, u, rtol=0, atol=(1e-9 if method == "cholesky" else 1e-7) * np.abs(u).max())
+    np.testing.assert_allclose(final, u, rtol=0, atol=(1e-7 if method in ITERATIVE else 1e-9) * np.abs(u).max())
 
     # Differentiable through the kept factorisation, in b and in the matrix values.
     def loss(values, b):
-        kept = factorize(SparseMatrix(values, A.pattern, symmetric=True), method=method)
+        kept = factorize(SparseMatrix(values, A.pattern, symmetric=True), **options)
         return jnp.sum(jnp.sin(kept.solve(b).value))
 
     b = _rhs(A.shape[0], 5)
@@ -124,10 +142,11 @@ def _symmetric_direction(A: SparseMatrix, seed: int) -> jax.Array:
 @pytest.mark.parametrize("method", METHODS)
 def test_gradients_in_b_and_values_match_finite_differences(method):
     A = _heat_operator(icosphere(1))
+    options = _options(method, A)
     b = _rhs(A.shape[0])
 
     def loss(values, b):
-        x = linear_solve(SparseMatrix(values, A.pattern, symmetric=True), b, method=method).value
+        x = linear_solve(SparseMatrix(values, A.pattern, symmetric=True), b, **options).value
         return jnp.sum(jnp.sin(x)) + 0.5 * jnp.sum(x * x)
 
     def dense_loss(matrix, b):
@@ -175,19 +194,20 @@ def test_cg_that_does_not_converge_is_reported():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_singular_system_with_incompatible_rhs_is_reported_not_hidden(method):
+    options = _options(method, cotan_laplacian(SPHERE))
     # A closed surface's Laplacian is singular (constants); a right-hand side with a nonzero mean has no solution.
     # CHOLMOD may also stop at the zero pivot ("not positive definite", an exception whatever `throw`
     # is) or round past it and return a non-solution, reported as `singular`: never a silent answer.
     L = cotan_laplacian(SPHERE)
     b = jnp.ones(SPHERE.n_vertices)
     try:
-        solution = linear_solve(L, b, method=method, throw=False, max_steps=200)
+        solution = linear_solve(L, b, **options, throw=False, max_steps=200)
     except ValueError as error:
         assert method == "cholesky" and "not positive definite" in str(error)
     else:
         assert solution.result != RESULTS.successful
     with pytest.raises((eqx.EquinoxRuntimeError, ValueError)):
-        linear_solve(L, b, method=method, max_steps=200)
+        linear_solve(L, b, **options, max_steps=200)
 
 
 def test_a_matrix_that_is_not_positive_definite_fails_the_factorisation():
@@ -204,8 +224,10 @@ def test_bad_input(without_type_checker):
         (lambda: linear_solve(SparseMatrix(A.values, A.pattern), b), "A: expected a symmetric matrix"),
         (lambda: linear_solve(A, b[:-1]), r"b: expected shape \(162,\) or \(162, k\), got \(161,\)"),
         (lambda: jax.jit(lambda b: linear_solve(A, b).value)(b[:-1]), r"b: expected shape \(162,\)"),
-        (lambda: linear_solve(A, b, method="lu"), "method: expected one of 'auto', 'cholesky', 'cg'"),
+        (lambda: linear_solve(A, b, method="lu"), "method: expected one of 'auto', 'cholesky', 'superlu', 'cg', 'pyamg'"),
         (lambda: linear_solve(A, b, method="cg", max_steps=0), "max_steps: expected an integer >= 1"),
+        (lambda: linear_solve(A, b, method="cg", preconditioner="ilu"), "preconditioner: expected one of 'jacobi', 'amg'"),
+        (lambda: linear_solve(A, b, method="superlu", preconditioner="amg"), "preconditioner: only method='cg'"),
     ]
     for call, message in cases:
         with pytest.raises(DDGInputError, match=message):
@@ -215,11 +237,12 @@ def test_bad_input(without_type_checker):
 @pytest.mark.parametrize("method", METHODS)
 def test_forward_mode_and_hessian_vector_products(method):
     A = _heat_operator(icosphere(1))
+    options = _options(method, A)
     b = _rhs(A.shape[0])
     direction = _symmetric_direction(A, 7)
 
     def loss(values, b):
-        return jnp.sum(jnp.sin(linear_solve(SparseMatrix(values, A.pattern, symmetric=True), b, method=method).value))
+        return jnp.sum(jnp.sin(linear_solve(SparseMatrix(values, A.pattern, symmetric=True), b, **options).value))
 
     def dense_loss(values, b):
         return jnp.sum(jnp.sin(jnp.linalg.solve(SparseMatrix(values, A.pattern).todense(), b)))
@@ -236,14 +259,66 @@ def test_forward_mode_and_hessian_vector_products(method):
 @pytest.mark.parametrize("method", METHODS)
 def test_right_hand_sides_with_zeros_and_float32_systems(method):
     A = _heat_operator(SPHERE)
+    single = SparseMatrix(A.values.astype(jnp.float32), A.pattern, symmetric=True, positive_semidefinite=True)
+    options = _options(method, single)
     # Exact zeros in b (a point source): a norm-wise stopping test, not an entrywise one.
     b = jnp.zeros(A.shape[0]).at[:3].set(1.0)
-    solution = linear_solve(A, b, method=method)
+    solution = linear_solve(A, b, **options)
     assert solution.result == RESULTS.successful and solution.residual < 1e-9
-    assert linear_solve(A, jnp.zeros_like(b), method=method).result == RESULTS.successful
+    assert linear_solve(A, jnp.zeros_like(b), **options).result == RESULTS.successful
     # A float32 system keeps its dtype (CHOLMOD solves it in float64); float32 round-off sets the tolerances.
-    single = SparseMatrix(A.values.astype(jnp.float32), A.pattern, symmetric=True, positive_semidefinite=True)
-    solution = jax.jit(lambda A, b: linear_solve(A, b, method=method, rtol=1e-6, residual_tolerance=1e-5))(
+    solution = jax.jit(lambda A, b: linear_solve(A, b, **options, rtol=1e-6, residual_tolerance=1e-5))(
         single, b.astype(jnp.float32)
     )
     assert solution.value.dtype == jnp.float32 and solution.result == RESULTS.successful
+
+
+def _connection_heat_operator(mesh, t=0.1, seed=0):
+    """`M + t L_theta`: the cotan Laplacian with each edge's weight turned by a random angle (antisymmetric),
+    the Laplacian of a random connection, so complex Hermitian positive semidefinite; plus the mass, definite."""
+    L = cotan_laplacian(mesh).to_scipy().tocoo()
+    n = mesh.n_vertices
+    angles = np.random.default_rng(seed).uniform(-np.pi, np.pi, (n, n))
+    angles = np.triu(angles, 1) - np.triu(angles, 1).T
+    connection = sp.coo_matrix((L.data * np.exp(1j * angles[L.row, L.col]), (L.row, L.col)), shape=L.shape)
+    return from_scipy(mass_matrix(mesh).to_scipy() + t * connection, positive_semidefinite=True)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_complex_hermitian_systems_match_scipy_and_differentiate(method):
+    A = _connection_heat_operator(icosphere(1))
+    assert A.hermitian and not A.symmetric
+    options = _options(method, A)
+    n = A.shape[0]
+    rng = np.random.default_rng(4)
+    b = jnp.asarray(rng.standard_normal((n, 2)) + 1j * rng.standard_normal((n, 2)))
+    expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
+    solution = linear_solve(A, b, **options)
+    assert solution.value.dtype == jnp.complex128 and solution.result == RESULTS.successful
+    np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
+    # A real matrix with a complex right-hand side: the real and imaginary parts as two real columns.
+    B = _heat_operator(icosphere(1))
+    np.testing.assert_allclose(
+        linear_solve(B, b[:, 0], **_options(method, B)).value,
+        spla.spsolve(B.to_scipy().tocsc(), np.asarray(b[:, 0])),
+        rtol=0,
+        atol=1e-8 * np.abs(expected).max(),
+    )
+
+    # Derivatives in the complex values and right-hand side against the dense complex solve.
+    def loss(values, b, solve):
+        x = solve(values, b)
+        return jnp.sum(jnp.abs(x) ** 2 + jnp.real(x) * jnp.imag(x))
+
+    ours = lambda values, b: linear_solve(SparseMatrix(values, A.pattern, hermitian=True), b, **options).value
+    dense = lambda values, b: jnp.linalg.solve(SparseMatrix(values, A.pattern).todense(), b)
+    direction = _rhs(A.pattern.nnz, 8) + 1j * _rhs(A.pattern.nnz, 9)
+    direction = 0.5 * (direction + SparseMatrix(direction, A.pattern).T.values.conj())  # stays Hermitian
+    db = jnp.asarray(rng.standard_normal((n, 2)) + 1j * rng.standard_normal((n, 2)))
+    tangents = (direction, db)
+    _, expected = jax.jvp(lambda v, b: loss(v, b, dense), (A.values, b), tangents)
+    _, derivative = jax.jvp(lambda v, b: loss(v, b, ours), (A.values, b), tangents)
+    np.testing.assert_allclose(derivative, expected, rtol=1e-7)
+    # Reverse mode: JAX's gradient g of a real function of complex inputs gives the derivative Re(sum(g * dz)).
+    grad_values, grad_b = jax.grad(lambda v, b: loss(v, b, ours), argnums=(0, 1))(A.values, b)
+    np.testing.assert_allclose(jnp.real(jnp.sum(grad_values * direction) + jnp.sum(grad_b * db)), expected, rtol=1e-7)

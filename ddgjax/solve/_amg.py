@@ -53,7 +53,6 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError, check_choice, is_traced
@@ -198,7 +197,7 @@ def amg_hierarchy(
     for name, value in (("steps", steps), ("max_coarse", max_coarse), ("max_levels", max_levels)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise DDGInputError(f"{name}: expected an integer >= 1, got {value!r}")
-    ml = _pyamg_solver(matrix, strength, int(max_coarse), int(max_levels))
+    ml = pyamg_solver(matrix, strength, int(max_coarse), int(max_levels))
     dtype = A.values.dtype
     operators, prolongators, galerkins = [A], [], []
     for level, coarser in zip(ml.levels[:-1], ml.levels[1:]):
@@ -292,47 +291,6 @@ def amg_preconditioner(hierarchy: AMGHierarchy) -> lx.FunctionLinearOperator:
     return lx.FunctionLinearOperator(
         lambda r: amg_v_cycle(hierarchy, r), structure, (lx.symmetric_tag, lx.positive_semidefinite_tag)
     )
-
-
-def host_amg_cg(
-    A: SparseMatrix | sp.spmatrix | sp.sparray,
-    b: Float[ArrayLike, " n"],
-    *,
-    rtol: float = 1e-10,
-    max_steps: int | None = None,
-    strength="evolution",
-    solver=None,
-) -> tuple[np.ndarray, int]:
-    """Solve `A x = b` on the host with SciPy's CG preconditioned by a pyamg smoothed-aggregation V-cycle.
-
-    For systems too large for a direct factorisation; NumPy in and out (not traceable, not
-    differentiable by itself). Stops at `|b - A x| <= rtol |b|` (2-norms). By default the hierarchy
-    is built here, `pyamg.smoothed_aggregation_solver(A, symmetry="hermitian", strength=strength,
-    max_coarse=500)`; its V-cycle (symmetric Gauss-Seidel smoothing) is SPD. `solver` passes a pyamg
-    `MultilevelSolver` of `A` instead, to reuse one across right-hand sides.
-
-    Returns:
-        `(x, num_steps)`: `x` of shape `(n,)` and the number of CG iterations. Raises `RuntimeError`
-        when the tolerance is not reached in `max_steps` (default `10 n`) iterations.
-
-    pyamg: `ml.solve(b, tol=rtol, accel="cg")`; SciPy: `scipy.sparse.linalg.cg(A, b, M=ml.aspreconditioner())`.
-    """
-    matrix = _host_matrix(A)
-    b = np.asarray(b)
-    if b.shape != (matrix.shape[0],):
-        raise DDGInputError(f"b: expected shape ({matrix.shape[0]},), got {b.shape}")
-    if solver is None:
-        solver = _pyamg_solver(matrix, strength, 500, 10)
-    max_steps = 10 * matrix.shape[0] if max_steps is None else int(max_steps)
-    count = [0]
-
-    def counter(_):
-        count[0] += 1
-
-    x, info = spla.cg(matrix, b, rtol=rtol, atol=0.0, maxiter=max_steps, M=solver.aspreconditioner(cycle="V"), callback=counter)
-    if info != 0:
-        raise RuntimeError(f"host_amg_cg: CG did not reach rtol={rtol:g} in {max_steps} iterations")
-    return x, count[0]
 
 
 def _cycle(levels, coarse_inverse, r):
@@ -463,7 +421,7 @@ def _ones(matrix: _HostSparse) -> sp.csr_matrix:
     return sp.csr_matrix((np.ones(matrix.nnz), matrix.indices, matrix.indptr), shape=matrix.shape)
 
 
-def _pyamg_solver(matrix: _HostSparse, strength, max_coarse: int, max_levels: int):
+def pyamg_solver(matrix: _HostSparse, strength="evolution", max_coarse: int = 500, max_levels: int = 10):
     """pyamg's smoothed-aggregation solver, in float64 (some of pyamg's kernels exist for no other real
     type), made deterministic.
 

@@ -1,38 +1,60 @@
-"""Differentiable solves of symmetric positive definite sparse systems `A x = b`.
+"""Differentiable solves of symmetric (Hermitian) positive definite sparse systems `A x = b`.
 
-`linear_solve(A, b)` solves with one of two backends, chosen by `method=`:
+`linear_solve(A, b)` solves with one of four backends, chosen by `method=`:
 
 - `"cholesky"`: a sparse direct Cholesky factorisation on the host, CHOLMOD called through XLA's
   foreign-function interface by `sparsax` (so it runs inside `jit`, `lax.scan` and `vmap`, with no
   Python round trip); the symbolic analysis of a pattern is computed once and cached. Installed by
   the `cholmod` extra (`pip install "ddgjax[cholmod]"`): its wheels bundle GPL-2+ CHOLMOD modules,
   so the MIT bare install leaves it out (benchmarks/README.md compares the candidates).
-- `"cg"`: a Jacobi-preconditioned conjugate gradient in pure JAX (`preconditioned_cg`), for any
-  device and jit-only pipelines.
+- `"superlu"`: SciPy's SuperLU in symmetric mode on the host, through `jax.pure_callback`: the
+  direct solver of the bare install (`ddgjax.solve._host`).
+- `"cg"`: a preconditioned conjugate gradient in pure JAX (`preconditioned_cg`), for any device and
+  jit-only pipelines; the preconditioner is Jacobi (`diag(A)^{-1}`) or an algebraic-multigrid
+  V-cycle (`preconditioner="amg"` or an `AMGHierarchy`; `ddgjax.solve._amg`), which keeps the
+  iteration count nearly independent of the mesh size and of its bad triangles.
+- `"pyamg"`: SciPy's CG preconditioned by pyamg's V-cycle on the host, for systems too large to
+  factor.
 
-Both are differentiable with respect to `b` and to the matrix values by implicit differentiation
-(`jax.lax.custom_linear_solve`): with `x = A^{-1} b`, the tangent is `dx = A^{-1} (db - dA x)` and,
-`A` being symmetric, the cotangent `g` of `x` gives the adjoint `lambda = A^{-1} g` and
+`"auto"` takes `"cholesky"` on a CPU backend where `sparsax` is installed (and float64 is on),
+`"superlu"` on other CPU setups, and `"cg"` on an accelerator, with the AMG preconditioner when the
+matrix values are concrete (the hierarchy is built on the host) and Jacobi inside a trace.
+
+Every backend is differentiable with respect to `b` and to the matrix values by implicit
+differentiation (`jax.lax.custom_linear_solve`): with `x = A^{-1} b`, the tangent is
+`dx = A^{-1} (db - dA x)` and, `A` being symmetric, the cotangent `g` of `x` gives the adjoint
+`lambda = A^{-1} g` and
 
     b_bar = lambda,    A_bar[i, j] = -lambda_i x_j   (on the stored positions only),
 
-each one more solve with the same backend (the same CHOLMOD factor). Forward and reverse mode to
-any order (`jax.jvp`, `jax.grad`, Hessian-vector products), `vmap`, `jit` and `lax.scan`. Gradients
-with respect to vertex positions follow by the chain rule through the assembly of `A`'s values
+each one more solve with the same backend (the same factor). Forward and reverse mode to any order
+(`jax.jvp`, `jax.grad`, Hessian-vector products), `vmap`, `jit` and `lax.scan`. Gradients with
+respect to vertex positions follow by the chain rule through the assembly of `A`'s values
 (`cotan_laplacian`, `mass_matrix`).
 
+Complex Hermitian systems (`A.hermitian`, e.g. a connection Laplacian) are solved as the real
+symmetric system of twice the size,
+
+    [Re A  -Im A] [Re x]   [Re b]
+    [Im A   Re A] [Im x] = [Im b],
+
+positive definite exactly when `A` is, so every backend and its derivatives serve them unchanged.
+A complex `b` with a real `A` is solved as two real columns.
+
 Failures that depend on the values follow the results convention (`ddgjax.RESULTS`): a CG that
-did not reach its tolerance in `max_steps` (`max_steps_reached`), a solution whose relative
-residual `|A x - b| / |b|` exceeds `residual_tolerance` (`singular`: the matrix is singular or too
-ill-conditioned for the backend), or non-finite values (`nonfinite`). With `throw=True` (default)
-they raise through `equinox.error_if`; with `throw=False` the caller inspects `result`. A matrix
-that is not positive definite fails CHOLMOD's factorisation, which raises from the XLA runtime
-whatever `throw` is (CHOLMOD reports the failing column).
+did not reach its tolerance in `max_steps` (`max_steps_reached`), a factorisation that failed or a
+solution whose relative residual `|A x - b| / |b|` exceeds `residual_tolerance` (`singular`: the
+matrix is singular or too ill-conditioned for the backend), or non-finite values (`nonfinite`).
+With `throw=True` (default) they raise through `equinox.error_if`; with `throw=False` the caller
+inspects `result`. A matrix that is not positive definite fails CHOLMOD's factorisation, which
+raises from the XLA runtime whatever `throw` is (CHOLMOD reports the failing column).
 
 References: M. B. Giles, "Collected matrix derivative results for forward and reverse mode
 algorithmic differentiation" (2008), for `A_bar = -lambda x^T`; lineax (P. Kidger et al.) for the
-results convention; Y. Chen, T. A. Davis et al., "CHOLMOD" (2008).
-SciPy: `scipy.sparse.linalg.spsolve` / `cg`; libigl: `min_quad_with_fixed` for the Dirichlet blocks.
+results convention; Y. Chen, T. A. Davis et al., "CHOLMOD" (2008); X. S. Li, "An overview of
+SuperLU" (2005).
+SciPy: `scipy.sparse.linalg.spsolve` / `splu` / `cg`; libigl: `min_quad_with_fixed` for the
+Dirichlet blocks.
 """
 
 from __future__ import annotations
@@ -43,27 +65,30 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Inexact, Int
 
-from .._errors import DDGInputError, check_choice
+from .._errors import DDGInputError, check_choice, is_traced
 from .._results import RESULTS, raise_if_failed
-from ..sparse import SparseMatrix
+from ..sparse import SparseMatrix, SparsityPattern
+from ._amg import AMGHierarchy, amg_hierarchy, amg_v_cycle
+from ._host import HOST_METHODS, host_factor, host_solve
 
-METHODS = ("auto", "cholesky", "cg")
+METHODS = ("auto", "cholesky", "superlu", "cg", "pyamg")
+PRECONDITIONERS = ("jacobi", "amg")
 
 
 class LinearSolution(eqx.Module):
     """The answer of `linear_solve`: the solution, the outcome and what the solver did.
 
     Attributes:
-        value: `x`, the shape of `b` (`(n,)` or `(n, k)`).
+        value: `x`, the shape of `b` (`(n,)` or `(n, k)`), complex when `A` or `b` is.
         result: an item of `ddgjax.RESULTS` (`RESULTS.successful` when `x` solves the system).
         residual: `|A x - b| / |b|` (Frobenius norms for a block `b`; 0 for `b = 0`).
-        num_steps: CG iterations (the largest over the columns of a block); 0 for `"cholesky"`.
+        num_steps: CG iterations (the largest over the columns of a block); 0 for a direct solve.
         method: the backend that ran (static).
     """
 
-    value: Float[Array, "n *k"]
+    value: Inexact[Array, "n *k"]
     result: RESULTS
     residual: Float[Array, ""]
     num_steps: Int[Array, ""]
@@ -72,24 +97,28 @@ class LinearSolution(eqx.Module):
 
 def linear_solve(
     A: SparseMatrix,
-    b: Float[ArrayLike, "n *k"],
+    b: Inexact[ArrayLike, "n *k"],
     *,
     method: str = "auto",
+    preconditioner: str | AMGHierarchy | None = None,
     rtol: float = 1e-10,
     max_steps: int | None = None,
     residual_tolerance: float = 1e-6,
     throw: bool = True,
 ) -> LinearSolution:
-    """Solve `A x = b` for a symmetric positive definite `SparseMatrix` `A`, differentiably.
+    """Solve `A x = b` for a symmetric (or complex Hermitian) positive definite `SparseMatrix` `A`, differentiably.
 
     Args:
-        A: `(n, n)` `SparseMatrix` flagged symmetric (e.g. `cotan_laplacian`, `mass_matrix`,
-            `M + t * L`, a free-free Dirichlet block); positive definite by the caller's promise.
-        b: `(n,)` or `(n, k)` right-hand side(s).
-        method: `"cholesky"` (host CHOLMOD through `sparsax`), `"cg"` (pure-JAX Jacobi-preconditioned
-            conjugate gradient) or `"auto"` (`"cholesky"` on a CPU backend where `sparsax` is
-            installed, `"cg"` elsewhere).
-        rtol: relative tolerance of the CG (`|r| <= rtol |b|`); the direct solve ignores it.
+        A: `(n, n)` `SparseMatrix` flagged symmetric, or complex and flagged Hermitian (e.g.
+            `cotan_laplacian`, `mass_matrix`, `M + t * L`, a free-free Dirichlet block); positive
+            definite by the caller's promise.
+        b: `(n,)` or `(n, k)` right-hand side(s), real or complex.
+        method: `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"` or `"auto"` (module docstring).
+        preconditioner: for `"cg"`: `"jacobi"` (default), `"amg"` (a smoothed-aggregation hierarchy
+            built on the host from `A`'s concrete values) or an `AMGHierarchy` from `amg_hierarchy`
+            (built once outside `jit`, passed in; for a complex `A`, of its real form above). Giving
+            one with `method="auto"` selects `"cg"`.
+        rtol: relative tolerance of the CG methods (`|r| <= rtol |b|`); the direct solves ignore it.
         max_steps: CG iteration limit (default `10 n`).
         residual_tolerance: a solution with a larger relative residual is reported as `singular`.
         throw: raise on failure (default) or return the `LinearSolution` to inspect.
@@ -98,93 +127,125 @@ def linear_solve(
         `LinearSolution` with `value` the shape of `b`.
 
     Differentiable in `b` and `A.values` (module docstring), under `jit`, `grad`, `vmap` and inside
-    `lax.scan`. SciPy: `scipy.sparse.linalg.spsolve(A.to_scipy(), b)`.
+    `lax.scan`. Equal to `factorize(A, ...).solve(b)`. SciPy: `scipy.sparse.linalg.spsolve(A.to_scipy(), b)`.
     """
-    method, max_steps, b = _check(A, b, method, max_steps)
-    options = (method, float(rtol), max_steps)
-    value, stats = _solve_factored(options, A, None, b)
-    return _solution(A, b, value, stats, method, residual_tolerance, throw)
-
-
-def _solution(A, b, value, stats, method, residual_tolerance, throw) -> LinearSolution:
-    """The `LinearSolution` of a computed `value`: its residual and outcome (`RESULTS`), raised if `throw`."""
-    residual = _relative_residual(A, value, b)
-    num_steps, converged = (jnp.asarray(stat) for stat in stats)
-    result = RESULTS.where(
-        ~jnp.all(jnp.isfinite(value)),
-        RESULTS.nonfinite,
-        RESULTS.where(
-            ~converged,
-            RESULTS.max_steps_reached,
-            RESULTS.where(residual > residual_tolerance, RESULTS.singular, RESULTS.successful),
-        ),
+    _check_matrix(A)
+    _check_rhs(A, b)
+    factorization = factorize(
+        A,
+        method=method,
+        preconditioner=preconditioner,
+        rtol=rtol,
+        max_steps=max_steps,
+        residual_tolerance=residual_tolerance,
     )
-    solution = LinearSolution(value=value, result=result, residual=residual, num_steps=num_steps, method=method)
-    return raise_if_failed(solution, result, throw)
+    return factorization.solve(b, throw=throw)
 
 
 class Factorization(eqx.Module):
-    """A factorisation of a symmetric positive definite `SparseMatrix`, kept for many right-hand sides.
+    """A factorisation of a symmetric (Hermitian) positive definite `SparseMatrix`, kept for many right-hand sides.
 
     Made by `factorize(A, method=...)`; `factorization.solve(b)` solves `A x = b` reusing it, with
-    the same differentiation rules as `linear_solve` (tangent and adjoint solves reuse the factor). For
-    `"cholesky"` the numeric CHOLMOD factor is held by `sparsax` and referenced by `token`; its cache
-    keeps a bounded number of factors per sparsity pattern (`sparsax.set_num_cache_size`), and a
-    token whose factor was evicted raises when used, it never answers wrongly. For `"cg"` there is
-    nothing to factor: `solve` runs the preconditioned iteration.
+    the same differentiation rules as `linear_solve` (tangent and adjoint solves reuse the factor).
+    What is kept: for `"cholesky"` the numeric CHOLMOD factor, held by `sparsax` and referenced by
+    `token` (its cache keeps a bounded number of factors per sparsity pattern,
+    `sparsax.set_num_cache_size`; a token whose factor was evicted raises when used, it never
+    answers wrongly); for `"superlu"` and `"pyamg"` the SuperLU factors or the pyamg hierarchy on
+    the host, under `token` (an evicted one is made again); for `"cg"` the AMG `hierarchy` (or only
+    the Jacobi diagonal, computed in `solve`).
 
     Attributes:
-        matrix: the `SparseMatrix` `A`.
-        token: CHOLMOD factor reference (`"cholesky"`), else `None`.
-        method, rtol, max_steps, residual_tolerance: as given to `factorize` (static).
+        system: the real symmetric matrix that is solved: `A` itself, or the real form of a complex `A`
+            (module docstring).
+        token: the host factor's reference (`"cholesky"`, `"superlu"`, `"pyamg"`), else `None`.
+        hierarchy: the AMG hierarchy of `system` (`"cg"` with an AMG preconditioner), else `None`.
+        method, complex_dtype (`A`'s dtype when complex, else `None`), rtol, max_steps,
+        residual_tolerance: static.
     """
 
-    matrix: SparseMatrix
-    token: Int[Array, "2"] | None
+    system: SparseMatrix
+    token: Int[Array, "..."] | None
+    hierarchy: AMGHierarchy | None
     method: str = eqx.field(static=True)
+    complex_dtype: np.dtype | None = eqx.field(static=True)
     rtol: float = eqx.field(static=True)
     max_steps: int = eqx.field(static=True)
     residual_tolerance: float = eqx.field(static=True)
 
-    def solve(self, b: Float[ArrayLike, "n *k"], *, throw: bool = True) -> LinearSolution:
+    def solve(self, b: Inexact[ArrayLike, "n *k"], *, throw: bool = True) -> LinearSolution:
         """Solve `A x = b` for `b` of shape `(n,)` or `(n, k)`, reusing the factorisation."""
-        A = self.matrix
-        _, _, b = _check(A, b, self.method, self.max_steps)
-        options = (self.method, self.rtol, self.max_steps)
-        value, stats = _solve_factored(options, A, self.token, b)
-        return _solution(A, b, value, stats, self.method, self.residual_tolerance, throw)
+        n = self.system.shape[0] // (1 if self.complex_dtype is None else 2)
+        b = _check_rhs_shape(n, b)
+        if self.complex_dtype is not None:
+            b = b.astype(jnp.result_type(b.dtype, self.complex_dtype))
+            rhs = jnp.concatenate([b.real, b.imag])
+        elif jnp.iscomplexobj(b):  # a real A: the real and imaginary parts are two real columns
+            rhs = jnp.stack([b.real, b.imag], axis=-1).reshape(n, -1)
+        else:
+            rhs = b if jnp.issubdtype(b.dtype, jnp.floating) else b.astype(self.system.values.dtype)
+        value, stats = _solve_factored(self, rhs)
+        solution = _solution(self.system, rhs, value, stats, self.method, self.residual_tolerance)
+        if self.complex_dtype is not None:
+            value = jax.lax.complex(value[:n], value[n:])
+        elif jnp.iscomplexobj(b):
+            value = value.reshape(b.shape + (2,))
+            value = jax.lax.complex(value[..., 0], value[..., 1])
+        return raise_if_failed(eqx.tree_at(lambda s: s.value, solution, value), solution.result, throw)
 
 
 def factorize(
     A: SparseMatrix,
     *,
     method: str = "auto",
+    preconditioner: str | AMGHierarchy | None = None,
     rtol: float = 1e-10,
     max_steps: int | None = None,
     residual_tolerance: float = 1e-6,
 ) -> Factorization:
-    """Factor a symmetric positive definite `SparseMatrix` once, for `Factorization.solve(b)` many times.
+    """Factor a symmetric (Hermitian) positive definite `SparseMatrix` once, for `Factorization.solve(b)` many times.
 
-    Options as in `linear_solve`. Works inside `jit` (the factor is made when the program runs) and
-    differentiably (through `Factorization.solve`). A matrix that is not positive definite fails
-    CHOLMOD's factorisation, which raises from the XLA runtime.
+    Options as in `linear_solve`. Works inside `jit` (the factor is made when the program runs; an
+    AMG preconditioner needs concrete values, or a hierarchy passed in) and differentiably (through
+    `Factorization.solve`). A matrix that is not positive definite fails CHOLMOD's factorisation,
+    which raises from the XLA runtime.
     SciPy: `scipy.sparse.linalg.splu(A).solve`; cholespy: `CholeskySolverD(...).solve`.
     """
-    method, max_steps, _ = _check(A, jnp.zeros(A.shape[0], A.values.dtype), method, max_steps)
-    token = None
+    _check_matrix(A)
+    complex_dtype = A.values.dtype if jnp.iscomplexobj(A.values) else None
+    system = _real_form(A) if complex_dtype is not None else A
+    method, preconditioner = _choose(method, preconditioner, system)
+    if max_steps is None:
+        max_steps = 10 * A.shape[0]
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise DDGInputError(f"max_steps: expected an integer >= 1, got {max_steps!r}")
+    values = jax.lax.stop_gradient(system.values)
+    token, hierarchy = None, None
     if method == "cholesky":
-        token = _cholmod_factor(A.pattern, jax.lax.stop_gradient(A.values))
+        token = _cholmod_factor(system.pattern, values)
+    elif method in HOST_METHODS:
+        token = host_factor(method, system.pattern, values)
+    elif isinstance(preconditioner, AMGHierarchy):
+        if preconditioner.shape != system.shape:
+            raise DDGInputError(
+                f"preconditioner: an AMGHierarchy of shape {preconditioner.shape} for a system of shape {system.shape}"
+                + (" (a complex A is solved in its real form of twice the size)" if complex_dtype is not None else "")
+            )
+        hierarchy = preconditioner
+    elif preconditioner == "amg":
+        hierarchy = amg_hierarchy(SparseMatrix(values, system.pattern, symmetric=True))
     return Factorization(
-        matrix=A,
+        system=system,
         token=token,
+        hierarchy=hierarchy,
         method=method,
+        complex_dtype=complex_dtype,
         rtol=float(rtol),
-        max_steps=max_steps,
+        max_steps=int(max_steps),
         residual_tolerance=float(residual_tolerance),
     )
 
 
-def _check(A, b, method, max_steps):
+def _check_matrix(A) -> None:
     if not isinstance(A, SparseMatrix):
         raise DDGInputError(
             f"A: expected a ddgjax SparseMatrix (e.g. cotan_laplacian(mesh) or ddgjax.sparse.from_scipy(matrix)), "
@@ -193,35 +254,90 @@ def _check(A, b, method, max_steps):
     n_rows, n_cols = A.shape
     if n_rows != n_cols:
         raise DDGInputError(f"A: expected a square matrix, got shape {A.shape}")
-    if not A.symmetric:
+    if not A.self_adjoint:
         raise DDGInputError(
-            "A: expected a symmetric matrix (flagged `symmetric`, as the Laplacian and mass matrices are); "
-            "linear_solve solves symmetric positive definite systems"
+            "A: expected a symmetric matrix (flagged `symmetric`, as the Laplacian and mass matrices are), or a complex "
+            "one flagged `hermitian`; linear_solve solves symmetric (Hermitian) positive definite systems"
         )
-    if np.ndim(b) not in (1, 2) or np.shape(b)[0] != n_rows:
-        raise DDGInputError(f"b: expected shape ({n_rows},) or ({n_rows}, k), got {np.shape(b)}")
+
+
+def _check_rhs(A: SparseMatrix, b) -> None:
+    _check_rhs_shape(A.shape[0], b)
+
+
+def _check_rhs_shape(n: int, b) -> Inexact[Array, "n *k"]:
+    if np.ndim(b) not in (1, 2) or np.shape(b)[0] != n:
+        raise DDGInputError(f"b: expected shape ({n},) or ({n}, k), got {np.shape(b)}")
+    return jnp.asarray(b)
+
+
+def _choose(method, preconditioner, system: SparseMatrix) -> tuple[str, str | AMGHierarchy | None]:
+    """The backend and the CG preconditioner that run, `"auto"` resolved (module docstring), or `DDGInputError`."""
     check_choice("method", method, METHODS)
+    if preconditioner is not None and not isinstance(preconditioner, AMGHierarchy):
+        check_choice("preconditioner", preconditioner, PRECONDITIONERS)
     if method == "auto":
-        direct = jax.default_backend() == "cpu" and _has_sparsax() and jax.config.jax_enable_x64
-        method = "cholesky" if direct else "cg"
+        if preconditioner is not None or jax.default_backend() != "cpu":
+            method = "cg"
+        else:
+            method = "cholesky" if _has_sparsax() and jax.config.jax_enable_x64 else "superlu"
+        if method == "cg" and preconditioner is None:
+            preconditioner = "jacobi" if is_traced(system.values) else "amg"
+    if method != "cg" and preconditioner is not None:
+        raise DDGInputError(f"preconditioner: only method='cg' takes a preconditioner; method={method!r} does not")
     if method == "cholesky" and not jax.config.jax_enable_x64:
         raise DDGInputError(
             "method: 'cholesky' works in float64, which JAX has off; enable it with "
-            "jax.config.update('jax_enable_x64', True), or use method='cg'"
+            "jax.config.update('jax_enable_x64', True), or use method='superlu' or 'cg'"
         )
     if method == "cholesky" and not _has_sparsax():
         raise DDGInputError(
             "method: 'cholesky' needs the sparsax package (CHOLMOD through XLA FFI), which is not installed; "
-            "install it with `pip install \"ddgjax[cholmod]\"` (its wheels bundle GPL-2+ CHOLMOD code), or use method='cg'"
+            'install it with `pip install "ddgjax[cholmod]"` (its wheels bundle GPL-2+ CHOLMOD code), or use '
+            "method='superlu' (SciPy) or 'cg'"
         )
-    if max_steps is None:
-        max_steps = 10 * n_rows
-    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise DDGInputError(f"max_steps: expected an integer >= 1, got {max_steps!r}")
-    b = jnp.asarray(b)
-    if not jnp.issubdtype(b.dtype, jnp.floating):
-        b = b.astype(A.values.dtype)
-    return method, int(max_steps), b
+    if preconditioner == "amg" and is_traced(system.values):
+        raise DDGInputError(
+            "preconditioner: 'amg' builds its hierarchy on the host from concrete matrix values, and these are traced; "
+            "build it outside jit with ddgjax.solve.amg_hierarchy(A) and pass preconditioner=hierarchy "
+            "(amg_refresh updates it inside jit), or use preconditioner='jacobi'"
+        )
+    return method, "jacobi" if method == "cg" and preconditioner is None else preconditioner
+
+
+def _real_form(A: SparseMatrix) -> SparseMatrix:
+    """The real symmetric `(2n, 2n)` matrix `[[Re A, -Im A], [Im A, Re A]]` of a complex Hermitian `A` (module docstring).
+
+    On a COO pattern of the four blocks' copies of `A`'s slots, built with JAX operations, so it
+    works on traced patterns too; linear in `A.values`.
+    """
+    pattern, n = A.pattern, A.shape[0]
+    rows = jnp.concatenate([pattern.rows, pattern.rows, pattern.rows + n, pattern.rows + n])
+    cols = jnp.concatenate([pattern.cols, pattern.cols + n, pattern.cols, pattern.cols + n])
+    real_pattern = SparsityPattern(rows=rows, cols=cols, indptr=None, shape=(2 * n, 2 * n), layout="coo", symmetric=True)
+    re, im = A.values.real, A.values.imag
+    values = jnp.concatenate([re, -im, im, re])
+    return SparseMatrix(values, real_pattern, symmetric=True, positive_semidefinite=A.positive_semidefinite)
+
+
+def _solution(A, b, value, stats, method, residual_tolerance) -> LinearSolution:
+    """The `LinearSolution` of a computed `value`: its residual and outcome (`RESULTS`)."""
+    residual = _relative_residual(A, value, b)
+    num_steps, converged, factored = (jnp.asarray(stat) for stat in stats)
+    result = RESULTS.where(
+        ~factored,
+        RESULTS.singular,
+        RESULTS.where(
+            ~jnp.all(jnp.isfinite(value)),
+            RESULTS.nonfinite,
+            RESULTS.where(
+                ~converged,
+                RESULTS.max_steps_reached,
+                RESULTS.where(residual > residual_tolerance, RESULTS.singular, RESULTS.successful),
+            ),
+        ),
+    )
+    return LinearSolution(value=value, result=result, residual=residual, num_steps=num_steps, method=method)
 
 
 def _cholmod_factor(pattern, values) -> Int[Array, "2"]:
@@ -247,48 +363,57 @@ def _relative_residual(A: SparseMatrix, x, b) -> Float[Array, ""]:
     return jnp.where(b_norm > 0, jnp.linalg.norm(A @ x - b) / jnp.where(b_norm > 0, b_norm, 1.0), 0.0)
 
 
-def _solve_factored(options, A: SparseMatrix, token, b):
-    """`(x, (num_steps, converged))` with `x = A^{-1} b`, differentiable through `lax.custom_linear_solve` (module docstring).
+def _solve_factored(factorization: Factorization, b):
+    """`(x, (num_steps, converged, factored))` with `x = A^{-1} b`, differentiable through `lax.custom_linear_solve`.
 
     JAX differentiates `custom_linear_solve` implicitly: the derivative of `x` comes from `A`'s
     product (`dx = A^{-1} (db - dA x)`), and the transposed solve (reverse mode) calls the same
-    backend, which is `A` itself as `A` is symmetric: one CHOLMOD factor serves the forward, the
-    tangent and the adjoint solves. The backend itself is never differentiated.
+    backend, which is `A` itself as `A` is symmetric: one factor serves the forward, the tangent and
+    the adjoint solves. The backend itself is never differentiated.
     """
-    method, rtol, max_steps = options
+    A, token, method = factorization.system, factorization.token, factorization.method
+    rtol, max_steps = factorization.rtol, factorization.max_steps
     values = jax.lax.stop_gradient(A.values)
+    succeeded = (jnp.zeros((), jnp.int32), jnp.ones((), bool), jnp.ones((), bool))
     if method == "cholesky":
         import sparsax
 
-        if token is None:
-            token = _cholmod_factor(A.pattern, values)
-
         def backend(_, rhs):
             # CHOLMOD works in float64; a float32 system is solved in float64 and rounded back.
-            x = sparsax.solve_factor(token, rhs.astype(jnp.float64)).astype(rhs.dtype)
-            return x, (jnp.zeros((), jnp.int32), jnp.ones((), bool))
+            return sparsax.solve_factor(token, rhs.astype(jnp.float64)).astype(rhs.dtype), succeeded
+
+    elif method in HOST_METHODS:
+
+        def backend(_, rhs):
+            return host_solve(method, A.pattern, values, token, rhs, rtol, max_steps)
 
     else:
         fixed = SparseMatrix(values, A.pattern, symmetric=True)
+        hierarchy = jax.lax.stop_gradient(factorization.hierarchy)
+        if hierarchy is None:
+            diagonal = fixed.diagonal()
+            inverse = jnp.where(diagonal > 0, 1.0 / jnp.where(diagonal > 0, diagonal, 1.0), 1.0)
+            preconditioner = lambda r: inverse * r
+        else:
+            preconditioner = lambda r: amg_v_cycle(hierarchy, r).astype(r.dtype)
 
         def backend(_, rhs):
-            return _jacobi_cg(fixed, rhs, rtol, max_steps)
+            return _block_cg(fixed, rhs, preconditioner, rtol, max_steps)
 
     return jax.lax.custom_linear_solve(A._product, b, backend, symmetric=True, has_aux=True)
 
 
-def _jacobi_cg(A: SparseMatrix, b, rtol: float, max_steps: int):
-    """Conjugate gradient on `A @ x`, preconditioned by `diag(A)^{-1}`; a block `b` column by column."""
-    diagonal = A.diagonal()
-    inverse = jnp.where(diagonal > 0, 1.0 / jnp.where(diagonal > 0, diagonal, 1.0), 1.0)
+def _block_cg(A: SparseMatrix, b, preconditioner, rtol: float, max_steps: int):
+    """`preconditioned_cg` on `A @ x`; a block `b` column by column (`vmap`)."""
 
     def one(column):
-        return preconditioned_cg(A._product, column, lambda r: inverse * r, rtol, max_steps)
+        x, (steps, converged) = preconditioned_cg(A._product, column, preconditioner, rtol, max_steps)
+        return x, (steps, converged, jnp.ones((), bool))
 
     if b.ndim == 1:
         return one(b)
-    values, (steps, converged) = jax.vmap(one, in_axes=1, out_axes=(1, 0))(b)
-    return values, (jnp.max(steps), jnp.all(converged))
+    values, (steps, converged, factored) = jax.vmap(one, in_axes=1, out_axes=(1, 0))(b)
+    return values, (jnp.max(steps), jnp.all(converged), jnp.all(factored))
 
 
 def preconditioned_cg(matvec, b, preconditioner, rtol: float, max_steps: int):

@@ -9,7 +9,7 @@ import lineax as lx
 import numpy as np
 import scipy.sparse as sp
 from jax.experimental import sparse as jsparse
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Inexact, Int
 
 from .._errors import DDGInputError, check_count, is_traced
 from .._indexing import take_rows, take_rows_or_zero
@@ -24,47 +24,70 @@ class SparseMatrix(eqx.Module):
     function of the values (products, solves, energies) is jit-compiled once and differentiable
     (`jax.grad` / `jax.jvp` / `jax.vmap` through `values` and through the right-hand side).
 
-    Arithmetic: `A @ x` (`x` of shape `(n_cols,)` or `(n_cols, k)`), `A.T`, `A + B`, `A - B`, `-A`,
-    `c * A`, `A / c`, `A.shifted(s)` (`A + s I`), `A.diagonal()`, `A.row_sums()`, `A.nnz`; exports
+    Values may be real or complex (a complex connection Laplacian, for direction fields).
+
+    Arithmetic: `A @ x` (`x` of shape `(n_cols,)` or `(n_cols, k)`, real or complex), `A.T`,
+    `A.conj()`, `A.H` (`conj(A).T`), `A + B`, `A - B`, `-A`, `c * A`, `A / c`, `A.shifted(s)`
+    (`A + s I`), `A.diagonal()`, `A.row_sums()`, `A.nnz`; exports
     `todense()`, `to_scipy()`, `to_bcoo()`, `as_lineax_operator()`. `A + B` needs one pattern for
     both, or one of them diagonal (a lumped mass matrix, a Hodge star, `identity(n)`) and the other
     square with its diagonal stored: the result lives on the larger pattern, so `M + t L` and
     `M - t L` (heat method, implicit mean curvature flow) and `A + s * identity(n)` work.
 
-    Structure flags (static): `symmetric`, `positive_semidefinite`, `negative_semidefinite` are
-    promises about the values, set by the constructors that can prove them (`cotan_laplacian` and
+    Structure flags (static): `symmetric`, `hermitian`, `positive_semidefinite`, `negative_semidefinite`
+    are promises about the values, set by the constructors that can prove them (`cotan_laplacian` and
     `mass_matrix` are symmetric PSD; a diagonal matrix is symmetric; `from_scipy` checks symmetry)
     and carried through arithmetic while they stay provable: `A + B` keeps what both have, `-A` swaps
     the two semidefinite flags, `c * A` keeps them for a concrete `c >= 0` and swaps them for
-    `c <= 0`. A traced `c` (inside jit) has no value to look at, so only `symmetric` survives,
-    unless it is declared non-negative: `nonnegative(t) * A` keeps the flags and checks `t >= 0`
+    `c <= 0`. A traced `c` (inside jit) has no value to look at, so only `symmetric` (and `hermitian`
+    for a real `c`) survives, unless it is declared non-negative: `nonnegative(t) * A` keeps the flags and checks `t >= 0`
     when the program runs. The flags become lineax tags in `as_lineax_operator()`, so `lineax.CG`
     accepts `M + t L` (concrete `t >= 0`) and `M + nonnegative(t) * L` (any `t`) as they are. Assert
     a flag that holds but cannot be proven with `dataclasses.replace(A, positive_semidefinite=True)`
-    or the keywords of `as_lineax_operator`. A semidefinite flag implies `symmetric` (as in lineax).
+    or the keywords of `as_lineax_operator`.
+
+    Complex matrices: `symmetric` is `A == A.T` and `hermitian` is `A == conj(A).T`; a complex
+    semidefinite matrix is Hermitian (`x^H A x` real for every `x` only then), so on a complex matrix
+    a semidefinite flag needs `hermitian`. For a real matrix the two are the same property: a real
+    matrix flagged `symmetric` counts as Hermitian (`hermitian` need not be set, and real constructors
+    do not set it) and a semidefinite flag needs either. `A.self_adjoint` (`A == A^H`) reads that rule.
+    `hermitian` is carried like the others: `A + B` keeps it when both are self-adjoint (a real
+    symmetric `M` plus a complex Hermitian `L` is complex Hermitian, so `M + t L` stays Hermitian PSD),
+    `-A` keeps it, `c * A`, `A / c` and `A.shifted(c)` keep it for a real `c` (a concrete real, a traced
+    real dtype, or `nonnegative(t)`) and drop it for a complex `c`; the semidefinite flags of a complex
+    Hermitian matrix follow the sign rules above. `from_scipy` sets `hermitian` for a complex matrix
+    equal to its conjugate transpose.
 
     Attributes:
         values: `(nnz,)` entries in the pattern's storage order (see `SparsityPattern`; padding slots
             of an ELL pattern hold 0).
         pattern: the `SparsityPattern`.
         symmetric: `A == A.T` (static).
-        positive_semidefinite: symmetric and `x^T A x >= 0` for every `x` (static).
-        negative_semidefinite: symmetric and `x^T A x <= 0` for every `x` (static).
+        positive_semidefinite: self-adjoint and `x^H A x >= 0` for every `x` (static).
+        negative_semidefinite: self-adjoint and `x^H A x <= 0` for every `x` (static).
+        hermitian: `A == conj(A).T` (static); for real values the same as `symmetric` (`self_adjoint`).
     """
 
-    values: Float[Array, " nnz"] = eqx.field(converter=jnp.asarray)
+    values: Inexact[Array, " nnz"] = eqx.field(converter=jnp.asarray)
     pattern: SparsityPattern
     symmetric: bool = eqx.field(static=True, default=False)
     positive_semidefinite: bool = eqx.field(static=True, default=False)
     negative_semidefinite: bool = eqx.field(static=True, default=False)
+    hermitian: bool = eqx.field(static=True, default=False)
 
     def __check_init__(self):
         if self.values.shape != (self.pattern.nnz,):
             raise DDGInputError(f"values: expected shape ({self.pattern.nnz},) (the pattern's nnz), got {self.values.shape}")
-        if (self.positive_semidefinite or self.negative_semidefinite) and not self.symmetric:
+        if (self.symmetric or self.hermitian) and self.pattern.shape[0] != self.pattern.shape[1]:
+            name = "symmetric" if self.symmetric else "hermitian"
+            raise DDGInputError(f"{name}: a {name} matrix must be square, got shape {self.pattern.shape}")
+        if (self.positive_semidefinite or self.negative_semidefinite) and not self.self_adjoint:
+            if _is_complex(self.values):
+                raise DDGInputError(
+                    "hermitian: a complex semidefinite SparseMatrix must also be flagged hermitian (A == conj(A).T; "
+                    "symmetric, A == A.T, is not enough for complex values)"
+                )
             raise DDGInputError("symmetric: a semidefinite SparseMatrix must also be flagged symmetric")
-        if self.symmetric and self.pattern.shape[0] != self.pattern.shape[1]:
-            raise DDGInputError(f"symmetric: a symmetric matrix must be square, got shape {self.pattern.shape}")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -73,6 +96,16 @@ class SparseMatrix(eqx.Module):
     @property
     def dtype(self):
         return self.values.dtype
+
+    @property
+    def self_adjoint(self) -> bool:
+        """`A == A^H` as the flags prove it (static): `hermitian`, or `symmetric` with real values.
+
+        For real values Hermitian and symmetric are the same property, so a real matrix flagged either
+        way is self-adjoint; a complex matrix only when flagged `hermitian` (a complex symmetric matrix,
+        `A == A.T`, is not). What a linear solve needs: a semidefinite flag implies it.
+        """
+        return self.hermitian or (self.symmetric and not _is_complex(self.values))
 
     @property
     def nnz(self) -> int:
@@ -93,8 +126,11 @@ class SparseMatrix(eqx.Module):
             return pattern.nnz
         return int(pattern.entries()[0].size)
 
-    def __matmul__(self, x: Float[ArrayLike, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
-        """`A @ x` for a vector `(n_cols,)` or a block of right-hand sides `(n_cols, k)`."""
+    def __matmul__(self, x: Inexact[ArrayLike, "n_cols *batch"]) -> Inexact[Array, "n_rows *batch"]:
+        """`A @ x` for a vector `(n_cols,)` or a block of right-hand sides `(n_cols, k)`.
+
+        Real or complex `A` and `x`; the result has JAX's promoted dtype (complex if either is).
+        """
         n_cols = self.shape[1]
         if isinstance(x, (SparseMatrix, jsparse.JAXSparse)) or sp.issparse(x):
             raise DDGInputError(
@@ -115,7 +151,7 @@ class SparseMatrix(eqx.Module):
             "A.to_bcoo(), or A @ x for products"
         )
 
-    def _product(self, x: Float[Array, "n_cols *batch"]) -> Float[Array, "n_rows *batch"]:
+    def _product(self, x: Inexact[Array, "n_cols *batch"]) -> Inexact[Array, "n_rows *batch"]:
         pattern = self.pattern
         if pattern.layout != "ell":
             products = _broadcast(self.values, x) * x[pattern.cols]
@@ -130,16 +166,20 @@ class SparseMatrix(eqx.Module):
 
     @property
     def T(self) -> "SparseMatrix":
-        """Transpose, without any sort or search inside jit.
+        """Transpose (not conjugated; `A.H` is the conjugate transpose), without any sort or search inside jit.
 
-        A symmetric matrix is its own transpose; on a host-built pattern the values are permuted by
-        the precomputed `transpose_slot` (one gather); otherwise rows and columns swap and the values
-        stay where they are (a `"coo"` pattern: products become an unsorted `segment_sum`).
+        A symmetric matrix (and a real one flagged `hermitian`) is its own transpose; a complex
+        Hermitian matrix's transpose is `conj(A)`, its values conjugated on the same pattern. On a
+        host-built pattern the values are permuted by the precomputed `transpose_slot` (one gather);
+        otherwise rows and columns swap and the values stay where they are (a `"coo"` pattern: products
+        become an unsorted `segment_sum`).
         """
         pattern = self.pattern
         flags = _flags(self)
         if self.symmetric or pattern.is_diagonal:
             return self
+        if self.hermitian:  # A.T = conj(A.H) = conj(A); for real values conj(A) = A
+            return self.conj()
         if pattern.symmetric and pattern.transpose_slot is not None:
             return SparseMatrix(take_rows(self.values, pattern.transpose_slot), pattern, **flags)
         if pattern.transpose_pattern is not None:
@@ -154,6 +194,26 @@ class SparseMatrix(eqx.Module):
             n_entries=pattern.nnz if pattern.layout == "csr" else pattern.n_entries,
         )
         return SparseMatrix(self.values, swapped, **flags)
+
+    def conj(self) -> "SparseMatrix":
+        """Complex conjugate `conj(A)`: the values conjugated on the same pattern, flags kept.
+
+        (`conj(A)` is symmetric / Hermitian / semidefinite exactly when `A` is.) A real matrix is
+        returned as it is. NumPy / SciPy: `A.conj()`.
+        """
+        if not _is_complex(self.values):
+            return self
+        return SparseMatrix(jnp.conj(self.values), self.pattern, **_flags(self))
+
+    @property
+    def H(self) -> "SparseMatrix":
+        """Conjugate transpose `conj(A).T`: `A` itself when self-adjoint (`self_adjoint`), else `A.T.conj()`.
+
+        SciPy: `A.conj().T` (`A.getH()`).
+        """
+        if self.self_adjoint:
+            return self
+        return self.T.conj()
 
     def __add__(self, other: "SparseMatrix") -> "SparseMatrix":
         return _add(self, other, 1.0)
@@ -186,13 +246,14 @@ class SparseMatrix(eqx.Module):
         For a square matrix whose pattern stores the whole diagonal (every host-built square pattern
         with its diagonal, e.g. `cotan_laplacian`, `mass_matrix`, `from_scipy(A + eye)`, or a CSR
         pattern holding it); otherwise `DDGInputError`. On a diagonal-first pattern it adds to the
-        first `n` slots. Flags: `symmetric` is kept; `positive_semidefinite` is kept when `shift` is
-        provably `>= 0` (a concrete number, or `nonnegative(s)` for a traced one), and
+        first `n` slots. Flags: `symmetric` is kept; `hermitian` is kept for a real `shift` (a complex
+        one makes a real matrix complex and drops it); `positive_semidefinite` is kept when `shift` is
+        provably `>= 0` (a concrete real number, or `nonnegative(s)` for a traced one), and
         `negative_semidefinite` when it is provably `<= 0`. Differentiable in the values and in
         `shift`. SciPy: `A + shift * scipy.sparse.identity(n)`; the same as `A + shift * identity(n)`.
 
         Args:
-            shift: a scalar, `()`, or `nonnegative(s)`.
+            shift: a scalar, `()` (real or complex), or `nonnegative(s)`.
 
         Returns:
             `(n, n)` `SparseMatrix` on `A.pattern`.
@@ -203,18 +264,23 @@ class SparseMatrix(eqx.Module):
         n_rows, n_cols = self.shape
         if n_rows != n_cols:
             raise DDGInputError(f"A: A.shifted(s) needs a square matrix, got shape {self.shape}")
-        diagonal = jnp.broadcast_to(jnp.asarray(value, self.values.dtype), (n_rows,))
-        values = _add_to_diagonal(self.values, self.pattern, diagonal, "A.shifted(s)")
+        values = self.values
+        if np.iscomplexobj(value) and not _is_complex(values):  # a complex shift makes the matrix complex
+            values = values.astype(jnp.result_type(values, value))
+        diagonal = jnp.broadcast_to(jnp.asarray(value, values.dtype), (n_rows,))
+        values = _add_to_diagonal(values, self.pattern, diagonal, "A.shifted(s)")
         at_least_zero, at_most_zero = _sign_bounds(shift)
+        real = _is_real_scalar(shift)
         return SparseMatrix(
             values,
             self.pattern,
-            symmetric=self.symmetric,
+            symmetric=self.symmetric or (_real_hermitian(self) and not real),  # real Hermitian + complex s I: symmetric
             positive_semidefinite=self.positive_semidefinite and at_least_zero,
             negative_semidefinite=self.negative_semidefinite and at_most_zero,
+            hermitian=self.hermitian and real,
         )
 
-    def diagonal(self) -> Float[Array, " n"]:
+    def diagonal(self) -> Inexact[Array, " n"]:
         """The main diagonal, `(min(n_rows, n_cols),)` (zeros where the pattern has no diagonal entry)."""
         pattern = self.pattern
         n = min(self.shape)
@@ -223,7 +289,7 @@ class SparseMatrix(eqx.Module):
         on_diagonal = pattern.rows == pattern.cols
         return jax.ops.segment_sum(jnp.where(on_diagonal, self.values, 0), jnp.where(on_diagonal, pattern.rows, n), n)
 
-    def row_sums(self) -> Float[Array, " n_rows"]:
+    def row_sums(self) -> Inexact[Array, " n_rows"]:
         """`A @ 1` without the gather: the sum of each row's stored values, `(n_rows,)`."""
         pattern = self.pattern
         n_rows = self.shape[0]
@@ -240,7 +306,7 @@ class SparseMatrix(eqx.Module):
             )
         return sums
 
-    def todense(self) -> Float[Array, "n_rows n_cols"]:
+    def todense(self) -> Inexact[Array, "n_rows n_cols"]:
         """Dense copy (for tests and small problems)."""
         return jnp.zeros(self.shape, self.values.dtype).at[self.pattern.rows, self.pattern.cols].add(self.values)
 
@@ -277,15 +343,20 @@ class SparseMatrix(eqx.Module):
 
         By default the tags are the matrix's own flags (`symmetric_tag`, `positive_semidefinite_tag`,
         `negative_semidefinite_tag`), so `cotan_laplacian(m)`, `mass_matrix(m)` and `M + t L` (concrete
-        `t >= 0`) go straight into `lineax.CG`. A keyword overrides a flag (`True` is a promise, not
+        `t >= 0`) go straight into `lineax.CG`. lineax's `symmetric_tag` means `A == A.T` also for
+        complex values: a real matrix flagged `symmetric` or `hermitian` gets it, a complex one only
+        when flagged `symmetric` (a complex Hermitian matrix does not), while the semidefinite tags
+        (which lineax reads as Hermitian semidefinite for complex operators) follow the flags, so a
+        complex Hermitian PSD matrix (a connection Laplacian, `M + t L`) goes into `lineax.CG` too. A keyword overrides a flag (`True` is a promise, not
         checked; e.g. `positive_semidefinite=True` for `M + t L` with `t` traced under jit). Without a
         symmetric tag lineax transposes with `jax.linear_transpose`. The operator is differentiable
         through `values` (e.g. `jax.grad` of a `lineax.linear_solve` with respect to vertex positions).
 
         SciPy equivalent: `scipy.sparse.linalg.aslinearoperator(A.to_scipy())`.
         """
+        own_symmetric = self.symmetric or (self.hermitian and not _is_complex(self.values))
         flags = {
-            "symmetric": self.symmetric if symmetric is None else symmetric,
+            "symmetric": own_symmetric if symmetric is None else symmetric,
             "positive_semidefinite": self.positive_semidefinite if positive_semidefinite is None else positive_semidefinite,
             "negative_semidefinite": self.negative_semidefinite if negative_semidefinite is None else negative_semidefinite,
         }
@@ -330,22 +401,42 @@ def identity(n: int, *, dtype=None) -> SparseMatrix:
 def from_scipy(matrix: sp.spmatrix, *, positive_semidefinite: bool = False) -> SparseMatrix:
     """`SparseMatrix` (host-built ELL pattern) with the entries of a SciPy sparse matrix (duplicates summed).
 
-    `symmetric` is set when the matrix equals its transpose exactly (checked on the host);
-    `positive_semidefinite=True` is the caller's promise (needs a symmetric matrix).
+    `symmetric` is set when the matrix equals its transpose exactly, and for a complex matrix
+    `hermitian` when it equals its conjugate transpose exactly (checked on the host; a real matrix is
+    not flagged `hermitian`, its `symmetric` flag says it). `positive_semidefinite=True` is the
+    caller's promise: it needs a symmetric real matrix or a Hermitian complex one.
     """
     coo = sp.coo_matrix(matrix)
     pattern, slot = SparsityPattern.from_coo(coo.row, coo.col, coo.shape)
     values = np.zeros(pattern.nnz, dtype=coo.data.dtype)
     np.add.at(values, slot, coo.data)
     csr = coo.tocsr()
-    symmetric = csr.shape[0] == csr.shape[1] and (csr != csr.T).nnz == 0
-    if positive_semidefinite and not symmetric:
+    square = csr.shape[0] == csr.shape[1]
+    symmetric = square and (csr != csr.T).nnz == 0
+    complex_values = np.iscomplexobj(values)
+    hermitian = complex_values and square and (csr != csr.conj().T).nnz == 0
+    if positive_semidefinite and complex_values and not hermitian:
+        raise DDGInputError(
+            "positive_semidefinite: the complex matrix is not Hermitian (A != conj(A).T), so it cannot be flagged semidefinite"
+        )
+    if positive_semidefinite and not symmetric and not complex_values:
         raise DDGInputError("positive_semidefinite: the matrix is not symmetric, so it cannot be flagged semidefinite")
-    return SparseMatrix(jnp.asarray(values), pattern, symmetric=symmetric, positive_semidefinite=positive_semidefinite)
+    return SparseMatrix(
+        jnp.asarray(values),
+        pattern,
+        symmetric=symmetric,
+        positive_semidefinite=positive_semidefinite,
+        hermitian=hermitian,
+    )
 
 
-def _broadcast(values: Float[Array, " m"], x: Float[Array, "n *batch"]) -> Float[Array, " m *ones"]:
+def _broadcast(values: Inexact[Array, " m"], x: Inexact[Array, "n *batch"]) -> Inexact[Array, " m *ones"]:
     return values.reshape(values.shape + (1,) * (x.ndim - 1))
+
+
+def _is_complex(values) -> bool:
+    """Complex dtype (static: dtypes are known under jit too)."""
+    return bool(jnp.iscomplexobj(values))
 
 
 def _flags(matrix: SparseMatrix) -> dict:
@@ -353,7 +444,20 @@ def _flags(matrix: SparseMatrix) -> dict:
         "symmetric": matrix.symmetric,
         "positive_semidefinite": matrix.positive_semidefinite,
         "negative_semidefinite": matrix.negative_semidefinite,
+        "hermitian": matrix.hermitian,
     }
+
+
+def _real_hermitian(matrix: SparseMatrix) -> bool:
+    """Flagged `hermitian` with real values, so symmetric too (whether or not flagged so)."""
+    return matrix.hermitian and not _is_complex(matrix.values)
+
+
+def _is_real_scalar(scalar) -> bool:
+    """Is the scalar provably real on the host? A `NonNegative`, or any real dtype (concrete or traced)."""
+    if isinstance(scalar, NonNegative):
+        return True
+    return not np.iscomplexobj(scalar)
 
 
 def _sign_bounds(scalar) -> tuple[bool, bool]:
@@ -370,17 +474,23 @@ def _sign_bounds(scalar) -> tuple[bool, bool]:
     return value >= 0, value <= 0
 
 
-def _scaled(matrix: SparseMatrix, values: Float[Array, " nnz"], scalar) -> SparseMatrix:
-    """`matrix` with new `values = scalar * matrix.values`: semidefinite flags follow the provable sign of `scalar`."""
+def _scaled(matrix: SparseMatrix, values: Inexact[Array, " nnz"], scalar) -> SparseMatrix:
+    """`matrix` with new `values = scalar * matrix.values`: semidefinite flags follow the provable sign of `scalar`.
+
+    `symmetric` is kept for any scalar, `hermitian` for a real one (`c A` with complex `c` is not
+    Hermitian; a real Hermitian, i.e. symmetric, matrix then becomes complex symmetric).
+    """
     psd, nsd = matrix.positive_semidefinite, matrix.negative_semidefinite
     at_least_zero, at_most_zero = _sign_bounds(scalar)
-    zero = matrix.symmetric and at_least_zero and at_most_zero  # 0 * A = 0 is both
+    real = _is_real_scalar(scalar)
+    zero = matrix.self_adjoint and at_least_zero and at_most_zero  # 0 * A = 0 is both
     return SparseMatrix(
         values,
         matrix.pattern,
-        symmetric=matrix.symmetric,
+        symmetric=matrix.symmetric or (_real_hermitian(matrix) and not real),
         positive_semidefinite=zero or (psd and at_least_zero) or (nsd and at_most_zero),
         negative_semidefinite=zero or (nsd and at_least_zero) or (psd and at_most_zero),
+        hermitian=matrix.hermitian and real,
     )
 
 
@@ -391,12 +501,16 @@ def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
         raise DDGInputError(f"other: SparseMatrix {op} needs another SparseMatrix, got {type(b).__name__}")
     if a.shape != b.shape:
         raise DDGInputError(f"A {op} B needs equal shapes, got {a.shape} and {b.shape}")
+    a_values, b_values = a.values, b.values
+    if _is_complex(a_values) != _is_complex(b_values):  # real + complex: both complex first (the diagonal adds
+        dtype = jnp.result_type(a_values, b_values)  # write into one operand's array, which must hold the sum)
+        a_values, b_values = a_values.astype(dtype), b_values.astype(dtype)
     if _same_positions(a.pattern, b.pattern, op):
-        values, pattern = a.values + sign * b.values, a.pattern
+        values, pattern = a_values + sign * b_values, a.pattern
     elif b.pattern.is_diagonal:
-        values, pattern = _add_to_diagonal(a.values, a.pattern, sign * b.values, f"A {op} D"), a.pattern
+        values, pattern = _add_to_diagonal(a_values, a.pattern, sign * b_values, f"A {op} D"), a.pattern
     elif a.pattern.is_diagonal:
-        values, pattern = _add_to_diagonal(sign * b.values, b.pattern, a.values, f"D {op} A"), b.pattern
+        values, pattern = _add_to_diagonal(sign * b_values, b.pattern, a_values, f"D {op} A"), b.pattern
     else:
         raise DDGInputError(
             f"A {op} B needs matching sparsity patterns (or one diagonal); got shape/layout/width/nnz "
@@ -406,12 +520,16 @@ def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
     b_psd, b_nsd = b.positive_semidefinite, b.negative_semidefinite
     if sign < 0:  # -B swaps the two semidefinite flags
         b_psd, b_nsd = b_nsd, b_psd
+    # Hermitian when both are self-adjoint (a real symmetric matrix is Hermitian): set for a complex
+    # sum, and for a real one where an operand was flagged so (real sums of symmetric matrices stay as before).
+    hermitian = a.self_adjoint and b.self_adjoint and (_is_complex(values) or a.hermitian or b.hermitian)
     return SparseMatrix(
         values,
         pattern,
         symmetric=a.symmetric and b.symmetric,
         positive_semidefinite=a.positive_semidefinite and b_psd,
         negative_semidefinite=a.negative_semidefinite and b_nsd,
+        hermitian=hermitian,
     )
 
 
