@@ -109,6 +109,13 @@ def timed_interleaved(calls: dict, repeats: int, budget_s: float) -> tuple[dict,
     return {name: (min(t), float(np.median(t)), len(t)) for name, t in times.items()}, results
 
 
+def warmed(calls: dict) -> dict:
+    """`calls` after one run of each (compilation, first-touch costs), for `timed_interleaved` on slow calls."""
+    for fn, args in calls.values():
+        jax.block_until_ready(fn(*args))
+    return calls
+
+
 def compile_time(fn, *args):
     """Wall time in ms of compiling the jitted `fn` for these arguments, ahead of time: a first call
     would also run it (ten factorisations for a scan), and the compiled program is cached for the
@@ -617,6 +624,242 @@ def print_summary(summary):
             print(f"    ({column}) fastest {fastest:.1f} ms: " + "; ".join(f"{name} {t / fastest:.2f}" for name, t in ranked))
 
 
+# --- differentiation, optimistix, CG, scans --------------------------------------------------------
+
+
+def selected_meshes(args, default=("icosphere(6)", "camelhead")):
+    """The catalogue's meshes these sections run on: `--meshes`, else `default`, within `--max-vertices`."""
+    keys = args.meshes or default
+    for name, nv, load in mesh_catalogue():
+        if nv <= args.max_vertices and any(key in name for key in keys):
+            yield name, load()
+
+
+def mean_edge_length(mesh):
+    return float(np.mean(np.asarray(edge_lengths(mesh))))
+
+
+def section_gradients(args):
+    """The backward pass of a solve, with respect to `b` and to the vertex positions, against the forward solve."""
+
+    print("\n# backward pass against the forward factor + solve (ddgjax linear_solve, method 'auto')")
+    print("  loss = |x|^2 / 2 with (M + t L) x = b, t = h^2; values change every call (a new factorisation each time)")
+    for name, mesh in selected_meshes(args):
+        _gradients_on(name, mesh, args)
+
+
+def _gradients_on(name, mesh, args):
+    from ddgjax.solve import linear_solve
+    from ddgjax.sparse import SparseMatrix
+
+    t = mean_edge_length(mesh) ** 2
+    heat = lambda V: mass_matrix(mesh.with_vertices(V)) + t * cotan_laplacian(mesh.with_vertices(V))
+    A = heat(mesh.vertices)
+    pattern = A.pattern
+    b = A @ jnp.asarray(np.random.default_rng(0).standard_normal(mesh.n_vertices))
+    solve = lambda values, b: linear_solve(SparseMatrix(values, pattern, symmetric=True, positive_semidefinite=True), b).value
+    loss = lambda x: 0.5 * jnp.sum(x * x)
+    forward = jit(lambda values, b: loss(solve(values, b)))
+    backward_b = jit(jax.value_and_grad(lambda values, b: loss(solve(values, b)), argnums=1))
+    backward_values = jit(jax.value_and_grad(lambda values, b: loss(solve(values, b)), argnums=(0, 1)))
+    forward_V = jit(lambda V: loss(linear_solve(heat(V), b).value))
+    backward_V = jit(jax.value_and_grad(lambda V: loss(linear_solve(heat(V), b).value)))
+    values = [A.values * s for s in (1.001, 1.002)]  # sparsax skips a factorisation of the values it saw last
+    vertices = [mesh.vertices * s for s in (1.001, 1.002)]
+    turn = itertools.count()
+    pick = lambda options: options[next(turn) % 2]
+    calls = {
+        "forward: factor + solve": (lambda: forward(pick(values), b), ()),
+        "value and gradient in b": (lambda: backward_b(pick(values), b), ()),
+        "value and gradient in b and the matrix values": (lambda: backward_values(pick(values), b), ()),
+        "forward from vertex positions (assembly + solve)": (lambda: forward_V(pick(vertices)), ()),
+        "value and gradient in the vertex positions": (lambda: backward_V(pick(vertices)), ()),
+    }
+    times, _ = timed_interleaved(warmed(calls), args.repeats, args.budget)
+    print(f"\n## {name}: n = {mesh.n_vertices}  (min / median ms; ratio to its forward)")
+    for row, reference in (
+        ("forward: factor + solve", None),
+        ("value and gradient in b", "forward: factor + solve"),
+        ("value and gradient in b and the matrix values", "forward: factor + solve"),
+        ("forward from vertex positions (assembly + solve)", None),
+        ("value and gradient in the vertex positions", "forward from vertex positions (assembly + solve)"),
+    ):
+        ratio = "" if reference is None else f"{times[row][0] / times[reference][0]:.2f}x"
+        print(f"  {row:58s} {fmt(times[row], args.repeats):>22s} {ratio:>8s}")
+
+
+def section_optimistix(args):
+    """The screened Poisson problem `(L + s M) u = M rho` as a minimisation, by optimistix, against the direct solve."""
+
+    print("\n# optimistix route: argmin 1/2 u^T (L + s M) u - u^T M rho, s = 1 / h^2, against linear_solve")
+    for name, mesh in selected_meshes(args):
+        _optimistix_on(name, mesh, args)
+
+
+def _optimistix_on(name, mesh, args):
+    import optimistix as optx
+
+    from ddgjax.solve import SparseCholesky, linear_solve, screened_dirichlet_energy
+
+    L = cotan_laplacian(mesh)
+    s = 1.0 / mean_edge_length(mesh) ** 2
+    rho = jnp.asarray(np.random.default_rng(1).standard_normal(mesh.n_vertices))
+
+    # Both routes start from the vertex positions (assembly or energy included), passed as arguments.
+    def energy(u, data):
+        moved = mesh.with_vertices(data[0])
+        return screened_dirichlet_energy(moved, u, s) - jnp.vdot(u, mass_matrix(moved) @ data[1])
+
+    def direct_solve(data):
+        moved = mesh.with_vertices(data[0])
+        M = mass_matrix(moved)
+        return linear_solve(cotan_laplacian(moved) + s * M, M @ data[1]).value
+
+    solver = SparseCholesky(L.pattern)
+    direct = jit(direct_solve)
+    answer = lambda solution: (solution.value, solution.stats["num_steps"])
+    start = lambda data: jnp.zeros_like(data[1])
+    root = lambda method, steps: jit(
+        lambda data: answer(optx.root_find(jax.grad(energy), method, start(data), data, max_steps=steps, throw=False))
+    )
+    minimise = lambda method, steps: jit(
+        lambda data: answer(optx.minimise(energy, method, start(data), data, max_steps=steps, throw=False))
+    )
+    calls = {
+        "linear_solve (direct)": direct,
+        "optx.root_find(grad E, Newton(SparseCholesky))": root(optx.Newton(1e-12, 1e-12, linear_solver=solver), 10),
+        "optx.root_find(grad E, Chord(SparseCholesky))": root(optx.Chord(1e-12, 1e-12, linear_solver=solver), 10),
+        "optx.minimise(E, LBFGS), 2000 steps at most": minimise(optx.LBFGS(1e-10, 1e-10), 2000),
+        "optx.minimise(E, NonlinearCG), 2000 steps at most": minimise(optx.NonlinearCG(1e-10, 1e-10), 2000),
+    }
+    # New vertex positions each call: sparsax would skip the factorisation of the values it saw last.
+    data = [(mesh.vertices * scale, rho) for scale in (1.001, 1.002)]
+    turn = itertools.count()
+    timed = {row: (lambda fn=fn: fn(data[next(turn) % 2]), ()) for row, fn in calls.items()}
+    repeats = max(2, args.repeats // 2)
+    times, results = timed_interleaved(warmed(timed), repeats, args.budget)
+    reference = np.asarray(direct(data[0]))
+    print(f"\n## {name}: n = {mesh.n_vertices}  (min / median ms; ratio to linear_solve; steps; max error / max |u|)")
+    for row, fn in calls.items():
+        result = fn(data[0])
+        value = result if row.startswith("linear_solve") else result[0]
+        steps = "" if row.startswith("linear_solve") else f"{int(result[1])} steps"
+        error = float(np.abs(np.asarray(value) - reference).max() / np.abs(reference).max())
+        print(
+            f"  {row:52s} {fmt(times[row], repeats):>22s} {times[row][0] / times['linear_solve (direct)'][0]:7.2f}x "
+            f"{steps:>11s}  {error:.1e}"
+        )
+
+
+def section_cg(args):
+    """Pure-JAX CG (AMG V-cycle, Jacobi) against pyamg-preconditioned SciPy CG, to the same relative residual."""
+
+    print("\n# conjugate gradients to |b - A x| <= 1e-10 |b|: ddgjax in JAX (jitted) against pyamg + SciPy CG on the host")
+    for name, mesh in selected_meshes(args):
+        _cg_on(name, mesh, args)
+
+
+def _cg_on(name, mesh, args):
+    from ddgjax.solve import amg_hierarchy, linear_solve
+    from ddgjax.solve._amg import pyamg_solver
+    from ddgjax.sparse import from_scipy
+
+    for system, (A, b, _, _) in laplacian_systems(mesh, np.random.default_rng(0)).items():
+        A_jax = from_scipy(A, positive_semidefinite=True)
+        b_jax = jnp.asarray(b)
+        start = time.perf_counter()
+        hierarchy = jax.block_until_ready(amg_hierarchy(A_jax))
+        setup_jax = 1e3 * (time.perf_counter() - start)
+        start = time.perf_counter()
+        ml = pyamg_solver(A)
+        setup_pyamg = 1e3 * (time.perf_counter() - start)
+        amg = jit(lambda A, h, b: linear_solve(A, b, method="cg", preconditioner=h, throw=False))
+        jacobi = jit(lambda A, b: linear_solve(A, b, method="cg", max_steps=20_000, throw=False))
+        calls = {
+            "ddgjax cg + AMG V-cycle (hierarchy kept)": (amg, (A_jax, hierarchy, b_jax)),
+            "pyamg V-cycle + scipy cg (hierarchy kept)": (amg_cg_counted, (A, ml, b)),
+            "ddgjax cg + Jacobi (20000 steps at most)": (jacobi, (A_jax, b_jax)),
+        }
+        times, results = timed_interleaved(warmed(calls), args.repeats, args.budget)
+        print(f"\n## {name}, {system}: n = {A.shape[0]}  (min / median ms; ratio to pyamg; iterations; residual)")
+        for row, result in results.items():
+            if row.startswith("pyamg"):
+                x, steps = result
+                residual = np.linalg.norm(A @ x - b) / np.linalg.norm(b)
+            else:
+                steps, residual = int(result.num_steps), float(result.residual)
+            ratio = times[row][0] / times["pyamg V-cycle + scipy cg (hierarchy kept)"][0]
+            print(f"  {row:46s} {fmt(times[row], args.repeats):>22s} {ratio:6.2f}x {steps:6d} it  {residual:.1e}")
+        print(f"  hierarchy setup: ddgjax amg_hierarchy {setup_jax:.0f} ms (pyamg inside), pyamg alone {setup_pyamg:.0f} ms")
+
+
+def amg_cg_counted(A, ml, b):
+    """`(x, iterations)`: `amg_cg` on one right-hand side, counting the iterations."""
+    count = [0]
+    x, _ = spla.cg(
+        A,
+        b,
+        rtol=1e-10,
+        atol=0.0,
+        M=ml.aspreconditioner(cycle="V"),
+        maxiter=1000,
+        callback=lambda _: count.__setitem__(0, count[0] + 1),
+    )
+    return x, count[0]
+
+
+def section_scan(args):
+    """100 implicit heat steps `(M + t L) u_{k+1} = M u_k`: one compiled `lax.scan` against the loop in SciPy."""
+
+    print("\n# 100 implicit heat steps (M + t L) u_{k+1} = M u_k, t = h^2, factorisation made once per call")
+    for name, mesh in selected_meshes(args):
+        _scan_on(name, mesh, args)
+
+
+def _scan_on(name, mesh, args):
+    from ddgjax.solve import factorize
+    from ddgjax.sparse import SparseMatrix
+
+    A_jax = mass_matrix(mesh) + mean_edge_length(mesh) ** 2 * cotan_laplacian(mesh)
+    M_jax = mass_matrix(mesh)
+    A, M = A_jax.to_scipy(), M_jax.to_scipy()
+    u0 = np.random.default_rng(2).standard_normal(mesh.n_vertices)
+    values = [A_jax.values * s for s in (1.001, 1.002)]  # new values each call: sparsax refactors
+    turn = itertools.count()
+
+    def ddgjax_scan(method):
+        @jit
+        def run(values, u):
+            kept = factorize(SparseMatrix(values, A_jax.pattern, symmetric=True, positive_semidefinite=True), method=method)
+            return jax.lax.scan(lambda u, _: (kept.solve(M_jax @ u).value, None), u, None, length=100)[0]
+
+        return lambda: run(values[next(turn) % 2], jnp.asarray(u0))
+
+    def scipy_loop(factor):
+        def run():
+            solve = factor(A.tocsc())
+            u = u0
+            for _ in range(100):
+                u = solve(M @ u)
+            return u
+
+        return run
+
+    calls = {"ddgjax factorize + scan, cholesky (CHOLMOD)": (ddgjax_scan("cholesky"), ())}
+    calls["ddgjax factorize + scan, superlu"] = (ddgjax_scan("superlu"), ())
+    calls["scipy splu (symmetric mode) + loop"] = (scipy_loop(lambda A: spla.splu(A, **SUPERLU_SYMMETRIC).solve), ())
+    if cholespy is not None:
+        calls["cholespy + loop"] = (
+            scipy_loop(lambda A: (lambda s: lambda b: cholespy_solve(s, b))(cholespy_factor(A.tocsr()))),
+            (),
+        )
+    times, _ = timed_interleaved(warmed(calls), max(2, args.repeats // 2), args.budget)
+    fastest_peer = min(t[0] for row, t in times.items() if not row.startswith("ddgjax"))
+    print(f"\n## {name}: n = {mesh.n_vertices}  (min / median ms for 100 steps; ratio to the fastest peer)")
+    for row, t in times.items():
+        print(f"  {row:46s} {fmt(t, max(2, args.repeats // 2)):>22s} {t[0] / fastest_peer:6.2f}x")
+
+
 def _dist_version(name):
     from importlib.metadata import PackageNotFoundError, version
 
@@ -626,7 +869,13 @@ def _dist_version(name):
         return None
 
 
-SECTIONS = {"direct": section_direct}
+SECTIONS = {
+    "direct": section_direct,
+    "gradients": section_gradients,
+    "optimistix": section_optimistix,
+    "cg": section_cg,
+    "scan": section_scan,
+}
 
 
 def main(argv=None) -> int:

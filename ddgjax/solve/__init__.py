@@ -1,13 +1,15 @@
-"""Laplacian linear systems: energies, differentiable sparse solves (Dirichlet / Poisson problems to come).
+"""Laplacian linear systems: energies, differentiable sparse solves, Dirichlet / Poisson problems, flows.
 
 - Energies as plain scalar JAX functions of the unknowns and the mesh (`dirichlet_energy`,
   `screened_dirichlet_energy`, `poisson_energy`, the report's `gradient_fitting_energy` `E_X`),
   differentiable in the unknowns and the vertex positions. Sign convention: the report's Poisson
   problem `Delta phi = rho` with `Delta = -M^{-1} L`, i.e. `L phi = -M rho` (see `_energies`).
-- `linear_solve(A, b, *, method=...)` and `factorize(A, *, method=...).solve(b)`: symmetric positive
-  definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD through `sparsax`, usable inside `jit` / `scan` / `vmap`) or a pure-JAX
-  Jacobi-preconditioned conjugate gradient; differentiable in `b` and in the matrix values by
-  implicit differentiation; failures through `ddgjax.RESULTS` (`throw=`).
+- `linear_solve(A, b, *, method=...)` and `factorize(A, *, method=...).solve(b)`: symmetric (or
+  complex Hermitian) positive definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD
+  through `sparsax`), SciPy's SuperLU, a pure-JAX conjugate gradient preconditioned by Jacobi or an
+  algebraic-multigrid V-cycle (`amg_hierarchy`, `amg_refresh`), or pyamg's CG on the host; all
+  usable inside `jit` / `scan` / `vmap`, differentiable in `b` and in the matrix values by implicit
+  differentiation; failures through `ddgjax.RESULTS` (`throw=`).
 - `solve_poisson(mesh, rho, *, dirichlet_vertices=..., dirichlet_values=...)` and
   `harmonic_interpolation(mesh, vertices, values)`: exact, differentiable Dirichlet / Poisson problems.
 - `hodge_decomposition(mesh, omega)`: a 1-form split into exact, co-exact and harmonic parts;
@@ -16,6 +18,11 @@
   products by column colouring), so `optimistix.Newton` minimises an energy with them.
 """
 
+from ._amg import AMGHierarchy as AMGHierarchy
+from ._amg import amg_hierarchy as amg_hierarchy
+from ._amg import amg_preconditioner as amg_preconditioner
+from ._amg import amg_refresh as amg_refresh
+from ._amg import amg_v_cycle as amg_v_cycle
 from ._energies import dirichlet_energy as dirichlet_energy
 from ._energies import gradient_fitting_energy as gradient_fitting_energy
 from ._energies import poisson_energy as poisson_energy

@@ -298,31 +298,18 @@ def _cycle(levels, coarse_inverse, r):
         return coarse_inverse @ r
     level, coarser = levels[0], levels[1:]
     x = _smooth(level, None, r)
-    coarse = _cycle(coarser, coarse_inverse, _product(level.R, r - _product(level.A, x)))
-    return _smooth(level, x + _product(level.P, coarse), r)
+    coarse = _cycle(coarser, coarse_inverse, level.R @ (r - level.A @ x))
+    return _smooth(level, x + level.P @ coarse, r)
 
 
 def _smooth(level: AMGLevel, x, r):
     """`s` weighted-Jacobi steps `x <- x + w_k D^{-1} (r - A x)`; `x = None` stands for zero (no product)."""
     scale = level.inverse_diagonal.reshape(level.inverse_diagonal.shape + (1,) * (r.ndim - 1))
     for k in range(level.weights.shape[0]):
-        residual = r if x is None else r - _product(level.A, x)
+        residual = r if x is None else r - level.A @ x
         step = level.weights[k] * scale * residual
         x = step if x is None else x + step
     return x
-
-
-def _product(matrix: SparseMatrix, x):
-    """`matrix @ x`, stored before use.
-
-    XLA:CPU fuses the elementwise producer of a gather's operand into the gather and recomputes it
-    for every gathered element; when that producer is itself a sparse product the work multiplies by
-    the row width (`A @ (A @ x)` took 5x the time of two products on a 41k-row Laplacian). A scatter
-    of one zero is never fused into a consumer, so it makes XLA store the product first; it costs one
-    element's write.
-    """
-    product = matrix @ x
-    return product.at[0].add(jnp.zeros((), product.dtype))
 
 
 @eqx.filter_jit
@@ -362,7 +349,7 @@ def _largest_eigenvalue(A: SparseMatrix, scale: Float[Array, " n"]) -> Float[Arr
 
     def step(carry, _):
         previous, current, beta = carry
-        w = scale * _product(A, scale * current) - beta * previous
+        w = scale * (A @ (scale * current)) - beta * previous
         alpha = current @ w
         w = w - alpha * current
         beta_next = jnp.linalg.norm(w)

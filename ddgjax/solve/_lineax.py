@@ -35,7 +35,7 @@ from jaxtyping import Array, Float, Int
 from .._errors import DDGInputError, check_choice
 from .._results import RESULTS
 from ..sparse import SparseMatrix, SparsityPattern
-from ._linear import Factorization, factorize
+from ._linear import METHODS, Factorization, factorize
 
 # ddgjax's outcome of a solve -> lineax's (pairs: enumeration items are not hashable).
 _LINEAX_RESULTS = (
@@ -93,7 +93,7 @@ class SparseCholesky(lx.AbstractLinearSolver):
     """A lineax solver for symmetric positive definite operators with a known sparsity pattern.
 
     `SparseCholesky(pattern)` recovers the operator's matrix on `pattern` from a few products (module
-    docstring), factorises it with `ddgjax.solve.factorize` (CHOLMOD on CPU, or `method="cg"`), and
+    docstring), factorises it with `ddgjax.solve.factorize` (CHOLMOD or SuperLU on CPU, or another `method`), and
     solves. Use it wherever lineax takes a solver:
 
         optx.root_find(jax.grad(energy), optx.Newton(rtol, atol, linear_solver=SparseCholesky(pattern)), phi0)
@@ -108,7 +108,9 @@ class SparseCholesky(lx.AbstractLinearSolver):
     Attributes:
         pattern: the square, symmetric `SparsityPattern` of the operator's matrix.
         colouring: its `ColumnColouring` (built on the host once per pattern).
-        method: `factorize`'s backend: `"auto"`, `"cholesky"` or `"cg"` (static).
+        method: `factorize`'s backend (static): `"auto"` (CHOLMOD, else SuperLU, on CPU), `"cholesky"`,
+            `"superlu"`, `"cg"` (Jacobi-preconditioned: the recovered matrix is traced, so no AMG
+            hierarchy can be built from it) or `"pyamg"`.
     """
 
     pattern: SparsityPattern
@@ -122,7 +124,7 @@ class SparseCholesky(lx.AbstractLinearSolver):
             )
         self.pattern = pattern
         self.colouring = column_colouring(pattern)
-        self.method = check_choice("method", method, ("auto", "cholesky", "cg"))
+        self.method = check_choice("method", method, METHODS)
 
     def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]) -> Factorization:
         n = self.pattern.shape[0]
