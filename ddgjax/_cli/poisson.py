@@ -13,7 +13,6 @@ mesh) beside its error, or the right-hand side when no exact solution is known, 
 from __future__ import annotations
 
 import argparse
-import logging
 import os
 import re
 import sys
@@ -26,15 +25,23 @@ import numpy as np
 
 from .._compile import tuned_jit
 from .._errors import DDGInputError, MeshDataError
+from .._results import RESULTS
 from ..io import load_mesh
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..mesh import Mesh, disk, icosphere
-from ..solve import dirichlet_energy, poisson_energy, solve_poisson
+from ..solve import dirichlet_energy, poisson_energy
+from ..solve._linear import auto_method
+from ..solve._problems import poisson_with_result
 
 SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)"}
 DEFAULT_RESOLUTION = {"disk": 24, "sphere": 4}
 RHOS = ("auto", "one", "y2", "source")
-SOLVERS = {"cholesky": "cholesky (CHOLMOD through sparsax)", "cg": "cg (Jacobi-preconditioned conjugate gradient in JAX)"}
+SOLVERS = {
+    "cholesky": "cholesky (CHOLMOD through sparsax)",
+    "superlu": "superlu (SciPy's SuperLU in symmetric mode)",
+    "cg": "cg (conjugate gradient in JAX, AMG V-cycle preconditioner)",
+    "pyamg": "pyamg (SciPy's conjugate gradient with pyamg's V-cycle)",
+}
 RHO_HELP = {
     "one": "rho = -1, i.e. -Delta phi = 1 (torsion problem; exact (1 - r^2)/4 on the unit disk)",
     "y2": "rho = P2(cos theta) = (3 cos^2 theta - 1)/2 of the direction from the bounding-box centre, a degree-2 "
@@ -111,10 +118,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mass", choices=("voronoi", "barycentric", "galerkin"), default="voronoi", help="mass matrix M")
     parser.add_argument(
         "--method",
-        choices=("auto", "cholesky", "cg"),
+        choices=("auto",) + tuple(SOLVERS),
         default="auto",
-        help="linear solver: cholesky (CHOLMOD through sparsax), cg (Jacobi-preconditioned conjugate gradient in "
-        "JAX), auto (cholesky on CPU when sparsax is installed)",
+        help="linear solver: cholesky (CHOLMOD through sparsax), superlu (SciPy), cg (conjugate gradient in JAX with "
+        "an AMG V-cycle), pyamg (SciPy's CG with pyamg's V-cycle), auto (cholesky on CPU when sparsax is installed, "
+        "else superlu; cg on a GPU)",
     )
     parser.add_argument(
         "--view",
@@ -235,7 +243,7 @@ def _solve(mesh: Mesh, rho, values, *, fixed: tuple, mass: str, method: str) -> 
     compatible right-hand side (`_compatible`).
     """
     dirichlet = np.asarray(fixed, dtype=np.int64)
-    phi = solve_poisson(
+    phi, result = poisson_with_result(
         mesh,
         rho,
         dirichlet_vertices=dirichlet if dirichlet.size else None,
@@ -253,6 +261,7 @@ def _solve(mesh: Mesh, rho, values, *, fixed: tuple, mass: str, method: str) -> 
     scale = jnp.linalg.norm((mass_matrix_ @ compatible - laplacian @ lift)[free])
     return {
         "phi": phi,
+        "result": result,
         "rho": compatible,
         "residual": jnp.linalg.norm(residual) / jnp.where(scale > 0, scale, 1.0),
         "energy": poisson_energy(mesh, phi, compatible, mass=mass),
@@ -284,28 +293,19 @@ def _solve_timed(problem: Problem, args) -> tuple[dict, float, float]:
     arguments = (problem.mesh, jnp.asarray(problem.rho), jnp.asarray(problem.values))
     options = {"fixed": tuple(int(i) for i in problem.fixed), "mass": args.mass, "method": args.method}
     times = []
-    # A failed solve raises from a JAX callback, which also logs the whole traceback; the command
-    # reports the reason itself (run_poisson).
-    callback_logger = logging.getLogger("jax._src.callback")
-    level = callback_logger.level
-    callback_logger.setLevel(logging.CRITICAL)
-    try:
-        for _ in range(2):
-            start = time.perf_counter()
-            outputs = jax.block_until_ready(_solve(*arguments, **options))
-            times.append(time.perf_counter() - start)
-    finally:
-        callback_logger.setLevel(level)
+    for _ in range(2):
+        start = time.perf_counter()
+        outputs = jax.block_until_ready(_solve(*arguments, **options))
+        times.append(time.perf_counter() - start)
+        # The outcome is checked here, not inside the program, so JAX's persistent cache can keep it.
+        if outputs["result"] != RESULTS.successful:
+            raise RuntimeError(RESULTS[outputs["result"]])
     return jax.tree_util.tree_map(np.asarray, outputs), times[0], times[1]
 
 
 def _solver_name(method: str) -> str:
     """The backend `linear_solve` runs for `--method`, in words (`"auto"` resolved as it resolves it)."""
-    from ..solve._linear import _has_sparsax
-
-    if method == "auto":
-        method = "cholesky" if jax.default_backend() == "cpu" and _has_sparsax() else "cg"
-    return SOLVERS[method]
+    return SOLVERS[auto_method() if method == "auto" else method]
 
 
 def format_table(problem: Problem, outputs: dict, first: float, second: float, args) -> str:
@@ -383,7 +383,7 @@ def run_poisson(args: argparse.Namespace) -> int:
         print(f"ddgjax poisson: error: {error}", file=sys.stderr)
         return 2
     except RuntimeError as error:  # a failed solve (ddgjax.RESULTS through equinox, or CHOLMOD from XLA)
-        other = "cg" if _solver_name(args.method).startswith("cholesky") else "cholesky"
+        other = "cg" if _solver_name(args.method).startswith(("cholesky", "superlu")) else "superlu"
         print(
             f"ddgjax poisson: error: the solve failed: {_first_reason(error)}\n"
             f"(try --method {other}, or look for degenerate faces with `ddgjax info`)",

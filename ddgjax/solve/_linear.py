@@ -277,10 +277,7 @@ def _choose(method, preconditioner, system: SparseMatrix) -> tuple[str, str | AM
     if preconditioner is not None and not isinstance(preconditioner, AMGHierarchy):
         check_choice("preconditioner", preconditioner, PRECONDITIONERS)
     if method == "auto":
-        if preconditioner is not None or jax.default_backend() != "cpu":
-            method = "cg"
-        else:
-            method = "cholesky" if _has_sparsax() and jax.config.jax_enable_x64 else "superlu"
+        method = auto_method(preconditioner is not None)
         if method == "cg" and preconditioner is None:
             preconditioner = "jacobi" if is_traced(system.values) else "amg"
     if method != "cg" and preconditioner is not None:
@@ -303,6 +300,14 @@ def _choose(method, preconditioner, system: SparseMatrix) -> tuple[str, str | AM
             "(amg_refresh updates it inside jit), or use preconditioner='jacobi'"
         )
     return method, "jacobi" if method == "cg" and preconditioner is None else preconditioner
+
+
+def auto_method(preconditioned: bool = False) -> str:
+    """The backend `method="auto"` runs (module docstring): `"cg"` when a preconditioner is given or on an
+    accelerator, else `"cholesky"` where `sparsax` is installed and float64 is on, else `"superlu"`."""
+    if preconditioned or jax.default_backend() != "cpu":
+        return "cg"
+    return "cholesky" if _has_sparsax() and jax.config.jax_enable_x64 else "superlu"
 
 
 def _real_form(A: SparseMatrix) -> SparseMatrix:

@@ -35,6 +35,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_choice
+from .._results import RESULTS, raise_if_failed
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..laplacian._plan import vertex_plan
 from ..mesh._mesh import Mesh, require_mesh
@@ -62,7 +63,7 @@ def solve_poisson(
             host data). Default: none (Neumann everywhere).
         dirichlet_values: `(n_fixed,)` or `(n_fixed, k)` values there (default 0).
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
-        method: the backend of `linear_solve` (`"auto"`, `"cholesky"`, `"cg"`).
+        method: the backend of `linear_solve` (`"auto"`, `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`).
 
     Returns:
         `phi`, the shape of `rho`. A failed solve raises through `ddgjax.RESULTS` (use
@@ -70,19 +71,30 @@ def solve_poisson(
 
     libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix`.
     """
+    phi, result = poisson_with_result(
+        mesh, rho, dirichlet_vertices=dirichlet_vertices, dirichlet_values=dirichlet_values, mass=mass, method=method
+    )
+    return raise_if_failed(phi, result, throw=True)
+
+
+def poisson_with_result(mesh, rho, *, dirichlet_vertices=None, dirichlet_values=None, mass="voronoi", method="auto"):
+    """`solve_poisson`'s `(phi, result)` (`ddgjax.RESULTS`), raising nothing: for callers that check the
+    outcome themselves (a program without the run-time check, which JAX's persistent cache keeps)."""
     mesh = require_mesh("mesh", mesh)
     check_choice("mass", mass, MASSES)
     rho = _vertex_values("rho", mesh, rho)
     dirichlet = _DirichletData(mesh, dirichlet_vertices, dirichlet_values, rho.shape[1:])
     if dirichlet.plan is None:  # every vertex prescribed: nothing to solve
-        return jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
+        phi = jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
+        return phi, RESULTS.successful
     fixed_values = dirichlet.fixed_values(rho.dtype)
     floating = dirichlet.floating[dirichlet.labels]  # vertices whose component has no Dirichlet vertex
     return _solve(mesh, rho, fixed_values, dirichlet.plan, dirichlet.labels, floating, dirichlet.n_components, mass, method)
 
 
 # One compiled program per connectivity and size (the mesh's topology is static): an eager call does
-# not dispatch (and compile) each operation separately.
+# not dispatch (and compile) each operation separately. The outcome is checked outside it, so the
+# program has no host callback and JAX's persistent compilation cache can keep it.
 @functools.partial(jax.jit, static_argnums=(6, 7, 8))
 def _solve(mesh, rho, fixed_values, plan, labels, floating, n_components, mass, method):
     laplacian, mass_matrix_ = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
@@ -97,9 +109,9 @@ def _solve(mesh, rho, fixed_values, plan, labels, floating, n_components, mass, 
     compatible = rho - jnp.where(_broadcast(floating, rho), component_mean(rho), 0.0)
     rhs = -(mass_matrix_ @ compatible)
     free_free, free_fixed = dirichlet_blocks(laplacian, plan)
-    phi_free = linear_solve(free_free, rhs[plan.free] - free_fixed @ fixed_values, method=method).value
-    phi = plan.join(phi_free, fixed_values)
-    return phi - jnp.where(_broadcast(floating, phi), component_mean(phi), 0.0)
+    solution = linear_solve(free_free, rhs[plan.free] - free_fixed @ fixed_values, method=method, throw=False)
+    phi = plan.join(solution.value, fixed_values)
+    return phi - jnp.where(_broadcast(floating, phi), component_mean(phi), 0.0), solution.result
 
 
 def harmonic_interpolation(
