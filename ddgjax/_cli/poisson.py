@@ -38,7 +38,7 @@ DEFAULT_RESOLUTION = {"disk": 24, "sphere": 4}
 RHOS = ("auto", "one", "y2", "source")
 SOLVERS = {
     "cholesky": "cholesky (CHOLMOD through sparsax)",
-    "superlu": "superlu (SciPy's SuperLU in symmetric mode)",
+    "superlu": "superlu (SciPy's SuperLU)",
     "cg": "cg (conjugate gradient in JAX, AMG V-cycle preconditioner)",
     "pyamg": "pyamg (SciPy's conjugate gradient with pyamg's V-cycle)",
 }
@@ -303,9 +303,14 @@ def _solve_timed(problem: Problem, args) -> tuple[dict, float, float]:
     return jax.tree_util.tree_map(np.asarray, outputs), times[0], times[1]
 
 
-def _solver_name(method: str) -> str:
+def _unknowns(problem: Problem) -> int:
+    """The size of the system `solve_poisson` solves: the vertices that are not Dirichlet vertices."""
+    return problem.mesh.n_vertices - len(problem.fixed)
+
+
+def _solver_name(method: str, n: int) -> str:
     """The backend `linear_solve` runs for `--method`, in words (`"auto"` resolved as it resolves it)."""
-    return SOLVERS[auto_method() if method == "auto" else method]
+    return SOLVERS[auto_method(n) if method == "auto" else method]
 
 
 def format_table(problem: Problem, outputs: dict, first: float, second: float, args) -> str:
@@ -315,7 +320,7 @@ def format_table(problem: Problem, outputs: dict, first: float, second: float, a
     rows = [
         ("mesh", f"{problem.name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces, {loops} boundary loop{'s' * (loops != 1)}"),
         ("problem", problem.statement),
-        ("solver", f"{_solver_name(args.method)}, {args.mass} mass matrix"),
+        ("solver", f"{_solver_name(args.method, _unknowns(problem))}, {args.mass} mass matrix"),
         ("time", f"{first:.3g} s first call (compilation included), {second * 1e3:.3g} ms again"),
         ("relative residual", f"{float(outputs['residual']):.2e}  (|L phi + M rho| / |right-hand side| on the free vertices)"),
         ("energy", f"{float(outputs['energy']):.10g}  (1/2 phi^T L phi + phi^T M rho, minimised by phi)"),
@@ -383,7 +388,7 @@ def run_poisson(args: argparse.Namespace) -> int:
         print(f"ddgjax poisson: error: {error}", file=sys.stderr)
         return 2
     except RuntimeError as error:  # a failed solve (ddgjax.RESULTS through equinox, or CHOLMOD from XLA)
-        other = "cg" if _solver_name(args.method).startswith(("cholesky", "superlu")) else "superlu"
+        other = "cg" if _solver_name(args.method, _unknowns(problem)).startswith(("cholesky", "superlu")) else "superlu"
         print(
             f"ddgjax poisson: error: the solve failed: {_first_reason(error)}\n"
             f"(try --method {other}, or look for degenerate faces with `ddgjax info`)",

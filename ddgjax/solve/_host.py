@@ -4,9 +4,10 @@ Both run on the host through `jax.pure_callback`, so they work inside `jit`, `la
 (one host call per batch element) like the rest of `linear_solve`; JAX differentiates around them
 (`lax.custom_linear_solve`), they are never differentiated themselves.
 
-- `"superlu"`: SciPy's SuperLU (`scipy.sparse.linalg.splu`) in symmetric mode (minimum-degree
-  ordering of `A + A^T`, diagonal pivots), the direct solver of the bare install (BSD; CHOLMOD
-  through `sparsax` is the faster one, in the `cholmod` extra).
+- `"superlu"`: SciPy's SuperLU (`scipy.sparse.linalg.splu`, COLAMD ordering), the direct solver
+  of the bare install (BSD; CHOLMOD through `sparsax` is the faster one, in the `cholmod` extra).
+  SuperLU's symmetric mode (minimum degree on `A + A^T`, diagonal pivots) was measured 2-30x
+  slower on mesh Laplacians of 41k-164k vertices (benchmarks/README.md).
 - `"pyamg"`: SciPy's conjugate gradient preconditioned by a pyamg smoothed-aggregation V-cycle
   (the hierarchy of `ddgjax.solve._amg.pyamg_solver`), for systems too large to factor.
 
@@ -138,8 +139,7 @@ def _make(method: str, rows, cols, values, n: int):
     if method == "pyamg":
         return pyamg_solver(matrix)
     try:
-        # Symmetric mode: a fill-reducing ordering of A + A^T and pivots on the diagonal, as for Cholesky.
-        return spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        return spla.splu(matrix)
     except RuntimeError:  # "Factor is exactly singular"
         return None
 
