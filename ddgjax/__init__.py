@@ -3,7 +3,8 @@
 Subpackages: `ddgjax.curves` (plane curves, four discrete curvatures, curve-shortening flows),
 `ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes), `ddgjax.dec` (discrete exterior
 calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices), `ddgjax.sparse` (fixed-pattern sparse
-matrices), `ddgjax.solve` (energies and differentiable sparse solves), `ddgjax.io` (mesh files),
+matrices), `ddgjax.solve` (energies and differentiable sparse solves), `ddgjax.spectral` (Laplacian
+eigenpairs), `ddgjax.io` (mesh files),
 `ddgjax.plot` (figures). Conventions: see DESIGN.md and the README.
 
 Failures that depend on values inside `jit` (a flow that self-intersects, later a solve that does not
@@ -25,6 +26,7 @@ from . import io as io
 from . import laplacian as laplacian
 from . import mesh as mesh
 from . import solve as solve
+from . import spectral as spectral
 from . import sparse as sparse
 from ._compile import cpu_compiler_options as cpu_compiler_options
 from ._errors import DDGInputError as DDGInputError

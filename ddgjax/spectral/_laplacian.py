@@ -1,0 +1,143 @@
+"""Laplacian eigenfunctions of a mesh and the spectral tools built on them.
+
+`eigenpairs(mesh, k)` solves `L phi = lambda M phi` (`L` the PSD cotan Laplacian, `M` a mass matrix):
+the discrete counterpart of `-Delta phi = lambda phi`, so the unit sphere gives `l (l + 1)` with
+multiplicity `2 l + 1`. Eigenvectors are M-orthonormal, `Phi^T M Phi = I`: the discrete
+`int phi_i phi_j dA = delta_ij`. With `boundary="dirichlet"` the boundary vertices are held at 0
+(the problem is solved on the interior vertices and the eigenvectors are 0 on the boundary); with
+`"neumann"` (default) nothing is held, the natural boundary condition of the weak form.
+
+On top of an eigenbasis: `spectral_coefficients` (`c = Phi^T M f`), `spectral_reconstruction`
+(`Phi c`), `spectral_filter` (`Phi g(Lambda) Phi^T M f`), `heat_kernel` (`k_t(x, y) = sum_i
+exp(-lambda_i t) phi_i(x) phi_i(y)`) and `heat_kernel_signature` (`k_t(x, x)`, Sun, Ovsjanikov &
+Guibas 2009), all plain JAX functions of the eigenpairs, so differentiable through them.
+
+References: B. Vallet & B. Lévy, "Spectral geometry processing with manifold harmonics" (2008);
+J. Sun, M. Ovsjanikov & L. Guibas, "A concise and provably informative multi-scale signature based
+on heat diffusion" (2009). libigl: `igl.eigs(L, M, k, igl.EIGS_TYPE_SM)`; SciPy:
+`scipy.sparse.linalg.eigsh(L, k, M, sigma=0)`.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._errors import DDGInputError, check_choice
+from ..laplacian import cotan_laplacian, mass_matrix
+from ..mesh._mesh import Mesh, require_mesh
+from ..sparse import SparseMatrix, dirichlet_blocks, dirichlet_plan
+from ._generalized import smallest_eigenpairs
+
+BOUNDARY_CONDITIONS = ("neumann", "dirichlet")
+
+
+def eigenpairs(
+    mesh: Mesh, k: int, *, mass: str = "voronoi", boundary: str = "neumann"
+) -> tuple[Float[Array, " k"], Float[Array, "nv k"]]:
+    """The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
+
+    Args:
+        mesh: a triangle mesh.
+        k: number of eigenpairs (fewer than the unknowns).
+        mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
+        boundary: `"neumann"` (default) or `"dirichlet"` (zero on the boundary; needs a boundary).
+
+    Returns:
+        `(eigenvalues (k,), eigenvectors (nv, k))`, ascending, M-orthonormal, each eigenvector's entry
+        of largest magnitude positive. Differentiable in the vertex positions
+        (`ddgjax.spectral.smallest_eigenpairs`: eigenvalues always; eigenvectors away from clusters
+        of equal eigenvalues; any function invariant within a cluster), under `jit` and `vmap`.
+
+    libigl: `igl.eigs(-igl.cotmatrix(V, F), igl.massmatrix(V, F), k, igl.EIGS_TYPE_SM)`.
+    """
+    mesh = require_mesh("mesh", mesh)
+    check_choice("mass", mass, ("voronoi", "barycentric", "galerkin"))
+    check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
+    L, M = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+    if boundary == "neumann":
+        return smallest_eigenpairs(L, M, k)
+    fixed = mesh.topology.boundary_vertices
+    if fixed.size == 0:
+        raise DDGInputError("boundary: 'dirichlet' needs a mesh with a boundary; this mesh is closed (use 'neumann')")
+    plan = dirichlet_plan(L, fixed)
+    L_ff, _ = dirichlet_blocks(L, plan)
+    M_ff, _ = dirichlet_blocks(M, dirichlet_plan(M, fixed))
+    values, vectors = smallest_eigenpairs(L_ff, M_ff, k)
+    return values, plan.join(vectors, jnp.zeros((fixed.size, k), vectors.dtype))
+
+
+def spectral_coefficients(
+    vectors: Float[ArrayLike, "nv k"], M: SparseMatrix, f: Float[ArrayLike, "nv *m"]
+) -> Float[Array, "k *m"]:
+    """`c = Phi^T M f`: the coordinates of `f` in an M-orthonormal eigenbasis (the discrete `int f phi_i dA`)."""
+    vectors, f = _basis("vectors", vectors, M), _functions("f", f, M)
+    return vectors.T @ (M @ f)
+
+
+def spectral_reconstruction(vectors: Float[ArrayLike, "nv k"], coefficients: Float[ArrayLike, "k *m"]) -> Float[Array, "nv *m"]:
+    """`Phi c`: the function with coordinates `c` (its projection onto the basis, for `c = Phi^T M f`)."""
+    vectors, coefficients = jnp.asarray(vectors), jnp.asarray(coefficients)
+    if vectors.ndim != 2 or coefficients.ndim not in (1, 2) or coefficients.shape[0] != vectors.shape[1]:
+        raise DDGInputError(
+            f"coefficients: expected shape ({vectors.shape[-1]},) or ({vectors.shape[-1]}, m) for vectors of shape "
+            f"{vectors.shape}, got {coefficients.shape}"
+        )
+    return vectors @ coefficients
+
+
+def spectral_filter(
+    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], M: SparseMatrix, f: Float[ArrayLike, "nv *m"], response
+) -> Float[Array, "nv *m"]:
+    """`Phi g(Lambda) Phi^T M f`: `f` filtered by the frequency response `g` (a JAX function of the eigenvalues).
+
+    E.g. `response = lambda lam: lam < 50` keeps the low frequencies (smoothing), `jnp.exp(-t lam)` is
+    heat diffusion for time `t` restricted to the basis.
+    """
+    values = jnp.asarray(values)
+    coefficients = spectral_coefficients(vectors, M, f)
+    gains = jnp.asarray(response(values), coefficients.dtype)
+    return spectral_reconstruction(vectors, gains.reshape(gains.shape + (1,) * (coefficients.ndim - 1)) * coefficients)
+
+
+def heat_kernel(
+    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], t: float, sources: ArrayLike
+) -> Float[Array, "nv n_sources"]:
+    """`k_t(x, y) = sum_i exp(-lambda_i t) phi_i(x) phi_i(y)` for every vertex `x` and each source vertex `y`.
+
+    The heat at time `t` from a unit of heat at `y` (per unit area), truncated to the basis.
+    """
+    values, vectors = jnp.asarray(values), jnp.asarray(vectors)
+    sources = np.atleast_1d(np.asarray(sources))
+    if sources.ndim != 1 or not np.issubdtype(sources.dtype, np.integer) or sources.size == 0:
+        raise DDGInputError(f"sources: expected a non-empty 1-d array of vertex indices, got {sources!r}")
+    if sources.min() < 0 or sources.max() >= vectors.shape[0]:
+        raise DDGInputError(f"sources: vertex indices must lie in [0, {vectors.shape[0]})")
+    return (vectors * jnp.exp(-values * t)) @ vectors[sources].T
+
+
+def heat_kernel_signature(
+    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], times: Float[ArrayLike, " *n_times"] | float
+) -> Float[Array, "nv n_times"]:
+    """The heat kernel signature `HKS(x, t) = k_t(x, x) = sum_i exp(-lambda_i t) phi_i(x)^2` (Sun et al. 2009).
+
+    Invariant within clusters of equal eigenvalues (a sum of `phi_i^2` over an eigenspace does not
+    depend on its basis), so differentiable on symmetric shapes too.
+    """
+    values, vectors, times = jnp.asarray(values), jnp.asarray(vectors), jnp.atleast_1d(jnp.asarray(times))
+    return (vectors**2) @ jnp.exp(-values[:, None] * times[None, :])
+
+
+def _basis(name: str, vectors, M: SparseMatrix) -> Float[Array, "nv k"]:
+    vectors = jnp.asarray(vectors)
+    if vectors.ndim != 2 or vectors.shape[0] != M.shape[0]:
+        raise DDGInputError(f"{name}: expected shape ({M.shape[0]}, k), got {vectors.shape}")
+    return vectors
+
+
+def _functions(name: str, f, M: SparseMatrix) -> Float[Array, "nv *m"]:
+    f = jnp.asarray(f)
+    if f.ndim not in (1, 2) or f.shape[0] != M.shape[0]:
+        raise DDGInputError(f"{name}: expected shape ({M.shape[0]},) or ({M.shape[0]}, m), got {f.shape}")
+    return f

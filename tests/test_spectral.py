@@ -1,0 +1,191 @@
+"""Tests for ddgjax.spectral: Laplacian eigenpairs against analytic spectra (sphere, hemisphere, disk,
+square) with fitted convergence rates and against SciPy's eigsh on a real mesh; gradients (eigenvalues,
+eigenvectors, cluster-invariant functions) against finite differences; the spectral tools."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+from scipy.special import jn_zeros
+
+from ddgjax import DDGInputError
+from ddgjax.io import load_mesh
+from ddgjax.laplacian import cotan_laplacian, mass_matrix
+from ddgjax.mesh import disk, edge_lengths, grid, icosphere
+from ddgjax.spectral import (
+    eigenpairs,
+    heat_kernel,
+    heat_kernel_signature,
+    smallest_eigenpairs,
+    spectral_coefficients,
+    spectral_filter,
+    spectral_reconstruction,
+)
+
+from conftest import shared_path
+
+# The unit sphere: l (l + 1) with multiplicity 2 l + 1, l = 0..3.
+SPHERE_SPECTRUM = np.repeat([0.0, 2.0, 6.0, 12.0], [1, 3, 5, 7])
+
+
+def _hemisphere(n_rings):
+    """The unit upper hemisphere, from the unit disk: radius r to polar angle r pi / 2."""
+    flat = disk(n_rings)
+    xy = np.asarray(flat.vertices)[:, :2]
+    r = np.linalg.norm(xy, axis=1)
+    theta = r * np.pi / 2
+    direction = xy / np.where(r > 0, r, 1.0)[:, None]
+    vertices = np.column_stack([np.sin(theta)[:, None] * direction, np.cos(theta)])
+    return flat.with_vertices(jnp.asarray(vertices))
+
+
+def test_unit_sphere_converges_to_l_l_plus_1_at_second_order():
+    errors, sizes = [], []
+    for subdivisions in (2, 3, 4):
+        mesh = icosphere(subdivisions)
+        values, vectors = eigenpairs(mesh, 16)
+        M = mass_matrix(mesh)
+        np.testing.assert_allclose(vectors.T @ (M @ vectors), np.eye(16), atol=1e-10)
+        errors.append(np.abs(np.asarray(values) - SPHERE_SPECTRUM).max())
+        sizes.append(float(jnp.mean(edge_lengths(mesh))))
+    rate = np.polyfit(np.log(sizes), np.log(errors), 1)[0]
+    assert 1.8 < rate < 2.3, (errors, rate)  # measured: 2.0
+    assert errors[-1] < 0.06  # measured: 0.05 at 2562 vertices (l = 3)
+
+
+def test_agrees_with_scipy_eigsh_on_camelhead_neumann_and_dirichlet():
+    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    L, M = cotan_laplacian(mesh), mass_matrix(mesh)
+    interior = np.setdiff1d(np.arange(mesh.n_vertices), mesh.topology.boundary_vertices)
+    for boundary, rows in (("neumann", np.arange(mesh.n_vertices)), ("dirichlet", interior)):
+        values, vectors = eigenpairs(mesh, 10, boundary=boundary)
+        A, B = L.to_scipy()[rows][:, rows], M.to_scipy()[rows][:, rows]
+        expected, reference = spla.eigsh(A.tocsc(), k=10, M=B.tocsc(), sigma=-1e-6, which="LM")
+        np.testing.assert_allclose(values, expected, rtol=1e-8, atol=1e-10)
+        # Same eigenvectors up to sign (the spectrum here has no clusters): |phi_i^T M psi_i| = 1.
+        overlaps = np.asarray(vectors)[rows].T @ (B @ reference)
+        np.testing.assert_allclose(np.abs(np.diag(overlaps)), 1.0, atol=1e-8)
+        if boundary == "dirichlet":
+            assert np.all(np.asarray(vectors)[mesh.topology.boundary_vertices] == 0)
+        largest = np.abs(np.asarray(vectors)).argmax(axis=0)
+        assert np.all(np.asarray(vectors)[largest, np.arange(10)] > 0)  # the sign convention
+
+
+@pytest.mark.parametrize(
+    ("boundary", "expected"),
+    # Spherical harmonics Y_l^m odd about the equator (l + m odd) vanish there; even ones (l + m even)
+    # have zero normal derivative.
+    [("dirichlet", [2.0, 6.0, 6.0, 12.0, 12.0, 12.0]), ("neumann", [0.0, 2.0, 2.0, 6.0, 6.0, 6.0])],
+)
+def test_hemisphere_spectrum(boundary, expected):
+    values, _ = eigenpairs(_hemisphere(16), 6, boundary=boundary)
+    np.testing.assert_allclose(values, expected, rtol=0.02, atol=0.02)
+
+
+def test_unit_disk_dirichlet_spectrum_is_the_squared_bessel_zeros():
+    j0, j1, j2 = jn_zeros(0, 2), jn_zeros(1, 1), jn_zeros(2, 1)
+    expected = np.sort(np.concatenate([j0**2, np.repeat(j1**2, 2), np.repeat(j2**2, 2)]))
+    values, _ = eigenpairs(disk(16), 6, boundary="dirichlet")
+    np.testing.assert_allclose(values, expected, rtol=0.01)
+
+
+def test_unit_square_spectrum():
+    square = grid(24, 24, size=1.0)
+    dirichlet, _ = eigenpairs(square, 4, boundary="dirichlet")
+    neumann, _ = eigenpairs(square, 4)
+    np.testing.assert_allclose(dirichlet, np.pi**2 * np.array([2.0, 5.0, 5.0, 8.0]), rtol=0.01)
+    np.testing.assert_allclose(neumann, np.pi**2 * np.array([0.0, 1.0, 1.0, 2.0]), rtol=0.01, atol=1e-9)
+
+
+def _finite_difference(f, V, seed=0, eps=1e-6):
+    direction = np.random.default_rng(seed).standard_normal(V.shape)
+    return direction, (f(V + eps * direction) - f(V - eps * direction)) / (2 * eps)
+
+
+def test_gradients_of_eigenvalues_eigenvectors_and_cluster_invariant_functions():
+    mesh = icosphere(2)
+
+    def spectrum(V, k):
+        moved = mesh.with_vertices(V)
+        return smallest_eigenpairs(cotan_laplacian(moved), mass_matrix(moved), k)
+
+    # A generic shape (no clusters): eigenvalues and a function of the eigenvectors.
+    rng = np.random.default_rng(1)
+    V = mesh.vertices * jnp.asarray([1.0, 1.2, 1.5]) + 0.02 * rng.standard_normal(mesh.vertices.shape)
+    weights = jnp.linspace(0.0, 1.0, mesh.n_vertices)[:, None]
+
+    def generic(V):
+        values, vectors = spectrum(V, 6)
+        return jnp.sum(values[1:] ** 1.5) + jnp.sum(jnp.sin(3.0 * vectors[:, 1:]) * weights)
+
+    # The round sphere (clusters of 3 and 5): functions invariant within each cluster.
+    def invariant(V):
+        values, vectors = spectrum(V, 9)
+        return (
+            jnp.sum(values[1:4])
+            + jnp.sum(values[4:9] ** 2)
+            + jnp.sum(heat_kernel_signature(values, vectors, 0.1) * weights[:, 0])
+        )
+
+    for f, point in ((generic, V), (invariant, mesh.vertices)):
+        gradient = jax.jit(jax.grad(f))(point)
+        assert np.all(np.isfinite(gradient))
+        direction, finite = _finite_difference(jax.jit(f), point)
+        # Central differences with step 1e-6: truncation ~1e-12, rounding ~1e-10 relative.
+        np.testing.assert_allclose(jnp.vdot(gradient, direction), finite, rtol=1e-6)
+
+
+def test_jit_and_vmap_equal_eager():
+    mesh = icosphere(2)
+    eager = eigenpairs(mesh, 5, boundary="neumann")
+    jitted = jax.jit(lambda V: eigenpairs(mesh.with_vertices(V), 5))(mesh.vertices)
+    for a, b in zip(eager, jitted):
+        np.testing.assert_allclose(a, b, atol=1e-10)
+    scales = jnp.asarray([1.0, 2.0])
+    batched = jax.vmap(lambda s: eigenpairs(mesh.with_vertices(s * mesh.vertices), 5)[0])(scales)
+    np.testing.assert_allclose(batched[1], batched[0] / 4, rtol=1e-8, atol=1e-10)  # lambda scales as 1 / s^2
+
+
+def test_spectral_tools():
+    mesh = icosphere(2)
+    M = mass_matrix(mesh)
+    values, vectors = eigenpairs(mesh, 16)
+    # A function in the span is reconstructed exactly; the coefficients are its coordinates.
+    coefficients = jnp.arange(16.0)
+    f = vectors @ coefficients
+    np.testing.assert_allclose(spectral_coefficients(vectors, M, f), coefficients, atol=1e-9)
+    np.testing.assert_allclose(spectral_reconstruction(vectors, spectral_coefficients(vectors, M, f)), f, atol=1e-9)
+    # Filtering: an all-pass response projects; a low-pass one keeps the first four coordinates.
+    kept = spectral_filter(values, vectors, M, f, lambda lam: lam < 3.0)
+    np.testing.assert_allclose(
+        spectral_coefficients(vectors, M, kept), jnp.where(jnp.arange(16) < 4, coefficients, 0.0), atol=1e-9
+    )
+    # The heat kernel: symmetric, its diagonal is the signature, and it integrates to exp(0) = 1 (the
+    # constant eigenfunction carries all the mass).
+    kernel = heat_kernel(values, vectors, 0.5, np.arange(mesh.n_vertices))
+    np.testing.assert_allclose(kernel, kernel.T, atol=1e-12)
+    np.testing.assert_allclose(jnp.diagonal(kernel), heat_kernel_signature(values, vectors, 0.5)[:, 0], atol=1e-12)
+    np.testing.assert_allclose(jnp.sum(M @ kernel[:, 7]), 1.0, rtol=1e-9)
+
+
+def test_bad_input(without_type_checker):
+    mesh = icosphere(1)
+    cases = [
+        (lambda: eigenpairs(mesh, 0), "k: expected an integer >= 1"),
+        (lambda: eigenpairs(mesh, mesh.n_vertices), "k: expected fewer eigenpairs than unknowns"),
+        (lambda: eigenpairs(mesh, 3, boundary="robin"), "boundary: expected one of"),
+        (lambda: eigenpairs(mesh, 3, boundary="dirichlet"), "boundary: 'dirichlet' needs a mesh with a boundary"),
+        (lambda: eigenpairs(mesh, 3, mass="cubic"), "mass: expected one of"),
+        (
+            lambda: smallest_eigenpairs(cotan_laplacian(mesh).to_scipy(), mass_matrix(mesh), 3),
+            "L: expected a ddgjax SparseMatrix",
+        ),
+        (lambda: heat_kernel(jnp.ones(3), jnp.ones((42, 3)), 1.0, [42]), "sources: vertex indices must lie in"),
+        (lambda: spectral_coefficients(jnp.ones((41, 3)), mass_matrix(mesh), jnp.ones(42)), r"vectors: expected shape \(42, k\)"),
+    ]
+    for call, message in cases:
+        with pytest.raises(DDGInputError, match=message):
+            call()
