@@ -26,8 +26,8 @@ from . import io as io
 from . import laplacian as laplacian
 from . import mesh as mesh
 from . import solve as solve
-from . import spectral as spectral
 from . import sparse as sparse
+from . import spectral as spectral
 from ._compile import cpu_compiler_options as cpu_compiler_options
 from ._errors import DDGInputError as DDGInputError
 from ._errors import MeshDataError as MeshDataError
