@@ -187,6 +187,7 @@ class _DirichletData:
         pins = first_vertex[floating[:-1]]
         extra = np.setdiff1d(unreferenced, vertices)
         fixed = np.concatenate([vertices, pins, extra])
+        self.fixed = fixed  # host copy: the plan's arrays are traced when this runs inside jit
         self.plan = dirichlet_plan(vertex_plan(mesh).pattern, fixed) if fixed.size < n else None
         self.vertices = vertices
         self.values = values

@@ -1,0 +1,12 @@
+"""Geodesic distance on triangle meshes, differentiable in the vertex positions.
+
+- `heat_distance(mesh, sources, *, t_coef=1.0, ...)`: the heat method (Crane, Weischedel & Wardetzky
+  2013): a short heat flow from the sources, its normalised gradient, a Poisson solve.
+- `heat_distance_solver(mesh, ...)`: the same with the factorisations kept, `solver.distance(sources)`
+  per query (`HeatDistanceSolver`).
+"""
+
+from ._heat import HeatDistanceSolver as HeatDistanceSolver
+from ._heat import HeatMethodSteps as HeatMethodSteps
+from ._heat import heat_distance as heat_distance
+from ._heat import heat_distance_solver as heat_distance_solver
