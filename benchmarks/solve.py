@@ -847,7 +847,7 @@ def _scan_on(name, mesh, args):
 
     calls = {"ddgjax factorize + scan, cholesky (CHOLMOD)": (ddgjax_scan("cholesky"), ())}
     calls["ddgjax factorize + scan, superlu"] = (ddgjax_scan("superlu"), ())
-    calls["scipy splu (symmetric mode) + loop"] = (scipy_loop(lambda A: spla.splu(A, **SUPERLU_SYMMETRIC).solve), ())
+    calls["scipy splu (COLAMD) + loop"] = (scipy_loop(lambda A: spla.splu(A).solve), ())
     if cholespy is not None:
         calls["cholespy + loop"] = (
             scipy_loop(lambda A: (lambda s: lambda b: cholespy_solve(s, b))(cholespy_factor(A.tocsr()))),

@@ -1,6 +1,7 @@
 """The `ddgjax` command line: `ddgjax flow` (curve-shortening flows, the reading report's Figure 3),
-`ddgjax info` (topology and curvature report of a mesh) and `ddgjax poisson` (a Poisson or harmonic
-problem solved on a mesh, with a picture of the solution).
+`ddgjax info` (topology and curvature report of a mesh), `ddgjax poisson` (a Poisson or harmonic
+problem solved on a mesh, with a picture of the solution), `ddgjax geodesic` (a heat-method distance
+field) and `ddgjax spectrum` (Laplacian eigenvalues and eigenfunctions).
 
 Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
@@ -24,7 +25,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import flow, info, poisson
+from . import flow, info, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -108,6 +109,22 @@ def build_parser() -> argparse.ArgumentParser:
             help="solve a Poisson or harmonic problem on a mesh and draw the solution",
             description="Solve Delta phi = rho (Delta = -M^{-1} L) or a harmonic interpolation problem on a mesh, "
             "print the solver's numbers and write a figure of the solution.",
+        )
+    )
+    spectral.add_geodesic_arguments(
+        sub.add_parser(
+            "geodesic",
+            parents=[common],
+            help="geodesic distance from a vertex by the heat method, drawn with isolines",
+            description="Compute the heat-method distance from one vertex and draw it on the mesh.",
+        )
+    )
+    spectral.add_spectrum_arguments(
+        sub.add_parser(
+            "spectrum",
+            parents=[common],
+            help="the smallest Laplacian eigenvalues and the first eigenfunctions, drawn on the mesh",
+            description="Compute the smallest eigenpairs of L phi = lambda M phi and draw the first eigenfunctions.",
         )
     )
     return parser

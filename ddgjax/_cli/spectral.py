@@ -1,0 +1,140 @@
+"""`ddgjax geodesic [MESH]` and `ddgjax spectrum [MESH]`: a heat-method distance field and the first
+Laplacian eigenfunctions, printed as numbers and drawn on the mesh.
+
+Both default to a built-in shape (no file needed): the torus, whose distances wrap around its hole and
+whose eigenfunctions come in pairs. A mesh file is read with `ddgjax.io.load_mesh`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import DDGInputError, MeshDataError
+from ..geodesics import heat_distance_solver
+from ..io import load_mesh
+from ..mesh import Mesh, torus
+from ..spectral import eigenpairs
+
+_DEFAULT_SHAPE = "built-in torus(R=1.0, r=0.4, n_major=64, n_minor=24)"
+
+
+def add_geodesic_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `ddgjax geodesic`; its action is `run_geodesic`."""
+    _common(parser, "geodesic.png")
+    parser.add_argument("--source", type=int, default=0, help="source vertex (default 0)")
+    parser.add_argument("--t-coef", type=float, default=1.0, help="heat time in units of the squared mean edge length")
+    parser.add_argument("--bands", type=int, default=12, help="number of colour bands, whose edges are the isolines")
+    parser.set_defaults(run=run_geodesic)
+
+
+def add_spectrum_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `ddgjax spectrum`; its action is `run_spectrum`."""
+    _common(parser, "spectrum.png")
+    parser.add_argument("-k", type=int, default=8, help="number of eigenpairs (default 8; up to 6 non-constant ones drawn)")
+    parser.add_argument("--boundary", choices=("neumann", "dirichlet"), default="neumann", help="boundary condition")
+    parser.set_defaults(run=run_spectrum)
+
+
+def _common(parser: argparse.ArgumentParser, output: str) -> None:
+    parser.add_argument(
+        "mesh", nargs="?", default=None, help=f"mesh file (.obj, .off, .ply, .stl); default: the {_DEFAULT_SHAPE}"
+    )
+    parser.add_argument("--output", default=output, help=f"figure file (default {output})")
+    parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
+    parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the axis that points up in the view")
+
+
+def _mesh(args) -> tuple[str, Mesh]:
+    if args.mesh is None:
+        return _DEFAULT_SHAPE, torus(1.0, 0.4, 64, 24, dtype=jnp.float64)
+    if not os.path.isfile(args.mesh):
+        raise DDGInputError(f"MESH: expected an existing mesh file, got {args.mesh!r}")
+    try:
+        return os.path.basename(args.mesh), load_mesh(args.mesh, dtype=jnp.float64)
+    except (DDGInputError, MeshDataError) as error:
+        raise type(error)(f"{args.mesh}: {error}") from error
+
+
+def run_geodesic(args: argparse.Namespace) -> int:
+    """Action of `ddgjax geodesic`: distance from one vertex by the heat method; 2 on bad input."""
+    try:
+        name, mesh = _mesh(args)
+        if not 0 <= args.source < mesh.n_vertices:
+            raise DDGInputError(f"--source: expected a vertex index in [0, {mesh.n_vertices}), got {args.source}")
+        if not args.t_coef > 0 or args.bands < 2:
+            raise DDGInputError("--t-coef: expected a positive number; --bands: expected at least 2")
+        start = time.perf_counter()
+        solver = heat_distance_solver(mesh, t_coef=args.t_coef)
+        distance = np.asarray(jax.block_until_ready(solver.distance([args.source])))
+        elapsed = time.perf_counter() - start
+    except (DDGInputError, MeshDataError) as error:
+        print(f"ddgjax geodesic: error: {error}", file=sys.stderr)
+        return 2
+    rows = [
+        ("mesh", f"{name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces"),
+        ("source", f"vertex {args.source}"),
+        ("time", f"{elapsed:.3g} s (factorisations, one query, compilation included)"),
+        ("distance", f"max {distance.max():.4g}, mean {distance.mean():.4g}"),
+    ]
+    print("\n".join(f"{key:10s} {value}" for key, value in rows))
+    if not args.no_plot:
+        _draw(mesh, [("geodesic distance (heat method)", distance)], name, args, bands=args.bands)
+    return 0
+
+
+def run_spectrum(args: argparse.Namespace) -> int:
+    """Action of `ddgjax spectrum`: the smallest eigenpairs of the Laplacian; 2 on bad input."""
+    try:
+        name, mesh = _mesh(args)
+        start = time.perf_counter()
+        values, vectors = jax.block_until_ready(eigenpairs(mesh, args.k, boundary=args.boundary))
+        elapsed = time.perf_counter() - start
+    except (DDGInputError, MeshDataError) as error:
+        print(f"ddgjax spectrum: error: {error}", file=sys.stderr)
+        return 2
+    values, vectors = np.asarray(values), np.asarray(vectors)
+    print(f"mesh       {name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces")
+    print(f"time       {elapsed:.3g} s (compilation included)")
+    print("eigenvalues " + " ".join(f"{value:.6g}" for value in values))
+    if not args.no_plot:
+        # Constant eigenfunctions (lambda = 0, one per closed component) carry no picture: drawn from the first other one.
+        first = int(np.argmax(values > 1e-8 * max(values.max(), 1e-300))) if values.max() > 0 else 0
+        panels = [(f"$\\phi_{{{i}}}$, $\\lambda$ = {values[i]:.4g}", vectors[:, i]) for i in range(first, min(first + 6, args.k))]
+        _draw(mesh, panels, name, args)
+    return 0
+
+
+def _draw(mesh: Mesh, panels, name: str, args, bands: int | None = None) -> None:
+    # Imported here: matplotlib is only needed when a figure is written.
+    from matplotlib import colormaps
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ..plot import plot_mesh_function
+
+    columns = min(3, len(panels))
+    rows = -(-len(panels) // columns)
+    figure = Figure(figsize=(4.6 * columns + 0.6, 4.2 * rows), layout="constrained")
+    FigureCanvasAgg(figure)
+    # Bands of one colour each: their edges are the isolines.
+    cmap = colormaps["viridis"].resampled(bands) if bands else "RdBu_r"
+    for index, (title, values) in enumerate(panels):
+        axes = figure.add_subplot(rows, columns, index + 1)
+        limit = None if bands else np.abs(values).max()
+        collection = plot_mesh_function(axes, mesh, values, up=args.up, cmap=cmap, vmin=None if bands else -limit, vmax=limit)
+        axes.set_title(title, fontsize=10)
+        figure.colorbar(collection, ax=axes, shrink=0.8)
+    figure.suptitle(name, fontsize=10)
+    try:
+        figure.savefig(args.output, dpi=110)
+    except OSError as error:
+        print(f"error: cannot write {args.output}: {error}", file=sys.stderr)
+        raise SystemExit(2) from error
+    print(f"figure written to {args.output}")
