@@ -4,6 +4,8 @@ eigenvectors, cluster-invariant functions) against finite differences; the spect
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -189,3 +191,21 @@ def test_bad_input(without_type_checker):
     for call, message in cases:
         with pytest.raises(DDGInputError, match=message):
             call()
+
+
+def test_pure_jax_subspace_iteration_agrees_with_arpack():
+    # k closes the clusters: 1 + 3 + 5 on the sphere; j01, j11 (2), j21 (2), j02, j31 (2) on the disk.
+    for mesh, boundary, k in ((icosphere(2), "neumann", 9), (disk(6), "dirichlet", 8)):
+        expected = eigenpairs(mesh, k, boundary=boundary, method="arpack")
+        M = mass_matrix(mesh)
+        for solver in ("auto", "cg"):
+            solve = jax.jit(functools.partial(_subspace_eigenpairs, mesh, k=k, boundary=boundary, solver=solver))
+            values, vectors = solve(mesh.vertices)
+            np.testing.assert_allclose(values, expected[0], rtol=1e-9, atol=1e-9)
+            # Eigenvectors up to the basis inside clusters: both span the same subspace, M-orthonormally.
+            overlap = np.asarray(expected[1]).T @ np.asarray(M @ vectors)
+            np.testing.assert_allclose(np.linalg.svd(overlap, compute_uv=False), 1.0, atol=1e-8)
+
+
+def _subspace_eigenpairs(mesh, V, *, k, boundary, solver):
+    return eigenpairs(mesh.with_vertices(V), k, boundary=boundary, method="subspace", solver=solver)

@@ -6,11 +6,13 @@ a mass matrix) and eigenvectors `Phi = [phi_1 ... phi_k]` normalised `Phi^T M Ph
 deterministic sign: its entry of largest magnitude is positive. Within a cluster of equal
 eigenvalues (the sphere's `2l + 1`) the basis is whatever the solver found.
 
-**Forward** (host): ARPACK's shift-invert Lanczos (`scipy.sparse.linalg.eigsh(L, k, M, sigma)`,
+**Forward**, `method="arpack"` (host, the default on CPU): ARPACK's shift-invert Lanczos (`scipy.sparse.linalg.eigsh(L, k, M, sigma)`,
 which factors `L - sigma M` once with SuperLU), called through `jax.pure_callback`, so it runs
 inside `jit` and `vmap` (sequentially); small problems (`n <= 2 k + 64`) are solved densely.
 The shift `sigma` sits just below zero, `-1e-8 trace(L) / trace(M)`, so `L - sigma M` is definite
-even for a singular `L` (a closed surface's constants).
+even for a singular `L` (a closed surface's constants). `method="subspace"` (the default on an
+accelerator) is shift-invert subspace iteration in JAX (`_subspace_iteration`), its solves by
+`ddgjax.solve.factorize` (pure JAX with `solver="cg"`).
 
 **Reverse mode** (`jax.custom_vjp`, with respect to the values of `L` and `M`): with
 `dA_i = (dL - lambda_i dM) phi_i`,
@@ -48,25 +50,36 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError, check_count
+from .._errors import DDGInputError, check_choice, check_count
 from ..solve import factorize
+from ..solve._linear import METHODS as SOLVE_METHODS
 from ..solve._linear import preconditioned_cg
-from ..sparse import SparseMatrix
+from ..sparse import SparseMatrix, nonnegative
 
 # Eigenvalues within this fraction of the largest computed one count as one cluster (module docstring).
 _CLUSTER_TOLERANCE = 1e-8
+METHODS = ("auto", "arpack", "subspace")
+# The subspace iteration's stopping test (relative to the block's largest Ritz value) and step limit.
+_SUBSPACE_TOLERANCE = 1e-10
+_SUBSPACE_MAX_STEPS = 500
 # Relative residual of the adjoint conjugate gradient, and its iteration limit.
 _ADJOINT_RTOL = 1e-10
 _ADJOINT_MAX_STEPS = 1000
 
 
-def smallest_eigenpairs(L: SparseMatrix, M: SparseMatrix, k: int) -> tuple[Float[Array, " k"], Float[Array, "n k"]]:
+def smallest_eigenpairs(
+    L: SparseMatrix, M: SparseMatrix, k: int, *, method: str = "auto", solver: str = "auto"
+) -> tuple[Float[Array, " k"], Float[Array, "n k"]]:
     """The `k` smallest eigenpairs of `L phi = lambda M phi` (module docstring), differentiable in both matrices' values.
 
     Args:
         L: `(n, n)` symmetric positive semidefinite `SparseMatrix`.
         M: `(n, n)` symmetric positive definite `SparseMatrix` (diagonal or not).
         k: number of eigenpairs, `1 <= k < n`.
+        method: `"arpack"` (host, module docstring), `"subspace"` (pure JAX: shift-invert subspace
+            iteration, `_subspace_iteration`) or `"auto"` (`"arpack"` on CPU, `"subspace"` elsewhere).
+        solver: the `ddgjax.solve.factorize` backend of the subspace iteration's solves with
+            `L - sigma M` (`"auto"`; `"cg"` keeps everything in JAX on any device).
 
     Returns:
         `(eigenvalues (k,), eigenvectors (n, k))`, ascending, `Phi^T M Phi = I`, in `L`'s dtype.
@@ -82,7 +95,11 @@ def smallest_eigenpairs(L: SparseMatrix, M: SparseMatrix, k: int) -> tuple[Float
     k = check_count("k", k)
     if k >= n:
         raise DDGInputError(f"k: expected fewer eigenpairs than unknowns ({n}), got {k}")
-    return _eigenpairs((L.values, M.values), L.pattern, M.pattern, k)
+    check_choice("method", method, METHODS)
+    if method == "auto":
+        method = "arpack" if jax.default_backend() == "cpu" else "subspace"
+    check_choice("solver", solver, SOLVE_METHODS)
+    return _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, method, solver)
 
 
 def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int, k: int):
@@ -104,7 +121,7 @@ def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int,
     return values.astype(l_values.dtype), vectors.astype(l_values.dtype)
 
 
-def _forward(l_pattern, m_pattern, k, l_values, m_values):
+def _host_forward(l_pattern, m_pattern, k, l_values, m_values):
     n = l_pattern.shape[0]
     shapes = (jax.ShapeDtypeStruct((k,), l_values.dtype), jax.ShapeDtypeStruct((n, k), l_values.dtype))
     return jax.pure_callback(
@@ -120,19 +137,27 @@ def _forward(l_pattern, m_pattern, k, l_values, m_values):
     )
 
 
+def _forward(l_pattern, m_pattern, k, method, solver, l_values, m_values):
+    if method == "arpack":
+        return _host_forward(l_pattern, m_pattern, k, l_values, m_values)
+    L = SparseMatrix(l_values, l_pattern, symmetric=True, positive_semidefinite=True)
+    M = SparseMatrix(m_values, m_pattern, symmetric=True, positive_semidefinite=True)
+    return _subspace_iteration(L, M, k, solver)
+
+
 @eqx.filter_custom_vjp
-def _eigenpairs(values, l_pattern, m_pattern, k):
-    return _forward(l_pattern, m_pattern, k, *values)
+def _eigenpairs(values, l_pattern, m_pattern, k, method, solver):
+    return _forward(l_pattern, m_pattern, k, method, solver, *values)
 
 
 @_eigenpairs.def_fwd
-def _eigenpairs_fwd(perturbed, values, l_pattern, m_pattern, k):
-    eigenvalues, eigenvectors = _forward(l_pattern, m_pattern, k, *values)
+def _eigenpairs_fwd(perturbed, values, l_pattern, m_pattern, k, method, solver):
+    eigenvalues, eigenvectors = _forward(l_pattern, m_pattern, k, method, solver, *values)
     return (eigenvalues, eigenvectors), (eigenvalues, eigenvectors)
 
 
 @_eigenpairs.def_bwd
-def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_pattern, k):
+def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_pattern, k, method, solver):
     """`(L_bar, M_bar)` on the patterns' storage slots (module docstring: reverse mode)."""
     eigenvalues, Phi = residuals
     values_bar, Phi_bar = cotangents
@@ -170,6 +195,66 @@ def _outer_on_pattern(pattern, a: Float[Array, "n k"], b: Float[Array, "n k"]) -
     return jnp.sum(a[pattern.rows] * b[pattern.cols], axis=-1)
 
 
+def _shifted(L: SparseMatrix, M: SparseMatrix) -> SparseMatrix:
+    """`L - sigma M` with `sigma = -1e-8 trace(L) / trace(M)`: positive definite even for a singular `L`."""
+    shift = -1e-8 * jnp.sum(L.diagonal()) / jnp.sum(M.diagonal())
+    L = SparseMatrix(L.values, L.pattern, symmetric=True, positive_semidefinite=True)
+    return L + nonnegative(-shift) * M
+
+
+def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str):
+    """The `k` smallest eigenpairs by shift-invert subspace iteration, in JAX (Saad 2011, section 5.2).
+
+    A block `X` of `m = min(n, 2 k + 8)` M-orthonormal columns is multiplied by `(L - sigma M)^{-1} M`
+    (`sigma` as `_shifted`; one factorisation, `m` solves per step), M-orthonormalised again
+    (Cholesky-QR, twice) and rotated to the Ritz vectors of `L` in its span (Rayleigh-Ritz). The error
+    in eigenpair `i <= k` falls by about `(lambda_i - sigma) / (lambda_{m+1} - sigma)` per step (< 1/2
+    for surface Laplacians, whose eigenvalues grow linearly). It stops when every one of the first
+    `k` has `|L phi - lambda M phi| <= 1e-10 lambda_m |M phi|`, or after 500 steps (then it raises).
+    Fixed shapes throughout, so it runs under `jit`, `vmap` and on any device.
+    """
+    n = L.shape[0]
+    m = min(n, 2 * k + 8)
+    factor = factorize(_shifted(L, M), method=solver)
+    start = jax.random.normal(jax.random.key(0), (n, m), L.values.dtype)
+
+    def orthonormal(Y):
+        for _ in range(2):  # Cholesky-QR twice: orthonormal to round-off even when Y is ill-conditioned
+            gram = Y.T @ (M @ Y)
+            gram = (gram + gram.T) / 2 + 1e-14 * jnp.trace(gram) / m * jnp.eye(m, dtype=Y.dtype)
+            Y = jax.scipy.linalg.solve_triangular(jnp.linalg.cholesky(gram), Y.T, lower=True).T
+        return Y
+
+    def ritz(Y):
+        Q = orthonormal(Y)
+        H = Q.T @ (L @ Q)
+        values, rotation = jnp.linalg.eigh((H + H.T) / 2)
+        X = Q @ rotation
+        residual = jnp.linalg.norm(L @ X - (M @ X) * values, axis=0) / jnp.linalg.norm(M @ X, axis=0)
+        return values, X, jnp.max(residual[:k]) / jnp.maximum(values[-1], jnp.finfo(values.dtype).tiny)
+
+    def unfinished(state):
+        _, _, residual, step = state
+        return (residual > _SUBSPACE_TOLERANCE) & (step < _SUBSPACE_MAX_STEPS)
+
+    def iteration(state):
+        X, _, _, step = state
+        values, X, residual = ritz(factor.solve(M @ X, throw=False).value)
+        return X, values, residual, step + 1
+
+    values, X, residual = ritz(start)
+    X, values, residual, _ = jax.lax.while_loop(unfinished, iteration, (X, values, residual, jnp.zeros((), jnp.int32)))
+    X = eqx.error_if(
+        X,
+        residual > _SUBSPACE_TOLERANCE,
+        "eigenpairs: the subspace iteration did not converge in 500 steps (use method='arpack')",
+    )
+    values, X = values[:k], X[:, :k]
+    largest = jnp.argmax(jnp.abs(X), axis=0)
+    X = X * jnp.sign(X[largest, jnp.arange(k)])
+    return values, X
+
+
 def _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar):
     """`W = [w_1 ... w_k]`, `w_i = -P z_i` with `P^T (L - lambda_i M) P z_i = P^T phi_bar_i` (module docstring).
 
@@ -179,8 +264,7 @@ def _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar):
     MPhi = M @ Phi
     project = lambda x: x - Phi @ (MPhi.T @ x)  # P x
     project_t = lambda x: x - MPhi @ (Phi.T @ x)  # P^T x
-    shift = -1e-8 * jnp.sum(L.diagonal()) / jnp.sum(M.diagonal())
-    shifted = factorize(SparseMatrix(L.values, L.pattern, symmetric=True, positive_semidefinite=True) - shift * M)
+    shifted = factorize(_shifted(L, M))
 
     def column(eigenvalue, phi_bar):
         operator = lambda z: project_t(L @ project(z) - eigenvalue * (M @ project(z)))

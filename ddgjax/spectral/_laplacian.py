@@ -27,14 +27,14 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import DDGInputError, check_choice
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..mesh._mesh import Mesh, require_mesh
-from ..sparse import SparseMatrix, dirichlet_blocks, dirichlet_plan
+from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
 from ._generalized import smallest_eigenpairs
 
 BOUNDARY_CONDITIONS = ("neumann", "dirichlet")
 
 
 def eigenpairs(
-    mesh: Mesh, k: int, *, mass: str = "voronoi", boundary: str = "neumann"
+    mesh: Mesh, k: int, *, mass: str = "voronoi", boundary: str = "neumann", method: str = "auto", solver: str = "auto"
 ) -> tuple[Float[Array, " k"], Float[Array, "nv k"]]:
     """The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
 
@@ -43,6 +43,8 @@ def eigenpairs(
         k: number of eigenpairs (fewer than the unknowns).
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         boundary: `"neumann"` (default) or `"dirichlet"` (zero on the boundary; needs a boundary).
+        method, solver: the eigensolver (`"arpack"` on the host, `"subspace"` in JAX, `"auto"`) and the
+            backend of its solves (`ddgjax.spectral.smallest_eigenpairs`).
 
     Returns:
         `(eigenvalues (k,), eigenvectors (nv, k))`, ascending, M-orthonormal, each eigenvector's entry
@@ -57,14 +59,17 @@ def eigenpairs(
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
     L, M = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
     if boundary == "neumann":
-        return smallest_eigenpairs(L, M, k)
+        return smallest_eigenpairs(L, M, k, method=method, solver=solver)
     fixed = mesh.topology.boundary_vertices
     if fixed.size == 0:
         raise DDGInputError("boundary: 'dirichlet' needs a mesh with a boundary; this mesh is closed (use 'neumann')")
     plan = dirichlet_plan(L, fixed)
     L_ff, _ = dirichlet_blocks(L, plan)
-    M_ff, _ = dirichlet_blocks(M, dirichlet_plan(M, fixed))
-    values, vectors = smallest_eigenpairs(L_ff, M_ff, k)
+    if M.pattern.is_diagonal:  # a lumped mass: its block is the free part of the diagonal
+        M_ff = diagonal_matrix(M.diagonal()[plan.free], positive_semidefinite=True)
+    else:  # the Galerkin mass lives on the Laplacian's pattern
+        M_ff, _ = dirichlet_blocks(M, plan)
+    values, vectors = smallest_eigenpairs(L_ff, M_ff, k, method=method, solver=solver)
     return values, plan.join(vectors, jnp.zeros((fixed.size, k), vectors.dtype))
 
 
