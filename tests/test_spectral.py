@@ -209,3 +209,23 @@ def test_pure_jax_subspace_iteration_agrees_with_arpack():
 
 def _subspace_eigenpairs(mesh, V, *, k, boundary, solver):
     return eigenpairs(mesh.with_vertices(V), k, boundary=boundary, method="subspace", solver=solver)
+
+
+def test_shape_operators_for_a_folder_of_meshes(tmp_path):
+    from ddgjax.dec import gradient
+    from ddgjax.io import save_mesh
+    from ddgjax.spectral import shape_operators, shape_operators_of_files
+
+    meshes = {"a.obj": icosphere(1), "b.off": disk(4)}
+    for name, mesh in meshes.items():
+        save_mesh(tmp_path / name, mesh)
+    operators = shape_operators_of_files(tmp_path, 5, progress=False)
+    assert len(operators) == 2
+    for ops, mesh in zip(operators, meshes.values()):
+        u = jnp.asarray(np.random.default_rng(0).standard_normal(mesh.n_vertices))
+        np.testing.assert_allclose((ops.gradient @ u).reshape(-1, 3), gradient(mesh, u), atol=1e-12)
+        np.testing.assert_allclose(ops.mass, mass_matrix(mesh).diagonal(), atol=1e-15)
+        np.testing.assert_allclose(ops.values, eigenpairs(mesh, 5)[0], atol=1e-10)
+        assert ops.vectors.shape == (mesh.n_vertices, 5)
+    with pytest.raises(DDGInputError, match="mass: expected a lumped mass"):
+        shape_operators(icosphere(1), 3, mass="galerkin")
