@@ -1,4 +1,5 @@
 """The cotan Laplacian (FEM and DEC routes), mass matrices, the Dirichlet energy and converters.
+Also the intrinsic Delaunay Laplacian and mass matrix (edge flips replayed in JAX), and both operators from squared edge lengths.
 
 Conventions (DESIGN.md): `L` is the positive semidefinite weak (integrated) cotan Laplacian,
 `(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`, so `L == -igl.cotmatrix(V, F)` and
@@ -12,4 +13,12 @@ from ._convert import to_pytorch3d_cot_laplacian as to_pytorch3d_cot_laplacian
 from ._cotan import cotan_laplacian as cotan_laplacian
 from ._cotan import dirichlet_energy as dirichlet_energy
 from ._cotan import laplacian_apply as laplacian_apply
+from ._intrinsic import IntrinsicTriangulation as IntrinsicTriangulation
+from ._intrinsic import intrinsic_delaunay as intrinsic_delaunay
+from ._intrinsic import intrinsic_delaunay_laplacian as intrinsic_delaunay_laplacian
+from ._intrinsic import intrinsic_delaunay_mass_matrix as intrinsic_delaunay_mass_matrix
+from ._lengths import TriangulationPlan as TriangulationPlan
+from ._lengths import cotan_laplacian_from_lengths_sq as cotan_laplacian_from_lengths_sq
+from ._lengths import mass_matrix_from_lengths_sq as mass_matrix_from_lengths_sq
+from ._lengths import triangulation_plan as triangulation_plan
 from ._mass import mass_matrix as mass_matrix

@@ -1,0 +1,365 @@
+"""Tests for the intrinsic Delaunay Laplacian (ddgjax.laplacian._intrinsic) and the squared-length core (_lengths)."""
+
+from __future__ import annotations
+
+import functools
+
+import igl
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import robust_laplacian
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax.io import load_mesh
+from ddgjax.laplacian import (
+    IntrinsicTriangulation,
+    cotan_laplacian,
+    cotan_laplacian_from_lengths_sq,
+    intrinsic_delaunay,
+    intrinsic_delaunay_laplacian,
+    intrinsic_delaunay_mass_matrix,
+    mass_matrix_from_lengths_sq,
+    triangulation_plan,
+)
+from ddgjax.mesh import Mesh, icosphere
+from ddgjax.sparse import dirichlet_blocks
+
+from conftest import shared_path
+
+REAL_MESHES = ["beetle.off", "camelhead.off", "nefertiti.obj"]
+IGL_MASS = {"voronoi": igl.MASSMATRIX_TYPE_VORONOI, "barycentric": igl.MASSMATRIX_TYPE_BARYCENTRIC}
+
+
+def _relative(a, b) -> float:
+    return abs(a - b).max() / abs(b).max()
+
+
+def _off_diagonal(matrix: sp.spmatrix) -> sp.coo_matrix:
+    """Strictly upper triangle (each edge once) of a symmetric matrix."""
+    return sp.triu(matrix, k=1).tocoo()
+
+
+def _n_negative_weights(L_psd: sp.spmatrix) -> int:
+    """Edges with a negative cotan weight, i.e. a positive off-diagonal entry of the PSD Laplacian."""
+    return int(np.sum(_off_diagonal(L_psd).data > 0))
+
+
+@functools.cache
+def _prepared(name: str):
+    """`(mesh, triangulation, L)` of a shared mesh, built once for all the tests that use it."""
+    mesh = load_mesh(shared_path("meshes", name))
+    triangulation = intrinsic_delaunay(mesh)
+    return mesh, triangulation, intrinsic_delaunay_laplacian(mesh, triangulation=triangulation)
+
+
+@pytest.fixture(scope="module", params=REAL_MESHES)
+def real(request):
+    mesh, triangulation, L = _prepared(request.param)
+    return request.param, mesh, triangulation, L.to_scipy()
+
+
+def _vertices_and_faces(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces).astype(np.int64)
+
+
+# Negative cotan weights (edges) of the plain cotan Laplacian -> intrinsic Delaunay, measured:
+# beetle 10709 -> 124 (all on the boundary, which is never flipped; libigl keeps the same 124),
+# camelhead 4881 -> 0, nefertiti 17878 -> 0.
+NEGATIVE_WEIGHTS = {"beetle.off": (10709, 124), "camelhead.off": (4881, 0), "nefertiti.obj": (17878, 0)}
+
+
+def test_matches_libigl_intrinsic_delaunay(real):
+    name, mesh, triangulation, L = real
+    V, F = _vertices_and_faces(mesh)
+    L_igl, l_igl, F_igl = igl.intrinsic_delaunay_cotmatrix(V, F)
+    # camelhead has needles whose cotangents (~1e2) are ill-conditioned in the flipped lengths: both
+    # libigl's and our lengths agree with an extended-precision replay to ~1e-12 (test below), and the
+    # Laplacians then differ by 3.5e-10 of the largest entry there (robust_laplacian agrees with ours
+    # to 3e-12); the other meshes agree to ~1e-13.
+    assert _relative(L, -L_igl) < (1e-9 if name == "camelhead.off" else 1e-12)
+    # No co-circular quads here: the flipped triangulation itself is the same (as sets of faces).
+    assert set(map(tuple, np.sort(np.asarray(triangulation.faces), axis=1).tolist())) == set(
+        map(tuple, np.sort(F_igl, axis=1).tolist())
+    )
+    # libigl's own Delaunay check gives our triangulation the verdict it gives its own: every edge
+    # Delaunay, except (camelhead) 8 corners of needles with lengths ~1e-4 of their neighbours'.
+    lengths = np.sqrt(np.asarray(triangulation.face_lengths_sq(mesh)))
+    ours = igl.is_intrinsic_delaunay(lengths, np.asarray(triangulation.faces).astype(np.int64))
+    assert np.sum(ours == 0) == np.sum(igl.is_intrinsic_delaunay(l_igl, F_igl) == 0) == (8 if name == "camelhead.off" else 0)
+    M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation).to_scipy()
+    assert _relative(M, igl.massmatrix_intrinsic(l_igl, F_igl, igl.MASSMATRIX_TYPE_VORONOI)) < 1e-12
+    np.testing.assert_allclose(M.sum(), igl.doublearea(V, F).sum() / 2, rtol=1e-12)  # flips keep the area
+    # Identities: symmetric, L 1 = 0, PSD flags.
+    assert abs(L - L.T).max() == 0
+    assert abs(L @ np.ones(L.shape[0])).max() < 1e-12 * abs(L).max()
+    # Weights: the plain cotan Laplacian has many negative ones, the intrinsic Delaunay one only on
+    # boundary edges (counts in NEGATIVE_WEIGHTS).
+    plain, intrinsic = NEGATIVE_WEIGHTS[name]
+    assert _n_negative_weights(-igl.cotmatrix(V, F)) == plain
+    assert _n_negative_weights(L) == _n_negative_weights(-L_igl) == intrinsic
+    upper = _off_diagonal(L)
+    negative = np.stack([upper.row[upper.data > 0], upper.col[upper.data > 0]], axis=1)
+    boundary = set(map(tuple, np.asarray(mesh.edges)[mesh.topology.boundary_edges].tolist()))
+    assert set(map(tuple, negative.tolist())) <= boundary
+
+
+def test_replayed_lengths_match_an_extended_precision_replay(real):
+    """The JAX replay of the flips against the same flips in 80-bit `np.longdouble`, from the same coordinates."""
+    _, mesh, triangulation, _ = real
+    V, _ = _vertices_and_faces(mesh)
+    edges = np.asarray(mesh.edges)
+    slots = np.asarray(triangulation.flip_slots)
+    extended = np.zeros(edges.shape[0] + slots.shape[0] * slots.shape[2], dtype=np.longdouble)
+    vectors = V.astype(np.longdouble)[edges[:, 1]] - V.astype(np.longdouble)[edges[:, 0]]
+    extended[: edges.shape[0]] = np.sum(vectors * vectors, axis=1)
+
+    def heron(x, y, z):  # plain Heron: extended precision absorbs its cancellation on these meshes
+        return np.sqrt(np.maximum(2 * (x * y + y * z + z * x) - x * x - y * y - z * z, 0)) / 4
+
+    for step in range(slots.shape[0]):
+        ab, ia, ib, ja, jb = extended[slots[step]]  # after the previous steps wrote theirs
+        areas = heron(ab, ia, ib) + heron(ab, ja, jb)
+        start = edges.shape[0] + step * slots.shape[2]
+        extended[start : start + slots.shape[2]] = ((ia - ib - ja + jb) ** 2 + 16 * areas**2) / (4 * np.where(ab > 0, ab, 1))
+    reference = extended[np.asarray(triangulation.face_length_slots)].astype(np.float64)
+    # Lengths that went through several flips collect ~1e-13 of rounding (measured <= 4.3e-13).
+    np.testing.assert_allclose(triangulation.face_lengths_sq(mesh), reference, rtol=2e-12)
+
+
+def test_matches_robust_laplacian(real):
+    name, mesh, triangulation, L = real
+    V, F = _vertices_and_faces(mesh)
+    L_robust, M_robust = robust_laplacian.mesh_laplacian(V, F, mollify_factor=0.0)
+    difference = (L - L_robust).tocoo()
+    differing = np.unique(difference.row[np.abs(difference.data) > 1e-10 * abs(L).max()])
+    if name == "camelhead.off":
+        assert _relative(L, L_robust) < 1e-10  # measured 3.4e-12
+        M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, kind="barycentric").to_scipy()
+        assert _relative(M, M_robust) < 1e-12  # robust_laplacian's mass matrix is the barycentric one
+    elif name == "nefertiti.obj":
+        # robust_laplacian leaves one edge unflipped at weight -9.7e-7 (within its own flip tolerance);
+        # we flip it: the Laplacians differ only in the rows of that quad's four vertices (by ~1e-7).
+        assert differing.size == 4
+        positive = _off_diagonal(L_robust)
+        assert set(positive.row[positive.data > 0]) | set(positive.col[positive.data > 0]) <= set(differing)
+        keep = sp.diags(np.isin(np.arange(L.shape[0]), differing, invert=True).astype(float))
+        assert _relative(keep @ L, keep @ L_robust) < 1e-12
+    else:
+        # beetle has 11 boundary loops: robust_laplacian's tufted cover also flips boundary edges, so
+        # its Laplacian has no negative weight at all and differs from ours (and libigl's) near the
+        # boundary; away from it they agree.
+        assert _n_negative_weights(L_robust) == 0 < _n_negative_weights(L)
+        near_boundary = np.zeros(L.shape[0], dtype=bool)
+        near_boundary[mesh.topology.boundary_vertices] = True
+        for _ in range(3):  # three rings around the boundary, in the flipped triangulation
+            near_boundary |= (abs(L) @ near_boundary) > 0
+        assert near_boundary[differing].all()
+
+
+def test_harmonic_interpolation_obeys_the_maximum_principle():
+    """Harmonic measure of each boundary vertex of camelhead: `L_ff U = -L_fc` (data e_k on the boundary)."""
+    mesh, _, intrinsic = _prepared("camelhead.off")
+    boundary = np.asarray(mesh.topology.boundary_vertices)
+    solutions = {}
+    for name, L in (("cotan", cotan_laplacian(mesh)), ("intrinsic", intrinsic)):
+        free_free, free_fixed = dirichlet_blocks(L, boundary)
+        solutions[name] = spla.splu(free_free.to_scipy().tocsc()).solve(-free_fixed.to_scipy().toarray())
+        # Boundary data 1 everywhere interpolates to 1 (L 1 = 0): columns sum to 1.
+        np.testing.assert_allclose(solutions[name].sum(axis=1), 1.0, rtol=1e-12)
+    # Intrinsic Delaunay: every harmonic measure lies in [0, 1], the range of its data (measured: min 0.0).
+    assert solutions["intrinsic"].min() >= -1e-15 and solutions["intrinsic"].max() <= 1.0
+    # Plain cotan: boundary vertex 3265 reaches the interior only through the edge to vertex 1026, of
+    # weight -0.079 (the flips replace that edge: intrinsically 3265 has boundary neighbours only, and
+    # its harmonic measure is 0). With the plain cotan Laplacian its harmonic measure is negative at
+    # every one of the 11325 free vertices, down to -0.0269: the maximum principle fails everywhere.
+    cotan = solutions["cotan"]
+    column = int(np.flatnonzero(boundary == 3265)[0])
+    assert np.flatnonzero(cotan.min(axis=0) < 0).tolist() == [column]
+    assert np.all(cotan[:, column] < 0) and cotan.shape[0] == 11325
+    assert -0.027 < cotan.min() < -0.026
+
+
+def test_delaunay_mesh_needs_no_flips_and_gives_the_cotan_laplacian():
+    mesh = icosphere(3)  # acute triangles only: already Delaunay
+    triangulation = intrinsic_delaunay(mesh)
+    assert triangulation.n_flips == 0 and triangulation.n_rounds == 0
+    np.testing.assert_array_equal(triangulation.faces, mesh.faces)
+    L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation)
+    cotan = cotan_laplacian(mesh)
+    assert L.pattern is cotan.pattern  # the mesh's own cached plan: L + cotan-pattern matrices work
+    # Lengths route (Kahan's Heron area) vs the embedding route (cross products): rounding only.
+    np.testing.assert_allclose(L.values, cotan.values, rtol=1e-13, atol=1e-13 * np.abs(cotan.values).max())
+
+
+def _jittered_sphere(subdivisions: int, amount: float, seed: int = 0) -> Mesh:
+    """Icosphere with vertices moved tangentially by `amount` edge lengths, back onto the sphere (obtuse faces)."""
+    mesh = icosphere(subdivisions)
+    V = np.asarray(mesh.vertices)
+    noise = np.random.default_rng(seed).standard_normal(V.shape) * amount * 1.1 / 2**subdivisions
+    noise -= np.sum(noise * V, axis=1, keepdims=True) * V
+    moved = V + noise
+    return mesh.with_vertices(moved / np.linalg.norm(moved, axis=1, keepdims=True))
+
+
+def _energy(mesh: Mesh, triangulation: IntrinsicTriangulation, u, w):
+    """`u^T L u + w . diag(M)` of the intrinsic Delaunay operators."""
+    L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation)
+    M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation)
+    return jnp.vdot(u, L @ u) + jnp.vdot(w, M.diagonal())
+
+
+@pytest.fixture(scope="module")
+def jittered():
+    """A small mesh with flips, its triangulation, the energy's gradient and the lengths' directional derivative (jitted once)."""
+    mesh = _jittered_sphere(1, 0.3)
+    triangulation = intrinsic_delaunay(mesh)
+    rng = np.random.default_rng(1)
+    u, w = (jnp.asarray(rng.standard_normal(mesh.n_vertices)) for _ in range(2))
+    energy = lambda V: _energy(mesh.with_vertices(V), triangulation, u, w)
+    gradient = jax.jit(jax.grad(energy))  # reverse mode, through the operators
+    lengths_sq = lambda V: triangulation.face_lengths_sq(mesh.with_vertices(V))
+    derivative = jax.jit(lambda V, direction: jax.jvp(lengths_sq, (V,), (direction,))[1])  # forward mode, the replay
+    return mesh, triangulation, (u, w), gradient, derivative
+
+
+def test_gradients_match_finite_differences_of_the_flipped_operator(jittered):
+    mesh, triangulation, (u, w), gradient, derivative = jittered
+    assert triangulation.n_flips == 16 and triangulation.n_rounds == 2
+    V = mesh.vertices
+    # Against central differences of the true intrinsic Delaunay energy, the flips recomputed at every
+    # point: steps of 1e-6 keep the same flips (checked), so these are derivatives of the fixed
+    # triangulation. Truncation ~1e-11 (step^2 times third derivatives), rounding ~1e-10 relative.
+    step = 1e-6
+    for direction in np.random.default_rng(2).standard_normal((3,) + V.shape):
+        values = []
+        for sign in (1, -1):
+            moved = mesh.with_vertices(V + sign * step * direction)
+            retriangulated = intrinsic_delaunay(moved)
+            np.testing.assert_array_equal(retriangulated.faces, triangulation.faces)
+            values.append((_energy(moved, retriangulated, u, w), retriangulated.face_lengths_sq(moved)))
+        (energy_plus, lengths_plus), (energy_minus, lengths_minus) = values
+        np.testing.assert_allclose(jnp.vdot(gradient(V), direction), (energy_plus - energy_minus) / (2 * step), rtol=1e-8)
+        scale = np.abs(lengths_plus - lengths_minus).max() / (2 * step)
+        np.testing.assert_allclose(
+            derivative(V, jnp.asarray(direction)), (lengths_plus - lengths_minus) / (2 * step), atol=1e-8 * scale
+        )
+
+
+def test_jit_and_vmap_equal_eager(jittered):
+    mesh, triangulation, *_ = jittered
+    L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation).values
+    M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation).values
+
+    def operators(scale, mesh, triangulation):
+        scaled = mesh.with_vertices(scale * mesh.vertices)
+        return (
+            intrinsic_delaunay_laplacian(scaled, triangulation=triangulation).values,
+            intrinsic_delaunay_mass_matrix(scaled, triangulation=triangulation).values,
+        )
+
+    # Scaled copies under jit(vmap): L is scale invariant, M scales with the square (fusion: rounding).
+    scales = jnp.asarray([1.0, 0.5, 2.0])
+    L_batch, M_batch = jax.jit(jax.vmap(operators, in_axes=(0, None, None)))(scales, mesh, triangulation)
+    np.testing.assert_allclose(L_batch, jnp.stack([L, L, L]), rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(M_batch, jnp.stack([M, 0.25 * M, 4.0 * M]), rtol=1e-13)
+
+
+def test_higher_genus_matches_libigl():
+    mesh = load_mesh(shared_path("meshes", "double-torus.obj"))  # genus 2
+    V, F = _vertices_and_faces(mesh)
+    triangulation = intrinsic_delaunay(mesh)
+    assert triangulation.n_flips == 1076
+    L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation).to_scipy()
+    assert _relative(L, -igl.intrinsic_delaunay_cotmatrix(V, F)[0]) < 1e-12
+    assert _n_negative_weights(L) == 0 < _n_negative_weights(-igl.cotmatrix(V, F))
+
+
+def test_flips_that_join_two_vertices_twice():
+    """A doubly covered triangle with a vertex near one edge: flipping that edge adds a second edge v - c."""
+    V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 0.8, 0], [0.5, 0.01, 0]], dtype=float)
+    F = np.array([[0, 1, 3], [1, 2, 3], [2, 0, 3], [0, 2, 1]])
+    mesh = Mesh.from_arrays(V, F)
+    triangulation = intrinsic_delaunay(mesh)
+    assert triangulation.n_flips == 1
+    faces = np.asarray(triangulation.faces)
+    pairs = np.sort(np.concatenate([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]]), axis=1).tolist()
+    assert pairs.count([2, 3]) == 4  # two distinct edges, each in two faces
+    L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation).to_scipy()
+    assert _relative(L, -igl.intrinsic_delaunay_cotmatrix(V, F)[0]) < 1e-13
+
+
+def test_lengths_core_on_a_delta_complex_matches_libigl():
+    """Faces repeating a vertex (loop edges) and vertex pairs joined by several edges, against libigl."""
+    F = np.array([[0, 1, 1], [0, 1, 2], [1, 2, 3], [2, 3, 0], [3, 0, 2], [4, 4, 3]])
+    rng = np.random.default_rng(2)
+    lengths = rng.uniform(1.0, 1.5, F.shape)  # every triple satisfies the triangle inequality
+    plan = triangulation_plan(F, 6)  # vertex 5 is unreferenced
+    L = cotan_laplacian_from_lengths_sq(lengths**2, plan)
+    assert L.positive_semidefinite and L.symmetric
+    padded = lambda A: sp.block_diag([A, sp.csr_matrix((1, 1))])  # libigl sizes by the largest index used
+    assert _relative(L.to_scipy(), padded(-igl.cotmatrix_intrinsic(lengths, F))) < 1e-14
+    for kind, igl_kind in IGL_MASS.items():
+        M = mass_matrix_from_lengths_sq(lengths**2, plan, kind=kind).to_scipy()
+        assert _relative(M, padded(igl.massmatrix_intrinsic(lengths, F, igl_kind))) < 1e-14
+
+
+def test_degenerate_faces_give_finite_values_and_gradients(jittered):
+    # Face (2, 0, 1) is flat: vertex 1 lies on the segment 0 - 2, a straight angle opposite the edge
+    # 0 - 2, which is flipped away (to 1 - 3).
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0], [1, -1, 0]], dtype=float)
+    F = np.array([[0, 2, 3], [2, 0, 1], [1, 0, 4], [2, 1, 4]])
+    triangulation = intrinsic_delaunay(Mesh.from_arrays(V, F))
+    assert triangulation.n_flips == 1
+    faces_after = set(map(tuple, np.sort(np.asarray(triangulation.faces), axis=1).tolist()))
+    assert faces_after == {(0, 1, 3), (1, 2, 3), (0, 1, 4), (1, 2, 4)}
+    # Its other angles are right angles: weights 0 up to rounding, none negative beyond it.
+    L = intrinsic_delaunay_laplacian(Mesh.from_arrays(V, F), triangulation=triangulation).to_scipy()
+    assert _off_diagonal(L).data.max() < 1e-15
+    # A flat face on the boundary cannot be flipped: it contributes nothing.
+    boundary_flat = Mesh.from_arrays(V, F[1:])
+    flat_triangulation = intrinsic_delaunay(boundary_flat)
+    assert flat_triangulation.n_flips == 0
+    L = intrinsic_delaunay_laplacian(boundary_flat, triangulation=flat_triangulation).to_scipy()
+    assert abs(L[0, 2]) == 0 and np.all(np.isfinite(L.toarray()))
+    # Derivatives where the fixed flips meet degenerate lengths: the two ends of a flipped edge moved
+    # onto one point (zero-length diagonal `ab` in the replay), a flat sphere, every vertex at one point.
+    mesh, triangulation, _, gradient, derivative = jittered
+    flipped = np.asarray(mesh.edges)[int(np.asarray(triangulation.flip_slots)[0, 0, 0])]
+    P = np.asarray(mesh.vertices)
+    for W in (np.where(np.arange(P.shape[0])[:, None] == flipped[1], P[flipped[0]], P), P * [1, 1, 0], 0 * P):
+        moved = mesh.with_vertices(W)
+        assert np.all(np.isfinite(intrinsic_delaunay_laplacian(moved, triangulation=triangulation).values))
+        assert np.all(np.isfinite(intrinsic_delaunay_mass_matrix(moved, triangulation=triangulation).values))
+        assert np.all(np.isfinite(gradient(jnp.asarray(W))))
+        assert np.all(np.isfinite(derivative(jnp.asarray(W), jnp.ones_like(W))))
+
+
+def test_bad_input(without_type_checker):
+    mesh = icosphere(1)
+    with pytest.raises(DDGInputError, match="expected a ddgjax Mesh"):
+        intrinsic_delaunay(np.asarray(mesh.vertices))
+    with pytest.raises(DDGInputError, match="triangulation: expected an IntrinsicTriangulation"):
+        intrinsic_delaunay_laplacian(mesh, triangulation="flips")
+    with pytest.raises(DDGInputError, match="was built for another connectivity"):
+        intrinsic_delaunay_laplacian(icosphere(2), triangulation=intrinsic_delaunay(mesh))
+    with pytest.raises(DDGInputError, match="kind: expected one of 'voronoi', 'barycentric'"):
+        intrinsic_delaunay_mass_matrix(mesh, kind="galerkin")
+    with pytest.raises(DDGInputError, match="needs concrete vertex positions.*pass triangulation="):
+        jax.jit(lambda V: intrinsic_delaunay_laplacian(mesh.with_vertices(V)).values)(mesh.vertices)
+    with pytest.raises(MeshDataError, match="intrinsic_delaunay needs an edge-manifold mesh"):
+        intrinsic_delaunay(load_mesh(shared_path("meshes", "triple_vierbein.obj")))
+    with pytest.raises(MeshDataError, match="intrinsic_delaunay needs consistently oriented faces"):
+        intrinsic_delaunay(load_mesh(shared_path("meshes", "moebius.obj")))
+    plan = triangulation_plan(np.asarray(mesh.faces), mesh.n_vertices)
+    with pytest.raises(DDGInputError, match=r"lengths_sq: expected shape \(80, 3\)"):
+        cotan_laplacian_from_lengths_sq(np.ones((80, 2)), plan)
+    with pytest.raises(DDGInputError, match="plan: expected a TriangulationPlan"):
+        mass_matrix_from_lengths_sq(np.ones((80, 3)), mesh)
+    with pytest.raises(DDGInputError, match=r"faces: vertex indices must lie in \[0, 3\)"):
+        triangulation_plan([[0, 1, 3]], 3)
+    with pytest.raises(DDGInputError, match="faces: expected an \\(nf, 3\\) integer array"):
+        triangulation_plan([[0.0, 1.0, 2.0]], 3)
