@@ -229,3 +229,18 @@ def test_shape_operators_for_a_folder_of_meshes(tmp_path):
         assert ops.vectors.shape == (mesh.n_vertices, 5)
     with pytest.raises(DDGInputError, match="mass: expected a lumped mass"):
         shape_operators(icosphere(1), 3, mass="galerkin")
+
+
+def test_robust_eigenpairs_are_those_of_robust_laplacian():
+    import robust_laplacian
+
+    from ddgjax.laplacian import intrinsic_delaunay
+
+    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    L, M = robust_laplacian.mesh_laplacian(np.asarray(mesh.vertices), np.asarray(mesh.faces), mollify_factor=0.0)
+    expected = np.sort(spla.eigsh(L.tocsc(), k=6, M=M.tocsc(), sigma=-1e-6, which="LM")[0])
+    np.testing.assert_allclose(eigenpairs(mesh, 6, mass="barycentric", robust=True)[0], expected, rtol=1e-9, atol=1e-10)
+    # Inside jit, with the triangulation made once on the host.
+    triangulation = intrinsic_delaunay(mesh)
+    jitted = jax.jit(lambda V: eigenpairs(mesh.with_vertices(V), 6, mass="barycentric", robust=triangulation)[0])
+    np.testing.assert_allclose(jitted(mesh.vertices), expected, rtol=1e-9, atol=1e-10)

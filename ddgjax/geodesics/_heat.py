@@ -39,7 +39,7 @@ from .._compile import tuned_jit
 from .._errors import DDGInputError, check_choice
 from .._numerics import safe_norm
 from ..dec import divergence, gradient
-from ..laplacian import cotan_laplacian, mass_matrix
+from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import edge_lengths
 from ..mesh._mesh import Mesh, require_mesh
 from ..solve import Factorization, factorize
@@ -126,7 +126,13 @@ class HeatDistanceSolver(eqx.Module):
 
 
 def heat_distance_solver(
-    mesh: Mesh, *, t_coef: float = 1.0, mass: str = "voronoi", boundary: str = "average", method: str = "auto"
+    mesh: Mesh,
+    *,
+    t_coef: float = 1.0,
+    mass: str = "voronoi",
+    boundary: str = "average",
+    robust: bool | IntrinsicTriangulation = False,
+    method: str = "auto",
 ) -> HeatDistanceSolver:
     """Factor the heat method's systems for `mesh` once (module docstring); query with `.distance(sources)`.
 
@@ -136,16 +142,18 @@ def heat_distance_solver(
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         boundary: `"average"` (default: the mean of the Neumann and Dirichlet heat flows on a mesh with
             boundary) or `"neumann"`.
+        robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
+            `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`): accurate on
+            meshes with obtuse triangles, as potpourri3d's default `use_robust=True`.
         method: the `ddgjax.solve.factorize` backend.
 
     potpourri3d: `MeshHeatMethodDistanceSolver(V, F, t_coef=1.0)`.
     """
     mesh = require_mesh("mesh", mesh)
-    check_choice("mass", mass, ("voronoi", "barycentric", "galerkin"))
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
     if isinstance(t_coef, bool) or not isinstance(t_coef, (int, float, np.integer, np.floating)) or not t_coef > 0:
         raise DDGInputError(f"t_coef: expected a positive number, got {t_coef!r}")
-    L, M = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+    L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
     heat_matrix = M + t * L
     heat_dirichlet, heat_plan = None, None
@@ -154,6 +162,7 @@ def heat_distance_solver(
         heat_plan = dirichlet_plan(heat_matrix, boundary_vertices)
         heat_dirichlet = factorize(dirichlet_blocks(heat_matrix, heat_plan)[0], method=method)
     pins = _DirichletData(mesh, None, None, ())  # one pinned vertex per component (and unreferenced vertices)
+    # (flips keep the vertices and the components, so the mesh's pins serve the intrinsic triangulation too)
     poisson_plan = dirichlet_plan(L, pins.fixed)
     return HeatDistanceSolver(
         mesh=mesh,
@@ -168,7 +177,14 @@ def heat_distance_solver(
 
 
 def heat_distance(
-    mesh: Mesh, sources, *, t_coef: float = 1.0, mass: str = "voronoi", boundary: str = "average", method: str = "auto"
+    mesh: Mesh,
+    sources,
+    *,
+    t_coef: float = 1.0,
+    mass: str = "voronoi",
+    boundary: str = "average",
+    robust: bool | IntrinsicTriangulation = False,
+    method: str = "auto",
 ) -> Float[Array, " nv"]:
     """Geodesic distance from `sources` by the heat method (module docstring), differentiable in the vertex positions.
 
@@ -177,6 +193,11 @@ def heat_distance(
     """
     mesh = require_mesh("mesh", mesh)
     corners, weights = _sources(mesh, sources)
+    if robust is not False:
+        # The intrinsic triangulation's plans are host data the build looks up: built and kept outside a
+        # compiled program (the query itself is compiled).
+        solver = heat_distance_solver(mesh, t_coef=t_coef, mass=mass, boundary=boundary, robust=robust, method=method)
+        return _steps(solver, corners, weights).distance
     return _build_and_query(mesh, corners, weights, t_coef=t_coef, mass=mass, boundary=boundary, method=method)
 
 

@@ -1,5 +1,6 @@
 """The cotan Laplacian (FEM and DEC routes), mass matrices, the Dirichlet energy and converters.
-Also the intrinsic Delaunay Laplacian and mass matrix (edge flips replayed in JAX), and both operators from squared edge lengths.
+Also the intrinsic Delaunay Laplacian and mass matrix (edge flips replayed in JAX), both operators from squared edge
+lengths, and `laplacian_and_mass(mesh, mass=, robust=)`, the pair a solver runs on (`robust=` picks the intrinsic ones).
 
 Conventions (DESIGN.md): `L` is the positive semidefinite weak (integrated) cotan Laplacian,
 `(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`, so `L == -igl.cotmatrix(V, F)` and
@@ -22,3 +23,4 @@ from ._lengths import cotan_laplacian_from_lengths_sq as cotan_laplacian_from_le
 from ._lengths import mass_matrix_from_lengths_sq as mass_matrix_from_lengths_sq
 from ._lengths import triangulation_plan as triangulation_plan
 from ._mass import mass_matrix as mass_matrix
+from ._operators import laplacian_and_mass as laplacian_and_mass

@@ -25,7 +25,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError, check_choice
-from ..laplacian import cotan_laplacian, mass_matrix
+from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
 from ._generalized import smallest_eigenpairs
@@ -34,7 +34,14 @@ BOUNDARY_CONDITIONS = ("neumann", "dirichlet")
 
 
 def eigenpairs(
-    mesh: Mesh, k: int, *, mass: str = "voronoi", boundary: str = "neumann", method: str = "auto", solver: str = "auto"
+    mesh: Mesh,
+    k: int,
+    *,
+    mass: str = "voronoi",
+    boundary: str = "neumann",
+    robust: bool | IntrinsicTriangulation = False,
+    method: str = "auto",
+    solver: str = "auto",
 ) -> tuple[Float[Array, " k"], Float[Array, "nv k"]]:
     """The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
 
@@ -43,6 +50,8 @@ def eigenpairs(
         k: number of eigenpairs (fewer than the unknowns).
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         boundary: `"neumann"` (default) or `"dirichlet"` (zero on the boundary; needs a boundary).
+        robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
+            `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`).
         method, solver: the eigensolver (`"arpack"` on the host, `"subspace"` in JAX, `"auto"`) and the
             backend of its solves (`ddgjax.spectral.smallest_eigenpairs`).
 
@@ -55,9 +64,8 @@ def eigenpairs(
     libigl: `igl.eigs(-igl.cotmatrix(V, F), igl.massmatrix(V, F), k, igl.EIGS_TYPE_SM)`.
     """
     mesh = require_mesh("mesh", mesh)
-    check_choice("mass", mass, ("voronoi", "barycentric", "galerkin"))
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
-    L, M = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+    L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     if boundary == "neumann":
         return smallest_eigenpairs(L, M, k, method=method, solver=solver)
     fixed = mesh.topology.boundary_vertices
