@@ -908,13 +908,18 @@ def main(argv=None) -> int:
     unknown = set(args.sections.split(",")) - set(SECTIONS)
     if unknown:
         parser.error(f"unknown sections {sorted(unknown)}; known: {', '.join(SECTIONS)}")
+    run_sections(SECTIONS, args)
+    return 0
+
+
+def run_sections(sections: dict, args) -> None:
+    """Print the machine line, then run the sections named in `args.sections` (comma-separated; shared with spectral.py)."""
     print(
         f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"python {platform.python_version()}, jax {jax.__version__} ({jax.default_backend()}), float64"
     )
-    for section in args.sections.split(","):
-        SECTIONS[section](args)
-    return 0
+    for name in args.sections.split(","):
+        sections[name](args)
 
 
 if __name__ == "__main__":

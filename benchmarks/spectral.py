@@ -20,9 +20,7 @@ Run: `python benchmarks/spectral.py [--sections eigs,heat] [--meshes NAMES] [--k
 from __future__ import annotations
 
 import argparse
-import os
 import pathlib
-import platform
 import sys
 
 import jax
@@ -34,7 +32,7 @@ import numpy as np  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from solve import fmt, jit, optional, timed_interleaved, warmed  # noqa: E402
+from solve import fmt, jit, optional, run_sections, timed_interleaved, warmed  # noqa: E402
 
 from ddgjax.geodesics import heat_distance_solver  # noqa: E402
 from ddgjax.io import load_mesh  # noqa: E402
@@ -150,12 +148,7 @@ def main(argv=None) -> int:
     parser.add_argument("--budget", type=float, default=20.0)
     args = parser.parse_args(argv)
     args.meshes = args.meshes.split(",")
-    print(
-        f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"python {platform.python_version()}, jax {jax.__version__} ({jax.default_backend()}), float64"
-    )
-    for section in args.sections.split(","):
-        SECTIONS[section](args)
+    run_sections(SECTIONS, args)
     return 0
 
 
