@@ -16,7 +16,7 @@ from ddgjax import DDGInputError
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, icosphere
-from ddgjax.solve import linear_solve
+from ddgjax.solve import factorize, linear_solve
 from ddgjax.solve._amg import (
     amg_hierarchy,
     amg_preconditioner,
@@ -36,8 +36,22 @@ def _dirichlet_block(mesh):
 
 
 @pytest.fixture(scope="module")
-def camelhead_block():
-    return _dirichlet_block(load_mesh(shared_path("meshes", "camelhead.off")))
+def camelhead():
+    """camelhead's Dirichlet block and its hierarchy (default options), built once for the module."""
+    block = _dirichlet_block(load_mesh(shared_path("meshes", "camelhead.off")))
+    return block, amg_hierarchy(block)
+
+
+@pytest.fixture(scope="module")
+def heat():
+    """`(mesh, A, hierarchy)`: the heat operator of icosphere(3) with a long time step and its hierarchy
+    with a small coarsest level, three levels (642, 42, 4), so the recursion is exercised; built once
+    for the module, whose tests share its compiled programs (built for these level sizes)."""
+    mesh = icosphere(3)
+    A = _heat_operator(mesh, scale=100.0)
+    hierarchy = amg_hierarchy(A, max_coarse=30)
+    assert len(hierarchy.sizes) >= 3
+    return mesh, A, hierarchy
 
 
 def _heat_operator(mesh, scale=1.0):
@@ -64,17 +78,26 @@ def _relative_residual(A, x, b):
     return float(jnp.linalg.norm(A @ x - b) / jnp.linalg.norm(b))
 
 
+# Jitted once for the module: compiled once per hierarchy structure (level sizes, smoother) and shape.
+_v_cycle = jax.jit(amg_v_cycle)
+_amg_cg_jit = jax.jit(_amg_cg)
+
+
 def _dense_preconditioner(hierarchy):
     n = hierarchy.shape[0]
-    return np.asarray(jax.jit(amg_v_cycle)(hierarchy, jnp.eye(n, dtype=hierarchy.coarse_inverse.dtype)))
+    return np.asarray(_v_cycle(hierarchy, jnp.eye(n, dtype=hierarchy.coarse_inverse.dtype)))
 
 
-def test_amg_cg_reaches_1e_10_on_camelhead_and_matches_spsolve(camelhead_block):
-    A = camelhead_block
+def _assert_symmetric_positive_definite(B):
+    np.testing.assert_allclose(B, B.T, rtol=0, atol=1e-14 * np.abs(B).max())
+    assert np.linalg.eigvalsh((B + B.T) / 2)[0] > 0
+
+
+def test_amg_cg_reaches_1e_10_on_camelhead_and_matches_spsolve(camelhead):
+    A, hierarchy = camelhead
     b = _rhs(A.shape[0])
-    hierarchy = amg_hierarchy(A)
     assert hierarchy.sizes[0] == A.shape[0] == 11325 and len(hierarchy.sizes) >= 3
-    x, num_steps = jax.jit(_amg_cg)(A, b, hierarchy)
+    x, num_steps = _amg_cg_jit(A, b, hierarchy)
     assert _relative_residual(A, x, b) <= 1e-10
     # Measured: 37 steps of lineax's CG, whose test is per component, on both the residual and the
     # step, so it stops near 1e-14 here; textbook PCG meets |r| <= 1e-10 |b| in 28. Jacobi: ~1000.
@@ -84,71 +107,79 @@ def test_amg_cg_reaches_1e_10_on_camelhead_and_matches_spsolve(camelhead_block):
     np.testing.assert_allclose(x, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 
-def test_v_cycle_is_symmetric_positive_definite():
+def test_v_cycle_is_symmetric_positive_definite(heat):
     # A small coarsest level forces three levels on these ~700-unknown matrices, so the recursion is
-    # exercised; both smoothers, and a Chebyshev degree above one.
-    disk_block, heat = _dirichlet_block(disk(16)), _heat_operator(icosphere(3), scale=100.0)
-    for A, smoother, steps in ((disk_block, "chebyshev", 1), (heat, "chebyshev", 3), (heat, "jacobi", 2)):
+    # exercised; a Dirichlet block and a heat operator, both smoothers, and a Chebyshev degree above one.
+    _, heat_matrix, hierarchy = heat  # Chebyshev, degree one
+    _assert_symmetric_positive_definite(_dense_preconditioner(hierarchy))
+    for A, smoother, steps in ((heat_matrix, "chebyshev", 3), (_dirichlet_block(disk(16)), "jacobi", 2)):
         hierarchy = amg_hierarchy(A, smoother=smoother, steps=steps, max_coarse=30)
         assert len(hierarchy.sizes) >= 3
-        B = _dense_preconditioner(hierarchy)
-        np.testing.assert_allclose(B, B.T, rtol=0, atol=1e-14 * np.abs(B).max())
-        assert np.linalg.eigvalsh((B + B.T) / 2)[0] > 0
+        _assert_symmetric_positive_definite(_dense_preconditioner(hierarchy))
 
 
-def test_v_cycle_symmetric_and_positive_on_camelhead(camelhead_block):
-    hierarchy = amg_hierarchy(camelhead_block)
+def test_v_cycle_symmetric_and_positive_on_camelhead(camelhead):
+    _, hierarchy = camelhead
     u, v = _rhs(hierarchy.shape[0], seed=1), _rhs(hierarchy.shape[0], seed=2)
     Bu, Bv = amg_v_cycle(hierarchy, u), amg_v_cycle(hierarchy, v)
     assert abs(float(v @ Bu - Bv @ u)) <= 1e-13 * float(jnp.linalg.norm(v) * jnp.linalg.norm(Bu))
     assert float(u @ Bu) > 0 and float(v @ Bv) > 0
 
 
-def test_jit_and_vmap_equal_eager():
-    A = _heat_operator(icosphere(3), scale=100.0)
-    hierarchy = amg_hierarchy(A, max_coarse=30)
+def test_jit_and_vmap_equal_eager(heat):
+    _, A, hierarchy = heat
     R = jnp.stack([_rhs(A.shape[0], seed) for seed in range(3)], axis=1)
     eager = np.stack([amg_v_cycle(hierarchy, R[:, k]) for k in range(3)], axis=1)
-    jitted = jax.jit(amg_v_cycle)(hierarchy, R[:, 0])
+    jitted = _v_cycle(hierarchy, R[:, 0])
     np.testing.assert_allclose(jitted, eager[:, 0], rtol=0, atol=1e-13 * np.abs(eager).max())
     batched = jax.jit(jax.vmap(amg_v_cycle, in_axes=(None, 1), out_axes=1))(hierarchy, R)
     np.testing.assert_allclose(batched, eager, rtol=0, atol=1e-13 * np.abs(eager).max())
     np.testing.assert_allclose(amg_v_cycle(hierarchy, R), eager, rtol=0, atol=1e-13 * np.abs(eager).max())
 
 
-def test_amg_cg_matches_spsolve_on_heat_operator():
-    A = _heat_operator(icosphere(4), scale=1e3)
+def test_amg_cg_matches_spsolve_on_heat_operator(heat):
+    # A ten times longer time step on the `heat` mesh (its hierarchy gets the same level sizes here, so
+    # the module's compiled programs serve it).
+    mesh, _, _ = heat
+    A = _heat_operator(mesh, scale=1e3)
     b = _rhs(A.shape[0])
-    x, num_steps = jax.jit(_amg_cg)(A, b, amg_hierarchy(A))
+    x, num_steps = _amg_cg_jit(A, b, amg_hierarchy(A, max_coarse=30))
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
     assert _relative_residual(A, x, b) <= 1e-10
-    assert num_steps <= 40  # measured: 23 (Jacobi: 142)
+    assert num_steps <= 40  # measured: 22 (Jacobi-preconditioned CG: 64; on icosphere(4), 23 and 125)
     np.testing.assert_allclose(x, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
 
 
-def test_refresh_reproduces_the_build_and_follows_new_values():
-    mesh = icosphere(3)
-    A = _heat_operator(mesh, scale=100.0)
-    hierarchy = amg_hierarchy(A, refreshable=True, max_coarse=30)
-    same = jax.jit(amg_refresh)(hierarchy, A)
-    for built, refreshed in zip(jax.tree.leaves(hierarchy), jax.tree.leaves(same)):
-        np.testing.assert_allclose(refreshed, built, rtol=1e-12, atol=1e-14 * max(1.0, float(np.abs(built).max())))
-    # New geometry on the same pattern: a stretched sphere. Inside one jitted function, the refreshed
-    # V-cycle is still SPD and preconditions CG to the spsolve answer.
-    stretched = mesh.with_vertices(mesh.vertices * jnp.asarray([1.0, 1.0, 3.0]))
-    A_new = _heat_operator(stretched, scale=100.0)
+@pytest.fixture(scope="module")
+def refreshable(heat):
+    """The hierarchy of the `heat` matrix built with `refreshable=True`."""
+    _, A, _ = heat
+    return amg_hierarchy(A, refreshable=True, max_coarse=30)
+
+
+def test_refresh_reproduces_the_build_and_follows_new_values(heat, refreshable):
+    mesh, A, _ = heat
+    hierarchy = refreshable
     b = _rhs(A.shape[0])
 
+    # Inside one jitted function (compiled once, run on the old and the new values): refresh, then CG
+    # preconditioned by the refreshed V-cycle.
+    @jax.jit
     def refresh_and_solve(hierarchy, A, b):
         refreshed = amg_refresh(hierarchy, A)
         return _amg_cg(A, b, refreshed)[0], refreshed
 
-    x, refreshed = jax.jit(refresh_and_solve)(hierarchy, A_new, b)
+    _, same = refresh_and_solve(hierarchy, A, b)
+    for built, refreshed in zip(jax.tree.leaves(hierarchy), jax.tree.leaves(same)):
+        np.testing.assert_allclose(refreshed, built, rtol=1e-12, atol=1e-14 * max(1.0, float(np.abs(built).max())))
+    # New geometry on the same pattern: a stretched sphere. The refreshed V-cycle is still SPD and
+    # preconditions CG to the spsolve answer.
+    stretched = mesh.with_vertices(mesh.vertices * jnp.asarray([1.0, 1.0, 3.0]))
+    A_new = _heat_operator(stretched, scale=100.0)
+    x, refreshed = refresh_and_solve(hierarchy, A_new, b)
     expected = spla.spsolve(A_new.to_scipy().tocsc(), np.asarray(b))
     np.testing.assert_allclose(x, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
-    B = _dense_preconditioner(refreshed)
-    np.testing.assert_allclose(B, B.T, rtol=0, atol=1e-14 * np.abs(B).max())
-    assert np.linalg.eigvalsh((B + B.T) / 2)[0] > 0
+    _assert_symmetric_positive_definite(_dense_preconditioner(refreshed))
 
 
 def test_semidefinite_laplacian_gets_a_semidefinite_preconditioner():
@@ -160,19 +191,26 @@ def test_semidefinite_laplacian_gets_a_semidefinite_preconditioner():
     assert eigenvalues[0] > -1e-12 * eigenvalues[-1]
 
 
-def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead_block):
-    A = camelhead_block
+def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead):
+    A, hierarchy = camelhead
     b = _rhs(A.shape[0])
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
-    # Pure-JAX CG with the V-cycle (hierarchy built inside linear_solve), and pyamg's CG on the host.
-    for options, most_steps in (({"method": "cg", "preconditioner": "amg"}, 40), ({"method": "pyamg"}, 40)):
-        solution = linear_solve(A, b, rtol=1e-10, **options)
+    # preconditioner="amg" builds the default hierarchy inside linear_solve (by factorize): the same
+    # computation as amg_hierarchy(A).
+    built = factorize(A, method="cg", preconditioner="amg").hierarchy
+    assert built.sizes == hierarchy.sizes
+    for ours, reference in zip(jax.tree.leaves(built), jax.tree.leaves(hierarchy)):
+        np.testing.assert_allclose(ours, reference, rtol=1e-12, atol=0)
+    # Pure-JAX CG with that V-cycle (under jit: one compiled program instead of op-by-op dispatch on
+    # camelhead's levels), and pyamg's CG on the host.
+    solve = jax.jit(lambda A, b, hierarchy: linear_solve(A, b, rtol=1e-10, method="cg", preconditioner=hierarchy))
+    for solution, most_steps in ((solve(A, b, built), 40), (linear_solve(A, b, rtol=1e-10, method="pyamg"), 40)):
         assert solution.residual <= 1e-10 and 0 < int(solution.num_steps) <= most_steps  # measured: 28 and 18
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 
-def test_float32_hierarchy_keeps_the_dtype():
-    A = _heat_operator(icosphere(3), scale=100.0)
+def test_float32_hierarchy_keeps_the_dtype(heat):
+    _, A, _ = heat
     A32 = from_scipy(A.to_scipy().astype(np.float32), positive_semidefinite=True)
     hierarchy = amg_hierarchy(A32, max_coarse=30)
     assert all(leaf.dtype == np.float32 for leaf in jax.tree.leaves(hierarchy) if jnp.issubdtype(leaf.dtype, jnp.floating))
@@ -180,8 +218,8 @@ def test_float32_hierarchy_keeps_the_dtype():
 
 
 @pytest.mark.usefixtures("without_type_checker")
-def test_bad_input():
-    A = _heat_operator(icosphere(2))
+def test_bad_input(heat, refreshable):
+    _, A, hierarchy = heat
     with pytest.raises(DDGInputError, match="SparseMatrix"):
         amg_hierarchy(A.to_scipy())
     with pytest.raises(DDGInputError, match="outside jit"):
@@ -192,18 +230,17 @@ def test_bad_input():
         amg_hierarchy(A, smoother="gauss-seidel")
     with pytest.raises(DDGInputError, match="steps"):
         amg_hierarchy(A, steps=0)
-    hierarchy = amg_hierarchy(A, max_coarse=30)
     with pytest.raises(DDGInputError, match="refreshable"):
         amg_refresh(hierarchy, A)
     with pytest.raises(DDGInputError, match="r: expected shape"):
         amg_v_cycle(hierarchy, jnp.ones(A.shape[0] + 1))
-    refreshable = amg_hierarchy(A, max_coarse=30, refreshable=True)
+    small = _heat_operator(icosphere(2))  # 162 unknowns
     with pytest.raises(DDGInputError, match="pattern"):
-        amg_refresh(refreshable, _heat_operator(icosphere(3)))
+        amg_refresh(refreshable, small)
     with pytest.raises(DDGInputError, match="preconditioner: 'amg' builds its hierarchy on the host"):
         jax.jit(lambda A: linear_solve(A, jnp.ones(A.shape[0]), method="cg", preconditioner="amg").value)(A)
     with pytest.raises(DDGInputError, match=r"preconditioner: an AMGHierarchy of shape \(642, 642\)"):
-        linear_solve(A, jnp.ones(A.shape[0]), preconditioner=amg_hierarchy(_heat_operator(icosphere(3))))
+        linear_solve(small, jnp.ones(small.shape[0]), preconditioner=hierarchy)
 
 
 def _skew(A):

@@ -213,13 +213,13 @@ def _subspace_eigenpairs(mesh, V, *, k, boundary, solver):
 
 def test_shape_operators_for_a_folder_of_meshes(tmp_path):
     from ddgjax.dec import gradient
-    from ddgjax.io import save_mesh
-    from ddgjax.spectral import shape_operators, shape_operators_of_files
+    from ddgjax.io import load_mesh, save_mesh
+    from ddgjax.spectral import shape_operators, shape_operators_of_meshes
 
     meshes = {"a.obj": icosphere(1), "b.off": disk(4)}
     for name, mesh in meshes.items():
         save_mesh(tmp_path / name, mesh)
-    operators = shape_operators_of_files(tmp_path, 5, progress=False)
+    operators = shape_operators_of_meshes((load_mesh(tmp_path / name) for name in sorted(meshes)), 5, progress=False)
     assert len(operators) == 2
     for ops, mesh in zip(operators, meshes.values()):
         u = jnp.asarray(np.random.default_rng(0).standard_normal(mesh.n_vertices))

@@ -7,7 +7,7 @@
   shift-invert Lanczos on the host (inside `jit` through a callback), differentiable (`custom_vjp`)
   in both matrices' values: eigenvalues always, eigenvectors away from clusters of equal
   eigenvalues, and every function invariant within a cluster.
-- `shape_operators(mesh, k)` / `shape_operators_of_files(folder, k)`: what a learning pipeline
+- `shape_operators(mesh, k)` / `shape_operators_of_meshes(meshes, k)`: what a learning pipeline
   precomputes per shape (lumped mass, eigenpairs, `L`, the face gradient operator `gradient_operator`).
 - On an eigenbasis: `spectral_coefficients`, `spectral_reconstruction`, `spectral_filter`,
   `heat_kernel`, `heat_kernel_signature`.
@@ -23,4 +23,4 @@ from ._laplacian import spectral_reconstruction as spectral_reconstruction
 from ._operators import ShapeOperators as ShapeOperators
 from ._operators import gradient_operator as gradient_operator
 from ._operators import shape_operators as shape_operators
-from ._operators import shape_operators_of_files as shape_operators_of_files
+from ._operators import shape_operators_of_meshes as shape_operators_of_meshes

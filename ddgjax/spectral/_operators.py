@@ -3,8 +3,8 @@
 Spectral and diffusion networks on meshes (e.g. DiffusionNet, Sharp et al. 2022) need, for every
 training shape, the lumped mass `M`, the first eigenpairs of `L phi = lambda M phi` (spectral
 diffusion `Phi exp(-lambda t) Phi^T M u`) and a gradient operator; `shape_operators(mesh, k)` returns
-them as one pytree (`ShapeOperators`), and `shape_operators_of_files(paths, k)` does so for a list
-or folder of mesh files with a progress bar, the host loop a dataset's preprocessing runs once.
+them as one pytree (`ShapeOperators`), and `shape_operators_of_meshes(meshes, k)` does so for a
+dataset of meshes with a progress bar, the host loop a dataset's preprocessing runs once.
 
 The gradient operator is the `(3 nf, nv)` matrix `G` with `G u` the per-face gradient of the
 piecewise-linear `u`, flattened face by face (`(G u).reshape(nf, 3) == ddgjax.dec.gradient(mesh, u)`):
@@ -13,7 +13,6 @@ entries `grad phi_j` of each face's hat functions (Crane 2020, section 6.2).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable
 
 import equinox as eqx
@@ -22,7 +21,6 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
-from ..io import load_mesh
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..mesh._geometry import face_hat_gradients
 from ..mesh._mesh import Mesh, require_mesh
@@ -71,21 +69,15 @@ def gradient_operator(mesh: Mesh) -> SparseMatrix:
     return SparseMatrix(values, pattern)
 
 
-def shape_operators_of_files(
-    paths: str | os.PathLike | Iterable[str | os.PathLike], k: int, *, mass: str = "voronoi", progress: bool = True
+def shape_operators_of_meshes(
+    meshes: Iterable[Mesh], k: int, *, mass: str = "voronoi", progress: bool = True
 ) -> list[ShapeOperators]:
-    """`shape_operators` of every mesh file in `paths` (a folder: its `.obj`, `.off`, `.ply`, `.stl` files, sorted).
+    """`shape_operators` of every mesh of a dataset, with a `tqdm` progress bar (`progress=False` silences it).
 
-    A host loop with a `tqdm` progress bar (`progress=False` silences it); each shape compiles
-    once per connectivity size. Stack same-size results with `jax.tree.map(jnp.stack, ...)` to batch.
+    A folder of files: `shape_operators_of_meshes(map(ddgjax.io.load_mesh, sorted(folder.glob("*.obj"))), k)`.
+    A host loop; each shape compiles once per connectivity size. Stack same-size results with
+    `jax.tree.map(jnp.stack, *operators)` to batch them.
     """
     from tqdm.auto import tqdm
 
-    if isinstance(paths, (str, os.PathLike)) and os.path.isdir(paths):
-        folder = os.fspath(paths)
-        paths = sorted(
-            os.path.join(folder, name) for name in os.listdir(folder) if name.lower().endswith((".obj", ".off", ".ply", ".stl"))
-        )
-    elif isinstance(paths, (str, os.PathLike)):
-        paths = [paths]
-    return [shape_operators(load_mesh(path), k, mass=mass) for path in tqdm(list(paths), disable=not progress, desc="shapes")]
+    return [shape_operators(mesh, k, mass=mass) for mesh in tqdm(meshes, disable=not progress, desc="shapes")]
