@@ -81,6 +81,7 @@ def _block(matrix: sp.spmatrix, rows: slice) -> sp.csr_matrix:
 def test_matches_libigl_and_gpytoolbox(real):
     parts, mesh = real
     L = _laplacian(mesh)
+    ours, for_igl, for_gpytoolbox = L.to_scipy(), to_igl_cotmatrix(L), to_gpytoolbox_cotangent_laplacian(L)
     masses = {kind: _mass(mesh, kind=kind).to_scipy() for kind in ("voronoi", "barycentric", "galerkin")}
     # Matrix-free L u (these meshes have high-degree vertices: the COO tail of the pattern is used).
     U = np.random.default_rng(0).standard_normal((mesh.n_vertices, 2))
@@ -89,9 +90,9 @@ def test_matches_libigl_and_gpytoolbox(real):
         expected = -igl.cotmatrix(V, F)
         # nefertiti has angles up to 179.6 degrees: libigl's cotangent formula and ours round differently
         # on those slivers by ~1e-11 of the largest entry; everything else agrees to ~3e-13.
-        assert _relative(_block(L.to_scipy(), rows), expected) < 1e-10, name
-        assert _relative(_block(to_igl_cotmatrix(L), rows), igl.cotmatrix(V, F)) < 1e-10, name
-        assert _relative(_block(to_gpytoolbox_cotangent_laplacian(L), rows), gpytoolbox.cotangent_laplacian(V, F)) < 1e-10, name
+        assert _relative(_block(ours, rows), expected) < 1e-10, name
+        assert _relative(_block(for_igl, rows), igl.cotmatrix(V, F)) < 1e-10, name
+        assert _relative(_block(for_gpytoolbox, rows), gpytoolbox.cotangent_laplacian(V, F)) < 1e-10, name
         for kind, igl_type in MASS_TYPES.items():
             assert _relative(_block(masses[kind], rows), igl.massmatrix(V, F, igl_type)) < 1e-12, (name, kind)
         galerkin = _block(masses["galerkin"], rows)
@@ -100,7 +101,7 @@ def test_matches_libigl_and_gpytoolbox(real):
         own = vertex_plan(Mesh.from_arrays(V, F)).pattern  # the mesh's own storage (host work, no compilation)
         assert own.nnz > own.width * V.shape[0], name
         scale = np.abs(expected).max() * np.abs(U[rows]).max()
-        np.testing.assert_allclose(applied[rows], _block(L.to_scipy(), rows) @ U[rows], rtol=0, atol=1e-12 * scale, err_msg=name)
+        np.testing.assert_allclose(applied[rows], _block(ours, rows) @ U[rows], rtol=0, atol=1e-12 * scale, err_msg=name)
         # libigl: as above (slivers).
         np.testing.assert_allclose(applied[rows], expected @ U[rows], rtol=0, atol=1e-10 * scale, err_msg=name)
     assert vertex_plan(mesh).pattern.nnz > vertex_plan(mesh).pattern.width * mesh.n_vertices  # the union's tail too
@@ -132,21 +133,27 @@ def test_fem_equals_dec_on_every_shared_mesh():
 
 
 def test_fem_equals_dec_on_builtin_shapes_and_under_jit():
-    for mesh in (icosphere(2), grid(4, 5)):
-        fem = jax.jit(lambda m: cotan_laplacian(m, method="fem").values)(mesh)
-        dec = jax.jit(lambda m: cotan_laplacian(m, method="dec").values)(mesh)
-        np.testing.assert_allclose(dec, fem, rtol=0, atol=1e-13)
+    # A closed icosphere and a flat grid with boundary as one mesh, their disjoint union (one
+    # compilation per method).
+    mesh = disjoint_union([_arrays(icosphere(2)), _arrays(grid(4, 5))]).mesh
+    fem = jax.jit(lambda m: cotan_laplacian(m, method="fem").values)(mesh)
+    dec = jax.jit(lambda m: cotan_laplacian(m, method="dec").values)(mesh)
+    np.testing.assert_allclose(dec, fem, rtol=0, atol=1e-13)
 
 
 def test_robust_laplacian_on_delaunay_meshes():
     # The equilateral hexagon mesh and an icosphere are Delaunay: robust_laplacian's intrinsic
-    # Delaunay Laplacian equals the cotan one (its mass is the barycentric lumped one).
-    for V, F, mesh in ((*_arrays(icosphere(2)), icosphere(2)), _load("hexagon.obj")):
+    # Delaunay Laplacian equals the cotan one (its mass is the barycentric lumped one). Ours on both
+    # at once, as blocks of their disjoint union (one compilation).
+    parts = [_arrays(icosphere(2)), _load("hexagon.obj")[:2]]
+    union = disjoint_union(parts)
+    L, M = _laplacian(union.mesh).to_scipy(), _mass(union.mesh, kind="barycentric").to_scipy()
+    for k, (V, F) in enumerate(parts):
         L_robust, M_robust = robust_laplacian.mesh_laplacian(np.asarray(V, float), np.asarray(F))
         # robust_laplacian re-derives lengths through its intrinsic mollification (1e-12 relative).
-        assert _relative(_laplacian(mesh).to_scipy(), L_robust) < 1e-9
-        assert _relative(_mass(mesh, kind="barycentric").to_scipy(), M_robust) < 1e-9
-    weights = -_laplacian(mesh).to_scipy()
+        assert _relative(_block(L, union.vertices_of(k)), L_robust) < 1e-9
+        assert _relative(_block(M, union.vertices_of(k)), M_robust) < 1e-9
+    weights = -_block(L, union.vertices_of(1))  # the hexagon's (V, F: the last part's)
     interior = np.setdiff1d(np.arange(V.shape[0]), igl.boundary_loop(F))
     interior_weights = weights[interior][:, interior]
     off_diagonal = interior_weights[interior_weights.nonzero()]
@@ -380,12 +387,19 @@ def _fan(n_rim: int) -> Mesh:
 def test_laplacian_apply_is_matrix_free_and_equals_the_matrix():
     fan = _fan(40)
     assert vertex_plan(fan).pattern.nnz > vertex_plan(fan).pattern.width * fan.n_vertices  # its apex overflows into the tail
-    for mesh in (icosphere(2), fan, grid(5, 4)):
+    # The icosphere and the grid as one mesh, their disjoint union (ELL storage only: no tail), and the
+    # fan (with the tail): one compilation each; each part at its own scale.
+    regular = disjoint_union([_arrays(icosphere(2)), _arrays(grid(5, 4))])
+    pattern = vertex_plan(regular.mesh).pattern
+    assert pattern.nnz == pattern.width * regular.mesh.n_vertices
+    for mesh, blocks in ((regular.mesh, [regular.vertices_of(0), regular.vertices_of(1)]), (fan, [slice(0, fan.n_vertices)])):
         L = _laplacian(mesh).to_scipy()
         U = np.random.default_rng(2).standard_normal((mesh.n_vertices, 3))
-        scale = abs(L).max() * np.abs(U).max()
-        np.testing.assert_allclose(_apply(mesh, jnp.asarray(U)), L @ U, rtol=0, atol=1e-13 * scale)
-        np.testing.assert_allclose(_apply(mesh, jnp.asarray(U[:, 0])), L @ U[:, 0], rtol=0, atol=1e-13 * scale)
+        applied, column = np.asarray(_apply(mesh, jnp.asarray(U))), np.asarray(_apply(mesh, jnp.asarray(U[:, 0])))
+        for rows in blocks:
+            scale = abs(_block(L, rows)).max() * np.abs(U[rows]).max()
+            np.testing.assert_allclose(applied[rows], (L @ U)[rows], rtol=0, atol=1e-13 * scale)
+            np.testing.assert_allclose(column[rows], (L @ U[:, 0])[rows], rtol=0, atol=1e-13 * scale)
     # No matrix and no scatter-add: the corner -> edge gather is a fixed gather; the tail's sorted
     # segment_sum is absent on an icosphere. The energy's gradient in the vertices is per face (its
     # custom JVP): the corner -> edge gather is not transposed, only the coordinate gathers of the

@@ -249,7 +249,7 @@ def test_vertex_gradients_against_finite_differences():
 
     @jax.jit
     def derivatives(W, tangent, cotangent):  # forward and reverse mode, one program
-        values, pullback = jax.vjp(energies, W)
+        _, pullback = jax.vjp(energies, W)
         return jax.jvp(energies, (W,), (tangent,))[1], pullback(cotangent)[0]
 
     tangent = jnp.asarray(rng.standard_normal(V.shape))

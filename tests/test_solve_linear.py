@@ -3,6 +3,8 @@ differences, jit / vmap / scan, complex Hermitian systems, and failures through 
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -35,6 +37,10 @@ def _options(backend: str, A: SparseMatrix) -> dict:
 SPHERE = icosphere(2)
 DISK = disk(6)
 
+# One compiled program per backend and shape, shared by the tests (an eager call dispatches every
+# small operation and traces CG's loop anew each time). `options` is `_options(...)`: its strings are static.
+_solve = eqx.filter_jit(lambda A, b, options: linear_solve(A, b, **options))
+
 
 def _heat_operator(mesh, t=1e-2):
     return mass_matrix(mesh) + t * cotan_laplacian(mesh)
@@ -58,14 +64,14 @@ def test_solves_match_scipy_spsolve(method):
         options = {"method": "auto"} if method == "auto" else _options(method, A)
         reference = A.to_scipy().tocsc()
         b = _rhs(A.shape[0])
-        solution = linear_solve(A, b, **options)
+        solution = _solve(A, b, options)
         assert solution.result == RESULTS.successful
         expected = spla.spsolve(reference, np.asarray(b))
         # CG stops at a relative residual of 1e-10; the error is that times the condition number at most.
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
         assert solution.residual < 1e-9
         B = _rhs(A.shape[0], seed=1, k=3)
-        block = linear_solve(A, B, **options).value
+        block = _solve(A, B, options).value
         assert block.shape == B.shape
         np.testing.assert_allclose(block, spla.spsolve(reference, np.asarray(B)), rtol=0, atol=1e-8 * np.abs(expected).max() * 10)
 
@@ -76,7 +82,7 @@ def test_jit_vmap_and_scan(method):
     options = _options(method, A)
     b = _rhs(A.shape[0])
     eager = linear_solve(A, b, **options).value
-    jitted = jax.jit(lambda A, b: linear_solve(A, b, **options).value)(A, b)
+    jitted = _solve(A, b, options).value
     np.testing.assert_allclose(jitted, eager, rtol=0, atol=1e-12)
     batch = jnp.stack([b, -2 * b])
     batched = jax.vmap(lambda b: linear_solve(A, b, **options).value)(batch)
@@ -252,13 +258,16 @@ def test_forward_mode_and_hessian_vector_products(method):
     def dense_loss(values, b):
         return jnp.sum(jnp.sin(jnp.linalg.solve(SparseMatrix(values, A.pattern).todense(), b)))
 
-    _, ours = jax.jvp(lambda v: loss(v, b), (A.values,), (direction,))
-    _, expected = jax.jvp(lambda v: dense_loss(v, b), (A.values,), (direction,))
+    # The directional derivative in the values and the forward-over-reverse Hessian-vector product in b
+    # (what a Newton-Krylov step through a solve uses), as one compiled program per loss.
+    @functools.partial(jax.jit, static_argnums=0)
+    def derivatives(loss, values, b):
+        jvp = jax.jvp(lambda v: loss(v, b), (values,), (direction,))[1]
+        return jvp, jax.jvp(jax.grad(lambda b: loss(values, b)), (b,), (b,))[1]
+
+    (ours, ours_hvp), (expected, expected_hvp) = (derivatives(f, A.values, b) for f in (loss, dense_loss))
     np.testing.assert_allclose(ours, expected, rtol=1e-8)
-    # Forward-over-reverse Hessian-vector product in b (what a Newton-Krylov step through a solve uses).
-    ours = jax.jvp(jax.grad(lambda b: loss(A.values, b)), (b,), (b,))[1]
-    expected = jax.jvp(jax.grad(lambda b: dense_loss(A.values, b)), (b,), (b,))[1]
-    np.testing.assert_allclose(ours, expected, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(ours_hvp, expected_hvp, rtol=1e-8, atol=1e-12)
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -268,9 +277,9 @@ def test_right_hand_sides_with_zeros_and_float32_systems(method):
     options = _options(method, single)
     # Exact zeros in b (a point source): a norm-wise stopping test, not an entrywise one.
     b = jnp.zeros(A.shape[0]).at[:3].set(1.0)
-    solution = linear_solve(A, b, **options)
+    solution = _solve(A, b, options)
     assert solution.result == RESULTS.successful and solution.residual < 1e-9
-    assert linear_solve(A, jnp.zeros_like(b), **options).result == RESULTS.successful
+    assert _solve(A, jnp.zeros_like(b), options).result == RESULTS.successful
     # A float32 system keeps its dtype (CHOLMOD solves it in float64); float32 round-off sets the tolerances.
     solution = jax.jit(lambda A, b: linear_solve(A, b, **options, rtol=1e-6, residual_tolerance=1e-5))(
         single, b.astype(jnp.float32)
@@ -298,13 +307,13 @@ def test_complex_hermitian_systems_match_scipy_and_differentiate(method):
     rng = np.random.default_rng(4)
     b = jnp.asarray(rng.standard_normal((n, 2)) + 1j * rng.standard_normal((n, 2)))
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
-    solution = linear_solve(A, b, **options)
+    solution = _solve(A, b, options)
     assert solution.value.dtype == jnp.complex128 and solution.result == RESULTS.successful
     np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
     # A real matrix with a complex right-hand side: the real and imaginary parts as two real columns.
     B = _heat_operator(icosphere(1))
     np.testing.assert_allclose(
-        linear_solve(B, b[:, 0], **_options(method, B)).value,
+        _solve(B, b[:, 0], _options(method, B)).value,
         spla.spsolve(B.to_scipy().tocsc(), np.asarray(b[:, 0])),
         rtol=0,
         atol=1e-8 * np.abs(expected).max(),
@@ -321,9 +330,15 @@ def test_complex_hermitian_systems_match_scipy_and_differentiate(method):
     direction = 0.5 * (direction + SparseMatrix(direction, A.pattern).T.values.conj())  # stays Hermitian
     db = jnp.asarray(rng.standard_normal((n, 2)) + 1j * rng.standard_normal((n, 2)))
     tangents = (direction, db)
-    _, expected = jax.jvp(lambda v, b: loss(v, b, dense), (A.values, b), tangents)
-    _, derivative = jax.jvp(lambda v, b: loss(v, b, ours), (A.values, b), tangents)
+
+    # Forward and reverse mode of each loss as one compiled program.
+    @functools.partial(jax.jit, static_argnums=0)
+    def derivatives(solve, values, b):
+        jvp = jax.jvp(lambda v, b: loss(v, b, solve), (values, b), tangents)[1]
+        return jvp, jax.grad(lambda v, b: loss(v, b, solve), argnums=(0, 1))(values, b)
+
+    expected, _ = derivatives(dense, A.values, b)
+    derivative, (grad_values, grad_b) = derivatives(ours, A.values, b)
     np.testing.assert_allclose(derivative, expected, rtol=1e-7)
     # Reverse mode: JAX's gradient g of a real function of complex inputs gives the derivative Re(sum(g * dz)).
-    grad_values, grad_b = jax.grad(lambda v, b: loss(v, b, ours), argnums=(0, 1))(A.values, b)
     np.testing.assert_allclose(jnp.real(jnp.sum(grad_values * direction) + jnp.sum(grad_b * db)), expected, rtol=1e-7)
