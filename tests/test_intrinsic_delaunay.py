@@ -26,6 +26,7 @@ from ddgjax.laplacian import (
     triangulation_plan,
 )
 from ddgjax.mesh import Mesh, icosphere
+from ddgjax.solve import harmonic_interpolation, solve_poisson
 from ddgjax.sparse import dirichlet_blocks
 
 from conftest import shared_path
@@ -162,7 +163,7 @@ def test_matches_robust_laplacian(real):
 
 def test_harmonic_interpolation_obeys_the_maximum_principle():
     """Harmonic measure of each boundary vertex of camelhead: `L_ff U = -L_fc` (data e_k on the boundary)."""
-    mesh, _, intrinsic = _prepared("camelhead.off")
+    mesh, triangulation, intrinsic = _prepared("camelhead.off")
     boundary = np.asarray(mesh.topology.boundary_vertices)
     solutions = {}
     for name, L in (("cotan", cotan_laplacian(mesh)), ("intrinsic", intrinsic)):
@@ -181,6 +182,15 @@ def test_harmonic_interpolation_obeys_the_maximum_principle():
     assert np.flatnonzero(cotan.min(axis=0) < 0).tolist() == [column]
     assert np.all(cotan[:, column] < 0) and cotan.shape[0] == 11325
     assert -0.027 < cotan.min() < -0.026
+    # harmonic_interpolation(robust=...) is that solve, differentiable: the harmonic measure of 3265
+    # and of its neighbour along the boundary, both columns at once.
+    data = np.zeros((boundary.size, 2))
+    data[column, 0] = data[column + 1, 1] = 1.0
+    free = np.setdiff1d(np.arange(mesh.n_vertices), boundary)
+    robust = harmonic_interpolation(mesh, boundary, data, robust=triangulation)
+    np.testing.assert_allclose(robust[free], solutions["intrinsic"][:, [column, column + 1]], rtol=0, atol=1e-12)
+    plain = harmonic_interpolation(mesh, boundary, data)
+    np.testing.assert_allclose(plain[free], cotan[:, [column, column + 1]], rtol=0, atol=1e-12)
 
 
 def test_delaunay_mesh_needs_no_flips_and_gives_the_cotan_laplacian():
@@ -363,3 +373,34 @@ def test_bad_input(without_type_checker):
         triangulation_plan([[0, 1, 3]], 3)
     with pytest.raises(DDGInputError, match="faces: expected an \\(nf, 3\\) integer array"):
         triangulation_plan([[0.0, 1.0, 2.0]], 3)
+
+
+def test_poisson_problem_with_the_intrinsic_laplacian_matches_libigl_and_differentiates():
+    """`solve_poisson(robust=...)`: `L phi = -M rho` with the intrinsic Delaunay L and lumped mass on a
+    closed surface (zero-mean rho and phi), against SciPy on libigl's intrinsic Delaunay Laplacian and
+    robust_laplacian's mass; the gradient in the vertex positions through the replayed flips."""
+    mesh = _jittered_sphere(3, 0.4)
+    V, F = _vertices_and_faces(mesh)
+    triangulation = intrinsic_delaunay(mesh)
+    rho = np.asarray(mesh.vertices)[:, 2] ** 2 + np.asarray(mesh.vertices)[:, 0]
+    phi = solve_poisson(mesh, rho, mass="barycentric", robust=True)
+    L = -igl.intrinsic_delaunay_cotmatrix(V, F)[0]
+    M = robust_laplacian.mesh_laplacian(V, F)[1]
+    area = M.diagonal()
+    compatible = rho - area @ rho / area.sum()
+    expected = np.linalg.lstsq(L.toarray(), -(M @ compatible), rcond=None)[0]  # 642 unknowns: dense
+    expected = expected - area @ expected / area.sum()
+    assert np.abs(np.asarray(phi) - expected).max() < 1e-8 * np.abs(expected).max()
+    assert abs(area @ np.asarray(phi)) < 1e-12  # the zero-mean solution
+
+    @jax.jit
+    def value_and_grad(W):
+        return jax.value_and_grad(lambda W: jnp.sum(solve_poisson(mesh.with_vertices(W), rho, robust=triangulation) ** 2))(W)
+
+    _, gradient = value_and_grad(mesh.vertices)
+    direction = np.random.default_rng(3).standard_normal(V.shape)
+    eps = 1e-6
+    plus, minus = (value_and_grad(mesh.vertices + s * eps * direction)[0] for s in (1, -1))
+    np.testing.assert_allclose(np.sum(np.asarray(gradient) * direction), (plus - minus) / (2 * eps), rtol=1e-6)
+    with pytest.raises(DDGInputError, match="lumped"):
+        solve_poisson(mesh, rho, mass="galerkin", robust=triangulation)

@@ -17,6 +17,7 @@ from ddgjax import DDGInputError
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, edge_lengths, grid, icosphere
+from ddgjax.solve import amg_hierarchy
 from ddgjax.spectral import (
     eigenpairs,
     heat_kernel,
@@ -198,9 +199,13 @@ def test_pure_jax_subspace_iteration_agrees_with_arpack():
     for mesh, boundary, k in ((icosphere(2), "neumann", 9), (disk(6), "dirichlet", 8)):
         expected = eigenpairs(mesh, k, boundary=boundary, method="arpack")
         M = mass_matrix(mesh)
-        for solver in ("auto", "cg"):
-            solve = jax.jit(functools.partial(_subspace_eigenpairs, mesh, k=k, boundary=boundary, solver=solver))
-            values, vectors = solve(mesh.vertices)
+        # Under jit with the default backend; eagerly with CG preconditioned by an AMG hierarchy of
+        # L - sigma M built from the concrete values (CG under jit: the next test).
+        solutions = [
+            jax.jit(functools.partial(_subspace_eigenpairs, mesh, k=k, boundary=boundary, solver="auto"))(mesh.vertices),
+            eigenpairs(mesh, k, boundary=boundary, method="subspace", solver="cg"),
+        ]
+        for values, vectors in solutions:
             np.testing.assert_allclose(values, expected[0], rtol=1e-9, atol=1e-9)
             # Eigenvectors up to the basis inside clusters: both span the same subspace, M-orthonormally.
             overlap = np.asarray(expected[1]).T @ np.asarray(M @ vectors)
@@ -209,6 +214,28 @@ def test_pure_jax_subspace_iteration_agrees_with_arpack():
 
 def _subspace_eigenpairs(mesh, V, *, k, boundary, solver):
     return eigenpairs(mesh.with_vertices(V), k, boundary=boundary, method="subspace", solver=solver)
+
+
+def test_subspace_iteration_with_a_multigrid_hierarchy_passed_into_jit_differentiates():
+    """A hierarchy of L built outside jit preconditions the forward and the adjoint solves inside it; the
+    gradient of the eigenvalue sum (invariant within clusters) equals ARPACK's path."""
+    mesh = icosphere(2).with_vertices(np.asarray(icosphere(2).vertices) * np.array([1.0, 0.9, 1.2]))
+    hierarchy = amg_hierarchy(cotan_laplacian(mesh))
+
+    def loss(V, **options):
+        values, vectors = eigenpairs(mesh.with_vertices(V), 6, **options)
+        return jnp.sum(values) + jnp.sum(vectors[:, 1] ** 4)
+
+    ours = jax.jit(jax.value_and_grad(lambda V: loss(V, method="subspace", solver="cg", preconditioner=hierarchy)))(mesh.vertices)
+    expected = jax.value_and_grad(lambda V: loss(V, method="arpack"))(mesh.vertices)
+    np.testing.assert_allclose(ours[0], expected[0], rtol=1e-9)
+    np.testing.assert_allclose(ours[1], expected[1], rtol=0, atol=1e-7 * np.abs(expected[1]).max())
+    with pytest.raises(DDGInputError, match="preconditioner"):
+        eigenpairs(mesh, 6, method="arpack", preconditioner=hierarchy)
+    with pytest.raises(DDGInputError, match="traced"):
+        jax.jit(lambda V: eigenpairs(mesh.with_vertices(V), 6, method="subspace", solver="cg", preconditioner="amg"))(
+            mesh.vertices
+        )
 
 
 def test_shape_operators_for_a_folder_of_meshes(tmp_path):

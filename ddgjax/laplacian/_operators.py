@@ -28,9 +28,21 @@ def laplacian_and_mass(
         mass: `"voronoi"`, `"barycentric"` or (not with `robust`) `"galerkin"`.
         robust: `False`, `True` (flips computed here, on the host: outside `jit`) or an `IntrinsicTriangulation`.
     """
+    triangulation = resolve_robust(mesh, robust, mass=mass)
+    if triangulation is None:
+        return cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+    return (
+        intrinsic_delaunay_laplacian(mesh, triangulation=triangulation),
+        intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, kind=mass),
+    )
+
+
+def resolve_robust(mesh: Mesh, robust: bool | IntrinsicTriangulation, *, mass: str = "voronoi") -> IntrinsicTriangulation | None:
+    """The triangulation a `robust=` argument asks for: `None` (the mesh's own), or the intrinsic Delaunay
+    one (`True`: flipped here, on the host), checked against `mass`; `DDGInputError` otherwise."""
     check_choice("mass", mass, ("voronoi", "barycentric", "galerkin"))
     if robust is False:
-        return cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+        return None
     if robust is True:
         robust = intrinsic_delaunay(mesh)
     if not isinstance(robust, IntrinsicTriangulation):
@@ -39,7 +51,4 @@ def laplacian_and_mass(
         )
     if mass == "galerkin":
         raise DDGInputError("mass: the intrinsic Delaunay mass matrix is lumped; use 'voronoi' or 'barycentric' with robust=")
-    return (
-        intrinsic_delaunay_laplacian(mesh, triangulation=robust),
-        intrinsic_delaunay_mass_matrix(mesh, triangulation=robust, kind=mass),
-    )
+    return robust

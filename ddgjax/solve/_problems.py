@@ -17,6 +17,10 @@ solution is the one with `int phi = 0` on that component. This is exact, not a r
 vertex per such component is pinned to 0, the remaining positive definite system is solved, and
 the constant is fixed afterwards. Unreferenced vertices (empty rows) are set to 0.
 
+`robust=True` (or an `IntrinsicTriangulation`) solves with the intrinsic Delaunay Laplacian and
+lumped mass (`ddgjax.laplacian.laplacian_and_mass`): non-negative interior weights, so a harmonic
+interpolant obeys the maximum principle on meshes with obtuse triangles too.
+
 The solve goes through `ddgjax.solve.linear_solve` on the free-free block of `L`
 (`ddgjax.sparse.dirichlet_blocks`), so `phi` is differentiable with respect to `rho`, the Dirichlet
 values and the vertex positions (reverse mode), under `jit` and `vmap`.
@@ -36,7 +40,8 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_choice
 from .._results import RESULTS, raise_if_failed
-from ..laplacian import cotan_laplacian, mass_matrix
+from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
+from ..laplacian._operators import resolve_robust
 from ..laplacian._plan import vertex_plan
 from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import dirichlet_blocks, dirichlet_plan
@@ -52,6 +57,7 @@ def solve_poisson(
     dirichlet_vertices: Int[ArrayLike, " n_fixed"] | None = None,
     dirichlet_values: Float[ArrayLike, " n_fixed *k"] | None = None,
     mass: str = "voronoi",
+    robust: bool | IntrinsicTriangulation = False,
     method: str = "auto",
 ) -> Float[Array, "nv *k"]:
     """Solve the Poisson problem `Delta phi = rho`, i.e. `L phi = -M rho` (module docstring).
@@ -63,6 +69,8 @@ def solve_poisson(
             host data). Default: none (Neumann everywhere).
         dirichlet_values: `(n_fixed,)` or `(n_fixed, k)` values there (default 0).
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
+        robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
+            `IntrinsicTriangulation` from `intrinsic_delaunay(mesh)` inside `jit` / `grad`).
         method: the backend of `linear_solve` (`"auto"`, `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`).
 
     Returns:
@@ -72,32 +80,45 @@ def solve_poisson(
     libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix`.
     """
     phi, result = poisson_with_result(
-        mesh, rho, dirichlet_vertices=dirichlet_vertices, dirichlet_values=dirichlet_values, mass=mass, method=method
+        mesh,
+        rho,
+        dirichlet_vertices=dirichlet_vertices,
+        dirichlet_values=dirichlet_values,
+        mass=mass,
+        robust=robust,
+        method=method,
     )
     return raise_if_failed(phi, result, throw=True)
 
 
-def poisson_with_result(mesh, rho, *, dirichlet_vertices=None, dirichlet_values=None, mass="voronoi", method="auto"):
+def poisson_with_result(
+    mesh, rho, *, dirichlet_vertices=None, dirichlet_values=None, mass="voronoi", robust=False, method="auto"
+):
     """`solve_poisson`'s `(phi, result)` (`ddgjax.RESULTS`), raising nothing: for callers that check the
     outcome themselves (a program without the run-time check, which JAX's persistent cache keeps)."""
     mesh = require_mesh("mesh", mesh)
     check_choice("mass", mass, MASSES)
+    triangulation = resolve_robust(mesh, robust, mass=mass)
     rho = _vertex_values("rho", mesh, rho)
-    dirichlet = _DirichletData(mesh, dirichlet_vertices, dirichlet_values, rho.shape[1:])
+    pattern = (vertex_plan(mesh) if triangulation is None else triangulation.plan.vertex_plan).pattern
+    dirichlet = _DirichletData(mesh, dirichlet_vertices, dirichlet_values, rho.shape[1:], pattern)
     if dirichlet.plan is None:  # every vertex prescribed: nothing to solve
         phi = jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
         return phi, RESULTS.successful
     fixed_values = dirichlet.fixed_values(rho.dtype)
     floating = dirichlet.floating[dirichlet.labels]  # vertices whose component has no Dirichlet vertex
-    return _solve(mesh, rho, fixed_values, dirichlet.plan, dirichlet.labels, floating, dirichlet.n_components, mass, method)
+    return _solve(
+        mesh, triangulation, rho, fixed_values, dirichlet.plan, dirichlet.labels, floating, dirichlet.n_components, mass, method
+    )
 
 
 # One compiled program per connectivity and size (the mesh's topology is static): an eager call does
 # not dispatch (and compile) each operation separately. The outcome is checked outside it, so the
 # program has no host callback and JAX's persistent compilation cache can keep it.
-@functools.partial(jax.jit, static_argnums=(6, 7, 8))
-def _solve(mesh, rho, fixed_values, plan, labels, floating, n_components, mass, method):
-    laplacian, mass_matrix_ = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+@functools.partial(jax.jit, static_argnums=(7, 8, 9))
+def _solve(mesh, triangulation, rho, fixed_values, plan, labels, floating, n_components, mass, method):
+    robust = False if triangulation is None else triangulation
+    laplacian, mass_matrix_ = laplacian_and_mass(mesh, mass=mass, robust=robust)
     areas = mass_matrix_.row_sums()  # M 1: the area of each vertex (Galerkin rows sum to it too)
     component_area = jax.ops.segment_sum(areas, labels, n_components)
 
@@ -119,6 +140,7 @@ def harmonic_interpolation(
     vertices: Int[ArrayLike, " n_fixed"],
     values: Float[ArrayLike, " n_fixed *k"],
     *,
+    robust: bool | IntrinsicTriangulation = False,
     method: str = "auto",
 ) -> Float[Array, "nv *k"]:
     """The report's smoothest interpolant: `L phi = 0` away from `vertices`, `phi = values` on them.
@@ -133,6 +155,9 @@ def harmonic_interpolation(
         mesh: any triangle mesh.
         vertices: `(n_fixed,)` distinct vertex indices, at least one.
         values: `(n_fixed,)` or `(n_fixed, k)` values at them (e.g. `(n_fixed, 3)` positions).
+        robust: the intrinsic Delaunay Laplacian (`solve_poisson`): with it the interpolant lies
+            between the smallest and largest values (the maximum principle) on any mesh.
+        method: the backend of `linear_solve`.
     """
     mesh = require_mesh("mesh", mesh)
     if vertices is None or np.size(vertices) == 0:
@@ -141,13 +166,14 @@ def harmonic_interpolation(
     if values.ndim not in (1, 2):
         raise DDGInputError(f"values: expected shape (n_fixed,) or (n_fixed, k), got {values.shape}")
     rho = jnp.zeros((mesh.n_vertices,) + values.shape[1:], values.dtype if jnp.issubdtype(values.dtype, jnp.floating) else float)
-    return solve_poisson(mesh, rho, dirichlet_vertices=vertices, dirichlet_values=values, method=method)
+    return solve_poisson(mesh, rho, dirichlet_vertices=vertices, dirichlet_values=values, robust=robust, method=method)
 
 
 class _DirichletData:
     """Host bookkeeping of a Poisson problem: components, pinned vertices, the block plan."""
 
-    def __init__(self, mesh: Mesh, vertices, values, trailing: tuple[int, ...]):
+    def __init__(self, mesh: Mesh, vertices, values, trailing: tuple[int, ...], pattern=None):
+        """`pattern`: the Laplacian's sparsity pattern the plan is of (default: the mesh's own)."""
         topology = mesh.topology
         n = mesh.n_vertices
         if vertices is None:
@@ -188,7 +214,9 @@ class _DirichletData:
         extra = np.setdiff1d(unreferenced, vertices)
         fixed = np.concatenate([vertices, pins, extra])
         self.fixed = fixed  # host copy: the plan's arrays are traced when this runs inside jit
-        self.plan = dirichlet_plan(vertex_plan(mesh).pattern, fixed) if fixed.size < n else None
+        if pattern is None:
+            pattern = vertex_plan(mesh).pattern
+        self.plan = dirichlet_plan(pattern, fixed) if fixed.size < n else None
         self.vertices = vertices
         self.values = values
         self.n_pinned = pins.size + extra.size

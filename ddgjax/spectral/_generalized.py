@@ -12,7 +12,9 @@ inside `jit` and `vmap` (sequentially); small problems (`n <= 2 k + 64`) are sol
 The shift `sigma` sits just below zero, `-1e-8 trace(L) / trace(M)`, so `L - sigma M` is definite
 even for a singular `L` (a closed surface's constants). `method="subspace"` (the default on an
 accelerator) is shift-invert subspace iteration in JAX (`_subspace_iteration`), its solves by
-`ddgjax.solve.factorize` (pure JAX with `solver="cg"`).
+`ddgjax.solve.factorize` (pure JAX with `solver="cg"`, preconditioned by an algebraic-multigrid
+V-cycle: built from `L - sigma M` when the values are concrete, or passed in as `preconditioner=`
+inside `jit`; a hierarchy of `L` itself serves, as any of a nearby matrix does).
 
 **Reverse mode** (`jax.custom_vjp`, with respect to the values of `L` and `M`): with
 `dA_i = (dL - lambda_i dM) phi_i`,
@@ -50,10 +52,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError, check_choice, check_count
-from ..solve import factorize
+from .._errors import DDGInputError, check_choice, check_count, is_traced
+from ..solve import AMGHierarchy, amg_hierarchy, factorize
 from ..solve._linear import METHODS as SOLVE_METHODS
-from ..solve._linear import preconditioned_cg
+from ..solve._linear import PRECONDITIONERS, auto_method, preconditioned_cg
 from ..sparse import SparseMatrix, nonnegative
 
 # Eigenvalues within this fraction of the largest computed one count as one cluster (module docstring).
@@ -68,7 +70,13 @@ _ADJOINT_MAX_STEPS = 1000
 
 
 def smallest_eigenpairs(
-    L: SparseMatrix, M: SparseMatrix, k: int, *, method: str = "auto", solver: str = "auto"
+    L: SparseMatrix,
+    M: SparseMatrix,
+    k: int,
+    *,
+    method: str = "auto",
+    solver: str = "auto",
+    preconditioner: str | AMGHierarchy | None = None,
 ) -> tuple[Float[Array, " k"], Float[Array, "n k"]]:
     """The `k` smallest eigenpairs of `L phi = lambda M phi` (module docstring), differentiable in both matrices' values.
 
@@ -80,6 +88,10 @@ def smallest_eigenpairs(
             iteration, `_subspace_iteration`) or `"auto"` (`"arpack"` on CPU, `"subspace"` elsewhere).
         solver: the `ddgjax.solve.factorize` backend of the subspace iteration's solves with
             `L - sigma M` (`"auto"`; `"cg"` keeps everything in JAX on any device).
+        preconditioner: the subspace iteration's conjugate-gradient preconditioner: `None` (an AMG
+            hierarchy of `L - sigma M` when the values are concrete, Jacobi when traced), `"jacobi"`,
+            `"amg"` (concrete values only) or an `AMGHierarchy` (e.g. `amg_hierarchy(L)`, built
+            outside `jit`).
 
     Returns:
         `(eigenvalues (k,), eigenvectors (n, k))`, ascending, `Phi^T M Phi = I`, in `L`'s dtype.
@@ -99,7 +111,36 @@ def smallest_eigenpairs(
     if method == "auto":
         method = "arpack" if jax.default_backend() == "cpu" else "subspace"
     check_choice("solver", solver, SOLVE_METHODS)
-    return _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, method, solver)
+    preconditioner = _subspace_preconditioner(L, M, method, solver, preconditioner)
+    return _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, method, solver, preconditioner)
+
+
+def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGHierarchy | None:
+    """The preconditioner the subspace iteration's CG runs with (`None` where it runs no CG), made
+    before the custom VJP traces the values: an AMG hierarchy needs them concrete."""
+    if preconditioner is not None and not isinstance(preconditioner, AMGHierarchy):
+        check_choice("preconditioner", preconditioner, PRECONDITIONERS)
+    if method != "subspace" or (solver == "auto" and auto_method(L.shape[0], preconditioner is not None) != "cg"):
+        if preconditioner is not None:
+            raise DDGInputError(
+                "preconditioner: only the subspace iteration's conjugate gradient takes one (method='subspace', solver='cg')"
+            )
+        return None
+    if solver != "cg":
+        if preconditioner is not None:
+            raise DDGInputError(f"preconditioner: only solver='cg' takes one; solver={solver!r} does not")
+        return None
+    traced = is_traced(L.values) or is_traced(M.values)
+    if preconditioner is None:
+        preconditioner = "jacobi" if traced else "amg"
+    if preconditioner == "amg":
+        if traced:
+            raise DDGInputError(
+                "preconditioner: 'amg' builds its hierarchy from concrete matrix values, and these are traced; pass "
+                "ddgjax.solve.amg_hierarchy(L) built outside jit, or use 'jacobi'"
+            )
+        preconditioner = amg_hierarchy(_shifted(L, M))
+    return preconditioner
 
 
 def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int, k: int):
@@ -137,27 +178,27 @@ def _host_forward(l_pattern, m_pattern, k, l_values, m_values):
     )
 
 
-def _forward(l_pattern, m_pattern, k, method, solver, l_values, m_values):
+def _forward(l_pattern, m_pattern, k, method, solver, preconditioner, l_values, m_values):
     if method == "arpack":
         return _host_forward(l_pattern, m_pattern, k, l_values, m_values)
     L = SparseMatrix(l_values, l_pattern, symmetric=True, positive_semidefinite=True)
     M = SparseMatrix(m_values, m_pattern, symmetric=True, positive_semidefinite=True)
-    return _subspace_iteration(L, M, k, solver)
+    return _subspace_iteration(L, M, k, solver, preconditioner)
 
 
 @eqx.filter_custom_vjp
-def _eigenpairs(values, l_pattern, m_pattern, k, method, solver):
-    return _forward(l_pattern, m_pattern, k, method, solver, *values)
+def _eigenpairs(values, l_pattern, m_pattern, k, method, solver, preconditioner):
+    return _forward(l_pattern, m_pattern, k, method, solver, preconditioner, *values)
 
 
 @_eigenpairs.def_fwd
-def _eigenpairs_fwd(perturbed, values, l_pattern, m_pattern, k, method, solver):
-    eigenvalues, eigenvectors = _forward(l_pattern, m_pattern, k, method, solver, *values)
+def _eigenpairs_fwd(perturbed, values, l_pattern, m_pattern, k, method, solver, preconditioner):
+    eigenvalues, eigenvectors = _forward(l_pattern, m_pattern, k, method, solver, preconditioner, *values)
     return (eigenvalues, eigenvectors), (eigenvalues, eigenvectors)
 
 
 @_eigenpairs.def_bwd
-def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_pattern, k, method, solver):
+def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_pattern, k, method, solver, preconditioner):
     """`(L_bar, M_bar)` on the patterns' storage slots (module docstring: reverse mode)."""
     eigenvalues, Phi = residuals
     values_bar, Phi_bar = cotangents
@@ -177,7 +218,9 @@ def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_patte
         lefts.append(Phi @ within)  # column i: sum_j within[j, i] phi_j, paired with phi_i
         rights.append(Phi)
         scales.append(eigenvalues)
-        W = _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar)
+        # The adjoint's preconditioning solves: as the forward's on the subspace path (in JAX on any device).
+        solves = {"method": "auto"} if method == "arpack" else {"method": solver, "preconditioner": preconditioner}
+        W = _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar, solves)
         lefts.append(W)
         rights.append(Phi)
         scales.append(eigenvalues)
@@ -202,7 +245,7 @@ def _shifted(L: SparseMatrix, M: SparseMatrix) -> SparseMatrix:
     return L + nonnegative(-shift) * M
 
 
-def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str):
+def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str, preconditioner):
     """The `k` smallest eigenpairs by shift-invert subspace iteration, in JAX (Saad 2011, section 5.2).
 
     A block `X` of `m = min(n, 2 k + 8)` M-orthonormal columns is multiplied by `(L - sigma M)^{-1} M`
@@ -215,7 +258,7 @@ def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str):
     """
     n = L.shape[0]
     m = min(n, 2 * k + 8)
-    factor = factorize(_shifted(L, M), method=solver)
+    factor = factorize(_shifted(L, M), method=solver, preconditioner=preconditioner)
     start = jax.random.normal(jax.random.key(0), (n, m), L.values.dtype)
 
     def orthonormal(Y):
@@ -255,7 +298,7 @@ def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str):
     return values, X
 
 
-def _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar):
+def _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar, solves: dict):
     """`W = [w_1 ... w_k]`, `w_i = -P z_i` with `P^T (L - lambda_i M) P z_i = P^T phi_bar_i` (module docstring).
 
     Projected conjugate gradient, preconditioned by `P (L - sigma M)^{-1} P^T` with one kept
@@ -264,7 +307,7 @@ def _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar):
     MPhi = M @ Phi
     project = lambda x: x - Phi @ (MPhi.T @ x)  # P x
     project_t = lambda x: x - MPhi @ (Phi.T @ x)  # P^T x
-    shifted = factorize(_shifted(L, M))
+    shifted = factorize(_shifted(L, M), **solves)
 
     def column(eigenvalue, phi_bar):
         operator = lambda z: project_t(L @ project(z) - eigenvalue * (M @ project(z)))

@@ -27,6 +27,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import DDGInputError, check_choice
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh._mesh import Mesh, require_mesh
+from ..solve import AMGHierarchy
 from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
 from ._generalized import smallest_eigenpairs
 
@@ -42,6 +43,7 @@ def eigenpairs(
     robust: bool | IntrinsicTriangulation = False,
     method: str = "auto",
     solver: str = "auto",
+    preconditioner: str | AMGHierarchy | None = None,
 ) -> tuple[Float[Array, " k"], Float[Array, "nv k"]]:
     """The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
 
@@ -52,8 +54,10 @@ def eigenpairs(
         boundary: `"neumann"` (default) or `"dirichlet"` (zero on the boundary; needs a boundary).
         robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
             `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`).
-        method, solver: the eigensolver (`"arpack"` on the host, `"subspace"` in JAX, `"auto"`) and the
-            backend of its solves (`ddgjax.spectral.smallest_eigenpairs`).
+        method, solver, preconditioner: the eigensolver (`"arpack"` on the host, `"subspace"` in JAX,
+            `"auto"`), the backend of its solves and their CG preconditioner
+            (`ddgjax.spectral.smallest_eigenpairs`; with Dirichlet conditions a hierarchy is of the
+            free-free block).
 
     Returns:
         `(eigenvalues (k,), eigenvectors (nv, k))`, ascending, M-orthonormal, each eigenvector's entry
@@ -67,7 +71,7 @@ def eigenpairs(
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
     L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     if boundary == "neumann":
-        return smallest_eigenpairs(L, M, k, method=method, solver=solver)
+        return smallest_eigenpairs(L, M, k, method=method, solver=solver, preconditioner=preconditioner)
     fixed = mesh.topology.boundary_vertices
     if fixed.size == 0:
         raise DDGInputError("boundary: 'dirichlet' needs a mesh with a boundary; this mesh is closed (use 'neumann')")
@@ -77,7 +81,7 @@ def eigenpairs(
         M_ff = diagonal_matrix(M.diagonal()[plan.free], positive_semidefinite=True)
     else:  # the Galerkin mass lives on the Laplacian's pattern
         M_ff, _ = dirichlet_blocks(M, plan)
-    values, vectors = smallest_eigenpairs(L_ff, M_ff, k, method=method, solver=solver)
+    values, vectors = smallest_eigenpairs(L_ff, M_ff, k, method=method, solver=solver, preconditioner=preconditioner)
     return values, plan.join(vectors, jnp.zeros((fixed.size, k), vectors.dtype))
 
 
