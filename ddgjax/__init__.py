@@ -4,7 +4,8 @@ Subpackages: `ddgjax.curves` (plane curves, four discrete curvatures, curve-shor
 `ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes), `ddgjax.dec` (discrete exterior
 calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices), `ddgjax.sparse` (fixed-pattern sparse
 matrices), `ddgjax.solve` (energies and differentiable sparse solves), `ddgjax.spectral` (Laplacian
-eigenpairs), `ddgjax.geodesics` (heat-method distance), `ddgjax.io` (mesh files),
+eigenpairs), `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation),
+`ddgjax.io` (mesh files),
 `ddgjax.plot` (figures). Conventions: see DESIGN.md and the README.
 
 Failures that depend on values inside `jit` (a flow that self-intersects, later a solve that does not
@@ -26,6 +27,7 @@ from . import geodesics as geodesics
 from . import io as io
 from . import laplacian as laplacian
 from . import mesh as mesh
+from . import param as param
 from . import solve as solve
 from . import sparse as sparse
 from . import spectral as spectral

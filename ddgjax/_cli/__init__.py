@@ -25,7 +25,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import flow, info, poisson, spectral
+from . import flow, info, param, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -125,6 +125,15 @@ def build_parser() -> argparse.ArgumentParser:
             parents=[common],
             help="the smallest Laplacian eigenvalues and the first eigenfunctions, drawn on the mesh",
             description="Compute the smallest eigenpairs of L phi = lambda M phi and draw the first eigenfunctions.",
+        )
+    )
+    param.add_arguments(
+        sub.add_parser(
+            "param",
+            parents=[common],
+            help="flatten a disk-topology mesh (BFF, LSCM, harmonic, Tutte) and draw it with a checkerboard",
+            description="Flatten a disk-topology mesh into the plane, print its distortion and flipped faces, and "
+            "draw the surface textured through the map, the map and its quasi-conformal distortion.",
         )
     )
     return parser

@@ -39,6 +39,7 @@ from ..curves import (
     regular_polygon,
     star,
 )
+from ._common import write_figure
 
 SHAPES = ("figure3", "flower", "star", "random", "regular")
 # One colour per kind, the same in every panel.
@@ -362,10 +363,6 @@ def run_flow(args: argparse.Namespace) -> int:
         print(f"warning: {message}")
     if not args.no_plot:
         figure = _figure(runs, name, args, tau)
-        try:
-            figure.savefig(args.output, dpi=110)
-        except OSError as error:
-            print(f"ddgjax flow: error: --output: could not write {args.output!r}: {error}", file=sys.stderr)
+        if not write_figure(figure, args.output, "flow"):
             return 2
-        print(f"figure written to {args.output}")
     return 1 if diverged else 0

@@ -26,12 +26,12 @@ import numpy as np
 from .._compile import tuned_jit
 from .._errors import DDGInputError, MeshDataError
 from .._results import RESULTS
-from ..io import load_mesh
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..mesh import Mesh, disk, icosphere
 from ..solve import dirichlet_energy, poisson_energy
 from ..solve._linear import auto_method
 from ..solve._problems import poisson_with_result
+from ._common import load_cli_mesh, write_figure
 
 SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)"}
 DEFAULT_RESOLUTION = {"disk": 24, "sphere": 4}
@@ -162,11 +162,7 @@ def _mesh(args) -> tuple[str, Mesh, str | None]:
         raise DDGInputError(f"--resolution: applies to the built-in shapes ({', '.join(SHAPES)}), not to the file {args.mesh!r}")
     if not os.path.isfile(args.mesh):
         raise DDGInputError(f"MESH: expected one of {', '.join(SHAPES)} or an existing mesh file, got {args.mesh!r}")
-    try:
-        mesh = load_mesh(args.mesh, dtype=jnp.float64)
-    except (DDGInputError, MeshDataError) as error:
-        raise type(error)(f"{args.mesh}: {error}") from error
-    return os.path.basename(args.mesh), mesh, None
+    return *load_cli_mesh(args.mesh), None
 
 
 def _frame(vertices: np.ndarray, referenced: np.ndarray):
@@ -398,10 +394,6 @@ def run_poisson(args: argparse.Namespace) -> int:
     print(format_table(problem, outputs, first, second, args))
     if not args.no_plot:
         figure = _figure(problem, outputs, args)
-        try:
-            figure.savefig(args.output, dpi=110)
-        except OSError as error:
-            print(f"ddgjax poisson: error: --output: could not write {args.output!r}: {error}", file=sys.stderr)
+        if not write_figure(figure, args.output, "poisson"):
             return 2
-        print(f"figure written to {args.output}")
     return 0

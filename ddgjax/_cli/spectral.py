@@ -8,7 +8,6 @@ whose eigenfunctions come in pairs. A mesh file is read with `ddgjax.io.load_mes
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -18,9 +17,9 @@ import numpy as np
 
 from .._errors import DDGInputError, MeshDataError
 from ..geodesics import heat_distance_solver
-from ..io import load_mesh
 from ..mesh import Mesh, torus
 from ..spectral import eigenpairs
+from ._common import load_cli_mesh, write_figure
 
 _DEFAULT_SHAPE = "built-in torus(R=1.0, r=0.4, n_major=64, n_minor=24)"
 
@@ -54,12 +53,7 @@ def _common(parser: argparse.ArgumentParser, output: str) -> None:
 def _mesh(args) -> tuple[str, Mesh]:
     if args.mesh is None:
         return _DEFAULT_SHAPE, torus(1.0, 0.4, 64, 24, dtype=jnp.float64)
-    if not os.path.isfile(args.mesh):
-        raise DDGInputError(f"MESH: expected an existing mesh file, got {args.mesh!r}")
-    try:
-        return os.path.basename(args.mesh), load_mesh(args.mesh, dtype=jnp.float64)
-    except (DDGInputError, MeshDataError) as error:
-        raise type(error)(f"{args.mesh}: {error}") from error
+    return load_cli_mesh(args.mesh)
 
 
 def run_geodesic(args: argparse.Namespace) -> int:
@@ -84,8 +78,8 @@ def run_geodesic(args: argparse.Namespace) -> int:
         ("distance", f"max {distance.max():.4g}, mean {distance.mean():.4g}"),
     ]
     print("\n".join(f"{key:10s} {value}" for key, value in rows))
-    if not args.no_plot:
-        _draw(mesh, [("geodesic distance (heat method)", distance)], name, args, bands=args.bands)
+    if not args.no_plot and not _draw(mesh, [("geodesic distance (heat method)", distance)], name, args, bands=args.bands):
+        return 2
     return 0
 
 
@@ -107,11 +101,12 @@ def run_spectrum(args: argparse.Namespace) -> int:
         # Constant eigenfunctions (lambda = 0, one per closed component) carry no picture: drawn from the first other one.
         first = int(np.argmax(values > 1e-8 * max(values.max(), 1e-300))) if values.max() > 0 else 0
         panels = [(f"$\\phi_{{{i}}}$, $\\lambda$ = {values[i]:.4g}", vectors[:, i]) for i in range(first, min(first + 6, args.k))]
-        _draw(mesh, panels, name, args)
+        if not _draw(mesh, panels, name, args):
+            return 2
     return 0
 
 
-def _draw(mesh: Mesh, panels, name: str, args, bands: int | None = None) -> None:
+def _draw(mesh: Mesh, panels, name: str, args, bands: int | None = None) -> bool:
     # Imported here: matplotlib is only needed when a figure is written.
     from matplotlib import colormaps
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -132,9 +127,4 @@ def _draw(mesh: Mesh, panels, name: str, args, bands: int | None = None) -> None
         axes.set_title(title, fontsize=10)
         figure.colorbar(collection, ax=axes, shrink=0.8)
     figure.suptitle(name, fontsize=10)
-    try:
-        figure.savefig(args.output, dpi=110)
-    except OSError as error:
-        print(f"error: cannot write {args.output}: {error}", file=sys.stderr)
-        raise SystemExit(2) from error
-    print(f"figure written to {args.output}")
+    return write_figure(figure, args.output, args.command)

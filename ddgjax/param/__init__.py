@@ -1,0 +1,25 @@
+"""Surface parametrisation of disk-topology meshes, differentiable in the vertex positions.
+
+- Fixed boundary: `tutte_embedding` (uniform or cotan weights, boundary on a circle, a square or given
+  positions) and `harmonic_map` (cotan weights).
+- Free boundary, conformal: `lscm` (least squares conformal maps, two pinned vertices),
+  `spectral_conformal_map` (no pins: the smallest non-trivial eigenvector of the conformal energy),
+  `conformal_energy_matrix` (the `2 nv x 2 nv` quadratic form `E_C = E_D - A` both minimise).
+- `boundary_first_flattening`: conformal maps with prescribed boundary scale factors or boundary
+  angles (Sawhney & Crane 2017), the flat disk and a rectangle layout.
+- `map_distortion` -> `MapDistortion`: per-face area ratio, quasi-conformal distortion, conformal
+  energy and flips of any map, with summaries.
+
+Every map returns `(nv, 2)` positions and refuses a mesh that is not a topological disk with
+`ddgjax.DDGInputError`. Conventions: the boundary loop is `mesh.topology.boundary_loops[0]` and every
+per-boundary-vertex argument follows its order; unreferenced vertices go to the origin.
+"""
+
+from ._bff import boundary_first_flattening as boundary_first_flattening
+from ._distortion import MapDistortion as MapDistortion
+from ._distortion import map_distortion as map_distortion
+from ._lscm import conformal_energy_matrix as conformal_energy_matrix
+from ._lscm import lscm as lscm
+from ._lscm import spectral_conformal_map as spectral_conformal_map
+from ._tutte import harmonic_map as harmonic_map
+from ._tutte import tutte_embedding as tutte_embedding

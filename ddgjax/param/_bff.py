@@ -1,0 +1,219 @@
+"""Boundary First Flattening (Sawhney & Crane 2017): conformal flattening with control of the boundary.
+
+A conformal map of a disk is determined, up to rigid motion, by its log scale factor `u` on the
+boundary or by the curvature (exterior angles) `k~` of its boundary curve; BFF converts one into the
+other with one Poisson solve, builds the boundary curve, and extends it into the interior.
+
+Discrete data (`L` the PSD cotan Laplacian, angle defects from `ddgjax.mesh.vertex_angle_defects`):
+`Omega_i = 2 pi - sum theta` at interior vertices (integrated Gaussian curvature) and
+`k_i = pi - sum theta` at boundary vertices (integrated geodesic curvature). A conformal change by
+`e^u` changes the integrated curvature by `L u` (the smooth `K~ dA~ = (K - Delta u) dA`, with
+`L = -Delta` weakly):
+
+    Omega~ = Omega + L u (interior),   k~ = k + L u (boundary).
+
+- Dirichlet-to-Neumann (`u` on the boundary given, default 0): a flat interior (`Omega~ = 0`) means
+  `(L u)_I = -Omega_I`, a Dirichlet problem for `u_I`; then `k~ = k + (L u)_B`.
+- Neumann-to-Dirichlet (`k~` given; must sum to `2 pi`, Gauss-Bonnet): `L u = [-Omega_I; k~ - k_B]`,
+  a Neumann problem solved with one vertex pinned (the right-hand side sums to 0 exactly); `u` is
+  then shifted to zero boundary-length-weighted mean (the constant is the map's global scale).
+
+Boundary curve: target edge lengths `l~_p = exp((u_a + u_b) / 2) l_p` for the boundary edge
+`p = (a, b)`, tangent directions `T_p = (cos phi_p, sin phi_p)` with `phi_0 = 0` and
+`phi_p = phi_{p-1} + k~_{loop[p]}`. The polygon `sum_p l~_p T_p` need not close; the closest lengths
+that close it, minimising `sum_p (l*_p - l~_p)^2 / l~_p` subject to `sum_p l*_p T_p = 0`, are
+`l*_p = l~_p (1 + T_p . lambda)` with the `2 x 2` system `(sum_p l~_p T_p T_p^T) lambda = -sum_p l~_p T_p`
+(the paper's minimal length correction; the directions, so the angles `k~`, are kept). The vertices
+are the partial sums, `loop[0]` at the origin and the first boundary edge along `+x`.
+
+Interior: harmonic extension of both coordinates with the cotan Laplacian (the paper's extension by
+harmonic functions; the same free-free block as the Dirichlet-to-Neumann step, factored once).
+
+Targets (`shape=`): `"disk"`, the flat disk, `k~_i = 2 pi l_i* / perimeter` with `l_i*` the dual
+boundary length (constant curvature); `"rectangle"`, `k~ = pi / 2` at four corner vertices and 0
+elsewhere, so four right angles and straight sides.
+
+Everything is differentiable in the vertex positions and in `boundary_scale` / `boundary_angles`
+(`ddgjax.solve.linear_solve`'s implicit differentiation), under `jit`, `grad` and `vmap`.
+
+Reference: R. Sawhney, K. Crane, "Boundary First Flattening", ACM Trans. Graph. 37(1), 2017, sections
+4-5 (Dirichlet-to-Neumann and Neumann-to-Dirichlet maps, curve construction, minimal length
+correction, extension). Reference implementation: geometry-central's / the authors' `bff` program.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
+
+from .._errors import DDGInputError, check_choice, is_traced
+from .._indexing import take_rows
+from .._results import RESULTS, raise_if_failed
+from ..laplacian import cotan_laplacian
+from ..laplacian._plan import vertex_plan
+from ..mesh._curvature import vertex_angle_defects
+from ..mesh._mesh import Mesh
+from ..solve import factorize, linear_solve
+from ..solve._linear import METHODS
+from ..sparse import dirichlet_blocks, dirichlet_plan
+from ._disk import boundary_dual_lengths, boundary_edge_lengths, boundary_values, cached_plan, require_disk
+from ._tutte import boundary_plan, harmonic_extension
+
+SHAPES = ("disk", "rectangle")
+# Tolerance of the Gauss-Bonnet check of concrete `boundary_angles` (their sum must be 2 pi).
+_ANGLE_SUM_TOLERANCE = 1e-6
+
+
+def boundary_first_flattening(
+    mesh: Mesh,
+    *,
+    boundary_scale: Float[ArrayLike, " nb"] | None = None,
+    boundary_angles: Float[ArrayLike, " nb"] | None = None,
+    shape: str | None = None,
+    corners: Int[ArrayLike, " 4"] | None = None,
+    method: str = "auto",
+) -> Float[Array, "nv 2"]:
+    """Conformal flattening of a disk-topology mesh by Boundary First Flattening (module docstring), `(nv, 2)`.
+
+    Give at most one of `boundary_scale`, `boundary_angles`, `shape`; with none, `u = 0` on the
+    boundary: the conformal map that keeps boundary lengths (least area distortion along the
+    boundary; on a hemisphere, the stereographic projection).
+
+    Args:
+        mesh: a topological disk (else `DDGInputError`).
+        boundary_scale: `(nb,)` log scale factors `u` at the boundary vertices (loop order,
+            `mesh.topology.boundary_loops[0]`): boundary lengths scale by `exp(u)`.
+        boundary_angles: `(nb,)` target exterior (turning) angles `k~` of the boundary curve at the
+            boundary vertices, summing to `2 pi` (checked when concrete; `DDGInputError`).
+        shape: `"disk"` (the flat disk: constant curvature) or `"rectangle"` (four right-angle
+            corners, straight sides).
+        corners: for `shape="rectangle"`: four distinct boundary vertex indices, in loop order.
+            Default: `loop[round(j nb / 4)]`, `j = 0..3` (spread by count along the loop).
+        method: the `ddgjax.solve.linear_solve` backend.
+
+    Returns:
+        `(nv, 2)` positions, `loop[0]` at the origin, the first boundary edge along `+x`,
+        unreferenced vertices at the origin. Differentiable in the vertex positions and in
+        `boundary_scale` / `boundary_angles`.
+
+    Reference: Sawhney & Crane 2017. libigl / gpytoolbox: none; the authors' `bff` command line tool.
+    """
+    check_choice("method", method, METHODS)
+    given = [
+        name
+        for name, value in (("boundary_scale", boundary_scale), ("boundary_angles", boundary_angles), ("shape", shape))
+        if value is not None
+    ]
+    if len(given) > 1:
+        raise DDGInputError(
+            f"{', '.join(given)}: give at most one of boundary_scale, boundary_angles and shape, got {len(given)}"
+        )
+    if shape is not None:
+        check_choice("shape", shape, SHAPES)
+    if corners is not None and shape != "rectangle":
+        raise DDGInputError("corners: only shape='rectangle' takes corners")
+    disk = require_disk(mesh, "boundary_first_flattening")
+    loop = disk.loop
+    scale = None if boundary_scale is None else boundary_values("boundary_scale", boundary_scale, disk, ())
+    angles = None if boundary_angles is None else boundary_values("boundary_angles", boundary_angles, disk, ())
+    if angles is not None and not is_traced(angles):
+        total = float(jnp.sum(angles))
+        if abs(total - 2 * np.pi) > _ANGLE_SUM_TOLERANCE:
+            raise DDGInputError(
+                f"boundary_angles: the exterior angles of a closed simple curve sum to 2 pi (Gauss-Bonnet), got "
+                f"{total!r}; rescale them or spread the difference along the boundary"
+            )
+    corner_mask = _corner_mask(disk.loop, corners) if shape == "rectangle" else None
+    dirichlet = boundary_plan(mesh, disk)
+    neumann = None
+    if angles is not None or shape is not None:
+        fixed = np.concatenate([loop[:1], disk.unreferenced])
+        neumann = cached_plan(disk, "bff-neumann", lambda: dirichlet_plan(vertex_plan(mesh).pattern, fixed))
+    uv, result = _flatten(mesh, dirichlet, neumann, jnp.asarray(loop), scale, angles, corner_mask, shape, method)
+    return raise_if_failed(uv, result, throw=True)
+
+
+def _corner_mask(loop: np.ndarray, corners) -> np.ndarray:
+    """`(nb,)` bool mask of the rectangle's corners along the loop (checked; default: spread by count)."""
+    nb = loop.size
+    if nb < 4:
+        raise DDGInputError(f"mesh: a rectangle layout needs at least 4 boundary vertices, this boundary has {nb}")
+    if corners is None:
+        positions = np.round(np.arange(4) * nb / 4).astype(np.int64)
+    else:
+        if is_traced(corners):
+            raise DDGInputError("corners: the corner vertices must be concrete indices, not traced")
+        corners = np.asarray(corners)
+        if corners.shape != (4,) or not np.issubdtype(corners.dtype, np.integer):
+            raise DDGInputError(
+                f"corners: expected 4 integer boundary vertex indices, got shape {corners.shape} dtype {corners.dtype}"
+            )
+        where = {int(v): p for p, v in enumerate(loop)}
+        missing = [int(c) for c in corners if int(c) not in where]
+        if missing:
+            raise DDGInputError(f"corners: vertices {missing} are not on the boundary loop")
+        positions = np.array([where[int(c)] for c in corners])
+        if np.unique(positions).size != 4:
+            raise DDGInputError(f"corners: expected 4 distinct boundary vertices, got {corners.tolist()}")
+    mask = np.zeros(nb, dtype=bool)
+    mask[positions] = True
+    return mask
+
+
+@functools.partial(jax.jit, static_argnums=(7, 8))
+def _flatten(mesh, dirichlet, neumann, loop, scale, angles, corner_mask, shape, method):
+    L = cotan_laplacian(mesh)
+    dtype = L.values.dtype
+    defects = vertex_angle_defects(mesh)
+    lengths = boundary_edge_lengths(mesh.vertices, loop)
+    duals = boundary_dual_lengths(lengths)
+    nb, n = loop.shape[0], mesh.n_vertices
+    factor = None if dirichlet is None else factorize(dirichlet_blocks(L, dirichlet)[0], method=method)
+    results = []
+    if shape == "disk":
+        angles = 2.0 * jnp.pi * duals / jnp.sum(duals)
+    elif shape == "rectangle":
+        angles = jnp.where(jnp.asarray(corner_mask), 0.5 * jnp.pi, 0.0).astype(dtype)
+    if angles is None:
+        # Dirichlet-to-Neumann: (L u)_I = -Omega_I with u_B given, then k~ = k + (L u)_B.
+        u_boundary = jnp.zeros(nb, dtype) if scale is None else scale.astype(dtype)
+        if dirichlet is None:
+            u = jnp.zeros(n, dtype).at[loop].set(u_boundary)
+        else:
+            n_unreferenced = dirichlet.fixed.shape[0] - nb
+            fixed = jnp.concatenate([u_boundary, jnp.zeros(n_unreferenced, dtype)])
+            free_fixed = dirichlet_blocks(L, dirichlet)[1]
+            solution = factor.solve(-defects[dirichlet.free] - free_fixed @ fixed, throw=False)
+            results.append(solution.result)
+            u = dirichlet.join(solution.value, fixed)
+        angles = take_rows(defects + L @ u, loop)
+    else:
+        # Neumann-to-Dirichlet: L u = [-Omega_I; k~ - k_B], one vertex pinned to 0, then centred.
+        angles = angles.astype(dtype)
+        rhs = (-defects).at[loop].set(angles - take_rows(defects, loop))
+        free_free, _ = dirichlet_blocks(L, neumann)
+        solution = linear_solve(free_free, rhs[neumann.free], method=method, throw=False)
+        results.append(solution.result)
+        u = neumann.join(solution.value, jnp.zeros(neumann.fixed.shape[0], dtype))
+        u_loop = take_rows(u, loop)
+        u_boundary = u_loop - jnp.sum(duals * u_loop) / jnp.sum(duals)
+    curve = _boundary_curve(lengths, u_boundary, angles)
+    uv, result = harmonic_extension(L, dirichlet, factor, loop, curve)
+    results.append(result)
+    return uv, functools.reduce(lambda a, b: RESULTS.where(a == RESULTS.successful, b, a), results)
+
+
+def _boundary_curve(lengths: Float[Array, " nb"], u: Float[Array, " nb"], angles: Float[Array, " nb"]) -> Float[Array, "nb 2"]:
+    """Closed polygon with edge lengths `exp((u_a + u_b) / 2) l` and exterior angles `angles` (module docstring)."""
+    target = jnp.exp(0.5 * (u + jnp.roll(u, -1))) * lengths
+    phi = jnp.cumsum(angles) - angles[0]
+    tangents = jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=-1)
+    gram = jnp.einsum("p,pi,pj->ij", target, tangents, tangents)
+    multiplier = jnp.linalg.solve(gram, -(target @ tangents))
+    closed = target * (1.0 + tangents @ multiplier)
+    steps = closed[:, None] * tangents
+    return jnp.cumsum(steps, axis=0) - steps
