@@ -77,6 +77,25 @@ def test_harmonic_map_equals_igl_harmonic_up_to_a_similarity(hemisphere):
     assert _similarity_error(np.asarray(tutte_embedding(hemisphere, weights="cotan")), expected) < 1e-10
 
 
+def test_the_cotan_harmonic_map_can_flip_where_tutte_does_not():
+    """A jittered disk with a tall bump: obtuse angles give negative cotan weights, and the harmonic map
+    flips faces (libigl's harmonic map flips the same ones); uniform Tutte, with positive weights, flips
+    none; `map_distortion` reports both."""
+    flat = disk(6)
+    V = np.asarray(flat.vertices).copy()
+    inner = np.setdiff1d(np.arange(flat.n_vertices), flat.topology.boundary_vertices)
+    V[inner, :2] += np.random.default_rng(0).uniform(-0.05, 0.05, (inner.size, 2))
+    V[:, 2] = 3.0 * np.exp(-np.sum(V[:, :2] ** 2, axis=1) / 0.05)
+    mesh = Mesh.from_arrays(V, np.asarray(flat.faces))
+    harmonic = map_distortion(mesh, harmonic_map(mesh))
+    assert int(harmonic.n_flipped) == 5  # measured
+    F = np.asarray(mesh.faces, dtype=np.int64)
+    loop = igl.boundary_loop(F)
+    expected = igl.harmonic(V, F, loop, igl.map_vertices_to_circle(V, loop), 1)
+    np.testing.assert_array_equal(np.asarray(map_distortion(mesh, expected).flipped), np.asarray(harmonic.flipped))
+    assert int(map_distortion(mesh, tutte_embedding(mesh)).n_flipped) == 0
+
+
 def test_lscm_equals_igl_lscm_and_its_energy_matrix(hemisphere):
     """Same pins, same positions: the same map (libigl solves the same quadratic form, `Q` below); the sum of
     the per-face conformal energies is `1/2 x^T Q x`."""
