@@ -4,7 +4,7 @@ Subpackages: `ddgjax.curves` (plane curves, four discrete curvatures, curve-shor
 `ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes), `ddgjax.dec` (discrete exterior
 calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices), `ddgjax.sparse` (fixed-pattern sparse
 matrices), `ddgjax.solve` (energies and differentiable sparse solves), `ddgjax.spectral` (Laplacian
-eigenpairs), `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation),
+eigenpairs), `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields` (direction fields),
 `ddgjax.io` (mesh files),
 `ddgjax.plot` (figures). Conventions: see DESIGN.md and the README.
 
@@ -23,6 +23,7 @@ from importlib.metadata import version as _version
 
 from . import curves as curves
 from . import dec as dec
+from . import fields as fields
 from . import geodesics as geodesics
 from . import io as io
 from . import laplacian as laplacian

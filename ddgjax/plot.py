@@ -13,7 +13,8 @@ global state (no pyplot, no backend). `import ddgjax` does not import this modul
     plot_flow(ax, result, color="tab:orange")
 
 A function on a mesh is drawn by `plot_mesh_function(ax, mesh, values)`: an orthographic view,
-faces painted back to front (no 3-D axes needed), returning the collection for `fig.colorbar`.
+faces painted back to front (no 3-D axes needed), returning the collection for `fig.colorbar`;
+`plot_direction_field(ax, mesh, vectors)` draws tangent directions on top, in the same view.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from numbers import Real
 
 import numpy as np
 from jaxtyping import ArrayLike
-from matplotlib.collections import PolyCollection
+from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize, to_rgb
 
 from ._errors import DDGInputError, check_choice
@@ -177,4 +178,63 @@ def plot_mesh_function(
     axes.autoscale_view()
     axes.set_aspect("equal")
     axes.set_axis_off()
+    return collection
+
+
+def plot_direction_field(
+    axes,
+    mesh: Mesh,
+    vectors: ArrayLike,
+    *,
+    view: tuple[Real, Real] | None = None,
+    up: str = "z",
+    length: Real | None = None,
+    color="black",
+    linewidth: Real = 0.6,
+):
+    """Draw tangent directions at the vertices of `mesh` as short strokes, in `plot_mesh_function`'s view.
+
+    Each of the `k` directions at a vertex is a stroke from the vertex along it (a vector field: one
+    arrow-like stroke; a cross field: four, a cross). Strokes at vertices whose normal points away
+    from the viewer are left out, so a closed surface drawn with `plot_mesh_function` first hides its
+    back's strokes too.
+
+    Args:
+        axes: a matplotlib `Axes` (2-D), usually with the mesh drawn by `plot_mesh_function`.
+        mesh: the mesh.
+        vectors: `(nv, k, 3)` unit directions per vertex (`ddgjax.fields.field_to_vectors(mesh, field, n=k)`),
+            or `(nv, 3)` one per vertex.
+        view, up: as `plot_mesh_function` (the same defaults).
+        length: stroke length (default: 0.45 times the mean edge length).
+        color, linewidth: the strokes' style.
+
+    Returns:
+        The matplotlib `LineCollection`.
+    """
+    mesh = require_mesh("mesh", mesh)
+    check_choice("up", up, tuple(_UP))
+    vectors = np.asarray(vectors, dtype=float)
+    if vectors.ndim == 2:
+        vectors = vectors[:, None, :]
+    if vectors.ndim != 3 or vectors.shape[0] != mesh.n_vertices or vectors.shape[2] != 3:
+        raise DDGInputError(f"vectors: expected shape ({mesh.n_vertices}, k, 3) or ({mesh.n_vertices}, 3), got {vectors.shape}")
+    if view is None:
+        view = TOP_VIEW if is_flat(mesh) else OBLIQUE_VIEW
+    rotation = view_rotation(*view) @ _UP[up]
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    faces = np.asarray(mesh.faces)
+    if length is None:
+        edges = vertices[faces] - vertices[np.roll(faces, 1, axis=1)]
+        length = 0.45 * float(np.linalg.norm(edges, axis=-1).mean())
+    # Area-weighted vertex normals (host NumPy: drawing needs no derivatives).
+    face_normals = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    normals = np.zeros_like(vertices)
+    np.add.at(normals, faces.ravel(), np.repeat(face_normals, 3, axis=0))
+    # The viewer looks along +y of the rotated frame (plot_mesh_function paints larger y first).
+    facing = (normals @ rotation.T)[:, 1] <= 0 if not is_flat(mesh) else np.ones(len(vertices), bool)
+    starts = vertices[facing][:, None, :] + 0 * vectors[facing]
+    ends = starts + length * vectors[facing]
+    segments = np.stack([starts, ends], axis=2).reshape(-1, 2, 3) @ rotation.T
+    collection = LineCollection(segments[:, :, [0, 2]], colors=color, linewidths=linewidth)
+    axes.add_collection(collection)
     return collection

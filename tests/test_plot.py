@@ -50,3 +50,25 @@ def test_plot_curve_refuses_points_with_what_to_call(axes, without_type_checker)
 
     with pytest.raises(DDGInputError, match=r"curve: expected a ddgjax Curve.*Curve\(points"):
         plot_curve(axes, np.zeros((4, 2)))
+
+
+def test_plot_direction_field_draws_the_front_strokes_in_the_mesh_view(axes):
+    from ddgjax import DDGInputError
+    from ddgjax.mesh import grid, icosphere
+    from ddgjax.plot import TOP_VIEW, plot_direction_field
+
+    sphere = icosphere(2)
+    normals = np.asarray(sphere.vertices)  # the unit sphere's normals: tangent strokes along z x p
+    tangents = np.cross([0.0, 0.0, 1.0], normals) + 1e-3
+    strokes = plot_direction_field(axes, sphere, np.stack([tangents, -tangents], axis=1), view=TOP_VIEW)
+    # From the top only the upper hemisphere faces the viewer (the equator's vertices either way: their
+    # estimated normals are horizontal to round-off): two strokes per such vertex, from its (x, y).
+    segments = np.asarray(strokes.get_segments())
+    above, on_or_above = normals[:, 2] > 1e-9, normals[:, 2] > -1e-9
+    assert 2 * above.sum() <= len(segments) <= 2 * on_or_above.sum()
+    starts = segments[::2, 0]  # each at a vertex's (x, y) (a vertex and its mirror below project alike)
+    assert np.abs(starts[:, None, :] - normals[None, :, :2]).sum(axis=-1).min(axis=1).max() < 1e-12
+    flat = grid(3, 3)
+    assert len(plot_direction_field(axes, flat, np.tile([1.0, 0.0, 0.0], (flat.n_vertices, 1))).get_segments()) == flat.n_vertices
+    with pytest.raises(DDGInputError, match="vectors: expected shape"):
+        plot_direction_field(axes, flat, np.zeros((3, 3)))

@@ -25,7 +25,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import flow, info, param, poisson, spectral
+from . import fields, flow, info, param, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -134,6 +134,15 @@ def build_parser() -> argparse.ArgumentParser:
             help="flatten a disk-topology mesh (BFF, LSCM, harmonic, Tutte) and draw it with a checkerboard",
             description="Flatten a disk-topology mesh into the plane, print its distortion and flipped faces, and "
             "draw the surface textured through the map, the map and its quasi-conformal distortion.",
+        )
+    )
+    fields.add_arguments(
+        sub.add_parser(
+            "fields",
+            parents=[common],
+            help="the smoothest vector / line / cross field of a mesh, drawn with its singularities",
+            description="Compute the globally smoothest n-direction field (Knoeppel et al. 2013), optionally aligned to "
+            "the principal curvature directions, print its energy and singularities and draw it.",
         )
     )
     return parser

@@ -77,6 +77,7 @@ def smallest_eigenpairs(
     method: str = "auto",
     solver: str = "auto",
     preconditioner: str | AMGHierarchy | None = None,
+    hermitian_real_form: bool = False,
 ) -> tuple[Float[Array, " k"], Float[Array, "n k"]]:
     """The `k` smallest eigenpairs of `L phi = lambda M phi` (module docstring), differentiable in both matrices' values.
 
@@ -92,6 +93,12 @@ def smallest_eigenpairs(
             hierarchy of `L - sigma M` when the values are concrete, Jacobi when traced), `"jacobi"`,
             `"amg"` (concrete values only) or an `AMGHierarchy` (e.g. `amg_hierarchy(L)`, built
             outside `jit`).
+        hermitian_real_form: `L` and `M` are the real forms `[[Re A, -Im A], [Im A, Re A]]` and
+            `diag(B, B)` of a complex Hermitian problem `A u = lambda B u` of half the size (`B` real),
+            whose eigenvalues all come in pairs (`u` and `i u`, i.e. `[x; y]` and `[-y; x]`): the
+            host path solves the complex problem (ARPACK's complex mode, `k / 2` eigenpairs, half the
+            unknowns and a quarter of the factor) and returns the pairs, so `k` must be even. Results
+            and derivatives are those of the real-form problem.
 
     Returns:
         `(eigenvalues (k,), eigenvectors (n, k))`, ascending, `Phi^T M Phi = I`, in `L`'s dtype.
@@ -112,7 +119,11 @@ def smallest_eigenpairs(
         method = "arpack" if jax.default_backend() == "cpu" else "subspace"
     check_choice("solver", solver, SOLVE_METHODS)
     preconditioner = _subspace_preconditioner(L, M, method, solver, preconditioner)
-    return _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, method, solver, preconditioner)
+    hermitian_real_form = bool(hermitian_real_form)
+    if hermitian_real_form and (n % 2 or k % 2):
+        raise DDGInputError(f"hermitian_real_form: needs an even size and an even k (pairs), got n = {n}, k = {k}")
+    options = (method, solver, preconditioner, hermitian_real_form)
+    return _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, options)
 
 
 def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGHierarchy | None:
@@ -143,10 +154,24 @@ def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGH
     return preconditioner
 
 
-def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int, k: int):
+def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int, k: int, hermitian_real_form: bool):
     """NumPy: ARPACK shift-invert (or a dense solve when small), ascending, M-normalised, signs fixed."""
     L = sp.csc_matrix((np.asarray(l_values, np.float64), (l_rows, l_cols)), shape=(n, n))
     M = sp.csc_matrix((np.asarray(m_values, np.float64), (m_rows, m_cols)), shape=(n, n))
+    if hermitian_real_form:
+        values, vectors = _complex_eigenpairs(L, M, k // 2)
+        values = np.repeat(values, 2)
+        x, y = vectors.real, vectors.imag
+        vectors = np.stack([np.vstack([x, y]), np.vstack([-y, x])], axis=2).reshape(n, k)  # u, i u per pair
+    else:
+        values, vectors = _real_eigenpairs(L, M, k)
+    largest = np.argmax(np.abs(vectors), axis=0)
+    vectors = vectors * np.sign(vectors[largest, np.arange(k)])
+    return values.astype(l_values.dtype), vectors.astype(l_values.dtype)
+
+
+def _real_eigenpairs(L: sp.csc_matrix, M: sp.csc_matrix, k: int):
+    n = L.shape[0]
     if n <= 2 * k + 64:
         values, vectors = sla.eigh(L.toarray(), M.toarray(), subset_by_index=(0, k - 1))
     else:
@@ -157,16 +182,32 @@ def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int,
         values, vectors = values[order], vectors[:, order]
         # ARPACK's vectors are M-orthonormal to its tolerance; once more exactly, column by column.
         vectors = vectors / np.sqrt(np.einsum("ik,ik->k", vectors, M @ vectors))
-    largest = np.argmax(np.abs(vectors), axis=0)
-    vectors = vectors * np.sign(vectors[largest, np.arange(k)])
-    return values.astype(l_values.dtype), vectors.astype(l_values.dtype)
+    return values, vectors
 
 
-def _host_forward(l_pattern, m_pattern, k, l_values, m_values):
+def _complex_eigenpairs(L: sp.csc_matrix, M: sp.csc_matrix, k: int):
+    """The `k` smallest eigenpairs of the complex Hermitian problem whose real forms are `L`, `M` (see
+    `smallest_eigenpairs(hermitian_real_form=True)`): `A = L[:h, :h] + i L[h:, :h]`, `B = M[:h, :h]`."""
+    h = L.shape[0] // 2
+    A = (L[:h, :h] + 1j * L[h:, :h]).tocsc()
+    B = M[:h, :h].tocsc()
+    if h <= 2 * k + 64:
+        values, vectors = sla.eigh(A.toarray(), B.toarray(), subset_by_index=(0, k - 1))
+    else:
+        shift = -1e-8 * A.diagonal().real.sum() / B.diagonal().sum()
+        start = (np.ones(h) + np.linspace(0.0, 1.0, h)) * (1 + 0.5j)
+        values, vectors = spla.eigsh(A, k=k, M=B, sigma=shift, which="LM", v0=start, tol=0.0)
+        order = np.argsort(values)
+        values, vectors = values[order], vectors[:, order]
+    vectors = vectors / np.sqrt(np.einsum("ik,ik->k", vectors.conj(), B @ vectors).real)
+    return values.real, vectors
+
+
+def _host_forward(l_pattern, m_pattern, k, hermitian_real_form, l_values, m_values):
     n = l_pattern.shape[0]
     shapes = (jax.ShapeDtypeStruct((k,), l_values.dtype), jax.ShapeDtypeStruct((n, k), l_values.dtype))
     return jax.pure_callback(
-        lambda *arrays: _host_eigenpairs(*arrays, n=n, k=k),
+        lambda *arrays: _host_eigenpairs(*arrays, n=n, k=k, hermitian_real_form=hermitian_real_form),
         shapes,
         l_pattern.rows,
         l_pattern.cols,
@@ -178,27 +219,28 @@ def _host_forward(l_pattern, m_pattern, k, l_values, m_values):
     )
 
 
-def _forward(l_pattern, m_pattern, k, method, solver, preconditioner, l_values, m_values):
+def _forward(l_pattern, m_pattern, k, options, l_values, m_values):
+    method, solver, preconditioner, hermitian_real_form = options
     if method == "arpack":
-        return _host_forward(l_pattern, m_pattern, k, l_values, m_values)
+        return _host_forward(l_pattern, m_pattern, k, hermitian_real_form, l_values, m_values)
     L = SparseMatrix(l_values, l_pattern, symmetric=True, positive_semidefinite=True)
     M = SparseMatrix(m_values, m_pattern, symmetric=True, positive_semidefinite=True)
     return _subspace_iteration(L, M, k, solver, preconditioner)
 
 
 @eqx.filter_custom_vjp
-def _eigenpairs(values, l_pattern, m_pattern, k, method, solver, preconditioner):
-    return _forward(l_pattern, m_pattern, k, method, solver, preconditioner, *values)
+def _eigenpairs(values, l_pattern, m_pattern, k, options):
+    return _forward(l_pattern, m_pattern, k, options, *values)
 
 
 @_eigenpairs.def_fwd
-def _eigenpairs_fwd(perturbed, values, l_pattern, m_pattern, k, method, solver, preconditioner):
-    eigenvalues, eigenvectors = _forward(l_pattern, m_pattern, k, method, solver, preconditioner, *values)
+def _eigenpairs_fwd(perturbed, values, l_pattern, m_pattern, k, options):
+    eigenvalues, eigenvectors = _forward(l_pattern, m_pattern, k, options, *values)
     return (eigenvalues, eigenvectors), (eigenvalues, eigenvectors)
 
 
 @_eigenpairs.def_bwd
-def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_pattern, k, method, solver, preconditioner):
+def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_pattern, k, options):
     """`(L_bar, M_bar)` on the patterns' storage slots (module docstring: reverse mode)."""
     eigenvalues, Phi = residuals
     values_bar, Phi_bar = cotangents
@@ -219,6 +261,7 @@ def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_patte
         rights.append(Phi)
         scales.append(eigenvalues)
         # The adjoint's preconditioning solves: as the forward's on the subspace path (in JAX on any device).
+        method, solver, preconditioner, _ = options
         solves = {"method": "auto"} if method == "arpack" else {"method": solver, "preconditioner": preconditioner}
         W = _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar, solves)
         lefts.append(W)

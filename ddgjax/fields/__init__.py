@@ -1,0 +1,30 @@
+"""Direction fields: the discrete Levi-Civita connection, the connection Laplacian, smoothest n-direction fields.
+
+- Connection (angle form; conventions in `ddgjax.fields._connection`): `edge_polar_angles`,
+  `edge_transport_angles` (`rho_ij = theta_ji + pi - theta_ij`), `face_holonomies`,
+  `vertex_tangent_bases` (`e1, e2, normal`).
+- `connection_laplacian(mesh, *, n=1)`: complex Hermitian PSD, `u^H A u = sum w_ij |u_j - e^{i n rho_ij} u_i|^2`;
+  `connection_mass_matrix`.
+- `smoothest_field(mesh, *, n=1, alignment=None, alignment_weight=1.0)` -> `SmoothestField`: the
+  globally smoothest field (smallest eigenvector) or the screened alignment to a guidance field
+  (`principal_curvature_alignment`), differentiable in the vertex positions.
+- `field_singularities(mesh, field, *, n)`: the index of every face (Poincare-Hopf: they sum to `chi`).
+- `interpolate_field(mesh, vertices, values, *, n=1)`: the smoothest field through given values.
+- `field_to_vectors(mesh, field, *, n, at="vertices" | "faces")`: the `n` directions as 3D unit vectors.
+
+Fields are complex `n`-th powers in the vertices' polar coordinates. Reference: Knoeppel, Crane,
+Pinkall, Schroeder, "Globally optimal direction fields" (2013).
+"""
+
+from ._connection import edge_polar_angles as edge_polar_angles
+from ._connection import edge_transport_angles as edge_transport_angles
+from ._connection import face_holonomies as face_holonomies
+from ._connection import vertex_tangent_bases as vertex_tangent_bases
+from ._interpolation import interpolate_field as interpolate_field
+from ._laplacian import connection_laplacian as connection_laplacian
+from ._laplacian import connection_mass_matrix as connection_mass_matrix
+from ._singularities import field_singularities as field_singularities
+from ._smoothest import SmoothestField as SmoothestField
+from ._smoothest import principal_curvature_alignment as principal_curvature_alignment
+from ._smoothest import smoothest_field as smoothest_field
+from ._vectors import field_to_vectors as field_to_vectors

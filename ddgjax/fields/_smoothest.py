@@ -1,0 +1,189 @@
+"""Globally smoothest n-direction fields (Knoeppel et al. 2013), with or without alignment to a guidance field.
+
+- Without alignment: the minimiser of `u^H A u` over `u^H M u = 1`, the eigenvector of the smallest
+  eigenvalue of `A u = lambda M u` (`A` the connection Laplacian, `M` the lumped mass). It is found
+  through the real form `[[Re A, -Im A], [Im A, Re A]] x = lambda diag(M, M) x`, where every
+  eigenvalue of `A` appears twice (`x = [Re u; Im u]` and `[-Im u; Re u]`, i.e. `u` and `i u`), by
+  `ddgjax.spectral.smallest_eigenpairs(..., k=2)`, which closes that pair.
+- With alignment to a guidance field `q` (the same representation: `n`-th powers in the vertices'
+  polar coordinates, magnitudes as weights): the screened problem
+  `min_u u^H A u + s (u - q)^H M (u - q)`, i.e. `(A + s M) u = s M q`, one Hermitian positive definite
+  solve (`ddgjax.solve.linear_solve`). It is Knoeppel's family `(A - lambda_t M) u = M q` with
+  `lambda_t = -s` (the part below 0 of their `lambda_t < lambda_1`; the solution is scaled by `s`,
+  which the unit field does not see): large `s` follows `q`; as `s -> 0` the solution tends to
+  `s A^{-1} M q`, one step of inverse iteration from `q` (smoother than `q`, not the eigenvector:
+  that is Knoeppel's limit `lambda_t -> lambda_1`, which is not offered here).
+
+Derivatives in the vertex positions: the solve is differentiated implicitly (always defined). On the
+eigenvector path the eigenvalue `lambda = u^H A u` (the energy) has an exact gradient where the
+complex eigenvalue is simple. The eigenvector itself is defined up to a phase `exp(i c)` (the pair
+above is an exact cluster); it is fixed by rotating the entry of largest magnitude to the positive
+real axis, a phase-invariant function of the eigenvector, so the returned field is differentiable
+too wherever that entry is unique and the eigenvalue simple.
+
+References: F. Knoeppel, K. Crane, U. Pinkall, P. Schroeder, "Globally optimal direction fields"
+(SIGGRAPH 2013), sections 4-6. geometry-central: `computeSmoothestVertexDirectionField`,
+`computeCurvatureAlignedVertexDirectionField`.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
+
+from .._errors import DDGInputError, check_positive
+from .._numerics import safe_reciprocal, safe_sqrt
+from ..mesh._compiled import compiled_kernel
+from ..mesh._geometry import edge_dihedral_angles, edge_lengths
+from ..mesh._mesh import Mesh, require_mesh
+from ..solve import linear_solve
+from ..spectral import smallest_eigenpairs
+from ._connection import check_boundary, connection, plan_of
+from ._laplacian import check_degree, connection_laplacian, connection_mass_matrix, real_form, real_form_diagonal
+from ._plan import require_referenced
+
+
+class SmoothestField(eqx.Module):
+    """A direction field from `smoothest_field` (complex `n`-th powers in the vertices' polar coordinates).
+
+    Attributes:
+        field: `(nv,)` unit complex numbers `u_i / |u_i|` (0 where `u_i = 0`): the field's directions.
+        solution: `(nv,)` the minimiser `u` itself: on the eigenvector path normalised
+            `u^H M u = 1` (its magnitude is small near singularities), with alignment the solution of
+            `(A + s M) u = s M q` (magnitude near `|q|` where the alignment wins).
+        energy: `()` the smoothness `u^H A u / u^H M u` of `solution` (the smallest eigenvalue on the
+            eigenvector path).
+        n: number of directions (static).
+    """
+
+    field: Complex[Array, " nv"]
+    solution: Complex[Array, " nv"]
+    energy: Float[Array, ""]
+    n: int = eqx.field(static=True)
+
+
+def smoothest_field(
+    mesh: Mesh,
+    *,
+    n: int = 1,
+    alignment: Inexact[ArrayLike, " nv"] | None = None,
+    alignment_weight: float = 1.0,
+    boundary: str = "geodesic",
+    mass: str = "voronoi",
+    method: str = "auto",
+) -> SmoothestField:
+    """The globally smoothest `n`-direction field on the vertices, optionally aligned to a guidance field.
+
+    Without `alignment`: the eigenvector of the smallest eigenvalue of `A u = lambda M u` (module
+    docstring), with a deterministic phase (its entry of largest magnitude, the first on ties, is real
+    and positive). With `alignment = q`: the solution of `(A + s M) u = s M q`, `s = alignment_weight`
+    (Knoeppel's `lambda_t = -s`). `A` is `connection_laplacian(mesh, n=n, boundary=boundary)`, `M`
+    `connection_mass_matrix(mesh, mass=mass)`.
+
+    On a flat disk with `boundary="unscaled"` the answer is a constant field (energy 0); with the
+    default `"geodesic"` boundary the boundary bends the connection (geometry-central's convention),
+    so it is not. Differentiable in the vertex positions (module docstring for what is defined);
+    works under `jit` (the eigensolve and the solve are host calls on CPU). Needs a manifold,
+    consistently oriented mesh without unreferenced vertices (`MeshDataError` otherwise).
+
+    Args:
+        mesh: the mesh.
+        n: number of directions: 1 vector field, 2 line field, 4 cross field (keyword-only).
+        alignment: `(nv,)` complex guidance `q` in the same representation (e.g.
+            `principal_curvature_alignment(mesh, n=4)`), or `None`.
+        alignment_weight: `s > 0`, the weight of `|u - q|_M^2` against the smoothness (default 1).
+        boundary: `"geodesic"` (default) or `"unscaled"` (`ddgjax.fields._connection`).
+        mass: `"voronoi"` (default) or `"barycentric"` lumped mass.
+        method: the backend of `smallest_eigenpairs` (`"auto"`, `"arpack"`, `"subspace"`) or, with
+            alignment, of `linear_solve` (`"auto"`, `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`).
+
+    Returns:
+        `SmoothestField` (`field`, `solution`, `energy`, `n`).
+
+    Reference: Knoeppel, Crane, Pinkall, Schroeder (2013), sections 5-6. geometry-central:
+    `computeSmoothestVertexDirectionField(geometry, n)` (unit field; its phase is arbitrary).
+    """
+    mesh = require_mesh("mesh", mesh)
+    n = check_degree(n)
+    check_boundary(boundary)
+    plan = plan_of(mesh)
+    require_referenced(mesh, "smoothest_field")
+    A = connection_laplacian(mesh, n=n, boundary=boundary)
+    M = connection_mass_matrix(mesh, mass=mass)
+    if alignment is None:
+        values, vectors = smallest_eigenpairs(
+            real_form(A, plan), real_form_diagonal(M.values), 2, method=method, hermitian_real_form=True
+        )
+        nv = mesh.n_vertices
+        u = jax.lax.complex(vectors[:nv, 0], vectors[nv:, 0])
+        # The pair's mean: invariant within the cluster, so its gradient is defined.
+        energy = jnp.mean(values)
+        largest = jnp.argmax(jnp.abs(u))
+        u = jnp.conj(unit(u[largest])) * u
+    else:
+        q = _complex_field("alignment", alignment, mesh.n_vertices)
+        s = check_positive("alignment_weight", alignment_weight)
+        u = linear_solve(A + s * M, s * (M @ q), method=method).value
+        energy = jnp.real(jnp.vdot(u, A @ u)) / jnp.real(jnp.vdot(u, M @ u))
+    return SmoothestField(field=unit(u), solution=u, energy=energy, n=n)
+
+
+def unit(u: Complex[Array, "*shape"]) -> Complex[Array, "*shape"]:
+    """`u / |u|`, or 0 where `u = 0`, with finite gradients (the double-where pattern of `ddgjax._numerics`)."""
+    return u * safe_reciprocal(safe_sqrt(u.real * u.real + u.imag * u.imag))
+
+
+def _complex_field(name: str, values, nv: int) -> Complex[Array, " nv"]:
+    """`values` as a complex `(nv,)` JAX array, after checking the shape (known under jit too)."""
+    if np.shape(values) != (nv,):
+        raise DDGInputError(f"{name}: expected shape ({nv},) (one complex number per vertex), got {np.shape(values)}")
+    values = jnp.asarray(values)
+    if not (jnp.issubdtype(values.dtype, jnp.complexfloating) or jnp.issubdtype(values.dtype, jnp.floating)):
+        raise DDGInputError(f"{name}: expected complex (or real) values, got dtype {values.dtype}")
+    return values.astype(jnp.result_type(values.dtype, jnp.complex64))
+
+
+@compiled_kernel(static_argnames=("n",))
+def _curvature_alignment(mesh: Mesh, angles: Float[Array, "ne 2"], n: int) -> Complex[Array, " nv"]:
+    bending = -0.5 * edge_lengths(mesh) * edge_dihedral_angles(mesh)
+    # The edge's line direction at both ends: exp(2 i theta) (a line field, n = 2).
+    terms = bending[:, None] * jnp.exp(2j * angles)
+    q = jax.ops.segment_sum(terms.reshape(-1), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
+    magnitude = safe_sqrt(q.real * q.real + q.imag * q.imag)
+    return magnitude * unit(q) ** (n // 2)
+
+
+def principal_curvature_alignment(mesh: Mesh, *, n: int = 4, boundary: str = "geodesic") -> Complex[Array, " nv"]:
+    """Guidance field of the principal curvature directions, `(nv,)` complex, for `smoothest_field(alignment=...)`.
+
+    From the edge-based shape operator (Cohen-Steiner & Morvan's normal cycle): each edge at vertex
+    `i` bends the surface across it by its signed dihedral angle `beta_ij` (`edge_dihedral_angles`,
+    positive where convex), so in `i`'s polar coordinates
+
+        q_i = -1/2 sum_j l_ij beta_ij exp(2 i theta_ij)
+
+    is a line field (`n = 2`) along the direction of maximal curvature `k1`, of magnitude about
+    `(k1 - k2) A_i` (the traceless part of the integrated shape operator over the vertex's dual cell;
+    the minus sign turns the edges' directions, which are the directions of least bending, by 90
+    degrees). For even `n` it is returned as `|q| (q / |q|)^(n/2)`: for `n = 4` the cross of both
+    principal directions, with the anisotropy as its weight (umbilic and flat regions get ~0 and
+    are left to the smoothness). Needs consistently oriented faces (signed dihedral angles).
+    Differentiable in the vertex positions.
+
+    Args:
+        mesh: the mesh.
+        n: an even number of directions (2 or 4 typically), keyword-only.
+        boundary: the polar coordinates' boundary convention (`ddgjax.fields._connection`).
+
+    Reference: D. Cohen-Steiner, J.-M. Morvan, "Restricted Delaunay triangulations and normal cycle"
+    (2003); Knoeppel et al. 2013, section 6 (curvature alignment with `q = (k1 - k2) exp(i n phi)`).
+    """
+    n = check_degree(n)
+    if n % 2:
+        raise DDGInputError(f"n: principal directions are lines, so they give fields with an even n; got {n}")
+    mesh = require_mesh("mesh", mesh)
+    mesh.topology.require_oriented("principal_curvature_alignment (signed dihedral angles)")
+    return _curvature_alignment(mesh, connection(mesh, boundary).edge_polar, n)
