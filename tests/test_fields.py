@@ -25,7 +25,8 @@ from ddgjax.fields import (
     interpolate_field,
     principal_curvature_alignment,
     smoothest_field,
-    vertex_tangent_bases,
+    smoothest_field_solution,
+    tangent_bases,
 )
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian
@@ -128,7 +129,7 @@ def test_holonomy_is_the_transport_around_each_face_and_sums_to_two_pi_chi(name)
 def test_polar_angles_are_the_edges_angles_in_the_tangent_frame_on_a_flat_disk():
     mesh = disk(5)
     theta = np.asarray(edge_polar_angles(mesh, boundary="unscaled"))
-    e1, e2, normal = (np.asarray(x) for x in vertex_tangent_bases(mesh))
+    e1, e2, normal = (np.asarray(x) for x in tangent_bases(mesh))
     V, E = np.asarray(mesh.vertices), np.asarray(mesh.edges)
     for column, (tail, head) in enumerate([(E[:, 0], E[:, 1]), (E[:, 1], E[:, 0])]):
         d = V[head] - V[tail]
@@ -140,7 +141,7 @@ def test_polar_angles_are_the_edges_angles_in_the_tangent_frame_on_a_flat_disk()
 
 def test_tangent_frames_are_orthonormal_with_e1_along_the_reference_edge():
     mesh = load_mesh(shared_path("meshes", "spot.obj"))
-    e1, e2, normal = (np.asarray(x) for x in vertex_tangent_bases(mesh))
+    e1, e2, normal = (np.asarray(x) for x in tangent_bases(mesh))
     frames = np.stack([e1, e2, normal], axis=1)
     np.testing.assert_allclose(frames @ frames.transpose(0, 2, 1), np.broadcast_to(np.eye(3), frames.shape), atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(frames), 1.0, atol=1e-12)
@@ -183,7 +184,7 @@ def test_flat_connection_laplacian_is_the_cotan_laplacian_in_other_bases():
 @pytest.mark.parametrize("n", [1, 4])
 def test_flat_disk_carries_a_constant_field_with_zero_energy_and_no_singularities(n):
     mesh = disk(5)
-    result = smoothest_field(mesh, n=n, boundary="unscaled")
+    result = smoothest_field_solution(mesh, n=n, boundary="unscaled")
     assert abs(float(result.energy)) < 1e-12
     np.testing.assert_allclose(np.abs(result.field), 1.0, atol=1e-12)
     first = np.asarray(field_to_vectors(mesh, result.field, n=n, boundary="unscaled"))[0]
@@ -200,7 +201,7 @@ def test_poincare_hopf_indices_are_multiples_of_one_over_n_and_sum_to_chi(name):
     mesh = icosphere(2) if name == "icosphere(2)" else load_mesh(shared_path("meshes", name))
     chi = mesh.topology.euler_characteristic
     for n in (1, 2, 4):
-        result = smoothest_field(mesh, n=n)
+        result = smoothest_field_solution(mesh, n=n)
         indices = np.asarray(field_singularities(mesh, result.field, n=n))
         np.testing.assert_array_equal(indices * n, np.round(indices * n))
         assert indices.sum() == pytest.approx(chi, abs=1e-12), (n, indices[indices != 0])
@@ -226,13 +227,13 @@ def test_cube_cross_field_is_parallel_off_the_corners_with_a_quarter_singularity
         b = np.cross(np.sign(V[chosen, axis])[:, None] * np.eye(3)[axis], a)
         return 4 * np.arctan2(np.sum(vectors * b, 1), np.sum(vectors * a, 1))
 
-    smoothest = smoothest_field(mesh, n=4)
+    smoothest = smoothest_field_solution(mesh, n=4)
     # The cube minus its corners is flat with holonomy pi/2 around each corner (trivial for n = 4): the
     # smoothest cross field is parallel there, the same rotation of the sides' axes everywhere (the
     # rotation is the eigenvector's free phase).
     turned = np.exp(1j * side_angles(smoothest.field))
     assert np.abs(turned - turned[0]).max() < 1e-9
-    aligned = smoothest_field(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4))
+    aligned = smoothest_field_solution(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4))
     np.testing.assert_allclose(np.angle(np.exp(1j * side_angles(aligned.field))), 0.0, atol=1e-9)  # along the edges
     for result in (smoothest, aligned):
         indices = np.asarray(field_singularities(mesh, result.field, n=4))
@@ -244,7 +245,7 @@ def test_cube_cross_field_is_parallel_off_the_corners_with_a_quarter_singularity
 
 def test_phase_is_deterministic_and_the_field_is_an_eigenvector():
     mesh = _ellipsoid()
-    result = smoothest_field(mesh, n=2)
+    result = smoothest_field_solution(mesh, n=2)
     A, M = _dense(connection_laplacian(mesh, n=2)), np.asarray(connection_mass_matrix(mesh).values)
     u = np.asarray(result.solution)
     np.testing.assert_allclose(np.vdot(u, M * u).real, 1.0, atol=1e-10)
@@ -263,7 +264,7 @@ def test_principal_curvature_alignment_points_around_a_cylinder():
     # Max curvature: around, not along the axis; up to 0.3 degrees, the gap between the polar angles (unfolded,
     # intrinsic) and the edges' directions projected to the tangent plane (chords of the circle).
     np.testing.assert_allclose(line[:, 2], 0.0, atol=5e-3)
-    cross = smoothest_field(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4), alignment_weight=10.0)
+    cross = smoothest_field_solution(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4), alignment_weight=10.0)
     vectors = np.asarray(field_to_vectors(mesh, cross.field, n=4))[interior]
     # Each cross has one arm along the axis (up to the discretisation of the polar angles).
     assert np.abs(np.abs(vectors[..., 2]).max(axis=1) - 1.0).max() < 1e-3
@@ -274,11 +275,11 @@ def test_alignment_weight_trades_smoothness_for_alignment():
     q = principal_curvature_alignment(mesh, n=4)
     energies, distances = [], []
     for weight in (0.01, 1.0, 100.0):
-        result = smoothest_field(mesh, n=4, alignment=q, alignment_weight=weight)
+        result = smoothest_field_solution(mesh, n=4, alignment=q, alignment_weight=weight)
         energies.append(float(result.energy))
         distances.append(float(jnp.mean(jnp.abs(result.field - q / jnp.abs(q)))))
     assert energies[0] < energies[1] < energies[2] and distances[0] > distances[1] > distances[2]
-    assert float(smoothest_field(mesh, n=4).energy) < energies[0]  # the eigenvector is the smoothest
+    assert float(smoothest_field_solution(mesh, n=4).energy) < energies[0]  # the eigenvector is the smoothest
 
 
 # --- interpolation --------------------------------------------------------------------------------
@@ -312,7 +313,7 @@ def test_interpolated_transport_agrees_with_potpourri3d_vector_heat_near_the_sou
     source, direction = 0, basis_x[0]
     theirs = solver.transport_tangent_vector(source, [1.0, 0.0])
     their_vectors = theirs[:, :1] * basis_x + theirs[:, 1:] * basis_y
-    e1, e2, _ = (np.asarray(x) for x in vertex_tangent_bases(mesh))
+    e1, e2, _ = (np.asarray(x) for x in tangent_bases(mesh))
     ours = interpolate_field(mesh, np.array([source]), jnp.array([direction @ e1[source] + 1j * direction @ e2[source]]))
     our_vectors = np.asarray(field_to_vectors(mesh, ours, n=1))[:, 0]
     near = np.linalg.norm(V - V[source], axis=1) < 0.5
@@ -336,14 +337,14 @@ def test_energy_and_phase_fixed_field_gradients_match_finite_differences():
     weights = jnp.linspace(0.0, 1.0, mesh.n_vertices)
 
     def energy(V):
-        return smoothest_field(mesh.with_vertices(V), n=1).energy
+        return smoothest_field_solution(mesh.with_vertices(V), n=1).energy
 
     def field_loss(V):  # depends on the phase too: the phase rule makes it a function of V
-        return jnp.sum(weights * smoothest_field(mesh.with_vertices(V), n=1).field.real)
+        return jnp.sum(weights * smoothest_field_solution(mesh.with_vertices(V), n=1).field.real)
 
     def aligned_loss(V):
         moved = mesh.with_vertices(V)
-        result = smoothest_field(moved, n=4, alignment=principal_curvature_alignment(moved, n=4))
+        result = smoothest_field_solution(moved, n=4, alignment=principal_curvature_alignment(moved, n=4))
         return result.energy + jnp.sum(weights * jnp.abs(result.solution) ** 2)
 
     for loss in (energy, field_loss, aligned_loss):
@@ -370,9 +371,13 @@ def test_connection_laplacian_values_pass_check_grads():
 def test_jit_and_vmap_equal_eager():
     mesh = load_mesh(shared_path("meshes", "sphere_small.ply"))
     V = mesh.vertices
-    eager = smoothest_field(mesh, n=2)
-    jitted = jax.jit(lambda V: smoothest_field(mesh.with_vertices(V), n=2))(V)
+    eager = smoothest_field_solution(mesh, n=2)
+    jitted = jax.jit(lambda V: smoothest_field_solution(mesh.with_vertices(V), n=2))(V)
     np.testing.assert_allclose(jitted.field, eager.field, atol=1e-10)
+    # smoothest_field is the solution's unit field: one complex number per vertex.
+    field = smoothest_field(mesh, n=2)
+    assert field.shape == (mesh.n_vertices,) and jnp.iscomplexobj(field)
+    np.testing.assert_array_equal(field, eager.field)
     np.testing.assert_array_equal(
         jax.jit(lambda V, u: field_singularities(mesh.with_vertices(V), u, n=2))(V, eager.field),
         field_singularities(mesh, eager.field, n=2),
@@ -381,7 +386,7 @@ def test_jit_and_vmap_equal_eager():
     values = jax.vmap(lambda V: connection_laplacian(mesh.with_vertices(V), n=2).values)(batch)
     for k in range(2):
         np.testing.assert_allclose(values[k], connection_laplacian(mesh.with_vertices(batch[k]), n=2).values, atol=1e-14)
-    energies = jax.vmap(lambda V: smoothest_field(mesh.with_vertices(V), n=2).energy)(batch)
+    energies = jax.vmap(lambda V: smoothest_field_solution(mesh.with_vertices(V), n=2).energy)(batch)
     # Scaling by 1.5 divides the (weak / mass-normalised) eigenvalue by 1.5^2.
     np.testing.assert_allclose(energies, [eager.energy, eager.energy / 2.25], rtol=1e-9)
 
@@ -395,15 +400,15 @@ def test_bad_input_is_refused_with_clear_errors(without_type_checker):
         with pytest.raises(DDGInputError, match="n: expected the number of directions"):
             connection_laplacian(mesh, n=bad)
     with pytest.raises(DDGInputError, match="boundary"):
-        smoothest_field(mesh, boundary="free")
+        smoothest_field_solution(mesh, boundary="free")
     with pytest.raises(DDGInputError, match="mass"):
-        smoothest_field(mesh, mass="galerkin")
+        smoothest_field_solution(mesh, mass="galerkin")
     with pytest.raises(DDGInputError, match=r"field: expected shape \(42,\)"):
         field_singularities(mesh, jnp.ones(41, complex), n=1)
     with pytest.raises(DDGInputError, match=r"alignment: expected shape \(42,\)"):
-        smoothest_field(mesh, n=4, alignment=jnp.ones((42, 2)))
+        smoothest_field_solution(mesh, n=4, alignment=jnp.ones((42, 2)))
     with pytest.raises(DDGInputError, match="alignment_weight"):
-        smoothest_field(mesh, n=4, alignment=jnp.ones(42, complex), alignment_weight=-1.0)
+        smoothest_field_solution(mesh, n=4, alignment=jnp.ones(42, complex), alignment_weight=-1.0)
     with pytest.raises(DDGInputError, match="at"):
         field_to_vectors(mesh, jnp.ones(42, complex), n=1, at="edges")
     with pytest.raises(DDGInputError, match="even n"):
@@ -415,7 +420,7 @@ def test_bad_input_is_refused_with_clear_errors(without_type_checker):
     with pytest.raises(DDGInputError, match=r"values: expected shape \(2,\)"):
         interpolate_field(mesh, np.array([1, 2]), jnp.ones(3, complex))
     with pytest.raises(DDGInputError, match="Mesh.from_arrays"):
-        smoothest_field((mesh.vertices, mesh.faces))
+        smoothest_field_solution((mesh.vertices, mesh.faces))
 
 
 def test_meshes_without_a_consistent_orientation_are_refused():
@@ -425,7 +430,7 @@ def test_meshes_without_a_consistent_orientation_are_refused():
         connection_laplacian(nonmanifold)
     flipped = Mesh.from_arrays(V[:4], np.array([[0, 1, 2], [0, 1, 3]]))
     with pytest.raises(MeshDataError, match="consistently oriented"):
-        smoothest_field(flipped)
+        smoothest_field_solution(flipped)
     unreferenced = Mesh.from_arrays(V, np.array([[0, 1, 2], [1, 0, 3]]))
     with pytest.raises(MeshDataError, match="unreferenced"):
-        smoothest_field(unreferenced)
+        smoothest_field_solution(unreferenced)

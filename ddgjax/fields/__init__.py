@@ -2,12 +2,13 @@
 
 - Connection (angle form; conventions in `ddgjax.fields._connection`): `edge_polar_angles`,
   `edge_transport_angles` (`rho_ij = theta_ji + pi - theta_ij`), `face_holonomies`,
-  `vertex_tangent_bases` (`e1, e2, normal`).
+  `tangent_bases` (`e1, e2, normal`).
 - `connection_laplacian(mesh, *, n=1)`: complex Hermitian PSD, `u^H A u = sum w_ij |u_j - e^{i n rho_ij} u_i|^2`;
   `connection_mass_matrix`.
-- `smoothest_field(mesh, *, n=1, alignment=None, alignment_weight=1.0)` -> `SmoothestField`: the
+- `smoothest_field(mesh, *, n=1, alignment=None, alignment_weight=1.0)` -> `(nv,)` complex: the
   globally smoothest field (smallest eigenvector) or the screened alignment to a guidance field
-  (`principal_curvature_alignment`), differentiable in the vertex positions.
+  (`principal_curvature_alignment`), differentiable in the vertex positions;
+  `smoothest_field_solution(...)` -> `SmoothestField` adds the unnormalised solution and its energy.
 - `field_singularities(mesh, field, *, n)`: the index of every face (Poincare-Hopf: they sum to `chi`).
 - `interpolate_field(mesh, vertices, values, *, n=1)`: the smoothest field through given values.
 - `field_to_vectors(mesh, field, *, n, at="vertices" | "faces")`: the `n` directions as 3D unit vectors.
@@ -19,7 +20,7 @@ Pinkall, Schroeder, "Globally optimal direction fields" (2013).
 from ._connection import edge_polar_angles as edge_polar_angles
 from ._connection import edge_transport_angles as edge_transport_angles
 from ._connection import face_holonomies as face_holonomies
-from ._connection import vertex_tangent_bases as vertex_tangent_bases
+from ._connection import tangent_bases as tangent_bases
 from ._interpolation import interpolate_field as interpolate_field
 from ._laplacian import connection_laplacian as connection_laplacian
 from ._laplacian import connection_mass_matrix as connection_mass_matrix
@@ -27,4 +28,5 @@ from ._singularities import field_singularities as field_singularities
 from ._smoothest import SmoothestField as SmoothestField
 from ._smoothest import principal_curvature_alignment as principal_curvature_alignment
 from ._smoothest import smoothest_field as smoothest_field
+from ._smoothest import smoothest_field_solution as smoothest_field_solution
 from ._vectors import field_to_vectors as field_to_vectors

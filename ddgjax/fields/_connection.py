@@ -189,7 +189,7 @@ def _tangent_bases(mesh: Mesh, plan: FieldPlan):
     return e1, jnp.cross(normals, e1), normals
 
 
-def vertex_tangent_bases(mesh: Mesh) -> tuple[Float[Array, "nv 3"], Float[Array, "nv 3"], Float[Array, "nv 3"]]:
+def tangent_bases(mesh: Mesh) -> tuple[Float[Array, "nv 3"], Float[Array, "nv 3"], Float[Array, "nv 3"]]:
     """Per-vertex orthonormal frames `(e1, e2, normal)`, each `(nv, 3)`, matching the polar coordinates.
 
     `normal` is the angle-weighted vertex normal (`vertex_normals(mesh, weighting="angle")`), `e1` the

@@ -38,7 +38,7 @@ def interpolate_field(
     Minimises `u^H A u` (`A = connection_laplacian(mesh, n=n, boundary=boundary)`) with `u` fixed at
     `vertices` (module docstring). Values are `n`-th powers in the vertices' polar coordinates
     (`ddgjax.fields._connection`; a 3D tangent vector `v` at vertex `i` is
-    `(v . e1 + i v . e2)^n` with `(e1, e2)` from `vertex_tangent_bases`); magnitudes are interpolated
+    `(v . e1 + i v . e2)^n` with `(e1, e2)` from `tangent_bases`); magnitudes are interpolated
     too (normalise the result, `u / |u|`, for directions). On a flat region with `boundary="unscaled"`
     a single constraint gives the constant field. Differentiable in `values` and the vertex positions.
 

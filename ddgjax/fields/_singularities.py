@@ -59,7 +59,7 @@ def field_singularities(
     Args:
         mesh: the mesh.
         field: `(nv,)` complex `n`-th powers in the vertices' polar coordinates (e.g.
-            `smoothest_field(mesh, n=n).field`), with the same `boundary` convention.
+            `smoothest_field(mesh, n=n)`), with the same `boundary` convention.
         n: number of directions (keyword-only, required: the field's representation does not say it).
         boundary: `"geodesic"` (default) or `"unscaled"`.
 

@@ -47,7 +47,7 @@ from ._plan import require_referenced
 
 
 class SmoothestField(eqx.Module):
-    """A direction field from `smoothest_field` (complex `n`-th powers in the vertices' polar coordinates).
+    """A direction field from `smoothest_field_solution` (complex `n`-th powers in the vertices' polar coordinates).
 
     Attributes:
         field: `(nv,)` unit complex numbers `u_i / |u_i|` (0 where `u_i = 0`): the field's directions.
@@ -66,6 +66,28 @@ class SmoothestField(eqx.Module):
 
 
 def smoothest_field(
+    mesh: Mesh,
+    *,
+    n: int = 1,
+    alignment: Inexact[ArrayLike, " nv"] | None = None,
+    alignment_weight: float = 1.0,
+    boundary: str = "geodesic",
+    mass: str = "voronoi",
+    method: str = "auto",
+) -> Complex[Array, " nv"]:
+    """The globally smoothest `n`-direction field: `(nv,)` unit complex numbers, one per vertex (module docstring).
+
+    Each is the `n`-th power of the vertex's directions in its tangent basis (`tangent_bases`, the
+    polar coordinates of `edge_polar_angles`); 0 where the solution vanishes. The arguments and the
+    method are those of `smoothest_field_solution`, which also returns the unnormalised solution and
+    its energy. geometry-central: `computeSmoothestVertexDirectionField(geometry, n)`.
+    """
+    return smoothest_field_solution(
+        mesh, n=n, alignment=alignment, alignment_weight=alignment_weight, boundary=boundary, mass=mass, method=method
+    ).field
+
+
+def smoothest_field_solution(
     mesh: Mesh,
     *,
     n: int = 1,
@@ -110,7 +132,7 @@ def smoothest_field(
     n = check_degree(n)
     check_boundary(boundary)
     plan = plan_of(mesh)
-    require_referenced(mesh, "smoothest_field")
+    require_referenced(mesh, "smoothest_field")  # the name users call
     A = connection_laplacian(mesh, n=n, boundary=boundary)
     M = connection_mass_matrix(mesh, mass=mass)
     if alignment is None:

@@ -51,7 +51,7 @@ def field_to_vectors(
     """The `n` directions of an `n`-direction field as 3D unit vectors, `(nv, n, 3)` or `(nf, n, 3)`.
 
     `at="vertices"`: at vertex `i`, `cos(a_k) e1 + sin(a_k) e2` with `a_k = (arg u_i + 2 pi k) / n`,
-    `k = 0..n-1`, in the frame of `vertex_tangent_bases` (tangent to the vertex normal). `at="faces"`:
+    `k = 0..n-1`, in the frame of `tangent_bases` (tangent to the vertex normal). `at="faces"`:
     the three corner values are turned from their vertices' polar coordinates into the face's plane
     (first edge of each corner to its direction in the face), averaged, and drawn in the face's plane
     (a face-based rendering, as geometry-central's face fields; meaningless on singular faces).
@@ -60,7 +60,7 @@ def field_to_vectors(
 
     Args:
         mesh: the mesh.
-        field: `(nv,)` complex `n`-th powers (e.g. `smoothest_field(mesh, n=n).field`).
+        field: `(nv,)` complex `n`-th powers (e.g. `smoothest_field(mesh, n=n)`).
         n: number of directions (keyword-only).
         at: `"vertices"` (default) or `"faces"`.
         boundary: the polar coordinates' convention the field was computed with.
