@@ -22,7 +22,6 @@ Target: ddgjax's field no slower than SciPy's eigsh. Times: min / median ms over
 
 from __future__ import annotations
 
-import argparse
 import pathlib
 import sys
 
@@ -35,7 +34,7 @@ import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from solve import fmt, jit, run_sections, timed_interleaved, warmed  # noqa: E402
+from solve import fmt, jit, mesh_sections_parser, run_sections, timed_interleaved, warmed  # noqa: E402
 
 from ddgjax.fields import connection_mass_matrix, edge_transport_angles, smoothest_field, smoothest_field_solution  # noqa: E402
 from ddgjax.io import load_mesh  # noqa: E402
@@ -121,15 +120,11 @@ SECTIONS = {"smoothest": section_smoothest}
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sections", default=",".join(SECTIONS))
-    parser.add_argument("--meshes", default="spot.obj,double-torus.obj,kitten.obj,icosphere(6)", help="comma-separated")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--budget", type=float, default=20.0)
+    parser = mesh_sections_parser(
+        __doc__.splitlines()[0], SECTIONS, "spot.obj,double-torus.obj,kitten.obj,icosphere(6)", budget=20.0
+    )
     parser.add_argument("--inverse-iteration", action="store_true", help="also time SciPy inverse iteration (slow)")
-    args = parser.parse_args(argv)
-    args.meshes = args.meshes.split(",")
-    run_sections(SECTIONS, args)
+    run_sections(SECTIONS, parser.parse_args(argv))
     return 0
 
 

@@ -17,7 +17,6 @@ Run: `python benchmarks/param.py [--meshes NAMES] [--repeats 5]`.
 
 from __future__ import annotations
 
-import argparse
 import pathlib
 import sys
 import time
@@ -29,7 +28,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from solve import fmt, jit, optional, run_sections, timed_interleaved, warmed  # noqa: E402
+from solve import fmt, jit, mesh_sections_parser, optional, run_sections, timed_interleaved, warmed  # noqa: E402
 
 from ddgjax.io import load_mesh  # noqa: E402
 from ddgjax.mesh import disk  # noqa: E402
@@ -113,14 +112,8 @@ SECTIONS = {"maps": section_maps}
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sections", default=",".join(SECTIONS))
-    parser.add_argument("--meshes", default=DEFAULT_MESHES, help="comma-separated: disk(n) or file names")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--budget", type=float, default=10.0)
-    args = parser.parse_args(argv)
-    args.meshes = args.meshes.split(",")
-    run_sections(SECTIONS, args)
+    parser = mesh_sections_parser(__doc__.splitlines()[0], SECTIONS, DEFAULT_MESHES, budget=10.0)
+    run_sections(SECTIONS, parser.parse_args(argv))
     return 0
 
 

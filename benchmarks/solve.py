@@ -912,12 +912,25 @@ def main(argv=None) -> int:
     return 0
 
 
+def mesh_sections_parser(description: str, sections: dict, meshes: str, budget: float) -> argparse.ArgumentParser:
+    """The options the per-mesh benchmark scripts share (spectral.py, param.py, fields.py): `--sections`,
+    `--meshes` (comma-separated), `--repeats`, `--budget`; a script adds its own, then calls `run_sections`."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--sections", default=",".join(sections), help=f"comma-separated, of: {', '.join(sections)}")
+    parser.add_argument("--meshes", default=meshes, help="comma-separated: built-in shapes or file names in ../shared/meshes")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--budget", type=float, default=budget, help="seconds of runs per call, after which it stops repeating")
+    return parser
+
+
 def run_sections(sections: dict, args) -> None:
     """Print the machine line, then run the sections named in `args.sections` (comma-separated; shared with spectral.py)."""
     print(
         f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
         f"python {platform.python_version()}, jax {jax.__version__} ({jax.default_backend()}), float64"
     )
+    if isinstance(getattr(args, "meshes", None), str):
+        args.meshes = args.meshes.split(",")
     for name in args.sections.split(","):
         sections[name](args)
 

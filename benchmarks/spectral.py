@@ -20,7 +20,6 @@ Run: `python benchmarks/spectral.py [--sections eigs,heat] [--meshes NAMES] [--k
 
 from __future__ import annotations
 
-import argparse
 import pathlib
 import sys
 
@@ -33,7 +32,7 @@ import numpy as np  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from solve import fmt, jit, optional, run_sections, timed_interleaved, warmed  # noqa: E402
+from solve import fmt, jit, mesh_sections_parser, optional, run_sections, timed_interleaved, warmed  # noqa: E402
 
 from ddgjax.geodesics import heat_distance_solver  # noqa: E402
 from ddgjax.io import load_mesh  # noqa: E402
@@ -149,16 +148,10 @@ SECTIONS = {"eigs": section_eigs, "heat": section_heat}
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sections", default=",".join(SECTIONS))
-    parser.add_argument("--meshes", default="icosphere(6),camelhead.off", help="comma-separated: icosphere(s) or file names")
+    parser = mesh_sections_parser(__doc__.splitlines()[0], SECTIONS, "icosphere(6),camelhead.off", budget=20.0)
     parser.add_argument("--k", type=int, default=50)
     parser.add_argument("--subspace", action="store_true", help="also time the pure-JAX path (subspace iteration, CG-AMG)")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--budget", type=float, default=20.0)
-    args = parser.parse_args(argv)
-    args.meshes = args.meshes.split(",")
-    run_sections(SECTIONS, args)
+    run_sections(SECTIONS, parser.parse_args(argv))
     return 0
 
 
