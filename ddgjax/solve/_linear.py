@@ -189,7 +189,7 @@ class Factorization(eqx.Module):
         else:
             rhs = b if jnp.issubdtype(b.dtype, jnp.floating) else b.astype(self.system.values.dtype)
         value, stats = _solve_factored(self, rhs)
-        solution = _solution(self.system, rhs, value, stats, self.method, self.residual_tolerance)
+        solution = linear_solution(self.system.__matmul__, rhs, value, stats, self.method, self.residual_tolerance)
         if self.complex_dtype is not None:
             value = jax.lax.complex(value[:n], value[n:])
         elif jnp.iscomplexobj(b):
@@ -333,9 +333,11 @@ def _real_form(A: SparseMatrix) -> SparseMatrix:
     return SparseMatrix(values, real_pattern, symmetric=True, positive_semidefinite=A.positive_semidefinite)
 
 
-def _solution(A, b, value, stats, method, residual_tolerance) -> LinearSolution:
-    """The `LinearSolution` of a computed `value`: its residual and outcome (`RESULTS`)."""
-    residual = _relative_residual(A, value, b)
+def linear_solution(apply, b, value, stats, method: str, residual_tolerance: float) -> LinearSolution:
+    """The `LinearSolution` of a computed `value` of `A x = b` (`apply(x) = A x`): its residual and outcome
+    (`RESULTS`); `stats = (num_steps, converged, factored)`. Shared with the sharded CG (`ddgjax.sharding`)."""
+    b_norm = jnp.linalg.norm(b)
+    residual = jnp.where(b_norm > 0, jnp.linalg.norm(apply(value) - b) / jnp.where(b_norm > 0, b_norm, 1.0), 0.0)
     num_steps, converged, factored = (jnp.asarray(stat) for stat in stats)
     result = RESULTS.where(
         ~factored,
@@ -369,11 +371,6 @@ def _has_sparsax() -> bool:
     except ImportError:
         return False
     return True
-
-
-def _relative_residual(A: SparseMatrix, x, b) -> Float[Array, ""]:
-    b_norm = jnp.linalg.norm(b)
-    return jnp.where(b_norm > 0, jnp.linalg.norm(A @ x - b) / jnp.where(b_norm > 0, b_norm, 1.0), 0.0)
 
 
 def _solve_factored(factorization: Factorization, b):

@@ -1,0 +1,30 @@
+"""Scale-out across devices and hosts with JAX's own sharding (`jax.sharding`, `jax.shard_map`, `jax.distributed`).
+
+Two ways to use several devices, each a thin layer over JAX (no scheduler of ddgjax's own):
+
+- **A batch of shapes of one connectivity** (`batch_sharding`, `shard_batch`): put the `(B, nv, 3)`
+  positions on the devices split along the batch and `jax.jit(jax.vmap(f))` them; XLA partitions
+  the whole program along the batch. Energies, gradients, operators, `mean_curvature_flow` and
+  `linear_solve` with `method="cg"` shard; the host solvers (`"cholesky"`, `"superlu"`, `"pyamg"`)
+  do not (`ddgjax.sharding._batch`).
+- **One mesh too large for one device** (`partition_vertices`, `sharded_laplacian_apply`,
+  `sharded_cg`): the vertices, reordered for locality, split in contiguous blocks, one per device,
+  each device computing its own rows of `L u` after an explicit halo exchange (`jax.shard_map`);
+  the conjugate gradient keeps every vector sharded (`ddgjax.sharding._partition`, `_operator`).
+
+Several hosts: call `jax.distributed.initialize()` on every process before anything else;
+`jax.devices()` (the default of `n_devices` / `devices` here) then spans all hosts.
+"""
+
+from ._batch import BATCH as BATCH
+from ._batch import batch_sharding as batch_sharding
+from ._batch import replicated as replicated
+from ._batch import shard_batch as shard_batch
+from ._devices import device_mesh as device_mesh
+from ._operator import sharded_cg as sharded_cg
+from ._operator import sharded_laplacian_apply as sharded_laplacian_apply
+from ._partition import VERTICES as VERTICES
+from ._partition import LocalPlan as LocalPlan
+from ._partition import VertexPartition as VertexPartition
+from ._partition import locality_order as locality_order
+from ._partition import partition_vertices as partition_vertices
