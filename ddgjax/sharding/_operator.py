@@ -157,10 +157,7 @@ def _local_apply(plan: LocalPlan, weights, u):
 def _shard_map(function, device_mesh, n_in: int, n_out: int):
     spec = P(VERTICES)
     outs = spec if n_out == 1 else (spec,) * n_out
-    # check_vma=False: ddgjax's `gather_sum` primitive does not carry shard_map's varying-axes type
-    # through its transpose (reverse mode fails the type check); the bodies use no collective whose
-    # transpose depends on it (only all_to_all, its own transpose).
-    return jax.shard_map(function, mesh=device_mesh, in_specs=(spec,) * n_in, out_specs=outs, check_vma=False)
+    return jax.shard_map(function, mesh=device_mesh, in_specs=(spec,) * n_in, out_specs=outs)
 
 
 # tuned_jit: XLA:CPU without the YNNPACK fusions that slow the short reductions of geometry (ddgjax._compile).

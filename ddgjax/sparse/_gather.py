@@ -110,7 +110,8 @@ def _materialized(x, index):
 
 def _abstract_eval(x, index, transpose_index):
     del transpose_index
-    return jax.core.ShapedArray((index.shape[0],) + x.shape[1:], x.dtype, weak_type=x.weak_type)
+    # `update` keeps x's other type information (e.g. shard_map's varying manual axes).
+    return x.update(shape=(index.shape[0],) + x.shape[1:])
 
 
 def _jvp(tangent, x, index, transpose_index):
