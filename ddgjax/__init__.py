@@ -28,6 +28,7 @@ from . import geodesics as geodesics
 from . import io as io
 from . import laplacian as laplacian
 from . import mesh as mesh
+from . import optim as optim
 from . import param as param
 from . import solve as solve
 from . import sparse as sparse

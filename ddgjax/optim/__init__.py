@@ -1,0 +1,34 @@
+"""Shape optimisation: objectives, the Large Steps reparametrisation, and a jitted optimisation driver.
+
+- Objectives (plain scalar JAX functions, differentiable in the vertex positions): `willmore_energy`;
+  `chamfer_distance` (dense, chunked) with `sample_points` (area-uniform samples of a mesh) and
+  `nearest_neighbors`; PyTorch3D's mesh-fitting regularisers `edge_length_loss`,
+  `normal_consistency_loss`, `laplacian_smoothing_loss`. Re-exported from where they live, for one
+  import: `total_area`, `enclosed_volume` (`ddgjax.mesh`), `dirichlet_energy` (`ddgjax.solve`),
+  `eigenpairs` (`ddgjax.spectral`), `heat_distance` (`ddgjax.geodesics`).
+- `large_steps(mesh, lambda_=...)`: `U = (I + lambda L) V` and back with one kept factorisation
+  (Nicolet, Jacobson, Jakob 2021); `adam_uniform` / `scale_by_adam_uniform`, the paper's optimiser,
+  as optax transformations.
+- `minimize_shape(loss, mesh, *, steps, ...)`: the whole step under one `jax.jit`, `lax.scan` in
+  chunks with a progress bar, fixed vertices, a volume constraint; `ShapeOptimizationResult`.
+"""
+
+from ..geodesics import heat_distance as heat_distance
+from ..mesh import enclosed_volume as enclosed_volume
+from ..mesh import total_area as total_area
+from ..solve import dirichlet_energy as dirichlet_energy
+from ..spectral import eigenpairs as eigenpairs
+from ._chamfer import chamfer_distance as chamfer_distance
+from ._chamfer import nearest_neighbors as nearest_neighbors
+from ._chamfer import sample_points as sample_points
+from ._driver import ShapeOptimizationResult as ShapeOptimizationResult
+from ._driver import minimize_shape as minimize_shape
+from ._large_steps import LargeSteps as LargeSteps
+from ._large_steps import ScaleByAdamUniformState as ScaleByAdamUniformState
+from ._large_steps import adam_uniform as adam_uniform
+from ._large_steps import large_steps as large_steps
+from ._large_steps import scale_by_adam_uniform as scale_by_adam_uniform
+from ._objectives import edge_length_loss as edge_length_loss
+from ._objectives import laplacian_smoothing_loss as laplacian_smoothing_loss
+from ._objectives import normal_consistency_loss as normal_consistency_loss
+from ._objectives import willmore_energy as willmore_energy
