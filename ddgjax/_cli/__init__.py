@@ -25,7 +25,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import fields, flow, info, param, poisson, spectral
+from . import fields, flow, info, optimize, param, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -143,6 +143,15 @@ def build_parser() -> argparse.ArgumentParser:
             help="the smoothest vector / line / cross field of a mesh, drawn with its singularities",
             description="Compute the globally smoothest n-direction field (Knoeppel et al. 2013), optionally aligned to "
             "the principal curvature directions, print its energy and singularities and draw it.",
+        )
+    )
+    optimize.add_arguments(
+        sub.add_parser(
+            "optimize",
+            parents=[common],
+            help="run a shape-optimisation example (Willmore flow to a sphere, catenoid, mesh fitting) and draw it",
+            description="Run one shape-optimisation example on built-in shapes, compare with its analytic answer and "
+            "write a figure of the shape before and after and the loss curve.",
         )
     )
     return parser
