@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ddgjax._errors import DDGInputError
-from ddgjax.mesh import disk, grid, icosphere, torus, uv_sphere
+from ddgjax.mesh import cylinder, disk, grid, icosphere, torus, uv_sphere
 
 
 def host_area_volume(mesh) -> tuple[float, float]:
@@ -62,12 +62,27 @@ def test_flat_shapes_topology_and_orientation():
     assert boundary.size == 36
 
 
+def test_cylinder_topology_rings_and_outward_normals():
+    mesh = cylinder(12, 3, radius=2.0, height=1.0)
+    assert_oriented_manifold(mesh, chi=0, genus=0, loops=2)
+    V = np.asarray(mesh.vertices)
+    np.testing.assert_allclose(np.hypot(V[:, 0], V[:, 1]), 2.0, rtol=1e-15)
+    # The rings: the first and the last 12 vertices, at z = -1/2 and 1/2.
+    rings = sorted(sorted(loop.tolist()) for loop in mesh.topology.boundary_loops)
+    assert rings == [list(range(12)), list(range(36, 48))]
+    np.testing.assert_array_equal(V[:12, 2], -0.5)
+    corners = V[np.asarray(mesh.faces)]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    assert np.all(np.sum(normals[:, :2] * corners.mean(axis=1)[:, :2], axis=1) > 0)  # outward
+
+
 def test_areas_converge_at_second_order():
     cases = {
         "icosphere": ([1, 2, 3, 4], lambda n: icosphere(n, 1.5), 4 * np.pi * 1.5**2, lambda n: 2.0**-n),
         "uv_sphere": ([8, 16, 32], lambda n: uv_sphere(n, 2 * n, 1.5), 4 * np.pi * 1.5**2, lambda n: 1 / n),
         "torus": ([16, 32, 64], lambda n: torus(1.0, 0.25, 3 * n, n), 4 * np.pi**2 * 0.25, lambda n: 1 / n),
         "disk": ([4, 8, 16], lambda n: disk(n, 2.0), np.pi * 4.0, lambda n: 1 / n),
+        "cylinder": ([8, 16, 32], lambda n: cylinder(n, 2, 1.5, 0.7), 2 * np.pi * 1.5 * 0.7, lambda n: 1 / n),
     }
     for name, (sizes, make, exact, spacing) in cases.items():
         errors = [abs(host_area_volume(make(n))[0] - exact) for n in sizes]
@@ -110,3 +125,7 @@ def test_bad_parameters_are_refused():
         grid(0, 3)
     with pytest.raises(DDGInputError, match="n_rings"):
         disk(1.5)
+    with pytest.raises(DDGInputError, match="n_around: expected an integer >= 3"):
+        cylinder(2, 3)
+    with pytest.raises(DDGInputError, match="height: expected a finite number > 0"):
+        cylinder(8, 3, height=-1.0)

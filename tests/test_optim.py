@@ -17,7 +17,7 @@ import scipy.optimize
 from jax.test_util import check_grads
 
 from ddgjax import RESULTS, DDGInputError
-from ddgjax.mesh import Mesh, grid, icosphere, torus
+from ddgjax.mesh import Mesh, cylinder, grid, icosphere, torus
 from ddgjax.optim import (
     adam_uniform,
     chamfer_distance,
@@ -221,14 +221,9 @@ def test_adam_uniform_first_step():
 
 
 def _cylinder(n_theta: int, n_z: int, h: float) -> tuple[Mesh, np.ndarray]:
-    """Unit-radius cylinder over `z in [-h, h]` (quads split in two, outward normals) and its two boundary rings."""
-    theta, z = np.meshgrid(2 * np.pi * np.arange(n_theta) / n_theta, np.linspace(-h, h, n_z + 1))
-    V = np.stack([np.cos(theta), np.sin(theta), z], -1).reshape(-1, 3)
-    index = np.arange(V.shape[0]).reshape(n_z + 1, n_theta)
-    a, b = index[:-1], np.roll(index[:-1], -1, axis=1)
-    c, d = index[1:], np.roll(index[1:], -1, axis=1)
-    F = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
-    return Mesh.from_arrays(V, F), np.concatenate([index[0], index[-1]])
+    """The built-in open cylinder over `z in [-h, h]` and its two boundary rings."""
+    mesh = cylinder(n_theta, n_z, 1.0, 2 * h)
+    return mesh, np.asarray(mesh.topology.boundary_vertices)
 
 
 def test_catenoid_between_two_rings():

@@ -24,7 +24,7 @@ import optax
 import scipy.optimize
 
 from .._errors import DDGInputError
-from ..mesh import Mesh, icosphere
+from ..mesh import Mesh, cylinder, icosphere
 from ..optim import (
     adam_uniform,
     chamfer_distance,
@@ -60,17 +60,6 @@ def bumpy_sphere(subdivisions: int = 3) -> Mesh:
     x, y, z = V.T
     scale = 1 + 0.15 * np.sin(3 * x) * np.sin(3 * y) * np.sin(3 * z) + 0.1 * (x * x - y * y)
     return icosphere(subdivisions, dtype=jnp.float64).with_vertices(V * scale[:, None])
-
-
-def cylinder(n_around: int, n_along: int, half_height: float) -> tuple[Mesh, np.ndarray]:
-    """An open unit-radius cylinder over `z in [-half_height, half_height]` and its two boundary rings' vertices."""
-    theta, z = np.meshgrid(2 * np.pi * np.arange(n_around) / n_around, np.linspace(-half_height, half_height, n_along + 1))
-    V = np.stack([np.cos(theta), np.sin(theta), z], -1).reshape(-1, 3)
-    index = np.arange(V.shape[0]).reshape(n_along + 1, n_around)
-    a, b = index[:-1], np.roll(index[:-1], -1, axis=1)
-    c, d = index[1:], np.roll(index[1:], -1, axis=1)
-    F = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
-    return Mesh.from_arrays(V, F), np.concatenate([index[0], index[-1]])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -119,7 +108,8 @@ def _willmore(steps: int, progress: bool):
 def _catenoid(steps: int, progress: bool):
     h = CATENOID_HALF_HEIGHT
     a = scipy.optimize.brentq(lambda a: a * np.cosh(h / a) - 1, 0.6, 1.0)  # the stable (larger) root
-    start, rings = cylinder(64, 16, h)
+    start = cylinder(64, 16, 1.0, 2 * h, dtype=jnp.float64)
+    rings = start.topology.boundary_vertices
     optimizer = adam_uniform(optax.exponential_decay(3e-2, steps, 0.01))
     result = minimize_shape(total_area, start, steps=steps, optimizer=optimizer, fixed_vertices=rings, progress=progress)
     V = np.asarray(result.vertices)

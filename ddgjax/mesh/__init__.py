@@ -6,7 +6,7 @@
 - Curvature: angle defects (integrated K), integrated mean curvature (scalar from dihedral angles,
   normal from `L V`), Gauss curvature normals, total mean curvature; pointwise Gaussian / mean
   curvature and mean curvature normals (`vertex_pointwise_*`), principal curvatures.
-- Built-in shapes: `icosphere`, `uv_sphere`, `torus`, `disk`, `grid`.
+- Built-in shapes: `icosphere`, `uv_sphere`, `torus`, `cylinder`, `disk`, `grid`.
 - Checks: `check_mesh` -> `MeshReport`.
 """
 
@@ -109,6 +109,7 @@ from ._geometry import (
     vertex_normals as vertex_normals,
 )
 from ._mesh import Mesh as Mesh
+from ._shapes import cylinder as cylinder
 from ._shapes import disk as disk
 from ._shapes import grid as grid
 from ._shapes import icosphere as icosphere

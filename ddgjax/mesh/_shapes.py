@@ -160,6 +160,29 @@ def torus(R=1.0, r=0.25, n_major=48, n_minor=16, *, dtype=None) -> Mesh:
     return _mesh(vertices, faces, dtype)
 
 
+def cylinder(n_around=32, n_along=8, radius=1.0, height=2.0, *, dtype=None) -> Mesh:
+    """Open cylinder about the z axis, radius `radius`, over `z in [-height / 2, height / 2]`, without caps.
+
+    Vertex `(i, j)` (index `i * n_around + j`) sits at `(radius cos u, radius sin u, -height / 2 + i height
+    / n_along)` with `u = 2 pi j / n_around`: `(n_along + 1) n_around` vertices, `2 n_along n_around`
+    faces, outward normals; two boundary loops, the rings `i = 0` (vertices `0 .. n_around - 1`) and
+    `i = n_along` (the last `n_around`). Genus 0 with two holes: Euler characteristic 0. The start of a
+    minimal surface between two rings (the catenoid). Equivalent: `trimesh.creation.cylinder` (capped).
+    """
+    check_count("n_around", n_around, 3)
+    check_count("n_along", n_along, 1)
+    check_positive("radius", radius)
+    check_positive("height", height)
+    u = 2.0 * np.pi * np.arange(n_around) / n_around
+    z = np.linspace(-height / 2, height / 2, n_along + 1)
+    zz, uu = np.meshgrid(z, u, indexing="ij")
+    vertices = np.stack([radius * np.cos(uu), radius * np.sin(uu), zz], axis=-1).reshape(-1, 3)
+    i, j = np.arange(n_along)[:, None], np.arange(n_around)[None, :]
+    j1 = (j + 1) % n_around
+    faces = _quads_to_triangles(i * n_around + j, i * n_around + j1, (i + 1) * n_around + j1, (i + 1) * n_around + j)
+    return _mesh(vertices, faces, dtype)
+
+
 def disk(n_rings=8, radius=1.0, *, dtype=None) -> Mesh:
     """Flat disk in z = 0: a centre vertex and `n_rings` concentric rings, ring `k` with `6k` vertices.
 
