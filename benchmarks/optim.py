@@ -7,8 +7,9 @@ Sections (`--sections`, comma-separated; all by default):
   points, plus edge-length, normal-consistency and uniform Laplacian-smoothing regularisers), one
   jitted step (`value_and_grad`, uniform Adam, the Large Steps solve) in `lax.scan` chunks, on
   `icosphere(4)` (2,562 vertices, `n = 5,000`) and `icosphere(6)` (40,962 vertices, `n = 10,000`);
-  compile time apart. The same loop in torch (PyTorch3D's ops) when `torch` imports; otherwise a
-  line says it is absent.
+  compile time apart. The same loop in torch with the Large Steps authors' `largesteps` package
+  (`compute_matrix`, `from_differential` with cholespy, `AdamUniform`) and the same losses in torch
+  ops, when both import (`pip install torch largesteps`); otherwise a line says they are absent.
 - **large_steps**: `from_parameters` (one solve with the kept factor, `(nv, 3)` right-hand side) and
   its reverse-mode derivative, jitted, per second, on the same meshes.
 
@@ -21,12 +22,14 @@ from __future__ import annotations
 import argparse
 import pathlib
 import sys
+import time
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from solve import fmt, jit, optional, run_sections, timed_interleaved, warmed  # noqa: E402
@@ -62,6 +65,7 @@ def _fit_loss(target, n):
 def fit(args):
     print("\n## fit: mesh-fitting loop (Chamfer + edge + normal + Laplacian; Large Steps + uniform Adam), per iteration")
     print(f"{'mesh':>16} {'vertices':>9} {'samples':>8} {'compile s':>10} {'ms / iteration':>15} {'iterations / s':>15}")
+    per_steps = []
     for subdivisions, n in SIZES:
         source = icosphere(subdivisions)
         target_mesh = icosphere(5).with_vertices(icosphere(5).vertices * jnp.array([1.3, 1.0, 0.7]))
@@ -76,15 +80,77 @@ def fit(args):
             progress=False,
         )
         per_step = 1e3 * result.run_time / args.steps
+        per_steps.append(per_step)
         print(
             f"{'icosphere(' + str(subdivisions) + ')':>16} {source.n_vertices:>9} {n:>8} {result.compile_time:>10.2f} "
             f"{per_step:>15.1f} {1e3 / per_step:>15.1f}"
         )
     torch = optional("torch")
-    if torch is None:
-        print("torch is not installed: no torch / PyTorch3D comparison (the loop above is what it would be compared with)")
-    else:
-        print(f"torch {torch.__version__} imports, but the torch loop is not written yet (PyTorch3D would be needed too)")
+    largesteps = optional("largesteps")
+    if torch is None or largesteps is None:
+        print("torch or largesteps is not installed (pip install torch largesteps): no torch comparison")
+        return
+    print(
+        f"\n## the same loop in torch {torch.__version__} + largesteps (the paper's code: cholespy solve, AdamUniform), float64"
+    )
+    print(f"{'mesh':>16} {'vertices':>9} {'samples':>8} {'ms / iteration':>15} {'iterations / s':>15} {'ddgjax / torch':>15}")
+    for (subdivisions, n), ours in zip(SIZES, per_steps):
+        source = icosphere(subdivisions)
+        target_mesh = icosphere(5).with_vertices(icosphere(5).vertices * jnp.array([1.3, 1.0, 0.7]))
+        target = np.asarray(sample_points(target_mesh, n, jax.random.key(1)))
+        per_step = 1e3 * _torch_fit(torch, source, target, n, args.steps)
+        print(
+            f"{'icosphere(' + str(subdivisions) + ')':>16} {source.n_vertices:>9} {n:>8} {per_step:>15.1f} "
+            f"{1e3 / per_step:>15.1f} {ours / per_step:>15.2f}"
+        )
+
+
+def _torch_fit(torch, source, target, n, steps) -> float:
+    """Seconds per iteration of the same loop in torch: the same losses written with torch ops (PyTorch3D's
+    definitions, which need no PyTorch3D), largesteps' `compute_matrix` / `from_differential` and
+    `AdamUniform`; one warm-up iteration, then `steps` timed ones."""
+    from largesteps.geometry import compute_matrix
+    from largesteps.optimize import AdamUniform
+    from largesteps.parameterize import from_differential, to_differential
+
+    torch.manual_seed(0)
+    V0 = torch.tensor(np.asarray(source.vertices), dtype=torch.float64)
+    F = torch.tensor(np.asarray(source.faces), dtype=torch.int64)
+    edges = torch.tensor(np.asarray(source.edges), dtype=torch.int64)
+    edge_faces = torch.tensor(np.asarray(source.edge_faces)[:, :2], dtype=torch.int64)
+    target = torch.tensor(target, dtype=torch.float64)
+    degree = torch.bincount(edges.reshape(-1), minlength=V0.shape[0]).to(torch.float64)
+    M = compute_matrix(V0, F, lambda_=10.0)
+    u = to_differential(M, V0).clone().requires_grad_(True)
+    optimizer = AdamUniform([u], lr=1e-2)
+
+    def loss_of(V):
+        corners = V[F]
+        cross = torch.linalg.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        areas = 0.5 * torch.linalg.norm(cross, dim=1)
+        faces = torch.multinomial(areas.detach(), n, replacement=True)
+        r1, r2 = torch.rand(n, 1, dtype=V.dtype).sqrt(), torch.rand(n, 1, dtype=V.dtype)
+        c = corners[faces]
+        points = (1 - r1) * c[:, 0] + r1 * (1 - r2) * c[:, 1] + r1 * r2 * c[:, 2]
+        distances = torch.cdist(points, target) ** 2
+        chamfer = distances.min(dim=1).values.mean() + distances.min(dim=0).values.mean()
+        edge = ((V[edges[:, 1]] - V[edges[:, 0]]) ** 2).sum(dim=1).mean()
+        normals = cross / torch.linalg.norm(cross, dim=1, keepdim=True)
+        normal = (1 - (normals[edge_faces[:, 0]] * normals[edge_faces[:, 1]]).sum(dim=1)).mean()
+        pull = torch.zeros_like(V).index_add_(0, edges[:, 0], V[edges[:, 1]]).index_add_(0, edges[:, 1], V[edges[:, 0]])
+        laplacian = torch.linalg.norm(pull / degree[:, None] - V, dim=1).mean()
+        return chamfer + 1.0 * edge + 0.01 * normal + 0.1 * laplacian
+
+    def step():
+        optimizer.zero_grad()
+        loss_of(from_differential(M, u, "Cholesky")).backward()
+        optimizer.step()
+
+    step()
+    start = time.perf_counter()
+    for _ in range(steps):
+        step()
+    return (time.perf_counter() - start) / steps
 
 
 def large_steps_section(args):
