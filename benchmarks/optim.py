@@ -91,7 +91,7 @@ def fit(args):
         print("torch or largesteps is not installed (pip install torch largesteps): no torch comparison")
         return
     print(
-        f"\n## the same loop in torch {torch.__version__} + largesteps (the paper's code: cholespy solve, AdamUniform), float64"
+        f"\n## the same loop in torch {torch.__version__} + largesteps (the paper's code: cholespy solve, AdamUniform), float32; ddgjax float64"
     )
     print(f"{'mesh':>16} {'vertices':>9} {'samples':>8} {'ms / iteration':>15} {'iterations / s':>15} {'ddgjax / torch':>15}")
     for (subdivisions, n), ours in zip(SIZES, per_steps):
@@ -109,18 +109,24 @@ def _torch_fit(torch, source, target, n, steps) -> float:
     """Seconds per iteration of the same loop in torch: the same losses written with torch ops (PyTorch3D's
     definitions, which need no PyTorch3D), largesteps' `compute_matrix` / `from_differential` and
     `AdamUniform`; one warm-up iteration, then `steps` timed ones."""
-    from largesteps.geometry import compute_matrix
     from largesteps.optimize import AdamUniform
     from largesteps.parameterize import from_differential, to_differential
 
     torch.manual_seed(0)
-    V0 = torch.tensor(np.asarray(source.vertices), dtype=torch.float64)
+    dtype = torch.float32  # largesteps' CholeskySolver is cholespy's float32 solver
+    V0 = torch.tensor(np.asarray(source.vertices), dtype=dtype)
     F = torch.tensor(np.asarray(source.faces), dtype=torch.int64)
     edges = torch.tensor(np.asarray(source.edges), dtype=torch.int64)
     edge_faces = torch.tensor(np.asarray(source.edge_faces)[:, :2], dtype=torch.int64)
-    target = torch.tensor(target, dtype=torch.float64)
-    degree = torch.bincount(edges.reshape(-1), minlength=V0.shape[0]).to(torch.float64)
-    M = compute_matrix(V0, F, lambda_=10.0)
+    target = torch.tensor(target, dtype=dtype)
+    degree = torch.bincount(edges.reshape(-1), minlength=V0.shape[0]).to(dtype)
+    # largesteps' compute_matrix puts its matrix on CUDA unconditionally: the same I + lambda L (uniform
+    # graph Laplacian, lambda = 10) built here on the CPU.
+    nv = V0.shape[0]
+    rows = torch.cat([torch.arange(nv), edges[:, 0], edges[:, 1]])
+    cols = torch.cat([torch.arange(nv), edges[:, 1], edges[:, 0]])
+    values = torch.cat([1 + 10.0 * degree, -10.0 * torch.ones(2 * edges.shape[0], dtype=dtype)])
+    M = torch.sparse_coo_tensor(torch.stack([rows, cols]), values, (nv, nv), check_invariants=True).coalesce()
     u = to_differential(M, V0).clone().requires_grad_(True)
     optimizer = AdamUniform([u], lr=1e-2)
 
