@@ -305,6 +305,31 @@ def test_minimize_shape_vertices_parametrisation_and_chunks():
     np.testing.assert_array_equal(np.asarray(one.vertices)[rings], np.asarray(mesh.vertices)[rings])
 
 
+@pytest.mark.parametrize("parametrization", ["vertices", "large_steps"])
+def test_bounds_keep_an_inflating_sphere_in_the_box(parametrization):
+    """Maximising the enclosed volume of a sphere of radius 0.8 inside the box [-1.1, 1.1]^2 x [-1.1, 0.9]:
+    every iterate is clipped into it, so the sphere presses against the lid."""
+    sphere = icosphere(1).with_vertices(0.8 * icosphere(1).vertices)  # inside the box
+    lower, upper = jnp.array([-1.1, -1.1, -1.1]), jnp.array([1.1, 1.1, 0.9])
+    result = minimize_shape(
+        lambda mesh: -enclosed_volume(mesh),
+        sphere,
+        steps=60,
+        optimizer=optax.adam(0.05),
+        parametrization=parametrization,
+        bounds=(lower, upper),
+        progress=False,
+    )
+    V = np.asarray(result.vertices)
+    assert np.all(np.asarray(lower) - 1e-12 <= V) and np.all(np.asarray(upper) + 1e-12 >= V)
+    assert V[:, 2].max() == pytest.approx(0.9, abs=1e-12)  # pressed against the lid
+    assert float(result.loss_history[-1]) < float(result.loss_history[0])
+    with pytest.raises(DDGInputError, match="not with constraint"):
+        minimize_shape(lambda m: -enclosed_volume(m), sphere, steps=1, bounds=(lower, upper), constraint="volume")
+    with pytest.raises(DDGInputError, match="outside the box"):
+        minimize_shape(lambda m: -enclosed_volume(m), sphere, steps=1, bounds=(-0.5, 0.5))
+
+
 def test_minimize_shape_reports_nonfinite_loss():
     mesh = icosphere(1)
     # Finite until the sphere has grown past radius 1.05, then NaN.

@@ -19,6 +19,10 @@ shape drift in size) and there is no penalty weight or multiplier schedule to tu
 few volume evaluations per step. With Large Steps the projected vertices are mapped back to
 parameters (`U = A V`, a product).
 
+Bounds `(lower, upper)`: after every update the vertices are clipped into the box, which is the
+Euclidean projection onto it (projected gradient descent, as `jaxopt.ProjectedGradient` with
+`jaxopt.projection.projection_box`; here inside the user's optax optimiser and reparametrisation).
+
 Failures: a step whose loss or gradient is not finite is not applied (the parameters and the
 optimiser state are kept), and the run reports `RESULTS.nonfinite` with the first such step; with
 `throw=True` (default) it raises, with `throw=False` the returned vertices are the last finite iterate.
@@ -90,6 +94,7 @@ def minimize_shape(
     laplacian: str = "uniform",
     fixed_vertices: Int[ArrayLike, " k"] | Sequence[int] | None = None,
     constraint: str | None = None,
+    bounds: tuple[Float[ArrayLike, "*b"], Float[ArrayLike, "*b"]] | None = None,
     key: PRNGKeyArray | None = None,
     chunk_size: int | None = None,
     method: str = "auto",
@@ -120,6 +125,11 @@ def minimize_shape(
         fixed_vertices: indices of vertices held in place, or `None`.
         constraint: `None` or `"volume"` (keep the enclosed volume of the initial mesh, by projection;
             the mesh must be closed and consistently oriented for that to be a volume).
+        bounds: `(lower, upper)`, each broadcastable to `(nv, 3)` (a scalar, a `(3,)` box corner or
+            per-vertex limits): after every update the vertices are clipped into the box, the
+            Euclidean projection onto it (with Large Steps, in vertex space, then mapped back to the
+            parameters). The initial mesh must lie inside. Not with `constraint="volume"` (the two
+            projections do not commute; `DDGInputError`).
         key: a PRNG key, split once per step and passed to `loss`; `None` for a loss without one.
         chunk_size: steps per compiled `lax.scan` chunk, i.e. per progress-bar update (default: about
             a twentieth of `steps`).
@@ -145,6 +155,7 @@ def minimize_shape(
             "mesh: minimize_shape drives its steps from the host and needs concrete vertices; call it outside jit"
         )
     chunk_size = max(1, steps // 20) if chunk_size is None else min(check_count("chunk_size", chunk_size), steps)
+    lower, upper = _box(bounds, mesh, constraint)
     fixed = fixed_vertex_indices(fixed_vertices, mesh.n_vertices)
     initial = mesh.vertices
 
@@ -186,6 +197,8 @@ def minimize_shape(
         new_parameters = optax.apply_updates(parameters, updates)
         if constraint == "volume":
             new_parameters = project(new_parameters)
+        if lower is not None:
+            new_parameters = to_parameters(jnp.clip(to_vertices(new_parameters), lower, upper))
         finite = jnp.isfinite(value) & jnp.all(jnp.isfinite(gradient)) & jnp.all(jnp.isfinite(new_parameters))
         keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(finite, a, b), new, old)
         parameters, state = keep((new_parameters, new_state), (parameters, state))
@@ -240,3 +253,23 @@ def minimize_shape(
         parametrization=parametrization,
     )
     return raise_if_failed(outcome, outcome.result, throw)
+
+
+def _box(bounds, mesh: Mesh, constraint):
+    """`(lower, upper)` as `(nv, 3)` arrays of the vertices' dtype, or `(None, None)`; `DDGInputError` for bad bounds."""
+    if bounds is None:
+        return None, None
+    if constraint is not None:
+        raise DDGInputError(f"bounds: not with constraint={constraint!r} (the two projections do not commute); use one")
+    if not isinstance(bounds, (tuple, list)) or len(bounds) != 2:
+        raise DDGInputError(f"bounds: expected a pair (lower, upper), got {type(bounds).__name__}")
+    shape = mesh.vertices.shape
+    try:
+        lower, upper = (jnp.broadcast_to(jnp.asarray(b, mesh.vertices.dtype), shape) for b in bounds)
+    except ValueError as error:
+        raise DDGInputError(f"bounds: lower and upper must broadcast to the vertices' shape {shape}: {error}") from error
+    if not bool(jnp.all(lower <= upper)):
+        raise DDGInputError("bounds: expected lower <= upper everywhere")
+    if not bool(jnp.all((mesh.vertices >= lower) & (mesh.vertices <= upper))):
+        raise DDGInputError("bounds: the initial mesh lies outside the box; start inside it (e.g. clip the vertices first)")
+    return lower, upper
