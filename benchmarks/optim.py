@@ -10,11 +10,13 @@ Sections (`--sections`, comma-separated; all by default):
   compile time apart. The same loop in torch with the Large Steps authors' `largesteps` package
   (`compute_matrix`, `from_differential` with cholespy, `AdamUniform`) and the same losses in torch
   ops, when both import (`pip install torch largesteps`); otherwise a line says they are absent.
+- **quality**: the final Chamfer distance of both loops after `--quality-steps` iterations
+  (icosphere(4), 5,000 samples, 20,000-sample estimate; the target against itself is the floor).
 - **large_steps**: `from_parameters` (one solve with the kept factor, `(nv, 3)` right-hand side) and
   its reverse-mode derivative, jitted, per second, on the same meshes.
 
 Times: min / median ms over interleaved repeats (`benchmarks/solve.py`'s `timed_interleaved`).
-Run: `python benchmarks/optim.py [--sections fit,large_steps] [--steps 20] [--repeats 5]`.
+Run: `python benchmarks/optim.py [--sections fit,quality,large_steps] [--steps 20] [--quality-steps 200] [--repeats 5]`.
 """
 
 from __future__ import annotations
@@ -98,17 +100,18 @@ def fit(args):
         source = icosphere(subdivisions)
         target_mesh = icosphere(5).with_vertices(icosphere(5).vertices * jnp.array([1.3, 1.0, 0.7]))
         target = np.asarray(sample_points(target_mesh, n, jax.random.key(1)))
-        per_step = 1e3 * _torch_fit(torch, source, target, n, args.steps)
+        per_step = 1e3 * _torch_fit(torch, source, target, n, args.steps)[0]
         print(
             f"{'icosphere(' + str(subdivisions) + ')':>16} {source.n_vertices:>9} {n:>8} {per_step:>15.1f} "
             f"{1e3 / per_step:>15.1f} {ours / per_step:>15.2f}"
         )
 
 
-def _torch_fit(torch, source, target, n, steps) -> float:
+def _torch_fit(torch, source, target, n, steps) -> tuple[float, np.ndarray]:
     """Seconds per iteration of the same loop in torch: the same losses written with torch ops (PyTorch3D's
     definitions, which need no PyTorch3D), largesteps' `compute_matrix` / `from_differential` and
-    `AdamUniform`; one warm-up iteration, then `steps` timed ones."""
+    `AdamUniform`; one warm-up iteration, then `steps` timed ones. Returns (seconds per iteration,
+    the final vertices)."""
     from largesteps.optimize import AdamUniform
     from largesteps.parameterize import from_differential, to_differential
 
@@ -156,7 +159,32 @@ def _torch_fit(torch, source, target, n, steps) -> float:
     start = time.perf_counter()
     for _ in range(steps):
         step()
-    return (time.perf_counter() - start) / steps
+    seconds = (time.perf_counter() - start) / steps
+    with torch.no_grad():
+        return seconds, from_differential(M, u, "Cholesky").numpy().astype(np.float64)
+
+
+def quality(args):
+    """The final Chamfer distance of both loops after the same iterations (icosphere(4), 5,000 samples)."""
+    torch, largesteps = optional("torch"), optional("largesteps")
+    if torch is None or largesteps is None:
+        print("torch or largesteps is not installed: no quality comparison")
+        return
+    steps, n = args.quality_steps, 5_000
+    source = icosphere(4)
+    target_mesh = icosphere(5).with_vertices(icosphere(5).vertices * jnp.array([1.3, 1.0, 0.7]))
+    target = sample_points(target_mesh, n, jax.random.key(1))
+    ours = minimize_shape(
+        _fit_loss(target, n), source, steps=steps, optimizer=adam_uniform(1e-2), key=jax.random.key(0), progress=False
+    )
+    theirs = source.with_vertices(jnp.asarray(_torch_fit(torch, source, np.asarray(target), n, steps)[1]))
+    reference = sample_points(target_mesh, 20_000, jax.random.key(8))
+    measure = lambda mesh: float(chamfer_distance(sample_points(mesh, 20_000, jax.random.key(7)), reference))
+    print(f"\n## quality: Chamfer distance to the target after {steps} iterations (20,000 samples each side)")
+    print(
+        f"  start {measure(source):.3e}   ddgjax {measure(ours.mesh):.3e}   torch + largesteps {measure(theirs):.3e}   "
+        f"sampling floor (target vs itself) {measure(target_mesh):.3e}"
+    )
 
 
 def large_steps_section(args):
@@ -176,7 +204,7 @@ def large_steps_section(args):
         )
 
 
-SECTIONS = {"fit": fit, "large_steps": large_steps_section}
+SECTIONS = {"fit": fit, "quality": quality, "large_steps": large_steps_section}
 
 
 def main() -> int:
@@ -184,6 +212,7 @@ def main() -> int:
     parser.add_argument("--sections", default=",".join(SECTIONS), help=f"comma-separated, of: {', '.join(SECTIONS)}")
     parser.add_argument("--steps", type=int, default=20, help="iterations timed per mesh (after compilation)")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--quality-steps", type=int, default=200, help="iterations of both loops before comparing the fit")
     run_sections(SECTIONS, parser.parse_args())
     return 0
 
