@@ -4,7 +4,8 @@
   `chamfer_distance` (dense, chunked) with `sample_points` (area-uniform samples of a mesh) and
   `nearest_neighbors`; PyTorch3D's mesh-fitting regularisers `edge_length_loss`,
   `normal_consistency_loss`, `laplacian_smoothing_loss`. Re-exported from where they live, for one
-  import: `total_area`, `enclosed_volume` (`ddgjax.mesh`), `dirichlet_energy` (`ddgjax.solve`),
+  import: `total_area`, `enclosed_volume` (`ddgjax.mesh`), `dirichlet_energy`, `poisson_energy`
+  (`ddgjax.solve`), `conformal_energy_matrix` and `map_distortion` (a map's energies, `ddgjax.param`),
   `eigenpairs` (`ddgjax.spectral`), `heat_distance` (`ddgjax.geodesics`).
 - `large_steps(mesh, lambda_=...)`: `U = (I + lambda L) V` and back with one kept factorisation
   (Nicolet, Jacobson, Jakob 2021); `adam_uniform` / `scale_by_adam_uniform`, the paper's optimiser,
@@ -16,7 +17,10 @@
 from ..geodesics import heat_distance as heat_distance
 from ..mesh import enclosed_volume as enclosed_volume
 from ..mesh import total_area as total_area
+from ..param import conformal_energy_matrix as conformal_energy_matrix
+from ..param import map_distortion as map_distortion
 from ..solve import dirichlet_energy as dirichlet_energy
+from ..solve import poisson_energy as poisson_energy
 from ..spectral import eigenpairs as eigenpairs
 from ._chamfer import chamfer_distance as chamfer_distance
 from ._chamfer import nearest_neighbors as nearest_neighbors
