@@ -11,7 +11,7 @@
   (Nicolet, Jacobson, Jakob 2021); `adam_uniform` / `scale_by_adam_uniform`, the paper's optimiser,
   as optax transformations.
 - `minimize_shape(loss, mesh, *, steps, ...)`: the whole step under one `jax.jit`, `lax.scan` in
-  chunks with a progress bar, fixed vertices, a volume constraint; `ShapeOptimizationResult`.
+  chunks with a progress bar, fixed vertices, a volume constraint or bounds; `ShapeOptimizationResult`.
 """
 
 from ..geodesics import heat_distance as heat_distance
