@@ -40,11 +40,9 @@ from ddgjax.mesh import icosphere  # noqa: E402
 from ddgjax.optim import (  # noqa: E402
     adam_uniform,
     chamfer_distance,
-    edge_length_loss,
-    laplacian_smoothing_loss,
     large_steps,
+    mesh_fitting_loss,
     minimize_shape,
-    normal_consistency_loss,
     sample_points,
 )
 
@@ -52,16 +50,7 @@ SIZES = ((4, 5_000), (6, 10_000))  # (icosphere subdivisions, samples per Chamfe
 
 
 def _fit_loss(target, n):
-    def loss(mesh, key):
-        points = sample_points(mesh, n, key)
-        return (
-            chamfer_distance(points, target)
-            + 1.0 * edge_length_loss(mesh)
-            + 0.01 * normal_consistency_loss(mesh)
-            + 0.1 * laplacian_smoothing_loss(mesh)
-        )
-
-    return loss
+    return mesh_fitting_loss(target, n_samples=n)  # PyTorch3D's weights: edge 1, normal 0.01, Laplacian 0.1
 
 
 def fit(args):

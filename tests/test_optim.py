@@ -25,6 +25,7 @@ from ddgjax.optim import (
     enclosed_volume,
     laplacian_smoothing_loss,
     large_steps,
+    mesh_fitting_loss,
     minimize_shape,
     nearest_neighbors,
     normal_consistency_loss,
@@ -264,14 +265,15 @@ def test_mesh_fitting_chamfer_pytorch3d_style():
     target_mesh = target_mesh.with_vertices(target_mesh.vertices * jnp.array([1.3, 1.0, 0.7]))
     target = sample_points(target_mesh, 600, jax.random.key(1))
 
-    def fit(mesh, key):
-        points = sample_points(mesh, 600, key)
-        return (
-            chamfer_distance(points, target)
-            + 0.05 * edge_length_loss(mesh)
-            + 0.01 * normal_consistency_loss(mesh)
-            + 0.1 * laplacian_smoothing_loss(mesh)
-        )
+    fit = mesh_fitting_loss(target, n_samples=600, edge_weight=0.05)
+    points = sample_points(icosphere(2), 600, jax.random.key(3))
+    expected = (
+        chamfer_distance(points, target)
+        + 0.05 * edge_length_loss(icosphere(2))
+        + 0.01 * normal_consistency_loss(icosphere(2))
+        + 0.1 * laplacian_smoothing_loss(icosphere(2))
+    )
+    assert float(fit(icosphere(2), jax.random.key(3))) == pytest.approx(float(expected), rel=1e-14)
 
     source = icosphere(2)
     optimizer = adam_uniform(optax.exponential_decay(5e-2, 150, 0.1))

@@ -28,11 +28,9 @@ from ..mesh import Mesh, cylinder, icosphere
 from ..optim import (
     adam_uniform,
     chamfer_distance,
-    edge_length_loss,
     enclosed_volume,
-    laplacian_smoothing_loss,
+    mesh_fitting_loss,
     minimize_shape,
-    normal_consistency_loss,
     sample_points,
     total_area,
     willmore_energy,
@@ -126,15 +124,7 @@ def _fit(steps: int, progress: bool):
     target_mesh = icosphere(4, dtype=jnp.float64)
     target_mesh = target_mesh.with_vertices(target_mesh.vertices * jnp.array([1.3, 1.0, 0.7]))
     target = sample_points(target_mesh, 2000, jax.random.key(1))
-
-    def loss(mesh, key):
-        points = sample_points(mesh, 2000, key)
-        return (
-            chamfer_distance(points, target)
-            + 0.05 * edge_length_loss(mesh)
-            + 0.01 * normal_consistency_loss(mesh)
-            + 0.1 * laplacian_smoothing_loss(mesh)
-        )
+    loss = mesh_fitting_loss(target, n_samples=2000, edge_weight=0.05)
 
     start = icosphere(2, dtype=jnp.float64)
     optimizer = adam_uniform(optax.exponential_decay(5e-2, steps, 0.1))

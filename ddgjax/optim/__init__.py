@@ -3,7 +3,8 @@
 - Objectives (plain scalar JAX functions, differentiable in the vertex positions): `willmore_energy`;
   `chamfer_distance` (dense, chunked) with `sample_points` (area-uniform samples of a mesh) and
   `nearest_neighbors`; PyTorch3D's mesh-fitting regularisers `edge_length_loss`,
-  `normal_consistency_loss`, `laplacian_smoothing_loss`. Re-exported from where they live, for one
+  `normal_consistency_loss`, `laplacian_smoothing_loss`, and the tutorial's whole objective
+  `mesh_fitting_loss(target, n_samples=...)`. Re-exported from where they live, for one
   import: `total_area`, `enclosed_volume` (`ddgjax.mesh`), `dirichlet_energy`, `poisson_energy`
   (`ddgjax.solve`), `conformal_energy_matrix` and `map_distortion` (a map's energies, `ddgjax.param`),
   `eigenpairs` (`ddgjax.spectral`), `heat_distance` (`ddgjax.geodesics`).
@@ -27,6 +28,7 @@ from ._chamfer import nearest_neighbors as nearest_neighbors
 from ._chamfer import sample_points as sample_points
 from ._driver import ShapeOptimizationResult as ShapeOptimizationResult
 from ._driver import minimize_shape as minimize_shape
+from ._fitting import mesh_fitting_loss as mesh_fitting_loss
 from ._large_steps import LargeSteps as LargeSteps
 from ._large_steps import ScaleByAdamUniformState as ScaleByAdamUniformState
 from ._large_steps import adam_uniform as adam_uniform
