@@ -29,6 +29,7 @@ from matplotlib.colors import Normalize, to_rgb
 from ._errors import DDGInputError, check_choice
 from .curves import Curve, CurveFlowResult
 from .curves._curve import require_curve
+from .mesh._geometry import edge_lengths, vertex_normals
 from .mesh._mesh import Mesh, require_mesh
 
 #: `(azimuth, elevation)` in degrees of `plot_mesh_function`'s default view of a non-flat mesh.
@@ -222,17 +223,11 @@ def plot_direction_field(
         view = TOP_VIEW if is_flat(mesh) else OBLIQUE_VIEW
     rotation = view_rotation(*view) @ _UP[up]
     vertices = np.asarray(mesh.vertices, dtype=float)
-    faces = np.asarray(mesh.faces)
     if length is None:
-        edges = vertices[faces] - vertices[np.roll(faces, 1, axis=1)]
-        length = 0.45 * float(np.linalg.norm(edges, axis=-1).mean())
-    # Area-weighted vertex normals (host NumPy: drawing needs no derivatives).
-    face_normals = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
-    normals = np.zeros_like(vertices)
-    np.add.at(normals, faces.ravel(), np.repeat(face_normals, 3, axis=0))
+        length = 0.45 * float(np.mean(np.asarray(edge_lengths(mesh))))
     # The viewer looks along +y of the rotated frame (plot_mesh_function paints larger y first).
-    facing = (normals @ rotation.T)[:, 1] <= 0 if not is_flat(mesh) else np.ones(len(vertices), bool)
-    starts = vertices[facing][:, None, :] + 0 * vectors[facing]
+    facing = np.ones(len(vertices), bool) if is_flat(mesh) else (np.asarray(vertex_normals(mesh)) @ rotation.T)[:, 1] <= 0
+    starts = np.broadcast_to(vertices[facing][:, None, :], vectors[facing].shape)
     ends = starts + length * vectors[facing]
     segments = np.stack([starts, ends], axis=2).reshape(-1, 2, 3) @ rotation.T
     collection = LineCollection(segments[:, :, [0, 2]], colors=color, linewidths=linewidth)

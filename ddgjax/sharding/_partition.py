@@ -24,8 +24,8 @@ Why not let XLA partition the existing `laplacian_apply` (`jax.jit` with the ver
 sharded)? Measured on an icosphere(6) with 8 host devices: XLA's SPMD partitioner cannot see the
 locality of the face -> vertex gathers, so it all-reduces the corner positions of *every* face to
 every device, computes all faces everywhere and all-gathers `u`: per-device memory and work stay
-those of the whole mesh (33 ms against 1.6 ms on one device). The explicit halo keeps both
-proportional to the local block (benchmarks/sharding.py).
+those of the whole mesh (figures: benchmarks/README.md, sharding). The explicit halo keeps both
+proportional to the local block.
 
 Reference: E. Cuthill, J. McKee, "Reducing the bandwidth of sparse symmetric matrices" (1969);
 SciPy `scipy.sparse.csgraph.reverse_cuthill_mckee`; JAX documentation, "Manual parallelism with
