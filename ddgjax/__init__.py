@@ -1,16 +1,20 @@
 """ddgjax: discrete differential geometry in JAX, differentiable end to end.
 
-Subpackages: `ddgjax.curves` (plane curves, four discrete curvatures, curve-shortening flows),
-`ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes), `ddgjax.dec` (discrete exterior
-calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices), `ddgjax.sparse` (fixed-pattern sparse
-matrices), `ddgjax.solve` (energies and differentiable sparse solves), `ddgjax.spectral` (Laplacian
-eigenpairs), `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields` (direction fields),
-`ddgjax.io` (mesh files),
-`ddgjax.plot` (figures). Conventions: see DESIGN.md and the README.
+Subpackages (each loaded on first use): `ddgjax.curves` (plane curves, four discrete curvatures,
+curve-shortening flows), `ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes),
+`ddgjax.dec` (discrete exterior calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices,
+intrinsic Delaunay), `ddgjax.sparse` (fixed-pattern sparse matrices), `ddgjax.solve` (sparse linear
+algebra: differentiable solves, CG, AMG), `ddgjax.pde` (Poisson / harmonic problems, Hodge
+decomposition, mean curvature flow, energies), `ddgjax.spectral` (Laplacian eigenpairs),
+`ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields`
+(direction fields), `ddgjax.optim` (shape optimisation), `ddgjax.sharding` (several devices),
+`ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
+their values, outcomes) is the table in docs/conventions.md.
 
-Failures that depend on values inside `jit` (a flow that self-intersects, later a solve that does not
-converge) are reported through one results convention, as lineax and optimistix do: a `result`
-field holding an item of `ddgjax.RESULTS`, and `throw=True` by default.
+Failures that depend on values inside `jit` (a flow that self-intersects, a solve that does not
+converge) are reported through one results convention, as lineax and optimistix do: `throw=True` by
+default raises with the message of an item of `ddgjax.RESULTS`; `throw=False` returns a
+`ddgjax.Solution` (`value`, `result`, `stats`), or the run's record with its `result`.
 
 Importing ddgjax never changes `jax.config`; enable float64 yourself
 (`jax.config.update("jax_enable_x64", True)`) for geometry work. ddgjax's own kernels compile with
@@ -18,29 +22,74 @@ Importing ddgjax never changes `jax.config`; enable float64 yourself
 (`jax.jit(f, compiler_options=ddgjax.cpu_compiler_options())`) to get their speed inside it.
 """
 
-from importlib.metadata import PackageNotFoundError
-from importlib.metadata import version as _version
+from __future__ import annotations
 
-from . import curves as curves
-from . import dec as dec
-from . import fields as fields
-from . import geodesics as geodesics
-from . import io as io
-from . import laplacian as laplacian
-from . import mesh as mesh
-from . import optim as optim
-from . import param as param
-from . import solve as solve
-from . import sparse as sparse
-from . import spectral as spectral
-from ._compile import cpu_compiler_options as cpu_compiler_options
+import importlib
+from typing import TYPE_CHECKING
+
 from ._errors import DDGInputError as DDGInputError
 from ._errors import MeshDataError as MeshDataError
-from ._results import RESULTS as RESULTS
-from .curves import Curve as Curve
-from .mesh import Mesh as Mesh
 
-try:
-    __version__ = _version("ddgjax")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0.1.0"
+# Subpackages and names load on first use (PEP 562, as SciPy does): `import ddgjax` costs little more
+# than importing JAX, and `ddgjax.pde` pulls in only what Poisson problems need.
+_SUBPACKAGES = (
+    "curves",
+    "dec",
+    "fields",
+    "geodesics",
+    "io",
+    "laplacian",
+    "mesh",
+    "optim",
+    "param",
+    "pde",
+    "plot",
+    "sharding",
+    "solve",
+    "sparse",
+    "spectral",
+)
+_NAMES = {
+    "Curve": "curves",
+    "Mesh": "mesh",
+    "RESULTS": "_results",
+    "Solution": "_results",
+    "cpu_compiler_options": "_compile",
+    "MASS_MATRICES": "_options",
+    "DUAL_CELLS": "_options",
+    "LAPLACIAN_WEIGHTS": "_options",
+    "BOUNDARY_CONDITIONS": "_options",
+    "LINEAR_SOLVERS": "_options",
+}
+
+if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__ below does the same lazily
+    from . import curves, dec, fields, geodesics, io, laplacian, mesh, optim, param, pde, plot, sharding, solve, sparse, spectral
+    from ._compile import cpu_compiler_options
+    from ._options import BOUNDARY_CONDITIONS, DUAL_CELLS, LAPLACIAN_WEIGHTS, LINEAR_SOLVERS, MASS_MATRICES
+    from ._results import RESULTS, Solution
+    from .curves import Curve
+    from .mesh import Mesh
+
+__all__ = ["DDGInputError", "MeshDataError", "__version__", *_SUBPACKAGES, *_NAMES]
+
+
+def __getattr__(name: str):
+    if name in _SUBPACKAGES:
+        module = importlib.import_module(f".{name}", __name__)
+    elif name in _NAMES:
+        module = getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
+    elif name == "__version__":
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            module = version("ddgjax")
+        except PackageNotFoundError:  # running from a source tree that is not installed
+            module = "0.1.0"
+    else:
+        raise AttributeError(f"module 'ddgjax' has no attribute {name!r}")
+    globals()[name] = module
+    return module
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

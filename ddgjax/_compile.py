@@ -7,7 +7,7 @@ own loops (figures in benchmarks/README.md). Below ~2,000 elements XLA emits non
 are unchanged. The empty list `xla_cpu_experimental_ynn_fusion_type=""` turns them off.
 
 JAX accepts compiler options only on a top-level `jit`, not on one nested in another
-transformation, so `tuned_jit` keeps the plain `jax.jit` too: a call made outside any
+transformation, so `kernel` keeps the plain `jax.jit` too: a call made outside any
 transformation on a CPU backend runs the tuned program; under a caller's `jit` / `grad` / `vmap`
 the kernel is traced into the caller's program and the caller's settings apply
 (`cpu_compiler_options()` gives a user's own `jit` the same; README, conventions). An option this
@@ -17,6 +17,7 @@ jaxlib does not know is left out (checked once per process), so an upgrade canno
 from __future__ import annotations
 
 import functools
+import inspect
 from collections.abc import Callable, Mapping
 
 import jax
@@ -68,39 +69,82 @@ def cpu_compiler_options(extra: object = None) -> dict[str, str]:
     return {name: value for name, value in options.items() if _known(name, value)}
 
 
-def tuned_jit(
+def kernel(
     function: Callable | None = None,
     *,
     static_argnames: tuple[str, ...] = (),
-    static_argnums: tuple[int, ...] | None = None,
+    requires_orientation: str | None = None,
     extra_cpu_options: Callable[..., Mapping[str, str]] | None = None,
 ):
-    """`jax.jit(function)` whose top-level CPU calls compile with `CPU_OPTIONS` (module docstring).
+    """The one way ddgjax compiles a kernel: `jax.jit` with static arguments by name, meshes handled here.
 
-    `extra_cpu_options(*args, **kwargs)`, if given, adds options chosen per call (e.g. from a static
-    shape); each distinct set of options is its own compiled program. The wrapper's
-    `_cache_size()` counts the programs of every version, as `jax.jit`'s does.
+    - Static arguments are named (`static_argnames`), never numbered.
+    - The argument types are checked before tracing: a first parameter named `mesh` must be a
+      `ddgjax.Mesh`, one named `curve` a `ddgjax.curves.Curve` (`DDGInputError` saying what to call
+      otherwise, rather than an `AttributeError` from inside the trace).
+    - Every `Mesh` argument is passed as `mesh.without_topology()`: its static connectivity is not
+      part of the cache key, so one program serves every mesh of the same array shapes, and eager
+      calls run one compiled program instead of hundreds of op-by-op dispatches. Host work that needs
+      the topology (storage plans, orientation checks) runs before the kernel; plans are passed in
+      as arguments. `requires_orientation` (the operation's name for the error) checks each mesh's
+      orientation first (`MeshTopology.require_oriented`); a kernel whose body calls an
+      orientation-requiring kernel declares it too.
+    - A call outside every transformation on CPU compiles with `CPU_OPTIONS` (module docstring);
+      under a caller's `jit` / `grad` / `vmap` the kernel is traced into the caller's program.
+      `extra_cpu_options(*args, **kwargs)`, if given, adds options chosen per call (e.g. from a
+      static shape); each distinct set is its own program.
+
+    The wrapper's `_cache_size()` counts its compiled programs, as `jax.jit`'s does.
     """
     if function is None:
         return functools.partial(
-            tuned_jit, static_argnames=static_argnames, static_argnums=static_argnums, extra_cpu_options=extra_cpu_options
+            kernel, static_argnames=static_argnames, requires_orientation=requires_orientation, extra_cpu_options=extra_cpu_options
         )
-    # `static_argnums=None` lets JAX find the positions of `static_argnames` (an explicit `()` would not).
-    settings = {"static_argnames": static_argnames, "static_argnums": static_argnums}
-    plain = jax.jit(function, **settings)
+    plain = jax.jit(function, static_argnames=static_argnames)
     tuned: dict[tuple, Callable] = {}
+    parameters = list(inspect.signature(function).parameters)
+    first = parameters[0] if parameters else None
 
     @functools.wraps(function)
     def call(*args, **kwargs):
+        if args and first in _REQUIRED:
+            args = (_REQUIRED[first](first, args[0]), *args[1:])
+        args = tuple(_prepare(arg, requires_orientation) for arg in args)
+        kwargs = {name: _prepare(arg, requires_orientation) for name, arg in kwargs.items()}
         if not at_top_level() or jax.default_backend() != "cpu":
             return plain(*args, **kwargs)
         extra = tuple(sorted(extra_cpu_options(*args, **kwargs).items())) if extra_cpu_options else ()
         version = tuned.get(extra)
         if version is None:
             options = cpu_compiler_options(dict(extra))
-            version = tuned[extra] = jax.jit(function, **settings, compiler_options=options or None)
+            version = tuned[extra] = jax.jit(function, static_argnames=static_argnames, compiler_options=options or None)
         return version(*args, **kwargs)
 
     call._cache_size = lambda: plain._cache_size() + sum(version._cache_size() for version in tuned.values())
-    call.plain, call.tuned_versions = plain, tuned  # for inspection (tests: `lower(...).compile().as_text()`)
     return call
+
+
+def _require_mesh(name: str, value):
+    from .mesh._mesh import require_mesh  # the mesh package sits above this module
+
+    return require_mesh(name, value)
+
+
+def _require_curve(name: str, value):
+    from .curves._curve import require_curve
+
+    return require_curve(name, value)
+
+
+_REQUIRED = {"mesh": _require_mesh, "curve": _require_curve}
+
+
+def _prepare(argument, requires_orientation: str | None):
+    """A `Mesh` without its topology (after the orientation check); anything else unchanged."""
+    without_topology = getattr(argument, "without_topology", None)
+    if without_topology is None or not callable(without_topology):
+        return argument
+    topology = getattr(argument, "topology", None)
+    if requires_orientation is not None and topology is not None:
+        topology.require_oriented(requires_orientation)
+    return without_topology()

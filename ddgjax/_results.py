@@ -2,11 +2,20 @@
 
 As lineax and optimistix do it: a computation that can fail on its values (a flow step that makes a
 curve self-intersect, a solve that does not converge, a matrix that is not positive definite)
-returns an object with a `result` field, an item of `RESULTS`, and takes `throw=True`: by default a
-failure raises through `equinox.error_if` (inside `jit` too, at run time, with the item's message);
-with `throw=False` nothing raises and the caller inspects `result` (`result == RESULTS.successful`).
+takes `throw=True`: by default a failure raises through `equinox.error_if` (inside `jit` too, at run
+time, with the item's message); with `throw=False` nothing raises and the caller inspects the outcome.
 Never a sentinel value, never a NaN that hides the failure. Under `vmap`, `throw=True` raises when
-any batch member failed.
+any batch member failed. What the caller gets back (docs/conventions.md, "Outcomes"):
+
+- a function whose answer is a value (an array, or a named tuple of arrays such as `Eigenpairs`)
+  returns the value with `throw=True`, and with `throw=False` a `Solution` holding `value`,
+  `result` and `stats` (lineax's and optimistix's shape); `outcome(value, result, throw)` is the one
+  place that makes this choice;
+- a driver whose answer is a record of its run (`linear_solve`'s `LinearSolution`, the flows,
+  `minimize_shape`) always returns the record, which carries `value` and `result` itself.
+
+Every outcome is an item of `RESULTS`; no computation raises through a bare `equinox.error_if` with a
+message of its own.
 
 Reference: optimistix `RESULTS` / lineax `RESULTS` (`equinox.Enumeration`, `throw=`).
 """
@@ -14,6 +23,8 @@ Reference: optimistix `RESULTS` / lineax `RESULTS` (`equinox.Enumeration`, `thro
 from __future__ import annotations
 
 import equinox as eqx
+from typing import Any
+
 from jaxtyping import Array, Bool, PyTree
 
 
@@ -43,6 +54,48 @@ class RESULTS(eqx.Enumeration):
         "are checked only outside jit, or positions that overflowed). Pass `throw=False` to keep "
         "the values and inspect `result`."
     )
+    eigensolver_failed = (
+        "The eigensolver did not converge to the requested eigenpairs (the subspace iteration ran out "
+        "of steps, or its basis lost rank): raise `k` by a few (a cluster cut at `k`), or use "
+        "`method=\"arpack\"`. Pass `throw=False` to inspect the result."
+    )
+    not_positive_definite = (
+        "A matrix that must be positive definite is not (a factorisation met a non-positive pivot, or "
+        "a mass matrix has a non-positive row sum): the mesh has degenerate or inverted elements, or the "
+        "shift / time step makes the system indefinite. Pass `throw=False` to inspect the result."
+    )
+
+
+class Solution(eqx.Module):
+    """A value with its outcome: what a computation that can fail returns with `throw=False`.
+
+    Attributes:
+        value: the answer (an array or a pytree of arrays, as the function returns with `throw=True`).
+        result: an item of `RESULTS`; `RESULTS.successful` when `value` is the answer.
+        stats: what the computation measured on the way (solver residuals, iteration counts,
+            energies); a dict of arrays, possibly empty.
+
+    Reference: lineax `Solution`, optimistix `Solution`.
+    """
+
+    value: PyTree
+    result: RESULTS
+    stats: dict[str, Any]
+
+
+def outcome(value: PyTree, result: RESULTS, throw: bool, stats: dict[str, Any] | None = None) -> PyTree:
+    """`value` (raising `result`'s message on failure) when `throw`, else `Solution(value, result, stats)`."""
+    if throw:
+        return raise_if_failed(value, result, throw=True)
+    return Solution(value=value, result=result, stats={} if stats is None else stats)
+
+
+def first_failure(*results: RESULTS) -> RESULTS:
+    """The first of `results` that is not a success (elementwise under `vmap`), else `RESULTS.successful`."""
+    combined = results[-1]
+    for result in reversed(results[:-1]):
+        combined = RESULTS.where(is_failure(result), result, combined)
+    return combined
 
 
 def raise_if_failed(value: PyTree, result: RESULTS, throw: bool) -> PyTree:

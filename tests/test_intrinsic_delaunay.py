@@ -26,7 +26,7 @@ from ddgjax.laplacian import (
     triangulation_plan,
 )
 from ddgjax.mesh import Mesh, icosphere
-from ddgjax.solve import harmonic_interpolation, solve_poisson
+from ddgjax.pde import harmonic_interpolation, solve_poisson
 from ddgjax.sparse import dirichlet_blocks
 
 from conftest import shared_path

@@ -16,7 +16,8 @@ from ddgjax import DDGInputError
 from ddgjax.dec import gradient
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import face_areas, icosphere, torus
-from ddgjax.solve import SparseCholesky, linear_solve, screened_dirichlet_energy
+from ddgjax.solve import SparseCholesky, linear_solve
+from ddgjax.pde import screened_dirichlet_energy
 from ddgjax.solve._lineax import column_colouring, matrix_from_products
 from ddgjax.sparse import from_scipy
 

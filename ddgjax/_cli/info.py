@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, MeshDataError
 from ..io import load_mesh
 from ..mesh import (
@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(run=run_info)
 
 
-@tuned_jit
+@kernel
 def _statistics(mesh: Mesh) -> dict:
     """Every number the report prints, in one compiled call.
 

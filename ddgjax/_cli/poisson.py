@@ -1,8 +1,8 @@
 """`ddgjax poisson [MESH]`: solve a Poisson or harmonic problem on a mesh and draw the solution.
 
 The Poisson problem is the reading report's `Delta phi = rho` with `Delta = -M^{-1} L`, solved by
-`ddgjax.solve.solve_poisson` (`L phi = -M rho`); `--harmonic` solves the harmonic interpolation
-problem instead (`ddgjax.solve.harmonic_interpolation`, `L phi = 0` away from the prescribed
+`ddgjax.pde.solve_poisson` (`L phi = -M rho`); `--harmonic` solves the harmonic interpolation
+problem instead (`ddgjax.pde.harmonic_interpolation`, `L phi = 0` away from the prescribed
 vertices). The built-in shapes need no file: `disk` (the unit disk, with a boundary) and `sphere`
 (the unit icosphere, closed); on them the printed table also compares with the exact solution
 where one is known. The figure shows the solution coloured on the mesh (with isolines on a flat
@@ -23,14 +23,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, MeshDataError
 from .._results import RESULTS
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..mesh import Mesh, disk, icosphere
-from ..solve import dirichlet_energy, poisson_energy
+from ..pde import dirichlet_energy, poisson_energy
 from ..solve._linear import auto_method
-from ..solve._problems import poisson_with_result
+from ..pde._poisson import poisson_with_result
 from ._common import load_cli_mesh, write_figure
 
 SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)"}
@@ -230,7 +230,7 @@ def _problem(args) -> Problem:
     return Problem(name, mesh, rho, fixed, np.zeros(fixed.size), f"{equation}, {condition}", exact, exact_name)
 
 
-@tuned_jit(static_argnames=("fixed", "mass", "method"))
+@kernel(static_argnames=("fixed", "mass", "method"))
 def _solve(mesh: Mesh, rho, values, *, fixed: tuple, mass: str, method: str) -> dict:
     """The solution and what the table reports about it, in one compiled program.
 

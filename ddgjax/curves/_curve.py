@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, check_finite, check_float_array, check_float_shape, first_indices, is_traced
 
 
@@ -149,7 +149,7 @@ def takes_curve(function):
 
 
 def curve_kernel(function=None, *, static_argnames: tuple[str, ...] = ()):
-    """`takes_curve(tuned_jit(function))`: a compiled function of a curve whose curve is checked before `jit` sees it."""
+    """`takes_curve(kernel(function))`: a compiled function of a curve whose curve is checked before `jit` sees it."""
     if function is None:
         return functools.partial(curve_kernel, static_argnames=static_argnames)
-    return takes_curve(tuned_jit(function, static_argnames=static_argnames))
+    return takes_curve(kernel(function, static_argnames=static_argnames))

@@ -52,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._cyclic import cyclic_shift
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._numerics import cross2, half_angle_ratio, safe_div, safe_norm, safe_reciprocal, safe_sqrt
@@ -397,7 +397,7 @@ _SERIAL_KERNELS = {"xla_disable_hlo_passes": "cpu-parallel-task-assigner"}
 
 
 def _serial_kernels(points, *args, **kwargs) -> dict[str, str]:
-    """Extra CPU compiler options for a flow on `points` (`tuned_jit`): single-threaded kernels below `_SERIAL_BELOW` vertices.
+    """Extra CPU compiler options for a flow on `points` (`kernel`): single-threaded kernels below `_SERIAL_BELOW` vertices.
 
     Chosen from the static shape at call time; under a caller's own `jit`, `grad` or `vmap` the
     caller's compilation settings apply instead (`ddgjax._compile`).
@@ -405,7 +405,7 @@ def _serial_kernels(points, *args, **kwargs) -> dict[str, str]:
     return _SERIAL_KERNELS if points.shape[-2] < _SERIAL_BELOW else {}
 
 
-@tuned_jit(static_argnames=("closed", "kind", "method", "rescale", "count", "check"), extra_cpu_options=_serial_kernels)
+@kernel(static_argnames=("closed", "kind", "method", "rescale", "count", "check"), extra_cpu_options=_serial_kernels)
 def _advance(points, step, tracker, tau, target, *, closed, kind, method, rescale, count, check):
     """`count` steps from `points` at step number `step`, tracking simplicity as `check` says."""
     update = _explicit_step if method == "explicit" else _semi_implicit_step
@@ -443,7 +443,7 @@ def _frame_invariants(frames, closed):
     return jax.vmap(one)(frames)
 
 
-@tuned_jit(
+@kernel(
     static_argnames=("closed", "kind", "method", "rescale", "steps", "save_every", "check"), extra_cpu_options=_serial_kernels
 )
 def _run(points, tau, *, closed, kind, method, rescale, steps, save_every, check):
@@ -604,7 +604,7 @@ def _run_with_progress(points, tau, *, closed, kind, method, rescale, steps, sav
     return jnp.stack(frames), carry[2][0]
 
 
-@tuned_jit(static_argnames=("closed",))
+@kernel(static_argnames=("closed",))
 def _saved_invariants(frames, tracked_failure, tau, save_every, *, closed) -> dict:
     """The array fields of `CurveFlowResult` (one compiled program per shape, whatever the kind / method / rescale)."""
     total, middle, size, area, ratio, residual, simple, finite = _frame_invariants(frames, closed)

@@ -27,13 +27,13 @@ from jaxtyping import Array, Float
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_reciprocal
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._geometry import DUALS, edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
 from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix, diagonal_matrix
 
 
-@compiled_kernel(static_argnames=("dual",))
+@kernel(static_argnames=("dual",))
 def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " ne"]:
     """`|e*| / |e|` per edge, `(ne,)`: the diagonal of `*1`.
 

@@ -37,7 +37,7 @@ from jaxtyping import Array, Float
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_normalize
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._geometry import corner_angles, scatter_corners_to_vertices, vertex_normals
 from ..mesh._mesh import Mesh
 from ._plan import FieldPlan, field_plan
@@ -106,7 +106,7 @@ class ConnectionAngles(eqx.Module):
     corner_polar: Float[Array, "nf 3"]
 
 
-@compiled_kernel(static_argnames=("boundary",))
+@kernel(static_argnames=("boundary",))
 def connection_angles(mesh: Mesh, plan: FieldPlan, boundary: str) -> ConnectionAngles:
     """`ConnectionAngles` of the mesh (one compiled program per mesh size; the other kernels take its output)."""
     scaled = scaled_corner_angles(mesh, plan, boundary)
@@ -181,7 +181,7 @@ def face_holonomies(mesh: Mesh, *, boundary: str = "geodesic") -> Float[Array, "
     return connection(mesh, boundary).holonomy
 
 
-@compiled_kernel
+@kernel
 def _tangent_bases(mesh: Mesh, plan: FieldPlan):
     normals = vertex_normals(mesh, weighting="angle")
     edges = take_rows(mesh.vertices, plan.reference_neighbor) - mesh.vertices

@@ -18,7 +18,7 @@ from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows_or_zero
 from ..laplacian import mass_matrix
 from ..laplacian._plan import VertexPlan, vertex_plan
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._geometry import edge_cotan_weights
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
@@ -35,7 +35,7 @@ def check_degree(n) -> int:
     return int(n)
 
 
-@compiled_kernel
+@kernel
 def _values(mesh: Mesh, vertex: VertexPlan, transport: Float[Array, " ne"], n: Float[Array, ""]) -> Complex[Array, " nnz"]:
     # `n` is traced, not static: one program per mesh size serves every n.
     weights = edge_cotan_weights(mesh)

@@ -28,14 +28,14 @@ from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
 
 from .._indexing import take_rows
 from .._numerics import safe_atan2
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._mesh import Mesh, require_mesh
 from ._connection import connection
 from ._laplacian import check_degree
 from ._smoothest import _complex_field
 
 
-@compiled_kernel
+@kernel
 def _indices(mesh: Mesh, field: Complex[Array, " nv"], transport, holonomy, n) -> Float[Array, " nf"]:
     rotations = jnp.exp(-1j * n * transport)
     turns = take_rows(field, mesh.edges[:, 1]) * rotations * jnp.conj(take_rows(field, mesh.edges[:, 0]))

@@ -36,7 +36,7 @@ from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
 
 from .._errors import DDGInputError, check_positive
 from .._numerics import safe_reciprocal, safe_sqrt
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._geometry import edge_dihedral_angles, edge_lengths
 from ..mesh._mesh import Mesh, require_mesh
 from ..solve import linear_solve
@@ -168,7 +168,7 @@ def _complex_field(name: str, values, nv: int) -> Complex[Array, " nv"]:
     return values.astype(jnp.result_type(values.dtype, jnp.complex64))
 
 
-@compiled_kernel(static_argnames=("n",))
+@kernel(static_argnames=("n",))
 def _curvature_alignment(mesh: Mesh, angles: Float[Array, "ne 2"], n: int) -> Complex[Array, " nv"]:
     bending = -0.5 * edge_lengths(mesh) * edge_dihedral_angles(mesh)
     # The edge's line direction at both ends: exp(2 i theta) (a line field, n = 2).

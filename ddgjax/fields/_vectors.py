@@ -8,7 +8,7 @@ from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_normalize
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._geometry import face_normals, face_vertex_positions
 from ..mesh._mesh import Mesh, require_mesh
 from ._connection import _tangent_bases, connection, plan_of
@@ -24,13 +24,13 @@ def _directions(field: Complex[Array, " m"], e1: Float[Array, "m 3"], e2: Float[
     return jnp.where(present, vectors, 0.0)
 
 
-@compiled_kernel(static_argnames=("n",))
+@kernel(static_argnames=("n",))
 def _vertex_vectors(mesh: Mesh, plan, field, n: int):
     e1, e2, _ = _tangent_bases(mesh, plan)
     return _directions(field, e1, e2, n)
 
 
-@compiled_kernel(static_argnames=("n",))
+@kernel(static_argnames=("n",))
 def _face_vectors(mesh: Mesh, field, vertex_angles, n: int):
     corners = face_vertex_positions(mesh)
     normal = face_normals(mesh)

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._numerics import safe_norm
 from ..dec import divergence, gradient
@@ -43,7 +43,7 @@ from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import edge_lengths
 from ..mesh._mesh import Mesh, require_mesh
 from ..solve import Factorization, factorize
-from ..solve._problems import _DirichletData
+from ..pde._poisson import _DirichletData
 from ..sparse import DirichletPlan, dirichlet_blocks, dirichlet_plan
 
 BOUNDARY_CONDITIONS = ("average", "neumann")
@@ -203,7 +203,7 @@ def heat_distance(
 
 # One compiled program per connectivity and source count (an eager call would dispatch and compile
 # each operation of the three steps separately).
-@tuned_jit(static_argnames=("t_coef", "mass", "boundary", "method"))
+@kernel(static_argnames=("t_coef", "mass", "boundary", "method"))
 def _build_and_query(mesh, corners, weights, *, t_coef, mass, boundary, method) -> Float[Array, " nv"]:
     solver = heat_distance_solver(mesh, t_coef=t_coef, mass=mass, boundary=boundary, method=method)
     return solver._steps(corners, weights).distance

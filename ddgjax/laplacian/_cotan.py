@@ -30,7 +30,7 @@ from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_div, safe_reciprocal, safe_sqrt
 from ..dec import d0, hodge1
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix, congruence, gather_sum
 from ._plan import VertexPlan, dec_plan, vertex_plan
@@ -80,7 +80,7 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     return SparseMatrix(values, plan.pattern, symmetric=True, positive_semidefinite=True)
 
 
-@compiled_kernel
+@kernel
 def _fem_values(mesh: Mesh, plan: VertexPlan) -> Float[Array, " nnz"]:
     """Values of the FEM cotan Laplacian on `plan.pattern` (one compiled program per mesh size)."""
     rows_off = _off_diagonal(plan, _edge_entries(mesh, plan))
@@ -144,7 +144,7 @@ def _apply_laplacian(mesh: Mesh, plan: VertexPlan, u: Float[Array, "nv *k"]) -> 
     return result.reshape(shape)
 
 
-_compiled_apply = compiled_kernel(_apply_laplacian)
+_compiled_apply = kernel(_apply_laplacian)
 
 
 def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
@@ -166,7 +166,7 @@ def _dirichlet_energy(mesh: Mesh, plan: VertexPlan, u: Float[Array, "nv *k"]) ->
     return 0.5 * jnp.sum(u * _apply_laplacian(mesh, plan, u))
 
 
-_compiled_energy = compiled_kernel(_dirichlet_energy)
+_compiled_energy = kernel(_dirichlet_energy)
 
 
 @_dirichlet_energy.defjvp

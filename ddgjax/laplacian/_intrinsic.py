@@ -55,7 +55,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._indexing import take_rows
 from .._numerics import safe_div
@@ -275,7 +275,7 @@ def _diagonal_after_flip(quad_lengths_sq, face_areas, divide, stack):
     return divide((ia - ib - ja + jb) ** 2 + 16.0 * areas**2, 4.0 * ab)
 
 
-@tuned_jit
+@kernel
 def _replayed_lengths_sq(
     vertices: Float[Array, "nv 3"],
     edges: Int[Array, "ne 2"],

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count, first_indices, is_traced
 from ..mesh._geometry import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
 from ..sparse import SparseMatrix, SparsityPattern, diagonal_matrix, gather_sum
@@ -168,7 +168,7 @@ def cotan_laplacian_from_lengths_sq(lengths_sq: Float[ArrayLike, "nf 3"], plan: 
     return SparseMatrix(values, plan.vertex_plan.pattern, symmetric=True, positive_semidefinite=True)
 
 
-@tuned_jit
+@kernel
 def _laplacian_values(lengths_sq: Float[Array, "nf 3"], plan: VertexPlan) -> Float[Array, " nnz"]:
     """Values of `cotan_laplacian_from_lengths_sq` on `plan.pattern` (one program per size)."""
     entries = -0.5 * corner_cotangents_from_lengths_sq(lengths_sq)
@@ -210,7 +210,7 @@ def mass_matrix_from_lengths_sq(
     return diagonal_matrix(areas, positive_semidefinite=True)
 
 
-@tuned_jit(static_argnames=("kind", "n_vertices"))
+@kernel(static_argnames=("kind", "n_vertices"))
 def _vertex_areas(
     lengths_sq: Float[Array, "nf 3"], faces: Int[Array, "nf 3"], *, kind: str, n_vertices: int
 ) -> Float[Array, " nv"]:

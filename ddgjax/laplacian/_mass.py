@@ -6,7 +6,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .._errors import check_choice
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_areas, vertex_dual_areas
 from ..mesh._mesh import Mesh
 from ..sparse import SparseMatrix, diagonal_matrix
@@ -46,7 +46,7 @@ def mass_matrix(mesh: Mesh, *, kind: str = "voronoi") -> SparseMatrix:
     return SparseMatrix(_galerkin_values(mesh, plan), plan.pattern, symmetric=True, positive_semidefinite=True)
 
 
-@compiled_kernel
+@kernel
 def _galerkin_values(mesh: Mesh, plan: VertexPlan) -> Float[Array, " nnz"]:
     """Values of the Galerkin mass matrix on `plan.pattern` (one compiled program per mesh size)."""
     areas = face_areas(mesh)

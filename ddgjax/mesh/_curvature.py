@@ -34,7 +34,7 @@ from jaxtyping import Array, Float
 
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_sqrt
-from ._compiled import compiled_kernel
+from .._compile import kernel
 from ._geometry import (
     corner_angles,
     edge_dihedral_angles,
@@ -51,7 +51,7 @@ def _operation(name: str) -> str:
     return f"ddgjax.mesh.{name} (signed dihedral angles)"
 
 
-@compiled_kernel
+@kernel
 def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     """Integrated Gaussian curvature: the angle defect at each vertex, `(nv,)`.
 
@@ -79,7 +79,7 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     return jnp.where(referenced, 2.0 * jnp.pi - angle_sums - corrections, 0.0)
 
 
-@compiled_kernel(static_argnames=("dual",))
+@kernel(static_argnames=("dual",))
 def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise Gaussian curvature, `(nv,)`: `K_i / A_i`, the angle defect over the vertex dual area.
 
@@ -93,7 +93,7 @@ def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, dual: str = "voronoi") -
     return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, dual=dual))
 
 
-@compiled_kernel
+@kernel
 def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     """Integrated mean curvature normal `H N A_i`, `(nv, 3)`: half the cotan Laplacian of the positions.
 
@@ -116,7 +116,7 @@ def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     return scatter_corners_to_vertices(mesh, corner_terms)
 
 
-@compiled_kernel(static_argnames=("dual",))
+@kernel(static_argnames=("dual",))
 def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, "nv 3"]:
     """Pointwise mean curvature normal `H N`, `(nv, 3)`: `vertex_mean_curvature_normals / A_i`.
 
@@ -128,7 +128,7 @@ def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, dual: str = "voronoi"
     return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, dual=dual)[:, None])
 
 
-@compiled_kernel(requires_orientation=_operation("vertex_mean_curvatures"))
+@kernel(requires_orientation=_operation("vertex_mean_curvatures"))
 def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
     """Integrated scalar mean curvature from dihedral angles, `(nv,)`.
 
@@ -145,7 +145,7 @@ def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
     return jax.ops.segment_sum(jnp.repeat(edge_terms, 2), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
 
 
-@compiled_kernel(requires_orientation=_operation("total_mean_curvature"))
+@kernel(requires_orientation=_operation("total_mean_curvature"))
 def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
     """Total mean curvature `1/2 sum_e l_e theta_e`, a scalar `()` (integral of `H`; `4 pi r` on a sphere).
 
@@ -157,7 +157,7 @@ def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
     return 0.5 * jnp.sum(edge_lengths(mesh) * edge_dihedral_angles(mesh))
 
 
-@compiled_kernel(requires_orientation=_operation("vertex_gauss_curvature_normals"))
+@kernel(requires_orientation=_operation("vertex_gauss_curvature_normals"))
 def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     """Integrated Gauss curvature normal `K N A_i`, `(nv, 3)`: `1/2 sum_j theta_ij (p_i - p_j) / l_ij`.
 
@@ -176,7 +176,7 @@ def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     )
 
 
-@compiled_kernel(static_argnames=("dual",), requires_orientation=_operation("vertex_pointwise_mean_curvatures"))
+@kernel(static_argnames=("dual",), requires_orientation=_operation("vertex_pointwise_mean_curvatures"))
 def vertex_pointwise_mean_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv"]:
     """Pointwise signed mean curvature, `(nv,)`: `vertex_mean_curvatures / A_i`.
 
@@ -188,7 +188,7 @@ def vertex_pointwise_mean_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Fl
     return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, dual=dual))
 
 
-@compiled_kernel(static_argnames=("dual",), requires_orientation=_operation("vertex_principal_curvatures"))
+@kernel(static_argnames=("dual",), requires_orientation=_operation("vertex_principal_curvatures"))
 def vertex_principal_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, "nv 2"]:
     """Pointwise principal curvatures `(k1, k2)`, `(nv, 2)`, `k1 >= k2`, from `K` and `H`.
 

@@ -28,7 +28,7 @@ from jaxtyping import Array, Float
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_div, safe_norm, safe_normalize, safe_sqrt, unsigned_angle
-from ._compiled import compiled_kernel
+from .._compile import kernel
 from ._mesh import Mesh
 
 
@@ -43,14 +43,14 @@ def face_edge_vectors(mesh: Mesh) -> Float[Array, "nf 3 3"]:
     return jnp.roll(corners, -2, axis=1) - jnp.roll(corners, -1, axis=1)
 
 
-@compiled_kernel
+@kernel
 def face_edge_lengths_sq(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Squared length of the edge opposite each corner, `(nf, 3)` (libigl `squared_edge_lengths`)."""
     vectors = face_edge_vectors(mesh)
     return jnp.sum(vectors * vectors, axis=-1)
 
 
-@compiled_kernel
+@kernel
 def edge_lengths(mesh: Mesh) -> Float[Array, " ne"]:
     """Length of each global edge, `l_e = |p_head - p_tail|`, `(ne,)`, in `mesh.edges` order.
 
@@ -62,7 +62,7 @@ def edge_lengths(mesh: Mesh) -> Float[Array, " ne"]:
     return safe_norm(take_rows(mesh.vertices, mesh.edges[:, 1]) - take_rows(mesh.vertices, mesh.edges[:, 0]))
 
 
-@compiled_kernel
+@kernel
 def face_area_vectors(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Vector area of each face, `A_f N_f = (p1 - p0) x (p2 - p0) / 2`, `(nf, 3)`.
 
@@ -77,13 +77,13 @@ def face_area_vectors(mesh: Mesh) -> Float[Array, "nf 3"]:
     return 0.5 * jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
 
 
-@compiled_kernel
+@kernel
 def face_areas(mesh: Mesh) -> Float[Array, " nf"]:
     """Area of each face, `|(V1 - V0) x (V2 - V0)| / 2` (libigl `doublearea / 2`)."""
     return safe_norm(face_area_vectors(mesh))
 
 
-@compiled_kernel
+@kernel
 def face_normals(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Unit face normals (right-hand rule of the face order); the zero vector on zero-area faces."""
     return safe_normalize(face_area_vectors(mesh))
@@ -124,7 +124,7 @@ def corner_cotangents_from_lengths_sq(
     return safe_div(_cosine_numerators(lengths_sq), 4.0 * areas[:, None])
 
 
-@compiled_kernel
+@kernel
 def corner_cotangents(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Cotangent of each corner angle, `(nf, 3)` (extrinsic lengths and area; see the core)."""
     return corner_cotangents_from_lengths_sq(face_edge_lengths_sq(mesh), face_areas(mesh))
@@ -142,7 +142,7 @@ def corner_angles_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Arr
     return safe_atan2(sines, numerators)
 
 
-@compiled_kernel
+@kernel
 def corner_angles(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Interior angle at each corner, `(nf, 3)`, in `[0, pi]`: `atan2(|a x b|, a . b)` of the two edges leaving it.
 
@@ -166,7 +166,7 @@ def edge_cotan_weights_from_corner_cotangents(mesh: Mesh, cotangents: Float[Arra
     return 0.5 * jnp.sum(jnp.where(present, flat[jnp.where(present, slots, 0)], 0.0), axis=-1)
 
 
-@compiled_kernel
+@kernel
 def edge_cotan_weights(mesh: Mesh) -> Float[Array, " ne"]:
     """Cotan weight `w_ij = (cot a_ij + cot b_ij) / 2` of each edge, `(ne,)`.
 
@@ -243,13 +243,13 @@ def corner_dual_areas_from_lengths_sq(
     return jnp.where(has_obtuse, split, circumcentric)
 
 
-@compiled_kernel(static_argnames=("dual",))
+@kernel(static_argnames=("dual",))
 def corner_dual_areas(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, "nf 3"]:
     """Per-corner dual areas, `(nf, 3)`, from the embedding (see `corner_dual_areas_from_lengths_sq`)."""
     return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), dual=dual, areas=face_areas(mesh))
 
 
-@compiled_kernel(static_argnames=("dual",))
+@kernel(static_argnames=("dual",))
 def vertex_dual_areas(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv"]:
     """Area of the dual cell of each vertex, `(nv,)`: the corner shares of its faces, summed.
 
@@ -269,7 +269,7 @@ def vertex_dual_areas(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv
 _NORMAL_WEIGHTINGS = ("area", "angle", "uniform")
 
 
-@compiled_kernel(static_argnames=("weighting", "normalize"))
+@kernel(static_argnames=("weighting", "normalize"))
 def vertex_normals(mesh: Mesh, *, weighting: str = "area", normalize: bool = True) -> Float[Array, "nv 3"]:
     """Vertex normals, `(nv, 3)`: a weighted sum of the unit normals `N_f` of the incident faces.
 
@@ -294,7 +294,7 @@ def vertex_normals(mesh: Mesh, *, weighting: str = "area", normalize: bool = Tru
     return safe_normalize(sums) if normalize else sums
 
 
-@compiled_kernel
+@kernel
 def edge_dihedral_angles(mesh: Mesh) -> Float[Array, " ne"]:
     """Signed dihedral angle of each edge, `(ne,)`: the angle between the normals of its two faces.
 
@@ -324,7 +324,7 @@ def edge_dihedral_angles(mesh: Mesh) -> Float[Array, " ne"]:
     return jnp.where(two_faces, angles, 0.0)
 
 
-@compiled_kernel
+@kernel
 def total_area(mesh: Mesh) -> Float[Array, ""]:
     """Surface area, `sum_f A_f`, a scalar `()` (`A_f = |(p1 - p0) x (p2 - p0)| / 2`, `face_areas`).
 
@@ -337,7 +337,7 @@ def total_area(mesh: Mesh) -> Float[Array, ""]:
     return jnp.sum(face_areas(mesh))
 
 
-@compiled_kernel
+@kernel
 def enclosed_volume(mesh: Mesh) -> Float[Array, ""]:
     """Signed volume enclosed by a closed, oriented mesh, `1/6 sum_f (V0 . (V1 x V2))` (divergence theorem).
 
@@ -355,7 +355,7 @@ def enclosed_volume(mesh: Mesh) -> Float[Array, ""]:
     return jnp.sum(corners[:, 0] * jnp.cross(corners[:, 1], corners[:, 2])) / 6.0
 
 
-@compiled_kernel
+@kernel
 def face_hat_gradients(mesh: Mesh) -> Float[Array, "nf 3 3"]:
     """Gradient of each corner's hat function on each face, `grad phi_k = (N x e_k) / (2 A)`, `(nf, 3, 3)`.
 

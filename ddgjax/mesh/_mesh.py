@@ -35,7 +35,7 @@ class Mesh(eqx.Module):
         face_edge_signs: `(nf, 3)` int32 +1 / -1: does the face traverse that edge low -> high.
         edge_faces, edge_face_corners: `(ne, m)` faces of each edge and the corner opposite it, -1 padded.
         topology: `MeshTopology` (static; `None` only inside ddgjax's compiled kernels, see
-            `ddgjax.mesh._compiled`).
+            `ddgjax._compile.kernel`).
     """
 
     vertices: Float[Array, "nv 3"]
@@ -124,7 +124,7 @@ class Mesh(eqx.Module):
         return self.edges.shape[0]
 
     def without_topology(self) -> "Mesh":
-        """The same arrays with `topology=None`: what ddgjax's compiled kernels trace (`ddgjax.mesh._compiled`)."""
+        """The same arrays with `topology=None`: what ddgjax's compiled kernels trace (`ddgjax._compile.kernel`)."""
         if self.topology is None:
             return self
         return _assemble(**{name: getattr(self, name) for name in _ARRAY_FIELDS}, topology=None)

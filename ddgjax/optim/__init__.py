@@ -20,8 +20,8 @@ from ..mesh import enclosed_volume as enclosed_volume
 from ..mesh import total_area as total_area
 from ..param import conformal_energy_matrix as conformal_energy_matrix
 from ..param import map_distortion as map_distortion
-from ..solve import dirichlet_energy as dirichlet_energy
-from ..solve import poisson_energy as poisson_energy
+from ..pde import dirichlet_energy as dirichlet_energy
+from ..pde import poisson_energy as poisson_energy
 from ..spectral import eigenpairs as eigenpairs
 from ._chamfer import chamfer_distance as chamfer_distance
 from ._chamfer import nearest_neighbors as nearest_neighbors

@@ -32,7 +32,7 @@ import jax.numpy as jnp
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, ArrayLike, Float, Real
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows
 from .._results import raise_if_failed
@@ -160,8 +160,8 @@ def _shard_map(function, device_mesh, n_in: int, n_out: int):
     return jax.shard_map(function, mesh=device_mesh, in_specs=(spec,) * n_in, out_specs=outs)
 
 
-# tuned_jit: XLA:CPU without the YNNPACK fusions that slow the short reductions of geometry (ddgjax._compile).
-@functools.partial(tuned_jit, static_argnames=("device_mesh", "n_local"))
+# kernel: XLA:CPU without the YNNPACK fusions that slow the short reductions of geometry (ddgjax._compile).
+@functools.partial(kernel, static_argnames=("device_mesh", "n_local"))
 def _apply(plan: LocalPlan, vertices, u, *, device_mesh, n_local: int):
     geometry = _shard_map(functools.partial(_local_geometry, n_local=n_local, mass="voronoi"), device_mesh, 2, 2)
     apply = _shard_map(_local_apply, device_mesh, 3, 1)
@@ -169,7 +169,7 @@ def _apply(plan: LocalPlan, vertices, u, *, device_mesh, n_local: int):
     return apply(plan, weights, u)
 
 
-@functools.partial(tuned_jit, static_argnames=("device_mesh", "n_local", "mass", "rtol", "max_steps", "residual_tolerance"))
+@functools.partial(kernel, static_argnames=("device_mesh", "n_local", "mass", "rtol", "max_steps", "residual_tolerance"))
 def _cg(plan: LocalPlan, vertices, b, shift, *, device_mesh, n_local, mass, rtol, max_steps, residual_tolerance):
     geometry = _shard_map(functools.partial(_local_geometry, n_local=n_local, mass=mass), device_mesh, 2, 2)
     apply = _shard_map(_local_apply, device_mesh, 3, 1)

@@ -3,17 +3,12 @@
 - Energies as plain scalar JAX functions of the unknowns and the mesh (`dirichlet_energy`,
   `screened_dirichlet_energy`, `poisson_energy`, the report's `gradient_fitting_energy` `E_X`),
   differentiable in the unknowns and the vertex positions. Sign convention: the report's Poisson
-  problem `Delta phi = rho` with `Delta = -M^{-1} L`, i.e. `L phi = -M rho` (see `_energies`).
 - `linear_solve(A, b, *, method=...)` and `factorize(A, *, method=...).solve(b)`: symmetric (or
   complex Hermitian) positive definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD
   through `sparsax`), SciPy's SuperLU, a pure-JAX conjugate gradient preconditioned by Jacobi or an
   algebraic-multigrid V-cycle (`amg_hierarchy`, `amg_refresh`), or pyamg's CG on the host; all
   usable inside `jit` / `scan` / `vmap`, differentiable in `b` and in the matrix values by implicit
   differentiation; failures through `ddgjax.RESULTS` (`throw=`).
-- `solve_poisson(mesh, rho, *, dirichlet_vertices=..., dirichlet_values=...)` and
-  `harmonic_interpolation(mesh, vertices, values)`: exact, differentiable Dirichlet / Poisson problems.
-- `hodge_decomposition(mesh, omega)`: a 1-form split into exact, co-exact and harmonic parts;
-  `mean_curvature_flow(mesh, *, h, steps, modified=...)`: backward-Euler (modified) mean curvature flow.
 - `SparseCholesky(pattern)`: the same solves as a lineax solver (the matrix recovered from operator
   products by column colouring), so `optimistix.Newton` minimises an energy with them.
 """
@@ -23,18 +18,8 @@ from ._amg import amg_hierarchy as amg_hierarchy
 from ._amg import amg_preconditioner as amg_preconditioner
 from ._amg import amg_refresh as amg_refresh
 from ._amg import amg_v_cycle as amg_v_cycle
-from ._energies import dirichlet_energy as dirichlet_energy
-from ._energies import gradient_fitting_energy as gradient_fitting_energy
-from ._energies import poisson_energy as poisson_energy
-from ._energies import screened_dirichlet_energy as screened_dirichlet_energy
-from ._flow import MeanCurvatureFlowResult as MeanCurvatureFlowResult
-from ._flow import mean_curvature_flow as mean_curvature_flow
-from ._hodge_decomposition import HodgeDecomposition as HodgeDecomposition
-from ._hodge_decomposition import hodge_decomposition as hodge_decomposition
 from ._linear import Factorization as Factorization
 from ._linear import LinearSolution as LinearSolution
 from ._linear import factorize as factorize
 from ._linear import linear_solve as linear_solve
 from ._lineax import SparseCholesky as SparseCholesky
-from ._problems import harmonic_interpolation as harmonic_interpolation
-from ._problems import solve_poisson as solve_poisson

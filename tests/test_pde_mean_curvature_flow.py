@@ -1,4 +1,4 @@
-"""Tests for ddgjax.solve.mean_curvature_flow: the DDG exercises' reference (plain and modified), the
+"""Tests for ddgjax.pde.mean_curvature_flow: the DDG exercises' reference (plain and modified), the
 shrinking sphere against its discrete and smooth radius, volume and area, gradients against finite
 differences, saved states, jit, bad input."""
 
@@ -11,7 +11,7 @@ import pytest
 
 from ddgjax import DDGInputError
 from ddgjax.mesh import Mesh, enclosed_volume, icosphere, torus
-from ddgjax.solve._flow import MeanCurvatureFlowResult, mean_curvature_flow
+from ddgjax.pde._mean_curvature_flow import MeanCurvatureFlowResult, mean_curvature_flow
 
 from conftest import read_ddg_reference
 

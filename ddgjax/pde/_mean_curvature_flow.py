@@ -53,13 +53,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Real
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..mesh._geometry import enclosed_volume, total_area
 from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import nonnegative
-from ._linear import linear_solve
+from ..solve import linear_solve
 
 MASSES = ("voronoi", "barycentric", "galerkin")
 
@@ -161,7 +161,7 @@ def _scalar(name: str, value, dtype) -> Real[Array, ""]:
     return jnp.asarray(value).astype(dtype)
 
 
-@tuned_jit(static_argnames=("steps", "save_every", "modified", "mass", "method"))
+@kernel(static_argnames=("steps", "save_every", "modified", "mass", "method"))
 def _run(
     mesh: Mesh, h, shift, *, steps: int, save_every: int, modified: bool, mass: str, method: str
 ) -> tuple[Float[Array, "s nv 3"], Float[Array, " s"], Float[Array, " s"]]:

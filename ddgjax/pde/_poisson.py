@@ -1,6 +1,6 @@
 """The Poisson problem and harmonic interpolation on a triangle mesh, solved exactly and differentiably.
 
-Sign convention (the reading report, `ddgjax.solve._energies`): the Poisson problem is
+Sign convention (the reading report, `ddgjax.pde._energies`): the Poisson problem is
 `Delta phi = rho` with the pointwise Laplace-Beltrami operator `Delta = -M^{-1} L`, so the discrete
 system is
 
@@ -45,7 +45,7 @@ from ..laplacian._operators import resolve_robust
 from ..laplacian._plan import vertex_plan
 from ..mesh._mesh import Mesh, require_mesh
 from ..sparse import dirichlet_blocks, dirichlet_plan
-from ._linear import linear_solve
+from ..solve import linear_solve
 
 MASSES = ("voronoi", "barycentric", "galerkin")
 

@@ -66,7 +66,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float
 from scipy.sparse import csgraph
 
-from .._compile import tuned_jit
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_float_shape
 from ..dec import d0, hodge_star_entries
 from ..laplacian import cotan_laplacian
@@ -75,8 +75,8 @@ from ..mesh._geometry import DUALS
 from ..mesh._mesh import Mesh, require_mesh
 from ..mesh._topology import MeshTopology
 from ..sparse import congruence, dirichlet_blocks
-from ._linear import linear_solve
-from ._problems import _DirichletData
+from ..solve import linear_solve
+from ._poisson import _DirichletData
 
 
 class HodgeDecomposition(eqx.Module):
@@ -134,7 +134,7 @@ def hodge_decomposition(
     `d0` or `d1`. References: module docstring.
     """
     mesh = require_mesh("mesh", mesh)
-    mesh.topology.require_oriented("ddgjax.solve.hodge_decomposition")
+    mesh.topology.require_oriented("ddgjax.pde.hodge_decomposition")
     check_choice("dual", dual, DUALS)
     ne = mesh.n_edges
     if np.ndim(omega) not in (1, 2) or np.shape(omega)[0] != ne:
@@ -150,7 +150,7 @@ def hodge_decomposition(
     return HodgeDecomposition(exact=exact.reshape(shape), coexact=coexact.reshape(shape), harmonic=harmonic.reshape(shape))
 
 
-@tuned_jit(static_argnames=("dual", "method"))
+@kernel(static_argnames=("dual", "method"))
 def _decompose(mesh: Mesh, columns: Float[Array, "ne c"], *, dual: str, method: str) -> tuple[Array, Array, Array]:
     """The three parts of the columns of `columns` (module docstring, steps 1-4); one program per connectivity."""
     n_columns = columns.shape[1]

@@ -1,4 +1,4 @@
-"""Tests for ddgjax.solve.solve_poisson and harmonic_interpolation: references (DDG exercises, libigl),
+"""Tests for ddgjax.pde.solve_poisson and harmonic_interpolation: references (DDG exercises, libigl),
 analytic solutions with fitted convergence rates, several components, gradients, bad input."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from ddgjax import DDGInputError
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import Mesh, disk, grid, icosphere
-from ddgjax.solve import harmonic_interpolation, solve_poisson
+from ddgjax.pde import harmonic_interpolation, solve_poisson
 
 from conftest import read_ddg_reference, shared_path
 from mesh_union import disjoint_union

@@ -47,7 +47,7 @@ from .._errors import DDGInputError, check_choice, check_float_shape
 from ..dec import gradient
 from ..laplacian import dirichlet_energy as dirichlet_energy
 from ..laplacian import mass_matrix
-from ..mesh._compiled import compiled_kernel
+from .._compile import kernel
 from ..mesh._geometry import face_areas
 from ..mesh._mesh import Mesh, require_mesh
 
@@ -153,7 +153,7 @@ def gradient_fitting_energy(mesh: Mesh, phi: Float[ArrayLike, "nv *k"], field: F
     return _gradient_fitting_energy(mesh, phi, jnp.asarray(field))
 
 
-@compiled_kernel
+@kernel
 def _gradient_fitting_energy(mesh: Mesh, phi: Float[Array, "nv *k"], field: Float[Array, "nf 3 *k"]) -> Float[Array, ""]:
     if phi.ndim == 1:
         gradients = gradient(mesh, phi)

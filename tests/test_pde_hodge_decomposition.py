@@ -1,4 +1,4 @@
-"""Tests for ddgjax.solve.hodge_decomposition: the DDG exercises' reference (genus 2), the identities
+"""Tests for ddgjax.pde.hodge_decomposition: the DDG exercises' reference (genus 2), the identities
 of the decomposition, the dimension of the harmonic space on surfaces of several topologies, an
 independent face-system solve, gradients against finite differences, jit / batching, bad input."""
 
@@ -15,7 +15,7 @@ from ddgjax import DDGInputError
 from ddgjax._errors import MeshDataError
 from ddgjax.dec import d0, d1, hodge_star_entries
 from ddgjax.mesh import Mesh, icosphere, torus
-from ddgjax.solve._hodge_decomposition import HodgeDecomposition, closed_cocycle_basis, hodge_decomposition
+from ddgjax.pde._hodge_decomposition import HodgeDecomposition, closed_cocycle_basis, hodge_decomposition
 
 from conftest import read_ddg_reference
 from mesh_union import disjoint_union

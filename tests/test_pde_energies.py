@@ -1,4 +1,4 @@
-"""Tests for ddgjax.solve._energies: Dirichlet, screened Dirichlet, Poisson and gradient-fitting energies."""
+"""Tests for ddgjax.pde._energies: Dirichlet, screened Dirichlet, Poisson and gradient-fitting energies."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from ddgjax._errors import DDGInputError
 from ddgjax.dec import divergence, gradient
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import Mesh, disk, icosphere, vertex_dual_areas
-from ddgjax.solve._energies import (
+from ddgjax.pde._energies import (
     dirichlet_energy,
     gradient_fitting_energy,
     poisson_energy,
