@@ -98,7 +98,10 @@ def kernel(
     """
     if function is None:
         return functools.partial(
-            kernel, static_argnames=static_argnames, requires_orientation=requires_orientation, extra_cpu_options=extra_cpu_options
+            kernel,
+            static_argnames=static_argnames,
+            requires_orientation=requires_orientation,
+            extra_cpu_options=extra_cpu_options,
         )
     plain = jax.jit(function, static_argnames=static_argnames)
     tuned: dict[tuple, Callable] = {}

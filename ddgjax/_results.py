@@ -22,9 +22,9 @@ Reference: optimistix `RESULTS` / lineax `RESULTS` (`equinox.Enumeration`, `thro
 
 from __future__ import annotations
 
-import equinox as eqx
 from typing import Any
 
+import equinox as eqx
 from jaxtyping import Array, Bool, PyTree
 
 
@@ -57,7 +57,7 @@ class RESULTS(eqx.Enumeration):
     eigensolver_failed = (
         "The eigensolver did not converge to the requested eigenpairs (the subspace iteration ran out "
         "of steps, or its basis lost rank): raise `k` by a few (a cluster cut at `k`), or use "
-        "`method=\"arpack\"`. Pass `throw=False` to inspect the result."
+        '`method="arpack"`. Pass `throw=False` to inspect the result.'
     )
     not_positive_definite = (
         "A matrix that must be positive definite is not (a factorisation met a non-positive pivot, or "

@@ -26,11 +26,10 @@ import numpy as np
 from .._compile import kernel
 from .._errors import DDGInputError, MeshDataError
 from .._results import RESULTS
+from ..internal import auto_method, poisson_with_result
 from ..laplacian import cotan_laplacian, mass_matrix
 from ..mesh import Mesh, disk, icosphere
 from ..pde import dirichlet_energy, poisson_energy
-from ..solve._linear import auto_method
-from ..pde._poisson import poisson_with_result
 from ._common import load_cli_mesh, write_figure
 
 SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)"}

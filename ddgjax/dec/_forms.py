@@ -32,8 +32,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import DDGInputError, check_choice, check_count
 from .._indexing import take_rows
 from .._numerics import safe_div
-from ..mesh._geometry import corner_dual_areas, face_hat_gradients, face_vertex_positions, scatter_corners_to_vertices
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, corner_dual_areas, face_hat_gradients, face_vertex_positions, require_mesh, scatter_corners_to_vertices
 from ._vector_calculus import _as_array
 
 

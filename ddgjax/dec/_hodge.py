@@ -24,12 +24,12 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._compile import kernel
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_reciprocal
-from .._compile import kernel
-from ..mesh._geometry import DUALS, edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, vertex_dual_areas
-from ..mesh._mesh import Mesh, require_mesh
+from .._options import DUAL_CELLS as DUALS
+from ..mesh import Mesh, edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, require_mesh, vertex_dual_areas
 from ..sparse import SparseMatrix, diagonal_matrix
 
 

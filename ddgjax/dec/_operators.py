@@ -13,7 +13,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix, SparsityPattern
 
 

@@ -32,8 +32,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows
-from ..mesh._geometry import DUALS, corner_cotangents, face_edge_vectors, face_hat_gradients, scatter_corners_to_vertices
-from ..mesh._mesh import Mesh, require_mesh
+from .._options import DUAL_CELLS as DUALS
+from ..mesh import Mesh, corner_cotangents, face_edge_vectors, face_hat_gradients, require_mesh, scatter_corners_to_vertices
 from ..sparse import SparseMatrix
 from ._hodge import hodge_star_entries
 from ._operators import d0, d1

@@ -34,12 +34,11 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._compile import kernel
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_normalize
-from .._compile import kernel
-from ..mesh._geometry import corner_angles, scatter_corners_to_vertices, vertex_normals
-from ..mesh._mesh import Mesh
+from ..mesh import Mesh, corner_angles, scatter_corners_to_vertices, vertex_normals
 from ._plan import FieldPlan, field_plan
 
 BOUNDARIES = ("geodesic", "unscaled")

@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Inexact, Int
 
 from .._errors import DDGInputError
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 from ..solve import linear_solve
 from ..sparse import SparseMatrix, dirichlet_blocks, dirichlet_plan
 from ._connection import check_boundary

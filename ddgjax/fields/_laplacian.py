@@ -14,13 +14,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows_or_zero
+from ..internal import VertexPlan, vertex_plan
 from ..laplacian import mass_matrix
-from ..laplacian._plan import VertexPlan, vertex_plan
-from .._compile import kernel
-from ..mesh._geometry import edge_cotan_weights
-from ..mesh._mesh import Mesh
+from ..mesh import Mesh, edge_cotan_weights
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._connection import connection
 from ._plan import FieldPlan

@@ -27,9 +27,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Int
 
 from .._errors import DDGInputError, MeshDataError, first_indices
-from ..laplacian._plan import vertex_plan
-from ..mesh._mesh import Mesh, require_mesh
-from ..mesh._topology import MeshTopology
+from ..internal import vertex_plan
+from ..mesh import Mesh, MeshTopology, require_mesh
 from ..sparse import SparsityPattern
 
 

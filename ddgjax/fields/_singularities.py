@@ -26,10 +26,10 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
 
+from .._compile import kernel
 from .._indexing import take_rows
 from .._numerics import safe_atan2
-from .._compile import kernel
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 from ._connection import connection
 from ._laplacian import check_degree
 from ._smoothest import _complex_field

@@ -34,11 +34,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_positive
 from .._numerics import safe_reciprocal, safe_sqrt
-from .._compile import kernel
-from ..mesh._geometry import edge_dihedral_angles, edge_lengths
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, edge_dihedral_angles, edge_lengths, require_mesh
 from ..solve import linear_solve
 from ..spectral import smallest_eigenpairs
 from ._connection import check_boundary, connection, plan_of

@@ -5,12 +5,11 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
 
+from .._compile import kernel
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_normalize
-from .._compile import kernel
-from ..mesh._geometry import face_normals, face_vertex_positions
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, face_normals, face_vertex_positions, require_mesh
 from ._connection import _tangent_bases, connection, plan_of
 from ._laplacian import check_degree
 from ._smoothest import _complex_field, unit

@@ -39,11 +39,10 @@ from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._numerics import safe_norm
 from ..dec import divergence, gradient
+from ..internal import DirichletData
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..mesh import edge_lengths
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, edge_lengths, require_mesh
 from ..solve import Factorization, factorize
-from ..pde._poisson import _DirichletData
 from ..sparse import DirichletPlan, dirichlet_blocks, dirichlet_plan
 
 BOUNDARY_CONDITIONS = ("average", "neumann")
@@ -161,7 +160,7 @@ def heat_distance_solver(
     if boundary == "average" and boundary_vertices.size:
         heat_plan = dirichlet_plan(heat_matrix, boundary_vertices)
         heat_dirichlet = factorize(dirichlet_blocks(heat_matrix, heat_plan)[0], method=method)
-    pins = _DirichletData(mesh, None, None, ())  # one pinned vertex per component (and unreferenced vertices)
+    pins = DirichletData(mesh, None, None, ())  # one pinned vertex per component (and unreferenced vertices)
     # (flips keep the vertices and the components, so the mesh's pins serve the intrinsic triangulation too)
     poisson_plan = dirichlet_plan(L, pins.fixed)
     return HeatDistanceSolver(

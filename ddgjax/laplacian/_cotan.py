@@ -26,12 +26,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_div, safe_reciprocal, safe_sqrt
 from ..dec import d0, hodge1
-from .._compile import kernel
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix, congruence, gather_sum
 from ._plan import VertexPlan, dec_plan, vertex_plan
 

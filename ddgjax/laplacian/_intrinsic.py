@@ -59,9 +59,7 @@ from .._compile import kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._indexing import take_rows
 from .._numerics import safe_div
-from ..mesh._geometry import face_areas_from_lengths_sq
-from ..mesh._mesh import Mesh, require_mesh
-from ..mesh._topology import MeshTopology
+from ..mesh import Mesh, MeshTopology, face_areas_from_lengths_sq, require_mesh
 from ..sparse import SparseMatrix
 from ._lengths import (
     MASS_KINDS,

@@ -30,9 +30,9 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count, first_indices, is_traced
-from ..mesh._geometry import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
+from ..internal import stable_order
+from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
 from ..sparse import SparseMatrix, SparsityPattern, diagonal_matrix, gather_sum
-from ..sparse._pattern import stable_order
 from ._cotan import _off_diagonal, _with_diagonal
 from ._plan import VertexPlan
 

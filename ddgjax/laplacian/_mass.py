@@ -5,10 +5,9 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from .._errors import check_choice
 from .._compile import kernel
-from ..mesh._geometry import edge_cotan_weights_from_corner_cotangents, face_areas, vertex_dual_areas
-from ..mesh._mesh import Mesh
+from .._errors import check_choice
+from ..mesh import Mesh, edge_cotan_weights_from_corner_cotangents, face_areas, vertex_dual_areas
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._cotan import _with_diagonal, vertex_operator
 from ._plan import VertexPlan, vertex_plan

@@ -11,7 +11,7 @@ works inside `jit` / `grad` (the flips are host combinatorics).
 from __future__ import annotations
 
 from .._errors import DDGInputError, check_choice
-from ..mesh._mesh import Mesh
+from ..mesh import Mesh
 from ..sparse import SparseMatrix
 from ._cotan import cotan_laplacian
 from ._intrinsic import IntrinsicTriangulation, intrinsic_delaunay, intrinsic_delaunay_laplacian, intrinsic_delaunay_mass_matrix

@@ -17,8 +17,7 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from .._errors import DDGInputError
-from ..mesh._mesh import Mesh, require_mesh
-from ..mesh._topology import MeshTopology
+from ..mesh import Mesh, MeshTopology, require_mesh
 from ..sparse import CongruencePlan, SparsityPattern, congruence_plan
 
 

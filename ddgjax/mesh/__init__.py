@@ -109,6 +109,7 @@ from ._geometry import (
     vertex_normals as vertex_normals,
 )
 from ._mesh import Mesh as Mesh
+from ._mesh import require_mesh as require_mesh
 from ._shapes import cylinder as cylinder
 from ._shapes import disk as disk
 from ._shapes import grid as grid

@@ -32,9 +32,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._compile import kernel
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_sqrt
-from .._compile import kernel
 from ._geometry import (
     corner_angles,
     edge_dihedral_angles,

@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._errors import DDGInputError, MeshDataError, first_indices
-from ..sparse._pattern import stable_order
+from ..internal import stable_order
 
 
 def validate_faces(faces, n_vertices: int) -> np.ndarray:

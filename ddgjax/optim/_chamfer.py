@@ -18,8 +18,7 @@ from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 from .._errors import DDGInputError, check_count, check_float_shape
 from .._indexing import take_rows
 from .._numerics import safe_normalize
-from ..mesh._geometry import face_area_vectors, face_areas, face_vertex_positions
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, face_area_vectors, face_areas, face_vertex_positions, require_mesh
 
 # Pairwise distances per chunk: rows * columns stays under this many entries (32 MiB of float64).
 _CHUNK_ENTRIES = 1 << 22

@@ -44,8 +44,7 @@ from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 from .._compile import cpu_compiler_options
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._results import RESULTS, raise_if_failed
-from ..mesh._geometry import enclosed_volume
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, enclosed_volume, require_mesh
 from ._large_steps import adam_uniform, fixed_vertex_indices, large_steps
 
 PARAMETRIZATIONS = ("large_steps", "vertices")

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
 
 from .._errors import check_count
-from ..mesh._mesh import Mesh
+from ..mesh import Mesh
 from ._chamfer import _check_points, chamfer_distance, sample_points
 from ._objectives import edge_length_loss, laplacian_smoothing_loss, normal_consistency_loss
 

@@ -43,7 +43,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_choice, check_positive, is_traced
 from ..laplacian import cotan_laplacian
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 from ..solve import Factorization, factorize
 from ..sparse import SparseMatrix, from_scipy
 

@@ -20,9 +20,15 @@ from jaxtyping import Array, Bool, Float
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm
-from ..mesh._curvature import vertex_mean_curvature_normals
-from ..mesh._geometry import edge_cotan_weights, edge_dihedral_angles, edge_lengths, vertex_dual_areas
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import (
+    Mesh,
+    edge_cotan_weights,
+    edge_dihedral_angles,
+    edge_lengths,
+    require_mesh,
+    vertex_dual_areas,
+    vertex_mean_curvature_normals,
+)
 
 SMOOTHING_METHODS = ("uniform", "cotan")
 

@@ -52,13 +52,12 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_choice, is_traced
 from .._indexing import take_rows
+from .._options import LINEAR_SOLVERS as METHODS
 from .._results import RESULTS, raise_if_failed
+from ..internal import vertex_plan
 from ..laplacian import cotan_laplacian
-from ..laplacian._plan import vertex_plan
-from ..mesh._curvature import vertex_angle_defects
-from ..mesh._mesh import Mesh
+from ..mesh import Mesh, vertex_angle_defects
 from ..solve import factorize, linear_solve
-from ..solve._linear import METHODS
 from ..sparse import dirichlet_blocks, dirichlet_plan
 from ._disk import boundary_dual_lengths, boundary_edge_lengths, boundary_values, cached_plan, require_disk
 from ._tutte import boundary_plan, harmonic_extension

@@ -27,8 +27,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from .._errors import DDGInputError, check_float_shape, is_traced
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm
-from ..mesh._mesh import Mesh, require_mesh
-from ..mesh._topology import MeshTopology
+from ..mesh import Mesh, MeshTopology, require_mesh
 
 BOUNDARY_SHAPES = ("circle", "square")
 

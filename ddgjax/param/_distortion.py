@@ -39,7 +39,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from .._errors import DDGInputError, check_float_shape, is_traced
 from .._indexing import take_rows
 from .._numerics import cross2, safe_div, safe_norm
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 
 
 class MapDistortion(eqx.Module):

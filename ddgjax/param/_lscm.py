@@ -55,13 +55,12 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from .._errors import DDGInputError, check_choice, check_positive, is_traced
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import cross2, safe_div, safe_norm, safe_sqrt
+from .._options import LINEAR_SOLVERS as METHODS
 from .._results import raise_if_failed
-from ..mesh._geometry import edge_cotan_weights, face_areas, vertex_dual_areas
-from ..mesh._mesh import Mesh
+from ..mesh import Mesh, edge_cotan_weights, face_areas, vertex_dual_areas
 from ..solve import linear_solve
-from ..solve._linear import METHODS
 from ..sparse import SparseMatrix, SparsityPattern, diagonal_matrix, dirichlet_blocks, dirichlet_plan
-from ..spectral._generalized import smallest_eigenpairs
+from ..spectral import smallest_eigenpairs
 from ._disk import (
     DiskTopology,
     boundary_dual_lengths,

@@ -31,12 +31,12 @@ from jaxtyping import Array, Float
 
 from .._errors import check_choice
 from .._indexing import take_rows_or_zero
+from .._options import LINEAR_SOLVERS as METHODS
 from .._results import RESULTS, raise_if_failed
+from ..internal import vertex_plan
 from ..laplacian import cotan_laplacian
-from ..laplacian._plan import vertex_plan
-from ..mesh._mesh import Mesh
+from ..mesh import Mesh
 from ..solve import Factorization, factorize
-from ..solve._linear import METHODS
 from ..sparse import DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan
 from ._disk import DiskTopology, boundary_argument, boundary_edge_lengths, cached_plan, place_boundary, require_disk
 

@@ -43,13 +43,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Real
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_float_shape
 from ..dec import gradient
 from ..laplacian import dirichlet_energy as dirichlet_energy
 from ..laplacian import mass_matrix
-from .._compile import kernel
-from ..mesh._geometry import face_areas
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, face_areas, require_mesh
 
 _MASS_KINDS = ("voronoi", "barycentric", "galerkin")
 

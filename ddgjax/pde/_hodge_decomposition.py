@@ -68,15 +68,14 @@ from scipy.sparse import csgraph
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_float_shape
+from .._options import DUAL_CELLS as DUALS
 from ..dec import d0, hodge_star_entries
+from ..internal import dec_plan, vertex_plan
 from ..laplacian import cotan_laplacian
-from ..laplacian._plan import dec_plan, vertex_plan
-from ..mesh._geometry import DUALS
-from ..mesh._mesh import Mesh, require_mesh
-from ..mesh._topology import MeshTopology
-from ..sparse import congruence, dirichlet_blocks
+from ..mesh import Mesh, MeshTopology, require_mesh
 from ..solve import linear_solve
-from ._poisson import _DirichletData
+from ..sparse import congruence, dirichlet_blocks
+from ._poisson import DirichletData
 
 
 class HodgeDecomposition(eqx.Module):
@@ -181,7 +180,7 @@ def _solve_laplacian(
         laplacian = congruence(d0(mesh), star, vertex_plan(mesh).pattern, dec_plan(mesh))
     else:
         laplacian = cotan_laplacian(mesh)  # d0^T *1 d0 for the cotan *1, by the faster FEM assembly
-    pins = _DirichletData(mesh, None, None, rhs.shape[1:])
+    pins = DirichletData(mesh, None, None, rhs.shape[1:])
     if pins.plan is None:
         return jnp.zeros_like(rhs)
     free_free, _ = dirichlet_blocks(laplacian, pins.plan)

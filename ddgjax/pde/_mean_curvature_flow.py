@@ -56,10 +56,9 @@ from jaxtyping import Array, ArrayLike, Float, Real
 from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from ..laplacian import cotan_laplacian, mass_matrix
-from ..mesh._geometry import enclosed_volume, total_area
-from ..mesh._mesh import Mesh, require_mesh
-from ..sparse import nonnegative
+from ..mesh import Mesh, enclosed_volume, require_mesh, total_area
 from ..solve import linear_solve
+from ..sparse import nonnegative
 
 MASSES = ("voronoi", "barycentric", "galerkin")
 

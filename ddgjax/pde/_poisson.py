@@ -40,12 +40,11 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_choice
 from .._results import RESULTS, raise_if_failed
+from ..internal import resolve_robust, vertex_plan
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..laplacian._operators import resolve_robust
-from ..laplacian._plan import vertex_plan
-from ..mesh._mesh import Mesh, require_mesh
-from ..sparse import dirichlet_blocks, dirichlet_plan
+from ..mesh import Mesh, require_mesh
 from ..solve import linear_solve
+from ..sparse import dirichlet_blocks, dirichlet_plan
 
 MASSES = ("voronoi", "barycentric", "galerkin")
 
@@ -101,7 +100,7 @@ def poisson_with_result(
     triangulation = resolve_robust(mesh, robust, mass=mass)
     rho = _vertex_values("rho", mesh, rho)
     pattern = (vertex_plan(mesh) if triangulation is None else triangulation.plan.vertex_plan).pattern
-    dirichlet = _DirichletData(mesh, dirichlet_vertices, dirichlet_values, rho.shape[1:], pattern)
+    dirichlet = DirichletData(mesh, dirichlet_vertices, dirichlet_values, rho.shape[1:], pattern)
     if dirichlet.plan is None:  # every vertex prescribed: nothing to solve
         phi = jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
         return phi, RESULTS.successful
@@ -169,7 +168,7 @@ def harmonic_interpolation(
     return solve_poisson(mesh, rho, dirichlet_vertices=vertices, dirichlet_values=values, robust=robust, method=method)
 
 
-class _DirichletData:
+class DirichletData:
     """Host bookkeeping of a Poisson problem: components, pinned vertices, the block plan."""
 
     def __init__(self, mesh: Mesh, vertices, values, trailing: tuple[int, ...], pattern=None):

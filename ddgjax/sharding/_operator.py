@@ -36,9 +36,9 @@ from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows
 from .._results import raise_if_failed
+from ..internal import linear_solution, preconditioned_cg
 from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
 from ..solve import LinearSolution
-from ..solve._linear import linear_solution, preconditioned_cg
 from ..sparse import gather_sum
 from ._partition import VERTICES, LocalPlan, VertexPartition
 

@@ -46,7 +46,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .._errors import DDGInputError, check_choice
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 from ._devices import device_mesh
 
 VERTICES = "vertices"

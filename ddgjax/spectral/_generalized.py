@@ -53,9 +53,9 @@ import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError, check_choice, check_count, is_traced
+from .._options import LINEAR_SOLVERS as SOLVE_METHODS
+from ..internal import PRECONDITIONERS, auto_method, preconditioned_cg
 from ..solve import AMGHierarchy, amg_hierarchy, factorize
-from ..solve._linear import METHODS as SOLVE_METHODS
-from ..solve._linear import PRECONDITIONERS, auto_method, preconditioned_cg
 from ..sparse import SparseMatrix, nonnegative
 
 # Eigenvalues within this fraction of the largest computed one count as one cluster (module docstring).

@@ -26,7 +26,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError, check_choice
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, require_mesh
 from ..solve import AMGHierarchy
 from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
 from ._generalized import smallest_eigenpairs

@@ -22,8 +22,7 @@ from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
 from ..laplacian import cotan_laplacian, mass_matrix
-from ..mesh._geometry import face_hat_gradients
-from ..mesh._mesh import Mesh, require_mesh
+from ..mesh import Mesh, face_hat_gradients, require_mesh
 from ..sparse import SparseMatrix, SparsityPattern
 from ._generalized import smallest_eigenpairs
 

@@ -1,0 +1,40 @@
+"""Pieces one ddgjax package needs from another that users should not call (as `lineax.internal`).
+
+A package imports another package's public API, or a name from here; never a private module of
+another package (DESIGN.md, layout). Names resolve on first use (PEP 562), so importing this module
+loads nothing, and a low package can use it without importing the packages above it.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+_NAMES = {
+    # storage plans of vertex-vertex operators (ddgjax.laplacian)
+    "VertexPlan": "ddgjax.laplacian._plan",
+    "vertex_plan": "ddgjax.laplacian._plan",
+    "dec_plan": "ddgjax.laplacian._plan",
+    "resolve_robust": "ddgjax.laplacian._operators",
+    # Dirichlet bookkeeping of a Poisson problem (ddgjax.pde)
+    "DirichletData": "ddgjax.pde._poisson",
+    "poisson_with_result": "ddgjax.pde._poisson",
+    # linear algebra (ddgjax.solve)
+    "PRECONDITIONERS": "ddgjax.solve._linear",
+    "auto_method": "ddgjax.solve._linear",
+    "preconditioned_cg": "ddgjax.solve._linear",
+    "linear_solution": "ddgjax.solve._linear",
+    # sparse patterns (ddgjax.sparse)
+    "stable_order": "ddgjax.sparse._pattern",
+}
+
+
+def __getattr__(name: str):
+    if name not in _NAMES:
+        raise AttributeError(f"module 'ddgjax.internal' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_NAMES[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(_NAMES)
