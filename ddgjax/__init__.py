@@ -63,12 +63,31 @@ _NAMES = {
 }
 
 if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__ below does the same lazily
-    from . import curves, dec, fields, geodesics, io, laplacian, mesh, optim, param, pde, plot, sharding, solve, sparse, spectral
-    from ._compile import cpu_compiler_options
-    from ._options import BOUNDARY_CONDITIONS, DUAL_CELLS, LAPLACIAN_WEIGHTS, LINEAR_SOLVERS, MASS_MATRICES
-    from ._results import RESULTS, Solution
-    from .curves import Curve
-    from .mesh import Mesh
+    from . import curves as curves
+    from . import dec as dec
+    from . import fields as fields
+    from . import geodesics as geodesics
+    from . import io as io
+    from . import laplacian as laplacian
+    from . import mesh as mesh
+    from . import optim as optim
+    from . import param as param
+    from . import pde as pde
+    from . import plot as plot
+    from . import sharding as sharding
+    from . import solve as solve
+    from . import sparse as sparse
+    from . import spectral as spectral
+    from ._compile import cpu_compiler_options as cpu_compiler_options
+    from ._options import BOUNDARY_CONDITIONS as BOUNDARY_CONDITIONS
+    from ._options import DUAL_CELLS as DUAL_CELLS
+    from ._options import LAPLACIAN_WEIGHTS as LAPLACIAN_WEIGHTS
+    from ._options import LINEAR_SOLVERS as LINEAR_SOLVERS
+    from ._options import MASS_MATRICES as MASS_MATRICES
+    from ._results import RESULTS as RESULTS
+    from ._results import Solution as Solution
+    from .curves import Curve as Curve
+    from .mesh import Mesh as Mesh
 
 __all__ = ["DDGInputError", "MeshDataError", "__version__", *_SUBPACKAGES, *_NAMES]
 
