@@ -64,6 +64,17 @@ class RESULTS(eqx.Enumeration):
         "a mass matrix has a non-positive row sum): the mesh has degenerate or inverted elements, or the "
         "shift / time step makes the system indefinite. Pass `throw=False` to inspect the result."
     )
+    negative_value = (
+        "A value declared non-negative with `ddgjax.sparse.nonnegative(t)` (a time step, a shift, a "
+        "weight) was negative or NaN when the program ran, so the matrix scaled by it would be flagged "
+        "semidefinite without being so. Pass a value >= 0 (and not NaN)."
+    )
+    missing_diagonal = (
+        "A diagonal was added onto a sparse matrix whose pattern lacks diagonal entries (`A + D` or "
+        "`A.shifted(s)` on a CSR pattern passed into `jit`, which cannot be checked before the program "
+        "runs): there is no slot to add them to. Assemble the matrix on a pattern that stores its whole "
+        "diagonal (explicit zeros count), e.g. `ddgjax.sparse.from_scipy(A + 0 * scipy.sparse.identity(n))`."
+    )
 
 
 class Solution(eqx.Module):

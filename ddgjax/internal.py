@@ -10,8 +10,7 @@ from __future__ import annotations
 import importlib
 
 _NAMES = {
-    # storage plans of vertex-vertex operators (ddgjax.laplacian)
-    "VertexPlan": "ddgjax.laplacian._plan",
+    # storage plans of vertex-vertex operators (ddgjax.laplacian; the type is ddgjax.laplacian.TriangulationPlan)
     "vertex_plan": "ddgjax.laplacian._plan",
     "dec_plan": "ddgjax.laplacian._plan",
     "resolve_robust": "ddgjax.laplacian._operators",

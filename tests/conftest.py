@@ -1,9 +1,13 @@
-"""Test configuration: float64 everywhere, quick XLA compilation, and helpers to locate `../shared`."""
+"""Test configuration: float64 everywhere, quick XLA compilation, and the test data in `tests/data`."""
 
 from __future__ import annotations
 
+import functools
+import lzma
 import os
 import pathlib
+import shutil
+import tempfile
 
 # The suite checks values, not speed, and compiles hundreds of small programs: XLA's LLVM optimisation
 # passes are most of each compilation (the suite runs ~25% faster without them; results agree to
@@ -17,27 +21,69 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared"
-MESHES = SHARED / "meshes"
-EXERCISES = SHARED / "reference" / "ddg-exercises"
+DATA = REPO / "tests" / "data"  # meshes and DDG exercise solutions, xz-compressed; provenance in SOURCES.md
+
+# The one test mesh that is made, not stored (SOURCES.md): a mesh of 400 k faces for the tests that run on
+# every mesh, whose round-off bounds grow with the mesh.
+LARGE_MESH, LARGE_MESH_SEED = "nefertiti_loop1.ply", "nefertiti.obj"
+
+
+def data_path(*parts: str) -> pathlib.Path:
+    """Readable path of a file or folder of `tests/data` (`data_path("meshes", "spot.obj")`).
+
+    Files are stored xz-compressed (`spot.obj.xz`); each is unpacked on first use into a temporary folder
+    that this process removes when pytest ends, so readers that need a path (libigl, the command line) get one.
+    A folder comes with every file in it unpacked, and `meshes` with the made mesh `LARGE_MESH` too.
+    """
+    target = _unpacked_root().joinpath(*parts)
+    source = DATA.joinpath(*parts)
+    if source.is_dir():
+        for packed in source.glob("*.xz"):
+            data_path(*parts, packed.stem)
+        if parts == ("meshes",):
+            data_path("meshes", LARGE_MESH)
+    elif not target.exists():
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if parts == ("meshes", LARGE_MESH):
+            _write_large_mesh(data_path("meshes", LARGE_MESH_SEED), target)
+        else:
+            packed = source.with_name(source.name + ".xz")
+            if not packed.exists():
+                raise FileNotFoundError(f"no test data {packed} (tests/data/SOURCES.md lists the files)")
+            with lzma.open(packed) as compressed, open(target, "wb") as unpacked:
+                shutil.copyfileobj(compressed, unpacked)
+    return target
 
 
 def read_ddg_reference(name: str) -> dict:
-    """`{tag: (rows, numbers) array}` of a DDG exercises reference file (`../shared/reference/ddg-exercises`,
-    FORMAT.md: one record a line, a tag then numbers); skips the test when `../shared` is absent."""
+    """`{tag: (rows, numbers) array}` of a DDG exercises reference file (`tests/data/ddg-exercises`,
+    FORMAT.md: one record a line, a tag then numbers)."""
     records: dict[str, list] = {}
-    for line in shared_path("reference", "ddg-exercises", name).read_text().splitlines():
+    for line in data_path("ddg-exercises", name).read_text().splitlines():
         tag, *numbers = line.split()
         records.setdefault(tag, []).append([float(x) for x in numbers])
     return {tag: np.array(rows) for tag, rows in records.items()}
 
 
-def shared_path(*parts: str) -> pathlib.Path:
-    """Path inside `../shared`; skips the calling test with a clear reason when it is absent."""
-    path = SHARED.joinpath(*parts)
-    if not path.exists():
-        pytest.skip(f"shared test data not found: {path} (tests that read ../shared need it beside the repo)")
-    return path
+@functools.cache
+def _unpacked_root() -> pathlib.Path:
+    return pathlib.Path(tempfile.mkdtemp(prefix="ddgjax-test-data-"))
+
+
+def pytest_unconfigure(config):
+    """Remove the folder `data_path` unpacked into (in each xdist worker: each unpacks its own)."""
+    if _unpacked_root.cache_info().currsize:
+        shutil.rmtree(_unpacked_root(), ignore_errors=True)
+
+
+def _write_large_mesh(seed: pathlib.Path, target: pathlib.Path) -> None:
+    """One level of Loop subdivision of `seed` (libigl), written as binary PLY (float32 coordinates) the
+    way `../shared/meshes/armadillo_loop1.ply` was made from `armadillo.obj`."""
+    import igl
+    import trimesh
+
+    vertices, faces = igl.loop(*igl.read_triangle_mesh(str(seed)))
+    target.write_bytes(trimesh.exchange.ply.export_ply(trimesh.Trimesh(vertices, faces, process=False), encoding="binary"))
 
 
 @pytest.fixture

@@ -69,7 +69,7 @@ def batch_checks() -> dict:
 
 def big_mesh_checks(mesh, n_devices) -> dict:
     """The vertex-partitioned apply and CG against `laplacian_apply`, `dirichlet_energy` and SciPy's `spsolve`."""
-    partition = partition_vertices(mesh, n_devices)
+    partition = partition_vertices(mesh, n_devices=n_devices)
     rng = np.random.default_rng(1)
     u = rng.standard_normal(mesh.n_vertices)
     U = rng.standard_normal((mesh.n_vertices, 2))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 from unittest import mock
 
+import jax.numpy as jnp
 import matplotlib.image
 import numpy as np
 import pytest
@@ -13,11 +14,11 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PolyCollection, TriMesh
 from matplotlib.figure import Figure
 
-from ddgjax import DDGInputError
+from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax.mesh import disk, icosphere
 from ddgjax.plot import TOP_VIEW, is_flat, plot_mesh_function
 
-from conftest import run_cli, shared_path
+from conftest import data_path, run_cli
 
 ROWS = ("mesh", "problem", "solver", "time", "relative residual", "energy", "Dirichlet energy", "solution")
 
@@ -106,7 +107,7 @@ def test_harmonic_interpolation_on_the_disk(tmp_path):
     ],
 )
 def test_a_mesh_file(tmp_path, name, argv, problem):
-    path = shared_path("meshes", name)
+    path = data_path("meshes", name)
     output = tmp_path / "poisson.png"
     status, out, err = _run(["poisson", str(path), *argv, "--output", str(output)])
     assert status == 0, err
@@ -121,7 +122,7 @@ def test_a_mesh_file(tmp_path, name, argv, problem):
 def test_help():
     status, out, _ = _run(["poisson", "--help"])
     assert status == 0
-    for option in ("--rho", "--harmonic", "--boundary", "--method", "--mass", "--output", "--view"):
+    for option in ("--rho", "--harmonic", "--boundary", "--solver", "--mass", "--output", "--view"):
         assert option in out
 
 
@@ -148,7 +149,7 @@ def test_bad_input_is_a_clean_error(tmp_path, argv, message):
 
 @pytest.mark.parametrize(
     "argv",
-    [["--harmonic", "--rho", "y2"], ["--rho", "sin"], ["--resolution", "0"], ["--view", "up"], ["--method", "lu"], ["--up", "w"]],
+    [["--harmonic", "--rho", "y2"], ["--rho", "sin"], ["--resolution", "0"], ["--view", "up"], ["--solver", "lu"], ["--up", "w"]],
 )
 def test_bad_options_are_usage_errors(argv):
     status, _, err = _run(["poisson", *argv])
@@ -165,11 +166,20 @@ def test_an_unwritable_output_is_a_clean_error(default_run, tmp_path):
 
 
 def test_a_failed_solve_is_reported():
+    # The outcome of solve_poisson(..., throw=False): its RESULTS message, no table.
+    def failing(problem, args):
+        return Solution(value=jnp.zeros(problem.mesh.n_vertices), result=RESULTS.singular, stats={})
+
+    with mock.patch("ddgjax._cli.poisson._solve", side_effect=failing):
+        status, out, err = _run(["poisson", "--resolution", "2", "--no-plot"])
+    assert status == 1 and out == ""
+    assert "the solve failed: The solution does not solve the system" in err and "try --solver" in err
+    # A failure raised from the XLA runtime (CHOLMOD's factorisation): its first line, no traceback.
     failure = RuntimeError("INTERNAL: CpuCallback error\n  ...\n_EquinoxRuntimeError: The solution does not solve the system.\n")
     with mock.patch("ddgjax._cli.poisson._solve", side_effect=failure):
         status, out, err = _run(["poisson", "--resolution", "2", "--no-plot"])
     assert status == 1 and out == ""
-    assert "the solve failed: The solution does not solve the system." in err and "try --method" in err
+    assert "the solve failed: The solution does not solve the system." in err and "Traceback" not in err
 
 
 # --- plot_mesh_function ----------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from ddgjax.curves import (
     star,
     turning_angles,
 )
-from ddgjax.curves._flow import _explicit_step, _flow_weights, _semi_implicit_step
+from ddgjax.curves._flow_step import _explicit_step, _flow_weights, _semi_implicit_step
 
 
 @pytest.fixture(scope="module")
@@ -447,5 +447,5 @@ def test_bad_arguments(small, kwargs, match):
 def test_bad_combinations(small):
     with pytest.raises(DDGInputError, match="rescale: expected None for an open curve"):
         curve_shortening_flow(Curve(small.points, closed=False), kind="A", tau=1e-3, steps=2, rescale="length")
-    with pytest.raises(DDGInputError, match="progress: expected concrete points"):
+    with pytest.raises(DDGInputError, match="progress: expected concrete inputs"):
         jax.jit(lambda P: curve_shortening_flow(Curve(P), kind="A", tau=1e-3, steps=2, progress=True).points)(small.points)

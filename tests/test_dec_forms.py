@@ -18,12 +18,12 @@ from ddgjax.mesh import grid, icosphere
 from ddgjax.mesh._geometry import face_normals
 from ddgjax.mesh._mesh import Mesh
 
-from conftest import shared_path
+from conftest import data_path
 
 
 @functools.cache
 def load(name: str) -> Mesh:
-    V, F = igl.read_triangle_mesh(str(shared_path("meshes", name)))
+    V, F = igl.read_triangle_mesh(str(data_path("meshes", name)))
     return Mesh.from_arrays(V, F)
 
 

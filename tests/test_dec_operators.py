@@ -32,7 +32,7 @@ from ddgjax.mesh import (
 from ddgjax.mesh._geometry import edge_cotan_weights, face_areas
 from ddgjax.mesh._mesh import Mesh
 
-from conftest import shared_path
+from conftest import data_path
 
 ORIENTED = ["small_disk.obj", "bob_small.ply", "hourglass_ico.obj"]
 ANY = ["small_disk.obj", "bob_small.ply", "hourglass_ico.obj", "moebius.obj", "triple_vierbein.obj"]
@@ -41,7 +41,7 @@ VERTEX_DUALS = ("circumcentric", "barycentric", "voronoi")
 
 @functools.cache
 def load(name: str) -> Mesh:
-    V, F = igl.read_triangle_mesh(str(shared_path("meshes", name)))
+    V, F = igl.read_triangle_mesh(str(data_path("meshes", name)))
     return Mesh.from_arrays(V, F)
 
 
@@ -209,7 +209,7 @@ def test_one_dual_vocabulary_and_default():
 def ddg_reference():
     """The genus-2 mesh of `test-dec-soln.txt`, its records, and its edge order mapped onto ours."""
     records: dict[str, list] = {}
-    with open(shared_path("reference", "ddg-exercises", "test-dec-soln.txt")) as handle:
+    with open(data_path("ddg-exercises", "test-dec-soln.txt")) as handle:
         for line in handle:
             tag, *numbers = line.split()
             records.setdefault(tag, []).append(numbers)

@@ -17,12 +17,12 @@ from ddgjax._errors import DDGInputError
 from ddgjax.mesh._geometry import face_areas, face_normals, face_vertex_positions
 from ddgjax.mesh._mesh import Mesh
 
-from conftest import shared_path
+from conftest import data_path
 
 
 @functools.cache
 def load(name: str) -> Mesh:
-    V, F = igl.read_triangle_mesh(str(shared_path("meshes", name)))
+    V, F = igl.read_triangle_mesh(str(data_path("meshes", name)))
     return Mesh.from_arrays(V, F)
 
 
@@ -85,7 +85,7 @@ def test_gradient_and_divergence_against_libigl_and_gpytoolbox(name):
 def test_divergence_matches_the_ddg_heat_method_reference():
     """`test-heat-soln.txt` stores the negated integrated divergence of its face field X."""
     records: dict[str, list] = {}
-    with open(shared_path("reference", "ddg-exercises", "test-heat-soln.txt")) as handle:
+    with open(data_path("ddg-exercises", "test-heat-soln.txt")) as handle:
         for line in handle:
             tag, *numbers = line.split()
             if tag in ("v", "f", "X", "div"):

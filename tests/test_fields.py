@@ -25,14 +25,13 @@ from ddgjax.fields import (
     interpolate_field,
     principal_curvature_alignment,
     smoothest_field,
-    smoothest_field_solution,
     tangent_bases,
 )
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian
 from ddgjax.mesh import disk, edge_cotan_weights, icosphere
 
-from conftest import shared_path
+from conftest import data_path
 
 
 def _cube(k: int) -> Mesh:
@@ -101,7 +100,7 @@ def _dense(matrix) -> np.ndarray:
 def test_connection_laplacian_equals_potpourri3d_up_to_a_change_of_tangent_bases(name):
     pp3d = pytest.importorskip("potpourri3d")
     mesh = {"disk(5)": lambda: disk(5), "icosphere(2)": lambda: icosphere(2)}.get(
-        name, lambda: load_mesh(shared_path("meshes", name))
+        name, lambda: load_mesh(data_path("meshes", name))
     )()
     A = _dense(connection_laplacian(mesh))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -116,7 +115,7 @@ def test_connection_laplacian_equals_potpourri3d_up_to_a_change_of_tangent_bases
 
 @pytest.mark.parametrize("name", ["sphere.obj", "torus.obj", "double-torus.obj", "hemisphere.obj"])
 def test_holonomy_is_the_transport_around_each_face_and_sums_to_two_pi_chi(name):
-    mesh = load_mesh(shared_path("meshes", name))
+    mesh = load_mesh(data_path("meshes", name))
     rho = np.asarray(edge_transport_angles(mesh))
     holonomy = np.asarray(face_holonomies(mesh))
     around = np.sum(np.asarray(mesh.face_edge_signs) * rho[np.asarray(mesh.face_edges)], axis=1)
@@ -128,7 +127,7 @@ def test_holonomy_is_the_transport_around_each_face_and_sums_to_two_pi_chi(name)
 
 def test_polar_angles_are_the_edges_angles_in_the_tangent_frame_on_a_flat_disk():
     mesh = disk(5)
-    theta = np.asarray(edge_polar_angles(mesh, boundary="unscaled"))
+    theta = np.asarray(edge_polar_angles(mesh, boundary_scaling="unscaled"))
     e1, e2, normal = (np.asarray(x) for x in tangent_bases(mesh))
     V, E = np.asarray(mesh.vertices), np.asarray(mesh.edges)
     for column, (tail, head) in enumerate([(E[:, 0], E[:, 1]), (E[:, 1], E[:, 0])]):
@@ -136,11 +135,11 @@ def test_polar_angles_are_the_edges_angles_in_the_tangent_frame_on_a_flat_disk()
         measured = np.mod(np.arctan2(np.sum(d * e2[tail], 1), np.sum(d * e1[tail], 1)), 2 * np.pi)
         np.testing.assert_allclose(np.angle(np.exp(1j * (measured - theta[:, column]))), 0.0, atol=1e-12)
     np.testing.assert_allclose(normal, np.tile([0.0, 0.0, 1.0], (mesh.n_vertices, 1)), atol=1e-15)
-    assert np.all(np.asarray(face_holonomies(mesh, boundary="unscaled")) == pytest.approx(0.0, abs=1e-14))
+    assert np.all(np.asarray(face_holonomies(mesh, boundary_scaling="unscaled")) == pytest.approx(0.0, abs=1e-14))
 
 
 def test_tangent_frames_are_orthonormal_with_e1_along_the_reference_edge():
-    mesh = load_mesh(shared_path("meshes", "spot.obj"))
+    mesh = load_mesh(data_path("meshes", "spot.obj"))
     e1, e2, normal = (np.asarray(x) for x in tangent_bases(mesh))
     frames = np.stack([e1, e2, normal], axis=1)
     np.testing.assert_allclose(frames @ frames.transpose(0, 2, 1), np.broadcast_to(np.eye(3), frames.shape), atol=1e-12)
@@ -158,7 +157,7 @@ def test_tangent_frames_are_orthonormal_with_e1_along_the_reference_edge():
 
 @pytest.mark.parametrize("n", [1, 3])
 def test_connection_laplacian_is_hermitian_psd_and_its_energy_is_the_transport_mismatch(n):
-    mesh = load_mesh(shared_path("meshes", "sphere_small.ply"))
+    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
     A = _dense(connection_laplacian(mesh, n=n))
     np.testing.assert_array_equal(A, A.conj().T)
     # PSD: every cotan weight of this mesh is positive (Delaunay), so A is a sum of squares.
@@ -174,7 +173,7 @@ def test_connection_laplacian_is_hermitian_psd_and_its_energy_is_the_transport_m
 def test_flat_connection_laplacian_is_the_cotan_laplacian_in_other_bases():
     mesh = disk(5)
     for n in (1, 4):
-        A = _dense(connection_laplacian(mesh, n=n, boundary="unscaled"))
+        A = _dense(connection_laplacian(mesh, n=n, boundary_scaling="unscaled"))
         np.testing.assert_allclose(sla.eigvalsh(A), sla.eigvalsh(_dense(cotan_laplacian(mesh))), atol=1e-12)
 
 
@@ -184,24 +183,24 @@ def test_flat_connection_laplacian_is_the_cotan_laplacian_in_other_bases():
 @pytest.mark.parametrize("n", [1, 4])
 def test_flat_disk_carries_a_constant_field_with_zero_energy_and_no_singularities(n):
     mesh = disk(5)
-    result = smoothest_field_solution(mesh, n=n, boundary="unscaled")
+    result = smoothest_field(mesh, n=n, boundary_scaling="unscaled")
     assert abs(float(result.energy)) < 1e-12
     np.testing.assert_allclose(np.abs(result.field), 1.0, atol=1e-12)
-    first = np.asarray(field_to_vectors(mesh, result.field, n=n, boundary="unscaled"))[0]
+    first = np.asarray(field_to_vectors(mesh, result.field, n=n, boundary_scaling="unscaled"))[0]
     for at in ("vertices", "faces"):
-        arms = np.asarray(field_to_vectors(mesh, result.field, n=n, at=at, boundary="unscaled"))
+        arms = np.asarray(field_to_vectors(mesh, result.field, n=n, at=at, boundary_scaling="unscaled"))
         # The same n directions everywhere (each arm of every vertex or face is an arm of vertex 0's).
         distances = np.linalg.norm(arms[:, :, None, :] - first[None, None, :, :], axis=-1).min(axis=-1)
         assert distances.max() < 1e-8
-    assert np.all(np.asarray(field_singularities(mesh, result.field, n=n, boundary="unscaled")) == 0)
+    assert np.all(np.asarray(field_singularities(mesh, result.field, n=n, boundary_scaling="unscaled")) == 0)
 
 
 @pytest.mark.parametrize("name", ["sphere.obj", "torus.obj", "double-torus.obj", "icosphere(2)"])
 def test_poincare_hopf_indices_are_multiples_of_one_over_n_and_sum_to_chi(name):
-    mesh = icosphere(2) if name == "icosphere(2)" else load_mesh(shared_path("meshes", name))
+    mesh = icosphere(2) if name == "icosphere(2)" else load_mesh(data_path("meshes", name))
     chi = mesh.topology.euler_characteristic
     for n in (1, 2, 4):
-        result = smoothest_field_solution(mesh, n=n)
+        result = smoothest_field(mesh, n=n)
         indices = np.asarray(field_singularities(mesh, result.field, n=n))
         np.testing.assert_array_equal(indices * n, np.round(indices * n))
         assert indices.sum() == pytest.approx(chi, abs=1e-12), (n, indices[indices != 0])
@@ -227,13 +226,13 @@ def test_cube_cross_field_is_parallel_off_the_corners_with_a_quarter_singularity
         b = np.cross(np.sign(V[chosen, axis])[:, None] * np.eye(3)[axis], a)
         return 4 * np.arctan2(np.sum(vectors * b, 1), np.sum(vectors * a, 1))
 
-    smoothest = smoothest_field_solution(mesh, n=4)
+    smoothest = smoothest_field(mesh, n=4)
     # The cube minus its corners is flat with holonomy pi/2 around each corner (trivial for n = 4): the
     # smoothest cross field is parallel there, the same rotation of the sides' axes everywhere (the
     # rotation is the eigenvector's free phase).
     turned = np.exp(1j * side_angles(smoothest.field))
     assert np.abs(turned - turned[0]).max() < 1e-9
-    aligned = smoothest_field_solution(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4))
+    aligned = smoothest_field(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4))
     np.testing.assert_allclose(np.angle(np.exp(1j * side_angles(aligned.field))), 0.0, atol=1e-9)  # along the edges
     for result in (smoothest, aligned):
         indices = np.asarray(field_singularities(mesh, result.field, n=4))
@@ -245,7 +244,7 @@ def test_cube_cross_field_is_parallel_off_the_corners_with_a_quarter_singularity
 
 def test_phase_is_deterministic_and_the_field_is_an_eigenvector():
     mesh = _ellipsoid()
-    result = smoothest_field_solution(mesh, n=2)
+    result = smoothest_field(mesh, n=2)
     A, M = _dense(connection_laplacian(mesh, n=2)), np.asarray(connection_mass_matrix(mesh).values)
     u = np.asarray(result.solution)
     np.testing.assert_allclose(np.vdot(u, M * u).real, 1.0, atol=1e-10)
@@ -264,7 +263,7 @@ def test_principal_curvature_alignment_points_around_a_cylinder():
     # Max curvature: around, not along the axis; up to 0.3 degrees, the gap between the polar angles (unfolded,
     # intrinsic) and the edges' directions projected to the tangent plane (chords of the circle).
     np.testing.assert_allclose(line[:, 2], 0.0, atol=5e-3)
-    cross = smoothest_field_solution(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4), alignment_weight=10.0)
+    cross = smoothest_field(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4), alignment_weight=10.0)
     vectors = np.asarray(field_to_vectors(mesh, cross.field, n=4))[interior]
     # Each cross has one arm along the axis (up to the discretisation of the polar angles).
     assert np.abs(np.abs(vectors[..., 2]).max(axis=1) - 1.0).max() < 1e-3
@@ -275,11 +274,11 @@ def test_alignment_weight_trades_smoothness_for_alignment():
     q = principal_curvature_alignment(mesh, n=4)
     energies, distances = [], []
     for weight in (0.01, 1.0, 100.0):
-        result = smoothest_field_solution(mesh, n=4, alignment=q, alignment_weight=weight)
+        result = smoothest_field(mesh, n=4, alignment=q, alignment_weight=weight)
         energies.append(float(result.energy))
         distances.append(float(jnp.mean(jnp.abs(result.field - q / jnp.abs(q)))))
     assert energies[0] < energies[1] < energies[2] and distances[0] > distances[1] > distances[2]
-    assert float(smoothest_field_solution(mesh, n=4).energy) < energies[0]  # the eigenvector is the smoothest
+    assert float(smoothest_field(mesh, n=4).energy) < energies[0]  # the eigenvector is the smoothest
 
 
 # --- interpolation --------------------------------------------------------------------------------
@@ -287,16 +286,16 @@ def test_alignment_weight_trades_smoothness_for_alignment():
 
 def test_interpolation_from_one_vertex_of_a_flat_disk_is_the_constant_field():
     mesh = disk(5)
-    u = interpolate_field(mesh, np.array([0]), jnp.array([0.6 - 0.8j]), boundary="unscaled")
+    u = interpolate_field(mesh, fixed_vertices=np.array([0]), fixed_values=jnp.array([0.6 - 0.8j]), boundary_scaling="unscaled")
     assert complex(u[0]) == 0.6 - 0.8j
-    vectors = np.asarray(field_to_vectors(mesh, u, n=1, boundary="unscaled"))[:, 0]
+    vectors = np.asarray(field_to_vectors(mesh, u, n=1, boundary_scaling="unscaled"))[:, 0]
     np.testing.assert_allclose(vectors, np.broadcast_to(vectors[0], vectors.shape), atol=1e-10)
 
 
 def test_interpolation_solves_the_dirichlet_problem_of_the_connection_laplacian():
-    mesh = load_mesh(shared_path("meshes", "sphere_small.ply"))
+    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
     fixed, values = np.array([0, 7, 20]), jnp.array([1.0 + 0j, 1j, -0.5 + 0.5j])
-    u = np.asarray(interpolate_field(mesh, fixed, values, n=2))
+    u = np.asarray(interpolate_field(mesh, fixed_vertices=fixed, fixed_values=values, n=2))
     A = _dense(connection_laplacian(mesh, n=2))
     free = np.setdiff1d(np.arange(mesh.n_vertices), fixed)
     expected = np.linalg.solve(A[np.ix_(free, free)], -A[np.ix_(free, fixed)] @ np.asarray(values))
@@ -314,7 +313,9 @@ def test_interpolated_transport_agrees_with_potpourri3d_vector_heat_near_the_sou
     theirs = solver.transport_tangent_vector(source, [1.0, 0.0])
     their_vectors = theirs[:, :1] * basis_x + theirs[:, 1:] * basis_y
     e1, e2, _ = (np.asarray(x) for x in tangent_bases(mesh))
-    ours = interpolate_field(mesh, np.array([source]), jnp.array([direction @ e1[source] + 1j * direction @ e2[source]]))
+    ours = interpolate_field(
+        mesh, fixed_vertices=np.array([source]), fixed_values=jnp.array([direction @ e1[source] + 1j * direction @ e2[source]])
+    )
     our_vectors = np.asarray(field_to_vectors(mesh, ours, n=1))[:, 0]
     near = np.linalg.norm(V - V[source], axis=1) < 0.5
     cosines = np.sum(our_vectors[near] * their_vectors[near], 1) / np.linalg.norm(their_vectors[near], axis=1)
@@ -337,14 +338,14 @@ def test_energy_and_phase_fixed_field_gradients_match_finite_differences():
     weights = jnp.linspace(0.0, 1.0, mesh.n_vertices)
 
     def energy(V):
-        return smoothest_field_solution(mesh.with_vertices(V), n=1).energy
+        return smoothest_field(mesh.with_vertices(V), n=1).energy
 
     def field_loss(V):  # depends on the phase too: the phase rule makes it a function of V
-        return jnp.sum(weights * smoothest_field_solution(mesh.with_vertices(V), n=1).field.real)
+        return jnp.sum(weights * smoothest_field(mesh.with_vertices(V), n=1).field.real)
 
     def aligned_loss(V):
         moved = mesh.with_vertices(V)
-        result = smoothest_field_solution(moved, n=4, alignment=principal_curvature_alignment(moved, n=4))
+        result = smoothest_field(moved, n=4, alignment=principal_curvature_alignment(moved, n=4))
         return result.energy + jnp.sum(weights * jnp.abs(result.solution) ** 2)
 
     for loss in (energy, field_loss, aligned_loss):
@@ -357,7 +358,7 @@ def test_energy_and_phase_fixed_field_gradients_match_finite_differences():
 
 
 def test_connection_laplacian_values_pass_check_grads():
-    mesh = load_mesh(shared_path("meshes", "sphere_small.ply"))
+    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
     rng = np.random.default_rng(2)
     u = jnp.asarray(rng.standard_normal(mesh.n_vertices) + 1j * rng.standard_normal(mesh.n_vertices))
 
@@ -369,15 +370,16 @@ def test_connection_laplacian_values_pass_check_grads():
 
 
 def test_jit_and_vmap_equal_eager():
-    mesh = load_mesh(shared_path("meshes", "sphere_small.ply"))
+    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
     V = mesh.vertices
-    eager = smoothest_field_solution(mesh, n=2)
-    jitted = jax.jit(lambda V: smoothest_field_solution(mesh.with_vertices(V), n=2))(V)
+    eager = smoothest_field(mesh, n=2)
+    jitted = jax.jit(lambda V: smoothest_field(mesh.with_vertices(V), n=2))(V)
     np.testing.assert_allclose(jitted.field, eager.field, atol=1e-10)
-    # smoothest_field is the solution's unit field: one complex number per vertex.
-    field = smoothest_field(mesh, n=2)
+    # The field is the solution's unit field: one complex number per vertex; the result unpacks.
+    field, solution, energy = eager
     assert field.shape == (mesh.n_vertices,) and jnp.iscomplexobj(field)
-    np.testing.assert_array_equal(field, eager.field)
+    np.testing.assert_allclose(field, solution / jnp.abs(solution), atol=1e-15)
+    assert energy.shape == ()
     np.testing.assert_array_equal(
         jax.jit(lambda V, u: field_singularities(mesh.with_vertices(V), u, n=2))(V, eager.field),
         field_singularities(mesh, eager.field, n=2),
@@ -386,7 +388,7 @@ def test_jit_and_vmap_equal_eager():
     values = jax.vmap(lambda V: connection_laplacian(mesh.with_vertices(V), n=2).values)(batch)
     for k in range(2):
         np.testing.assert_allclose(values[k], connection_laplacian(mesh.with_vertices(batch[k]), n=2).values, atol=1e-14)
-    energies = jax.vmap(lambda V: smoothest_field_solution(mesh.with_vertices(V), n=2).energy)(batch)
+    energies = jax.vmap(lambda V: smoothest_field(mesh.with_vertices(V), n=2).energy)(batch)
     # Scaling by 1.5 divides the (weak / mass-normalised) eigenvalue by 1.5^2.
     np.testing.assert_allclose(energies, [eager.energy, eager.energy / 2.25], rtol=1e-9)
 
@@ -399,28 +401,34 @@ def test_bad_input_is_refused_with_clear_errors(without_type_checker):
     for bad in (0, -1, 1.5, True, "4"):
         with pytest.raises(DDGInputError, match="n: expected the number of directions"):
             connection_laplacian(mesh, n=bad)
-    with pytest.raises(DDGInputError, match="boundary"):
-        smoothest_field_solution(mesh, boundary="free")
-    with pytest.raises(DDGInputError, match="mass"):
-        smoothest_field_solution(mesh, mass="galerkin")
+    with pytest.raises(DDGInputError, match="boundary_scaling: expected one of"):
+        smoothest_field(mesh, boundary_scaling="free")
+    with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric', got 'galerkin'"):
+        smoothest_field(mesh, mass="galerkin")
+    with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric'"):
+        connection_mass_matrix(mesh, mass="galerkin")
+    with pytest.raises(DDGInputError, match="solver: expected one of"):
+        smoothest_field(mesh, solver="lu")
+    with pytest.raises(DDGInputError, match="method: expected one of"):
+        smoothest_field(mesh, method="lobpcg")
     with pytest.raises(DDGInputError, match=r"field: expected shape \(42,\)"):
         field_singularities(mesh, jnp.ones(41, complex), n=1)
     with pytest.raises(DDGInputError, match=r"alignment: expected shape \(42,\)"):
-        smoothest_field_solution(mesh, n=4, alignment=jnp.ones((42, 2)))
+        smoothest_field(mesh, n=4, alignment=jnp.ones((42, 2)))
     with pytest.raises(DDGInputError, match="alignment_weight"):
-        smoothest_field_solution(mesh, n=4, alignment=jnp.ones(42, complex), alignment_weight=-1.0)
+        smoothest_field(mesh, n=4, alignment=jnp.ones(42, complex), alignment_weight=-1.0)
     with pytest.raises(DDGInputError, match="at"):
         field_to_vectors(mesh, jnp.ones(42, complex), n=1, at="edges")
     with pytest.raises(DDGInputError, match="even n"):
         principal_curvature_alignment(mesh, n=3)
-    with pytest.raises(DDGInputError, match="distinct"):
-        interpolate_field(mesh, np.array([1, 1]), jnp.ones(2, complex))
-    with pytest.raises(DDGInputError, match="must lie in"):
-        interpolate_field(mesh, np.array([42]), jnp.ones(1, complex))
-    with pytest.raises(DDGInputError, match=r"values: expected shape \(2,\)"):
-        interpolate_field(mesh, np.array([1, 2]), jnp.ones(3, complex))
+    with pytest.raises(DDGInputError, match="fixed_vertices: expected distinct"):
+        interpolate_field(mesh, fixed_vertices=np.array([1, 1]), fixed_values=jnp.ones(2, complex))
+    with pytest.raises(DDGInputError, match="fixed_vertices: indices must lie in"):
+        interpolate_field(mesh, fixed_vertices=np.array([42]), fixed_values=jnp.ones(1, complex))
+    with pytest.raises(DDGInputError, match=r"fixed_values: expected shape \(2,\)"):
+        interpolate_field(mesh, fixed_vertices=np.array([1, 2]), fixed_values=jnp.ones(3, complex))
     with pytest.raises(DDGInputError, match="Mesh.from_arrays"):
-        smoothest_field_solution((mesh.vertices, mesh.faces))
+        smoothest_field((mesh.vertices, mesh.faces))
 
 
 def test_meshes_without_a_consistent_orientation_are_refused():
@@ -430,7 +438,38 @@ def test_meshes_without_a_consistent_orientation_are_refused():
         connection_laplacian(nonmanifold)
     flipped = Mesh.from_arrays(V[:4], np.array([[0, 1, 2], [0, 1, 3]]))
     with pytest.raises(MeshDataError, match="consistently oriented"):
-        smoothest_field_solution(flipped)
+        smoothest_field(flipped)
     unreferenced = Mesh.from_arrays(V, np.array([[0, 1, 2], [1, 0, 3]]))
     with pytest.raises(MeshDataError, match="unreferenced"):
-        smoothest_field_solution(unreferenced)
+        smoothest_field(unreferenced)
+
+
+def test_outcomes_without_throw(monkeypatch):
+    """`throw=False` returns a `Solution` holding the same answer and the eigensolver's or the solve's outcome;
+    a subspace eigensolve forced out of steps reports `eigensolver_failed` (and raises with `throw=True`)."""
+    import ddgjax.spectral._generalized as generalized
+    from ddgjax import RESULTS, Solution
+
+    mesh = icosphere(2)
+    solution = smoothest_field(mesh, n=2, throw=False)
+    assert isinstance(solution, Solution) and solution.result == RESULTS.successful
+    np.testing.assert_array_equal(solution.value.field, smoothest_field(mesh, n=2).field)
+    aligned = smoothest_field(mesh, n=4, alignment=principal_curvature_alignment(mesh, n=4), solver="cg", throw=False)
+    assert aligned.result == RESULTS.successful and int(aligned.stats["num_steps"]) > 0
+    interpolated = interpolate_field(mesh, fixed_vertices=np.array([0]), fixed_values=jnp.array([1.0 + 0j]), throw=False)
+    assert interpolated.result == RESULTS.successful and float(interpolated.stats["residual"]) < 1e-10
+    monkeypatch.setattr(generalized, "_SUBSPACE_MAX_STEPS", 1)
+    assert smoothest_field(mesh, n=2, method="subspace", throw=False).result == RESULTS.eigensolver_failed
+    with pytest.raises(Exception, match="The eigensolver did not converge"):
+        smoothest_field(mesh, n=2, method="subspace")
+
+
+def test_tangent_bases_is_a_named_triple():
+    from ddgjax.fields import TangentBases
+
+    mesh = icosphere(1)
+    bases = tangent_bases(mesh)
+    assert isinstance(bases, TangentBases)
+    e1, e2, normal = bases
+    np.testing.assert_array_equal(bases.e2, e2)
+    np.testing.assert_allclose(np.cross(np.asarray(normal), np.asarray(e1)), e2, atol=1e-15)

@@ -15,7 +15,7 @@ from ddgjax.geodesics import heat_distance, heat_distance_solver
 from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, disk, edge_lengths, icosphere
 
-from conftest import read_ddg_reference, shared_path
+from conftest import data_path, read_ddg_reference
 
 
 def test_every_step_matches_the_ddg_reference():
@@ -33,7 +33,7 @@ def test_every_step_matches_the_ddg_reference():
 
 @pytest.mark.parametrize("name", ["spot.obj", "camelhead.off"])
 def test_matches_potpourri3d(name):
-    mesh = load_mesh(shared_path("meshes", name))
+    mesh = load_mesh(data_path("meshes", name))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     # geometry-central: lumped barycentric mass, Neumann heat flow; `use_robust=False` keeps the mesh's
     # own cotan Laplacian (its default is the intrinsic Delaunay one).
@@ -114,7 +114,9 @@ def test_bad_input(without_type_checker):
         (lambda: heat_distance(mesh, (np.array([80]), np.ones((1, 3)) / 3)), r"sources: face indices must lie in \[0, 80\)"),
         (lambda: heat_distance(mesh, (np.array([0]), np.ones((1, 2)))), "sources: expected barycentric coordinates"),
         (lambda: heat_distance(mesh, [0], t_coef=0.0), "t_coef: expected a positive number"),
-        (lambda: heat_distance(mesh, [0], boundary="dirichlet"), "boundary: expected one of"),
+        (lambda: heat_distance(mesh, [0], boundary="robin"), "boundary: expected one of"),
+        (lambda: heat_distance(mesh, [0], solver="lu"), "solver: expected one of"),
+        (lambda: heat_distance(mesh, [0], mass="cubic"), "mass: expected one of"),
     ]
     for call, message in cases:
         with pytest.raises(DDGInputError, match=message):
@@ -122,7 +124,7 @@ def test_bad_input(without_type_checker):
 
 
 def test_robust_laplacian_brings_camelhead_distances_near_potpourri3d_robust_mode():
-    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    mesh = load_mesh(data_path("meshes", "camelhead.off"))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     expected = pp3d.MeshHeatMethodDistanceSolver(V, F).compute_distance(7)  # potpourri3d's default: robust
     options = {"mass": "barycentric", "boundary": "neumann"}
@@ -133,3 +135,34 @@ def test_robust_laplacian_brings_camelhead_distances_near_potpourri3d_robust_mod
     # Measured: 7.7% with the plain cotan Laplacian (camelhead's obtuse triangles), 1.4% with the intrinsic
     # Delaunay one; potpourri3d's robust mode also mollifies the lengths and uses a tufted cover, hence not 0.
     assert errors[True] < 0.02 and errors[True] < errors[False] / 3, errors
+
+
+def test_outcomes_without_throw():
+    """A successful query reports `RESULTS.successful` with the solves' residual; a conjugate gradient cut
+    short in the heat flow reports `max_steps_reached` (the first failing solve), and raises with `throw=True`."""
+    import equinox as eqx
+
+    from ddgjax import RESULTS, Solution
+    from ddgjax.solve import factorize
+
+    mesh = disk(6)
+    solution = heat_distance(mesh, [0], throw=False)
+    assert isinstance(solution, Solution) and solution.result == RESULTS.successful
+    np.testing.assert_array_equal(solution.value, heat_distance(mesh, [0]))
+    assert float(solution.stats["residual"]) < 1e-10
+    solver = heat_distance_solver(mesh, solver="cg")
+    assert solver.distance([0], throw=False).result == RESULTS.successful
+    cut = eqx.tree_at(lambda s: s.heat, solver, factorize(solver.heat.system, method="cg", max_steps=2))
+    failed = cut.distance([0], throw=False)
+    assert failed.result == RESULTS.max_steps_reached and int(failed.stats["num_steps"]) >= 2
+    assert cut.steps([0], throw=False).result == RESULTS.max_steps_reached
+    with pytest.raises(Exception, match="did not reach its tolerance within `max_steps`"):
+        cut.distance([0])
+
+
+def test_dirichlet_heat_flow_on_a_disk():
+    """`boundary="dirichlet"` holds the heat at 0 on the rim; "average" is the mean of its heat and the Neumann one."""
+    mesh = disk(8)
+    steps = {b: heat_distance_solver(mesh, boundary=b).steps([0]) for b in ("average", "neumann", "dirichlet")}
+    assert np.all(np.asarray(steps["dirichlet"].heat)[mesh.topology.boundary_vertices] == 0)
+    np.testing.assert_allclose(steps["average"].heat, (steps["neumann"].heat + steps["dirichlet"].heat) / 2, atol=1e-14)

@@ -29,7 +29,7 @@ from ddgjax.mesh import Mesh, icosphere
 from ddgjax.pde import harmonic_interpolation, solve_poisson
 from ddgjax.sparse import dirichlet_blocks
 
-from conftest import shared_path
+from conftest import data_path
 
 REAL_MESHES = ["beetle.off", "camelhead.off", "nefertiti.obj"]
 IGL_MASS = {"voronoi": igl.MASSMATRIX_TYPE_VORONOI, "barycentric": igl.MASSMATRIX_TYPE_BARYCENTRIC}
@@ -52,7 +52,7 @@ def _n_negative_weights(L_psd: sp.spmatrix) -> int:
 @functools.cache
 def _prepared(name: str):
     """`(mesh, triangulation, L)` of a shared mesh, built once for all the tests that use it."""
-    mesh = load_mesh(shared_path("meshes", name))
+    mesh = load_mesh(data_path("meshes", name))
     triangulation = intrinsic_delaunay(mesh)
     return mesh, triangulation, intrinsic_delaunay_laplacian(mesh, triangulation=triangulation)
 
@@ -279,7 +279,7 @@ def test_jit_and_vmap_equal_eager(jittered):
 
 
 def test_higher_genus_matches_libigl():
-    mesh = load_mesh(shared_path("meshes", "double-torus.obj"))  # genus 2
+    mesh = load_mesh(data_path("meshes", "double-torus.obj"))  # genus 2
     V, F = _vertices_and_faces(mesh)
     triangulation = intrinsic_delaunay(mesh)
     assert triangulation.n_flips == 1076
@@ -361,9 +361,9 @@ def test_bad_input(without_type_checker):
     with pytest.raises(DDGInputError, match="needs concrete vertex positions.*pass triangulation="):
         jax.jit(lambda V: intrinsic_delaunay_laplacian(mesh.with_vertices(V)).values)(mesh.vertices)
     with pytest.raises(MeshDataError, match="intrinsic_delaunay needs an edge-manifold mesh"):
-        intrinsic_delaunay(load_mesh(shared_path("meshes", "triple_vierbein.obj")))
+        intrinsic_delaunay(load_mesh(data_path("meshes", "triple_vierbein.obj")))
     with pytest.raises(MeshDataError, match="intrinsic_delaunay needs consistently oriented faces"):
-        intrinsic_delaunay(load_mesh(shared_path("meshes", "moebius.obj")))
+        intrinsic_delaunay(load_mesh(data_path("meshes", "moebius.obj")))
     plan = triangulation_plan(np.asarray(mesh.faces), mesh.n_vertices)
     with pytest.raises(DDGInputError, match=r"lengths_sq: expected shape \(80, 3\)"):
         cotan_laplacian_from_lengths_sq(np.ones((80, 2)), plan)

@@ -10,9 +10,9 @@ from ddgjax._errors import DDGInputError
 from ddgjax.io import load_mesh, save_mesh
 from ddgjax.mesh import Mesh
 
-from conftest import shared_path
+from conftest import data_path
 
-# From ../shared/meshes/SOURCES.md: V, F, E, chi, genus (None: not defined), boundary loops
+# From tests/data/SOURCES.md: V, F, E, chi, genus (None: not defined), boundary loops
 # (None: not listed, non-manifold). Small and special meshes plus the large ones with UV seams,
 # unreferenced vertices and slivers.
 SOURCES_TABLE = {
@@ -34,8 +34,8 @@ SOURCES_TABLE = {
 
 
 @pytest.mark.parametrize("name", sorted(SOURCES_TABLE))
-def test_shared_meshes_match_sources_table(name):
-    mesh = load_mesh(shared_path("meshes", name))
+def test_meshes_match_sources_table(name):
+    mesh = load_mesh(data_path("meshes", name))
     topology = mesh.topology
     n_vertices, n_faces, n_edges, chi, genus, loops = SOURCES_TABLE[name]
     assert (mesh.n_vertices, mesh.n_faces, mesh.n_edges) == (n_vertices, n_faces, n_edges)
@@ -57,7 +57,7 @@ def test_shared_meshes_match_sources_table(name):
 
 @pytest.mark.parametrize("name", ["spot.obj", "stanford-bunny.obj", "camelhead.off", "bob_small.ply", "moebius.obj"])
 def test_vertex_order_and_faces_match_libigl_reader(name):
-    path = shared_path("meshes", name)
+    path = data_path("meshes", name)
     mesh = load_mesh(path)
     V, F = igl.read_triangle_mesh(str(path))
     np.testing.assert_array_equal(np.asarray(mesh.vertices), V)
@@ -91,7 +91,7 @@ def test_round_trip_is_exact(tmp_path, suffix):
 
 
 def test_stl_round_trip_merges_corners_in_float32(tmp_path):
-    mesh = load_mesh(shared_path("meshes", "bob_small.ply"))
+    mesh = load_mesh(data_path("meshes", "bob_small.ply"))
     path = tmp_path / "bob.stl"
     save_mesh(path, mesh)
     loaded = load_mesh(path)
@@ -106,9 +106,9 @@ def test_stl_round_trip_merges_corners_in_float32(tmp_path):
 def test_dtype_option(tmp_path):
     import jax.numpy as jnp
 
-    mesh = load_mesh(shared_path("meshes", "tet.obj"), dtype=jnp.float32)
+    mesh = load_mesh(data_path("meshes", "tet.obj"), dtype=jnp.float32)
     assert mesh.vertices.dtype == jnp.float32
-    assert load_mesh(shared_path("meshes", "tet.obj")).vertices.dtype == jnp.float64
+    assert load_mesh(data_path("meshes", "tet.obj")).vertices.dtype == jnp.float64
 
 
 def test_clear_errors(tmp_path):
@@ -117,7 +117,7 @@ def test_clear_errors(tmp_path):
     with pytest.raises(DDGInputError, match=r"unknown mesh format '\.xyz'"):
         load_mesh(tmp_path / "points.xyz")
     with pytest.raises(DDGInputError, match="unknown mesh format"):
-        save_mesh(tmp_path / "mesh.vtk", load_mesh(shared_path("meshes", "tet.obj")))
+        save_mesh(tmp_path / "mesh.vtk", load_mesh(data_path("meshes", "tet.obj")))
     points = tmp_path / "points.obj"
     points.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
     with pytest.raises(DDGInputError, match="contains no faces"):

@@ -28,7 +28,7 @@ from ddgjax.laplacian import (
 from ddgjax.laplacian._plan import vertex_plan
 from ddgjax.mesh import Mesh, grid, icosphere
 
-from conftest import shared_path
+from conftest import data_path
 from mesh_union import disjoint_union
 
 # jax.test_util.check_grads compares with central finite differences of step 1e-4: their truncation
@@ -54,7 +54,7 @@ MASS_TYPES = {"voronoi": igl.MASSMATRIX_TYPE_VORONOI, "barycentric": igl.MASSMAT
 
 
 def _load(name):
-    V, F = igl.read_triangle_mesh(str(shared_path("meshes", name)))  # keeps vertex order and unreferenced vertices
+    V, F = igl.read_triangle_mesh(str(data_path("meshes", name)))  # keeps vertex order and unreferenced vertices
     return V, F, Mesh.from_arrays(V, F)
 
 
@@ -107,13 +107,13 @@ def test_matches_libigl_and_gpytoolbox(real):
     assert vertex_plan(mesh).pattern.nnz > vertex_plan(mesh).pattern.width * mesh.n_vertices  # the union's tail too
 
 
-def test_fem_equals_dec_on_every_shared_mesh():
-    names = sorted(p.name for p in shared_path("meshes").iterdir() if p.suffix in (".obj", ".off", ".ply"))
-    assert len(names) >= 20
+def test_fem_equals_dec_on_every_test_mesh():
+    names = sorted(p.name for p in data_path("meshes").iterdir() if p.suffix in (".obj", ".off", ".ply"))
+    assert len(names) >= 20 and "nefertiti_loop1.ply" in names  # tests/data/SOURCES.md
     # One disjoint union of all meshes (its Laplacian is block diagonal): one compilation, not 23.
     vertices, faces, owner, offset = [], [], [], 0
     for k, name in enumerate(names):
-        V, F = igl.read_triangle_mesh(str(shared_path("meshes", name)))
+        V, F = igl.read_triangle_mesh(str(data_path("meshes", name)))
         vertices.append(V)
         faces.append(F + offset)
         owner.append(np.full(V.shape[0], k))

@@ -14,7 +14,7 @@ from ddgjax.cli import main
 from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, check_mesh, face_areas, icosphere
 
-from conftest import shared_path
+from conftest import data_path
 
 TET_V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
 TET_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
@@ -105,10 +105,10 @@ def test_with_vertices_passes_traced_vertices_through():
 
 
 def test_operators_needing_a_manifold_refuse_clearly():
-    topology = load_mesh(shared_path("meshes", "triple_vierbein.obj")).topology
+    topology = load_mesh(data_path("meshes", "triple_vierbein.obj")).topology
     with pytest.raises(MeshDataError, match=r"my operator needs an edge-manifold mesh; edges \["):
         topology.require_manifold("my operator")
-    moebius = load_mesh(shared_path("meshes", "moebius.obj")).topology
+    moebius = load_mesh(data_path("meshes", "moebius.obj")).topology
     with pytest.raises(MeshDataError, match="consistently oriented"):
         moebius.require_oriented("d1")
 
@@ -121,18 +121,18 @@ def test_check_mesh_on_clean_and_problem_meshes():
     assert clean.is_clean and clean.is_closed and clean.genus == 0 and clean.euler_characteristic == 2
     assert "Euler characteristic 2  genus 0" in str(clean)
 
-    hourglass = check_mesh(load_mesh(shared_path("meshes", "hourglass_ico.obj")))
+    hourglass = check_mesh(load_mesh(data_path("meshes", "hourglass_ico.obj")))
     assert hourglass.nonmanifold_vertices.tolist() == [22] and not hourglass.is_manifold and hourglass.genus is None
     assert "non-manifold vertices (2+ fans): [22] (1 in all)" in str(hourglass)
     assert "non-manifold edges (3+ faces): none" in str(hourglass)
 
-    vierbein = check_mesh(load_mesh(shared_path("meshes", "triple_vierbein.obj")))
+    vierbein = check_mesh(load_mesh(data_path("meshes", "triple_vierbein.obj")))
     assert vierbein.nonmanifold_edges.size == 20 and not vierbein.is_oriented
 
-    moebius = check_mesh(load_mesh(shared_path("meshes", "moebius.obj")))
+    moebius = check_mesh(load_mesh(data_path("meshes", "moebius.obj")))
     assert moebius.is_manifold and not moebius.is_oriented and moebius.boundary_loop_lengths == (112,)
 
-    bunny = check_mesh(load_mesh(shared_path("meshes", "stanford-bunny.obj")))
+    bunny = check_mesh(load_mesh(data_path("meshes", "stanford-bunny.obj")))
     assert bunny.unreferenced_vertices.size == 1113 and bunny.n_boundary_loops == 5
     assert bunny.duplicate_faces.size == 0
     assert "unreferenced vertices: [8, 16, 18, 72, 86, 99, 104, 117, 157, 177], ... (1113 in all)" in str(bunny)
@@ -156,12 +156,12 @@ def test_check_mesh_names_duplicate_faces():
     pillow = check_mesh(Mesh.from_arrays(TET_V[:3], np.array([[0, 1, 2], [0, 2, 1]])))
     assert pillow.duplicate_faces.tolist() == [1] and not pillow.is_clean
 
-    # Real meshes: none of ../shared/meshes has duplicate faces (checked for all 25); triple_vierbein's
+    # Real meshes: none of tests/data/meshes has duplicate faces (checked for all 20); triple_vierbein's
     # 20 non-manifold edges come from distinct faces. bob with one face appended reversed names it.
-    vierbein = check_mesh(load_mesh(shared_path("meshes", "triple_vierbein.obj")))
+    vierbein = check_mesh(load_mesh(data_path("meshes", "triple_vierbein.obj")))
     assert vierbein.nonmanifold_edges.size == 20 and vierbein.duplicate_faces.size == 0
     assert "duplicate faces (same three vertices as an earlier face): none" in str(vierbein)
-    bob = load_mesh(shared_path("meshes", "bob_small.ply"))
+    bob = load_mesh(data_path("meshes", "bob_small.ply"))
     faces = np.asarray(bob.faces)
     doubled = check_mesh(Mesh.from_arrays(np.asarray(bob.vertices), np.vstack([faces, faces[7, ::-1]])))
     assert doubled.duplicate_faces.tolist() == [faces.shape[0]] and check_mesh(bob).is_clean
@@ -197,7 +197,7 @@ def test_info_default_shape(capsys):
 
 
 def test_info_on_a_file(capsys):
-    path = shared_path("meshes", "hourglass_ico.obj")
+    path = data_path("meshes", "hourglass_ico.obj")
     assert main(["info", str(path)]) == 0
     out = capsys.readouterr().out
     assert "non-manifold vertices (2+ fans): [22] (1 in all)" in out
@@ -209,8 +209,8 @@ def test_info_on_a_file(capsys):
 )
 def test_info_says_signed_curvatures_are_undefined_without_an_orientation(capsys, name, problem):
     """No statistics of H, k1, k2 where their sign means nothing; K and Gauss-Bonnet still reported."""
-    topology = load_mesh(shared_path("meshes", name)).topology
-    assert main(["info", str(shared_path("meshes", name))]) == 0
+    topology = load_mesh(data_path("meshes", name)).topology
+    assert main(["info", str(data_path("meshes", name))]) == 0
     out = capsys.readouterr().out
     count = (topology.inconsistent_edges if problem.startswith("inconsistently") else topology.nonmanifold_edges).size
     assert count > 0
@@ -223,7 +223,7 @@ def test_info_says_signed_curvatures_are_undefined_without_an_orientation(capsys
 
 
 def test_info_reports_signed_curvatures_on_oriented_meshes(capsys):
-    assert main(["info", str(shared_path("meshes", "tet.obj"))]) == 0
+    assert main(["info", str(data_path("meshes", "tet.obj"))]) == 0
     out = capsys.readouterr().out
     assert "mean curvature H (dihedral angles)" in out and "principal curvature k2" in out
     assert "undefined" not in out

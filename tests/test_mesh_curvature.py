@@ -37,7 +37,7 @@ from ddgjax.mesh import (
     vertex_principal_curvatures,
 )
 
-from conftest import shared_path
+from conftest import data_path
 from mesh_union import disjoint_union
 
 
@@ -102,7 +102,7 @@ REAL_NAMES = ["camelhead.off", "torus.obj"]
 @pytest.fixture(scope="module")
 def real() -> dict:
     """camelhead (boundary, slivers) and torus.obj (R=1, r=1/4 about y), evaluated as one union."""
-    meshes = [load_mesh(shared_path("meshes", name)) for name in REAL_NAMES]
+    meshes = [load_mesh(data_path("meshes", name)) for name in REAL_NAMES]
     union = disjoint_union([arrays(mesh) for mesh in meshes])
     values = jax.tree_util.tree_map(np.asarray, curvatures(union.mesh))
     return {
@@ -140,16 +140,16 @@ BUMPY, N_CLOSED = bumpy_union()
 # ---------------------------------------------------------------- Gauss-Bonnet and references
 
 
-def test_gauss_bonnet_on_every_shared_mesh():
-    """sum K_i = 2 pi chi on all meshes in ../shared/meshes, non-manifold and non-orientable ones included.
+def test_gauss_bonnet_on_every_test_mesh():
+    """sum K_i = 2 pi chi on all meshes in tests/data/meshes, non-manifold and non-orientable ones included.
 
     The meshes are joined into one disjoint union so the defects come from one compiled call; each
-    mesh's sum and chi are read off its vertex / edge / face ranges. armadillo_loop1.ply (346 k faces)
-    adds about 1.5 s.
+    mesh's sum and chi are read off its vertex / edge / face ranges. nefertiti_loop1.ply (400 k faces,
+    made by tests/conftest.py) adds about 1.5 s.
     """
-    folder = shared_path("meshes")
+    folder = data_path("meshes")
     paths = sorted(p for p in folder.iterdir() if p.suffix in (".obj", ".off", ".ply"))
-    assert len(paths) >= 24 and "armadillo_loop1.ply" in [p.name for p in paths]
+    assert len(paths) >= 20 and "nefertiti_loop1.ply" in [p.name for p in paths]
     union = disjoint_union([_read_obj(p) if p.suffix == ".obj" else _read_with_trimesh(p, p.suffix[1:]) for p in paths])
     topology = union.mesh.topology
     defects = np.asarray(jax.jit(vertex_angle_defects)(union.mesh))
@@ -207,7 +207,7 @@ SIGNED = {
 def test_signed_curvatures_refuse_meshes_without_an_orientation(name, problem):
     """Signed dihedral angles are arbitrary without a consistent orientation: the signed curvatures
     refuse (also under jit: the check reads the host topology); the unsigned ones still work."""
-    mesh = load_mesh(shared_path("meshes", name))
+    mesh = load_mesh(data_path("meshes", name))
     for function_name, function in SIGNED.items():
         for call in (function, jax.jit(function)):
             with pytest.raises(MeshDataError, match=rf"ddgjax\.mesh\.{function_name} .*needs .*{problem}"):

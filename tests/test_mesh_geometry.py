@@ -34,7 +34,7 @@ from ddgjax.mesh import (
     vertex_normals,
 )
 
-from conftest import shared_path
+from conftest import data_path
 from mesh_union import disjoint_union
 
 
@@ -66,7 +66,7 @@ REAL_NAMES = ["beetle.off", "nefertiti.obj", "camelhead.off", "stanford-bunny.ob
 @pytest.fixture(scope="module")
 def real():
     """The four real meshes as one union, their arrays, and every geometric quantity of the union."""
-    meshes = [load_mesh(shared_path("meshes", name)) for name in REAL_NAMES]
+    meshes = [load_mesh(data_path("meshes", name)) for name in REAL_NAMES]
     arrays = {name: (np.asarray(m.vertices), np.asarray(m.faces)) for name, m in zip(REAL_NAMES, meshes)}
     union = disjoint_union(list(arrays.values()))
     values = jax.tree_util.tree_map(np.asarray, geometry(union.mesh))

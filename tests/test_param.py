@@ -25,7 +25,7 @@ from ddgjax.param import (
     tutte_embedding,
 )
 
-from conftest import shared_path
+from conftest import data_path
 
 DISK_MESHES = ("small_disk.obj", "disk.obj", "hemisphere.obj", "hexagon.obj", "camelhead.off")
 
@@ -64,7 +64,7 @@ def _fitted_rate(hs, errors):
 
 @pytest.fixture(scope="module")
 def hemisphere():
-    return load_mesh(shared_path("meshes", "hemisphere.obj"))
+    return load_mesh(data_path("meshes", "hemisphere.obj"))
 
 
 def test_harmonic_map_equals_igl_harmonic_up_to_a_similarity(hemisphere):
@@ -144,7 +144,7 @@ def test_conformal_maps_of_the_hemisphere_converge():
 @pytest.mark.parametrize("name", DISK_MESHES)
 def test_tutte_has_no_flipped_triangles(name):
     """Positive weights and a convex boundary: every triangle keeps a positive area (Floater 1997)."""
-    mesh = load_mesh(shared_path("meshes", name))
+    mesh = load_mesh(data_path("meshes", name))
     uv = tutte_embedding(mesh)
     distortion = map_distortion(mesh, uv)
     assert int(distortion.n_flipped) == 0

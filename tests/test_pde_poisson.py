@@ -11,13 +11,13 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ddgjax import DDGInputError
+from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import Mesh, disk, grid, icosphere
 from ddgjax.pde import harmonic_interpolation, solve_poisson
 
-from conftest import read_ddg_reference, shared_path
+from conftest import data_path, read_ddg_reference
 from mesh_union import disjoint_union
 
 
@@ -52,7 +52,7 @@ def test_unit_disk_converges_to_the_analytic_solution_at_second_order():
     parts = [_jittered_disk(round(1 / h)) for h in sizes]
     union = disjoint_union([(np.asarray(m.vertices), np.asarray(m.faces)) for m in parts])
     mesh = union.mesh
-    u = solve_poisson(mesh, -jnp.ones(mesh.n_vertices), dirichlet_vertices=mesh.topology.boundary_vertices, mass="galerkin")
+    u = solve_poisson(mesh, -jnp.ones(mesh.n_vertices), fixed_vertices=mesh.topology.boundary_vertices, mass="galerkin")
     errors = []
     for k, part in enumerate(parts):
         V, F = np.asarray(part.vertices), np.asarray(part.faces, dtype=np.int64)
@@ -63,7 +63,7 @@ def test_unit_disk_converges_to_the_analytic_solution_at_second_order():
     assert 1.8 < rate < 2.3, (rate, errors)
     # On the regular (rotationally symmetric) disk the quadratic is reproduced to round-off.
     mesh = disk(8)
-    u = solve_poisson(mesh, -jnp.ones(mesh.n_vertices), dirichlet_vertices=mesh.topology.boundary_vertices)
+    u = solve_poisson(mesh, -jnp.ones(mesh.n_vertices), fixed_vertices=mesh.topology.boundary_vertices)
     V = np.asarray(mesh.vertices)
     np.testing.assert_allclose(u, (1 - V[:, 0] ** 2 - V[:, 1] ** 2) / 4, rtol=0, atol=1e-13)
 
@@ -116,23 +116,23 @@ def test_each_closed_component_is_made_compatible_and_zero_mean():
 
 
 def test_dirichlet_problem_matches_libigl_min_quad_with_fixed():
-    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    mesh = load_mesh(data_path("meshes", "camelhead.off"))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     boundary = mesh.topology.boundary_vertices
     rho = np.sin(4 * V[:, 0]) + V[:, 1] ** 2
     values = np.cos(3 * V[boundary, 2])
-    phi = solve_poisson(mesh, rho, dirichlet_vertices=boundary, dirichlet_values=values)
+    phi = solve_poisson(mesh, rho, fixed_vertices=boundary, fixed_values=values)
     L, M = -igl.cotmatrix(V, F), igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI)
     theirs = igl.min_quad_with_fixed(L.tocsc(), (M @ rho)[:, None], boundary.astype(np.int64), values[:, None])[:, 0]
     np.testing.assert_allclose(phi, theirs, rtol=0, atol=1e-9 * np.abs(theirs).max())
 
 
 def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_flat_meshes():
-    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    mesh = load_mesh(data_path("meshes", "camelhead.off"))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     boundary = mesh.topology.boundary_vertices
     values = V[boundary] ** 2  # three columns at once
-    ours = harmonic_interpolation(mesh, boundary, values)
+    ours = harmonic_interpolation(mesh, fixed_vertices=boundary, fixed_values=values)
     theirs = igl.harmonic(V, F, boundary.astype(np.int64), values, 1)
     np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-9 * np.abs(theirs).max())
     # A regular grid and a jittered disk, both in z = 0, as one mesh (one compilation).
@@ -140,7 +140,7 @@ def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_f
     W = np.asarray(flat.vertices)
     linear = 0.3 + 2.0 * W[:, 0] - 1.5 * W[:, 1]
     rim = flat.topology.boundary_vertices
-    np.testing.assert_allclose(harmonic_interpolation(flat, rim, linear[rim]), linear, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(harmonic_interpolation(flat, fixed_vertices=rim, fixed_values=linear[rim]), linear, rtol=0, atol=1e-12)
 
 
 def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_elsewhere():
@@ -149,9 +149,9 @@ def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_e
     mesh = _jittered_disk(6)
     rim = mesh.topology.boundary_vertices
     values = np.sin(5 * np.arctan2(np.asarray(mesh.vertices)[rim, 1], np.asarray(mesh.vertices)[rim, 0]))
-    u = harmonic_interpolation(mesh, rim, values)
+    u = harmonic_interpolation(mesh, fixed_vertices=rim, fixed_values=values)
     assert values.min() - 1e-12 <= float(u.min()) and float(u.max()) <= values.max() + 1e-12
-    beetle = load_mesh(shared_path("meshes", "beetle.off"))
+    beetle = load_mesh(data_path("meshes", "beetle.off"))
     weights = -cotan_laplacian(beetle).to_scipy()
     weights.setdiag(0)
     assert weights.min() < 0  # negative cotan weights: the discrete maximum principle is not guaranteed
@@ -165,7 +165,7 @@ def test_gradients_with_respect_to_rho_values_and_vertices():
     V = mesh.vertices
 
     def loss(rho, values, V):
-        phi = solve_poisson(mesh.with_vertices(V), rho, dirichlet_vertices=rim, dirichlet_values=values)
+        phi = solve_poisson(mesh.with_vertices(V), rho, fixed_vertices=rim, fixed_values=values)
         return jnp.sum(jnp.sin(phi)) + jnp.sum(phi**2)
 
     # One compiled program, for the gradients and for the six losses of the finite differences.
@@ -192,15 +192,16 @@ def test_bad_input(without_type_checker):
         (lambda: solve_poisson(np.zeros((3, 3)), rho), "mesh: expected a ddgjax Mesh"),
         (lambda: solve_poisson(mesh, rho[:-1]), rf"rho: expected shape \({n},\) or \({n}, k\)"),
         (lambda: solve_poisson(mesh, rho, mass="lumped"), "mass: expected one of"),
-        (lambda: solve_poisson(mesh, rho, dirichlet_vertices=[0, n]), r"dirichlet_vertices: vertex indices must lie in \[0,"),
-        (lambda: solve_poisson(mesh, rho, dirichlet_vertices=[1, 1]), "dirichlet_vertices: expected distinct vertices"),
-        (lambda: solve_poisson(mesh, rho, dirichlet_vertices=[[1, 2]]), "dirichlet_vertices: expected a 1-d integer array"),
+        (lambda: solve_poisson(mesh, rho, fixed_vertices=[0, n]), r"fixed_vertices: vertex indices must lie in \[0,"),
+        (lambda: solve_poisson(mesh, rho, fixed_vertices=[1, 1]), "fixed_vertices: expected distinct vertices"),
+        (lambda: solve_poisson(mesh, rho, fixed_vertices=[[1, 2]]), "fixed_vertices: expected a 1-d integer array"),
         (
-            lambda: solve_poisson(mesh, rho, dirichlet_vertices=rim, dirichlet_values=np.zeros(rim.size + 1)),
-            "dirichlet_values: expected shape",
+            lambda: solve_poisson(mesh, rho, fixed_vertices=rim, fixed_values=np.zeros(rim.size + 1)),
+            "fixed_values: expected shape",
         ),
-        (lambda: solve_poisson(mesh, rho, dirichlet_values=np.zeros(3)), "dirichlet_values: given without dirichlet_vertices"),
-        (lambda: harmonic_interpolation(mesh, [], []), "vertices: expected at least one vertex"),
+        (lambda: solve_poisson(mesh, rho, fixed_values=np.zeros(3)), "fixed_values: given without fixed_vertices"),
+        (lambda: harmonic_interpolation(mesh, fixed_vertices=[], fixed_values=[]), "fixed_vertices: expected at least one vertex"),
+        (lambda: solve_poisson(mesh, rho, solver="lu"), "solver: expected one of"),
     ]
     for call, message in cases:
         with pytest.raises(DDGInputError, match=message):
@@ -208,5 +209,43 @@ def test_bad_input(without_type_checker):
     # Every vertex prescribed: nothing to solve, the values come back.
     everything = np.arange(n)[::-1]
     np.testing.assert_array_equal(
-        solve_poisson(mesh, rho, dirichlet_vertices=everything, dirichlet_values=everything * 1.0), np.arange(n)
+        solve_poisson(mesh, rho, fixed_vertices=everything, fixed_values=everything * 1.0), np.arange(n)
     )
+
+
+def test_throw_false_returns_the_outcome_of_the_solve():
+    """With `throw=False` the answer is a `Solution`: the value, the linear solve's outcome and its stats.
+    A right-hand side with a NaN is a failing case (`RESULTS.nonfinite`) that then raises nothing."""
+    mesh = disk(3)
+    rim = mesh.topology.boundary_vertices
+    rho = -jnp.ones(mesh.n_vertices)
+    solution = solve_poisson(mesh, rho, fixed_vertices=rim, throw=False)
+    assert isinstance(solution, Solution) and solution.result == RESULTS.successful
+    np.testing.assert_array_equal(solution.value, solve_poisson(mesh, rho, fixed_vertices=rim))
+    assert set(solution.stats) == {"residual", "num_steps"} and float(solution.stats["residual"]) < 1e-10
+    # CG reports its iterations; the problem is the same.
+    by_cg = solve_poisson(mesh, rho, fixed_vertices=rim, solver="cg", throw=False)
+    assert by_cg.result == RESULTS.successful and int(by_cg.stats["num_steps"]) > 0
+    np.testing.assert_allclose(by_cg.value, solution.value, rtol=0, atol=1e-9)  # CG's rtol is 1e-10
+    bad = rho.at[4].set(jnp.nan)
+    failed = solve_poisson(mesh, bad, fixed_vertices=rim, throw=False)
+    assert failed.result == RESULTS.nonfinite
+    with pytest.raises(Exception, match="NaN or inf"):
+        solve_poisson(mesh, bad, fixed_vertices=rim)
+    harmonic = harmonic_interpolation(mesh, fixed_vertices=rim, fixed_values=np.full(rim.size, np.nan), throw=False)
+    assert isinstance(harmonic, Solution) and harmonic.result == RESULTS.nonfinite
+    # Every vertex fixed: nothing to solve, a success.
+    everything = np.arange(mesh.n_vertices)
+    trivial = solve_poisson(mesh, rho, fixed_vertices=everything, fixed_values=np.ones(everything.size), throw=False)
+    assert trivial.result == RESULTS.successful and float(trivial.stats["residual"]) == 0.0
+
+
+def test_throw_false_inside_jit_and_the_failing_member_of_a_batch():
+    mesh = disk(3)
+    rim = mesh.topology.boundary_vertices
+    rho = jnp.stack([-jnp.ones(mesh.n_vertices), jnp.full(mesh.n_vertices, jnp.nan)])
+    solve = jax.jit(jax.vmap(lambda r: solve_poisson(mesh, r, fixed_vertices=rim, throw=False)))
+    solutions = solve(rho)
+    np.testing.assert_array_equal(solutions.result == RESULTS.successful, [True, False])
+    np.testing.assert_array_equal(solutions.result == RESULTS.nonfinite, [False, True])
+    np.testing.assert_allclose(solutions.value[0], solve_poisson(mesh, rho[0], fixed_vertices=rim), rtol=0, atol=1e-14)

@@ -105,7 +105,11 @@ def test_bad_input_is_refused(without_type_checker):
         sharded_laplacian_apply(np.zeros(42), np.zeros(42))
     with pytest.raises(DDGInputError, match=r"\(42,\)"):
         sharded_laplacian_apply(partition, np.zeros(41))
+    with pytest.raises(DDGInputError, match="lumped mass matrices 'voronoi', 'barycentric', got 'galerkin'"):
+        sharded_cg(partition, np.zeros(42), mass="galerkin")
+    with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric', 'galerkin'"):
+        sharded_cg(partition, np.zeros(42), mass="lumped")
     with pytest.raises(DDGInputError, match="n_devices"):
-        batch_sharding(2)
+        batch_sharding(n_devices=2)
     with pytest.raises(DDGInputError, match="leading"):
-        shard_batch({"a": np.zeros((2, 3)), "b": np.zeros((3, 3))}, batch_sharding(1))
+        shard_batch({"a": np.zeros((2, 3)), "b": np.zeros((3, 3))}, batch_sharding(n_devices=1))

@@ -25,7 +25,7 @@ from ddgjax.solve._amg import (
 )
 from ddgjax.sparse import dirichlet_blocks, dirichlet_plan, from_scipy
 
-from conftest import shared_path
+from conftest import data_path
 
 
 def _dirichlet_block(mesh):
@@ -38,7 +38,7 @@ def _dirichlet_block(mesh):
 @pytest.fixture(scope="module")
 def camelhead():
     """camelhead's Dirichlet block and its hierarchy (default options), built once for the module."""
-    block = _dirichlet_block(load_mesh(shared_path("meshes", "camelhead.off")))
+    block = _dirichlet_block(load_mesh(data_path("meshes", "camelhead.off")))
     return block, amg_hierarchy(block)
 
 

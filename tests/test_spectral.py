@@ -28,7 +28,7 @@ from ddgjax.spectral import (
     spectral_reconstruction,
 )
 
-from conftest import shared_path
+from conftest import data_path
 
 # The unit sphere: l (l + 1) with multiplicity 2 l + 1, l = 0..3.
 SPHERE_SPECTRUM = np.repeat([0.0, 2.0, 6.0, 12.0], [1, 3, 5, 7])
@@ -60,7 +60,7 @@ def test_unit_sphere_converges_to_l_l_plus_1_at_second_order():
 
 
 def test_agrees_with_scipy_eigsh_on_camelhead_neumann_and_dirichlet():
-    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    mesh = load_mesh(data_path("meshes", "camelhead.off"))
     L, M = cotan_laplacian(mesh), mass_matrix(mesh)
     interior = np.setdiff1d(np.arange(mesh.n_vertices), mesh.topology.boundary_vertices)
     for boundary, rows in (("neumann", np.arange(mesh.n_vertices)), ("dirichlet", interior)):
@@ -130,7 +130,7 @@ def test_gradients_of_eigenvalues_eigenvectors_and_cluster_invariant_functions()
         return (
             jnp.sum(values[1:4])
             + jnp.sum(values[4:9] ** 2)
-            + jnp.sum(heat_kernel_signature(values, vectors, 0.1) * weights[:, 0])
+            + jnp.sum(heat_kernel_signature(values, vectors, t=0.1) * weights[:, 0])
         )
 
     for f, point in ((generic, V), (invariant, mesh.vertices)):
@@ -162,15 +162,15 @@ def test_spectral_tools():
     np.testing.assert_allclose(spectral_coefficients(vectors, M, f), coefficients, atol=1e-9)
     np.testing.assert_allclose(spectral_reconstruction(vectors, spectral_coefficients(vectors, M, f)), f, atol=1e-9)
     # Filtering: an all-pass response projects; a low-pass one keeps the first four coordinates.
-    kept = spectral_filter(values, vectors, M, f, lambda lam: lam < 3.0)
+    kept = spectral_filter(values, vectors, M, f, response=lambda lam: lam < 3.0)
     np.testing.assert_allclose(
         spectral_coefficients(vectors, M, kept), jnp.where(jnp.arange(16) < 4, coefficients, 0.0), atol=1e-9
     )
     # The heat kernel: symmetric, its diagonal is the signature, and it integrates to exp(0) = 1 (the
     # constant eigenfunction carries all the mass).
-    kernel = heat_kernel(values, vectors, 0.5, np.arange(mesh.n_vertices))
+    kernel = heat_kernel(values, vectors, np.arange(mesh.n_vertices), t=0.5)
     np.testing.assert_allclose(kernel, kernel.T, atol=1e-12)
-    np.testing.assert_allclose(jnp.diagonal(kernel), heat_kernel_signature(values, vectors, 0.5)[:, 0], atol=1e-12)
+    np.testing.assert_allclose(jnp.diagonal(kernel), heat_kernel_signature(values, vectors, t=0.5)[:, 0], atol=1e-12)
     np.testing.assert_allclose(jnp.sum(M @ kernel[:, 7]), 1.0, rtol=1e-9)
 
 
@@ -186,7 +186,7 @@ def test_bad_input(without_type_checker):
             lambda: smallest_eigenpairs(cotan_laplacian(mesh).to_scipy(), mass_matrix(mesh), 3),
             "L: expected a ddgjax SparseMatrix",
         ),
-        (lambda: heat_kernel(jnp.ones(3), jnp.ones((42, 3)), 1.0, [42]), "sources: vertex indices must lie in"),
+        (lambda: heat_kernel(jnp.ones(3), jnp.ones((42, 3)), [42], t=1.0), "sources: vertex indices must lie in"),
         (lambda: spectral_coefficients(jnp.ones((41, 3)), mass_matrix(mesh), jnp.ones(42)), r"vectors: expected shape \(42, k\)"),
     ]
     for call, message in cases:
@@ -254,7 +254,7 @@ def test_shape_operators_for_a_folder_of_meshes(tmp_path):
         np.testing.assert_allclose(ops.mass, mass_matrix(mesh).diagonal(), atol=1e-15)
         np.testing.assert_allclose(ops.values, eigenpairs(mesh, 5)[0], atol=1e-10)
         assert ops.vectors.shape == (mesh.n_vertices, 5)
-    with pytest.raises(DDGInputError, match="mass: expected a lumped mass"):
+    with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric', got 'galerkin'"):
         shape_operators(icosphere(1), 3, mass="galerkin")
 
 
@@ -263,7 +263,7 @@ def test_robust_eigenpairs_are_those_of_robust_laplacian():
 
     from ddgjax.laplacian import intrinsic_delaunay
 
-    mesh = load_mesh(shared_path("meshes", "camelhead.off"))
+    mesh = load_mesh(data_path("meshes", "camelhead.off"))
     L, M = robust_laplacian.mesh_laplacian(np.asarray(mesh.vertices), np.asarray(mesh.faces), mollify_factor=0.0)
     expected = np.sort(spla.eigsh(L.tocsc(), k=6, M=M.tocsc(), sigma=-1e-6, which="LM")[0])
     np.testing.assert_allclose(eigenpairs(mesh, 6, mass="barycentric", robust=True)[0], expected, rtol=1e-9, atol=1e-10)
@@ -292,3 +292,42 @@ def test_hermitian_real_form_solves_the_complex_problem_on_the_host():
     np.testing.assert_allclose(np.linalg.svd(overlap, compute_uv=False), 1.0, atol=1e-8)
     with pytest.raises(DDGInputError, match="even k"):
         smallest_eigenpairs(L, M, 3, hermitian_real_form=True)
+
+
+def test_named_pairs_and_outcomes_without_throw(monkeypatch):
+    """`Eigenpairs` unpacks and names its fields; `throw=False` returns a `Solution` whose result is the
+    eigensolver's: successful, or `eigensolver_failed` for a subspace iteration out of steps and for ARPACK's
+    non-convergence on the host (both forced here), which raise with `throw=True`."""
+    import scipy.sparse.linalg
+
+    import ddgjax.spectral._generalized as generalized
+    from ddgjax import RESULTS, Solution
+    from ddgjax.spectral import Eigenpairs
+
+    mesh = icosphere(2)  # 162 unknowns > 2 k + 64: the host path is ARPACK's, not the dense one
+    pairs = eigenpairs(mesh, 4)
+    assert isinstance(pairs, Eigenpairs)
+    values, vectors = pairs
+    assert values is pairs.values and vectors is pairs.vectors
+    solution = eigenpairs(mesh, 4, throw=False)
+    assert isinstance(solution, Solution) and solution.result == RESULTS.successful
+    np.testing.assert_array_equal(solution.value.values, values)
+    assert float(solution.stats["residual"]) < 1e-10
+    dirichlet = eigenpairs(disk(5), 4, boundary="dirichlet", method="subspace", throw=False)
+    assert dirichlet.result == RESULTS.successful and dirichlet.value.vectors.shape == (disk(5).n_vertices, 4)
+
+    monkeypatch.setattr(generalized, "_SUBSPACE_MAX_STEPS", 1)
+    failed = eigenpairs(mesh, 4, method="subspace", throw=False)
+    assert failed.result == RESULTS.eigensolver_failed and float(failed.stats["residual"]) > 1e-10
+    with pytest.raises(Exception, match="The eigensolver did not converge"):
+        eigenpairs(mesh, 4, method="subspace")
+
+    def no_convergence(*args, **kwargs):
+        raise scipy.sparse.linalg.ArpackNoConvergence("forced", np.zeros(0), np.zeros((mesh.n_vertices, 0)))
+
+    monkeypatch.setattr(scipy.sparse.linalg, "eigsh", no_convergence)
+    assert eigenpairs(mesh, 4, method="arpack", throw=False).result == RESULTS.eigensolver_failed
+    L, M = cotan_laplacian(mesh), mass_matrix(mesh)
+    assert smallest_eigenpairs(L, M, 4, throw=False).result == RESULTS.eigensolver_failed
+    with pytest.raises(Exception, match="The eigensolver did not converge"):
+        jax.jit(lambda V: eigenpairs(mesh.with_vertices(V), 4)[0])(mesh.vertices)

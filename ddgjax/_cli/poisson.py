@@ -23,13 +23,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._compile import kernel
 from .._errors import DDGInputError, MeshDataError
-from .._results import RESULTS
-from ..internal import auto_method, poisson_with_result
-from ..laplacian import cotan_laplacian, mass_matrix
+from .._options import BOUNDARY_CONDITIONS, MASS_MATRICES
+from .._results import RESULTS, Solution
+from ..internal import auto_method
+from ..laplacian import laplacian_and_mass, mass_matrix
 from ..mesh import Mesh, disk, icosphere
-from ..pde import dirichlet_energy, poisson_energy
+from ..pde import dirichlet_energy, poisson_energy, solve_poisson
 from ._common import load_cli_mesh, write_figure
 
 SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)"}
@@ -109,17 +109,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--boundary",
-        choices=("dirichlet", "neumann"),
+        choices=BOUNDARY_CONDITIONS,
         default="dirichlet",
         help="boundary condition of the Poisson problem on a mesh with boundary: phi = 0 there (dirichlet), or "
         "zero normal derivative (neumann: rho made compatible, zero-mean phi, as on a closed mesh)",
     )
-    parser.add_argument("--mass", choices=("voronoi", "barycentric", "galerkin"), default="voronoi", help="mass matrix M")
+    parser.add_argument("--mass", choices=MASS_MATRICES, default="voronoi", help="mass matrix M")
     parser.add_argument(
-        "--method",
+        "--solver",
         choices=("auto",) + tuple(SOLVERS),
         default="auto",
-        help="linear solver: cholesky (CHOLMOD through sparsax), superlu (SciPy), cg (conjugate gradient in JAX with "
+        help="backend of the linear solve: cholesky (CHOLMOD through sparsax), superlu (SciPy), cg (conjugate gradient in JAX with "
         "an AMG V-cycle), pyamg (SciPy's CG with pyamg's V-cycle), auto (cholesky on CPU when sparsax is installed, "
         "else superlu; cg on a GPU)",
     )
@@ -222,41 +222,44 @@ def _problem(args) -> Problem:
             raise DDGInputError("--rho source: every vertex is a Dirichlet vertex; there is nowhere to put the source")
         distances = np.where(free, np.linalg.norm(vertices - centre, axis=1), np.inf)
         source = int(np.argmin(distances))
-        area = float(mass_matrix(mesh, kind=args.mass).row_sums()[source])
+        area = float(mass_matrix(mesh, mass=args.mass).row_sums()[source])
         rho = np.where(np.arange(mesh.n_vertices) == source, 1.0 / area, 0.0)
         statement = f"Delta phi = delta at vertex {source}, {condition}"
         return Problem(name, mesh, rho, fixed, np.zeros(fixed.size), statement, None, "", source)
     return Problem(name, mesh, rho, fixed, np.zeros(fixed.size), f"{equation}, {condition}", exact, exact_name)
 
 
-@kernel(static_argnames=("fixed", "mass", "method"))
-def _solve(mesh: Mesh, rho, values, *, fixed: tuple, mass: str, method: str) -> dict:
-    """The solution and what the table reports about it, in one compiled program.
+def _solve(problem: Problem, args) -> Solution:
+    """`solve_poisson` of the problem, with its outcome returned rather than raised (`throw=False`)."""
+    fixed = problem.fixed if problem.fixed.size else None
+    return solve_poisson(
+        problem.mesh,
+        problem.rho,
+        fixed_vertices=fixed,
+        fixed_values=None if fixed is None else problem.values,
+        mass=args.mass,
+        solver=args.solver,
+        throw=False,
+    )
+
+
+def _measures(problem: Problem, phi, mass: str) -> dict:
+    """What the table reports about the solution `phi`, computed from the library's operators and energies.
 
     `residual` is `|L phi + M rho~|` over the free vertices divided by the norm of the right-hand
-    side there (`M rho~` and the Dirichlet values' contribution `L phi_D`), with `rho~` the
-    compatible right-hand side (`_compatible`).
+    side there (`M rho~` and the fixed values' contribution `L phi_D`), with `rho~` the compatible
+    right-hand side (`_compatible`).
     """
-    dirichlet = np.asarray(fixed, dtype=np.int64)
-    phi, result = poisson_with_result(
-        mesh,
-        rho,
-        dirichlet_vertices=dirichlet if dirichlet.size else None,
-        dirichlet_values=values if dirichlet.size else None,
-        mass=mass,
-        method=method,
-    )
-    laplacian, mass_matrix_ = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
+    mesh, fixed = problem.mesh, problem.fixed
+    laplacian, mass_matrix_ = laplacian_and_mass(mesh, mass=mass)
     free = np.ones(mesh.n_vertices, dtype=bool)
-    free[dirichlet] = False
+    free[fixed] = False
     free[mesh.topology.unreferenced_vertices] = False
-    compatible = _compatible(mesh, rho, mass_matrix_, dirichlet)
-    lift = jnp.zeros_like(phi).at[dirichlet].set(values)
+    compatible = _compatible(mesh, jnp.asarray(problem.rho), mass_matrix_, fixed)
+    lift = jnp.zeros_like(phi).at[fixed].set(problem.values)
     residual = (laplacian @ phi + mass_matrix_ @ compatible)[free]
     scale = jnp.linalg.norm((mass_matrix_ @ compatible - laplacian @ lift)[free])
     return {
-        "phi": phi,
-        "result": result,
         "rho": compatible,
         "residual": jnp.linalg.norm(residual) / jnp.where(scale > 0, scale, 1.0),
         "energy": poisson_energy(mesh, phi, compatible, mass=mass),
@@ -283,19 +286,14 @@ def _compatible(mesh: Mesh, rho, mass_matrix_, dirichlet: np.ndarray):
     return rho - mean[labels]
 
 
-def _solve_timed(problem: Problem, args) -> tuple[dict, float, float]:
-    """`_solve` twice: the outputs as NumPy arrays, the first call's time (compilation included), the second's."""
-    arguments = (problem.mesh, jnp.asarray(problem.rho), jnp.asarray(problem.values))
-    options = {"fixed": tuple(int(i) for i in problem.fixed), "mass": args.mass, "method": args.method}
+def _solve_timed(problem: Problem, args) -> tuple[Solution, float, float]:
+    """`_solve` twice: its `Solution`, the first call's time (compilation included) and the second's."""
     times = []
     for _ in range(2):
         start = time.perf_counter()
-        outputs = jax.block_until_ready(_solve(*arguments, **options))
+        solution = jax.block_until_ready(_solve(problem, args))
         times.append(time.perf_counter() - start)
-        # The outcome is checked here, not inside the program, so JAX's persistent cache can keep it.
-        if outputs["result"] != RESULTS.successful:
-            raise RuntimeError(RESULTS[outputs["result"]])
-    return jax.tree_util.tree_map(np.asarray, outputs), times[0], times[1]
+    return solution, times[0], times[1]
 
 
 def _unknowns(problem: Problem) -> int:
@@ -303,9 +301,9 @@ def _unknowns(problem: Problem) -> int:
     return problem.mesh.n_vertices - len(problem.fixed)
 
 
-def _solver_name(method: str, n: int) -> str:
-    """The backend `linear_solve` runs for `--method`, in words (`"auto"` resolved as it resolves it)."""
-    return SOLVERS[auto_method(n) if method == "auto" else method]
+def _solver_name(solver: str, n: int) -> str:
+    """The backend `linear_solve` runs for `--solver`, in words (`"auto"` resolved as it resolves it)."""
+    return SOLVERS[auto_method(n) if solver == "auto" else solver]
 
 
 def format_table(problem: Problem, outputs: dict, first: float, second: float, args) -> str:
@@ -315,7 +313,7 @@ def format_table(problem: Problem, outputs: dict, first: float, second: float, a
     rows = [
         ("mesh", f"{problem.name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces, {loops} boundary loop{'s' * (loops != 1)}"),
         ("problem", problem.statement),
-        ("solver", f"{_solver_name(args.method, _unknowns(problem))}, {args.mass} mass matrix"),
+        ("solver", f"{_solver_name(args.solver, _unknowns(problem))}, {args.mass} mass matrix"),
         ("time", f"{first:.3g} s first call (compilation included), {second * 1e3:.3g} ms again"),
         ("relative residual", f"{float(outputs['residual']):.2e}  (|L phi + M rho| / |right-hand side| on the free vertices)"),
         ("energy", f"{float(outputs['energy']):.10g}  (1/2 phi^T L phi + phi^T M rho, minimised by phi)"),
@@ -370,6 +368,17 @@ def _first_reason(error: Exception) -> str:
     return match.group(1).strip() if match else text.strip().splitlines()[0]
 
 
+def _failed(reason: str, problem: Problem, args) -> int:
+    """Report a failed solve on stderr, with what to try instead; the exit status 1."""
+    other = "cg" if _solver_name(args.solver, _unknowns(problem)).startswith(("cholesky", "superlu")) else "superlu"
+    print(
+        f"ddgjax poisson: error: the solve failed: {reason}\n"
+        f"(try --solver {other}, or look for degenerate faces with `ddgjax info`)",
+        file=sys.stderr,
+    )
+    return 1
+
+
 def run_poisson(args: argparse.Namespace) -> int:
     """Action of `ddgjax poisson`: solve, print the table, write the figure; 2 on bad input, 1 on a failed solve."""
     try:
@@ -378,18 +387,16 @@ def run_poisson(args: argparse.Namespace) -> int:
         print(f"ddgjax poisson: error: {error}", file=sys.stderr)
         return 2
     try:
-        outputs, first, second = _solve_timed(problem, args)
+        solution, first, second = _solve_timed(problem, args)
     except (DDGInputError, MeshDataError) as error:
         print(f"ddgjax poisson: error: {error}", file=sys.stderr)
         return 2
-    except RuntimeError as error:  # a failed solve (ddgjax.RESULTS through equinox, or CHOLMOD from XLA)
-        other = "cg" if _solver_name(args.method, _unknowns(problem)).startswith(("cholesky", "superlu")) else "superlu"
-        print(
-            f"ddgjax poisson: error: the solve failed: {_first_reason(error)}\n"
-            f"(try --method {other}, or look for degenerate faces with `ddgjax info`)",
-            file=sys.stderr,
-        )
-        return 1
+    except RuntimeError as error:  # CHOLMOD's failed factorisation raises from the XLA runtime whatever `throw` is
+        return _failed(_first_reason(error), problem, args)
+    if solution.result != RESULTS.successful:
+        return _failed(RESULTS[solution.result], problem, args)
+    measures = _measures(problem, solution.value, args.mass)
+    outputs = jax.tree_util.tree_map(np.asarray, {"phi": solution.value, **measures})
     print(format_table(problem, outputs, first, second, args))
     if not args.no_plot:
         figure = _figure(problem, outputs, args)

@@ -28,6 +28,7 @@ from ._invariants import cyclic_residual as cyclic_residual
 from ._invariants import enclosed_area as enclosed_area
 from ._invariants import is_simple as is_simple
 from ._invariants import isoperimetric_ratio as isoperimetric_ratio
+from ._invariants import SimplicityAndClearance as SimplicityAndClearance
 from ._invariants import simplicity_and_clearance as simplicity_and_clearance
 from ._shapes import figure3_polygon as figure3_polygon
 from ._shapes import flower as flower

@@ -36,9 +36,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._numerics import cross2, safe_div, safe_norm, safe_normalize, signed_angle_2d
-from ._curve import Curve, curve_kernel, takes_curve
+from ._curve import Curve, keyword_options, require_curve
 
 KINDS = ("A", "B", "C", "D")
 """The reading report's four curvatures, the choices of every `kind=` option in `ddgjax.curves`."""
@@ -67,9 +68,9 @@ def _vertex_edges(points: Float[Array, "n 2"]):
     return u, v
 
 
-@takes_curve
 def interior_vertex_mask(curve: Curve) -> Bool[Array, " n"]:
     """`(n,)` booleans: true where a vertex has a turning angle (all of a closed curve; not the endpoints of an open one)."""
+    curve = require_curve("curve", curve)
     return jnp.asarray(_interior_mask(curve.n_points, curve.closed))
 
 
@@ -78,7 +79,7 @@ def _edge_lengths(points: Float[Array, "n 2"], closed: bool) -> Float[Array, " n
     return safe_norm(following - points[: following.shape[0]])
 
 
-@curve_kernel
+@kernel
 def edge_lengths(curve: Curve) -> Float[Array, " ne"]:
     """Length of every edge: `(n,)` for a closed curve (edge `i` is `p_i -> p_{(i+1) mod n}`), `(n-1,)` when open.
 
@@ -88,7 +89,7 @@ def edge_lengths(curve: Curve) -> Float[Array, " ne"]:
     return _edge_lengths(curve.points, curve.closed)
 
 
-@curve_kernel
+@kernel
 def length(curve: Curve) -> Float[Array, ""]:
     """Total length `L = sum_i |p_{i+1} - p_i|` (including the closing edge of a closed curve).
 
@@ -100,7 +101,7 @@ def length(curve: Curve) -> Float[Array, ""]:
     return jnp.sum(edge_lengths(curve))
 
 
-@curve_kernel
+@kernel
 def vertex_dual_lengths(curve: Curve) -> Float[Array, " n"]:
     """Dual length `d_i = (|p_i - p_{i-1}| + |p_{i+1} - p_i|) / 2` of every vertex, `(n,)`.
 
@@ -120,7 +121,7 @@ def _turning_angles(points: Float[Array, "n 2"], closed: bool) -> Float[Array, "
     return jnp.where(_interior_mask(points.shape[0], closed), signed_angle_2d(u, v), 0.0)
 
 
-@curve_kernel
+@kernel
 def turning_angles(curve: Curve) -> Float[Array, " n"]:
     """Signed turning angle `theta_i` from edge `p_{i-1} p_i` to edge `p_i p_{i+1}`, `(n,)`, in `(-pi, pi)`.
 
@@ -132,7 +133,7 @@ def turning_angles(curve: Curve) -> Float[Array, " n"]:
     return _turning_angles(curve.points, curve.closed)
 
 
-@curve_kernel
+@kernel
 def total_curvature(curve: Curve) -> Float[Array, ""]:
     """Total signed curvature `sum_i theta_i` (integrated `kappa^A`).
 
@@ -142,7 +143,7 @@ def total_curvature(curve: Curve) -> Float[Array, ""]:
     return jnp.sum(turning_angles(curve))
 
 
-@curve_kernel
+@kernel
 def turning_number(curve: Curve) -> Array:
     """Turning number of a closed curve, the integer `round(total_curvature / (2 pi))` (int32 scalar).
 
@@ -192,7 +193,8 @@ def _to_form(curve: Curve, kind: str, kappa: Float[Array, " n"], pointwise: bool
     return safe_div(kappa, dual) if pointwise else kappa * dual
 
 
-@curve_kernel(static_argnames=("kind", "pointwise"))
+@keyword_options
+@kernel(static_argnames=("kind", "pointwise"))
 def curvature(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, " n"]:
     """Discrete curvature of `kind` (`"A"`, `"B"`, `"C"` or `"D"`) at every vertex, `(n,)`, signed.
 
@@ -228,7 +230,8 @@ def curvature(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Floa
     return _to_form(curve, kind, kappa, pointwise)
 
 
-@curve_kernel(static_argnames=("kind",))
+@keyword_options
+@kernel(static_argnames=("kind",))
 def curvature_normals(curve: Curve, *, kind: str) -> Float[Array, "n 2"]:
     """Unit normal the reading report pairs with curvature `kind`, `(n, 2)`.
 
@@ -241,7 +244,8 @@ def curvature_normals(curve: Curve, *, kind: str) -> Float[Array, "n 2"]:
     return _curvature_and_normals(curve.points, curve.closed, kind)[1]
 
 
-@curve_kernel(static_argnames=("kind", "pointwise"))
+@keyword_options
+@kernel(static_argnames=("kind", "pointwise"))
 def curvature_vectors(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, "n 2"]:
     """Curvature vector `kappa_i N_i` of `kind`, `(n, 2)`: the velocity of the curve-shortening flow.
 

@@ -10,7 +10,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._compile import kernel
 from .._errors import DDGInputError, check_finite, check_float_array, check_float_shape, first_indices, is_traced
 
 
@@ -126,12 +125,13 @@ def require_curve(name: str, value) -> Curve:
     )
 
 
-def takes_curve(function):
-    """Wrap `function(curve, ...)` so that its curve is checked before anything else sees it.
+def keyword_options(function):
+    """Wrap a public function of a curve so that an option passed by position gets Python's message naming the options.
 
-    A first argument that is not a `Curve` gets `require_curve`'s message rather than an
-    `AttributeError` (or a `jit` or type checker's complaint) from inside, and an option passed by
-    position gets Python's message naming the keyword-only options.
+    `curvature(curve, "A")` then raises `TypeError: curvature() takes 1 positional argument but 2
+    were given; pass its options by keyword: curvature(curve, kind=..., pointwise=...)` rather than
+    `jit`'s complaint about a non-array argument. (The curve itself is checked by `kernel`, or by
+    `require_curve` in a function that is not a kernel.)
     """
     parameters = inspect.signature(function).parameters.values()
     positional = sum(parameter.kind in (parameter.POSITIONAL_ONLY, parameter.POSITIONAL_OR_KEYWORD) for parameter in parameters)
@@ -139,17 +139,12 @@ def takes_curve(function):
     name = function.__name__
 
     @functools.wraps(function)
-    def checked(curve, *args, **kwargs):
-        if 1 + len(args) > positional:
-            hint = f"; pass its options by keyword: {name}(curve, {options})" if options else ""
-            raise TypeError(f"{name}() takes {positional} positional argument(s) but {1 + len(args)} were given{hint}")
-        return function(require_curve("curve", curve), *args, **kwargs)
+    def checked(*args, **kwargs):
+        if len(args) > positional:
+            raise TypeError(
+                f"{name}() takes {positional} positional argument(s) but {len(args)} were given; "
+                f"pass its options by keyword: {name}(curve, {options})"
+            )
+        return function(*args, **kwargs)
 
     return checked
-
-
-def curve_kernel(function=None, *, static_argnames: tuple[str, ...] = ()):
-    """`takes_curve(kernel(function))`: a compiled function of a curve whose curve is checked before `jit` sees it."""
-    if function is None:
-        return functools.partial(curve_kernel, static_argnames=static_argnames)
-    return takes_curve(kernel(function, static_argnames=static_argnames))

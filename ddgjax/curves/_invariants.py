@@ -7,16 +7,19 @@ curve as closed by the chord from its last point back to its first.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from .._compile import kernel
 from .._numerics import cross2, safe_div, safe_norm, safe_reciprocal, safe_sqrt
 from ._curvature import _edge_lengths
-from ._curve import Curve, curve_kernel
+from ._curve import Curve, keyword_options
 
 
-@curve_kernel
+@kernel
 def centroid(curve: Curve) -> Float[Array, "2"]:
     """Vertex centroid `(1/n) sum_i p_i`, `(2,)`: the centre of mass the reading report's B-flow keeps.
 
@@ -33,7 +36,7 @@ def _shoelace_terms(points: Float[Array, "n 2"]):
     return origin, relative, following, cross2(relative, following)
 
 
-@curve_kernel
+@kernel
 def enclosed_area(curve: Curve) -> Float[Array, ""]:
     """Signed enclosed area by the shoelace formula, `A = (1/2) sum_i p_i x p_{i+1}`.
 
@@ -44,7 +47,7 @@ def enclosed_area(curve: Curve) -> Float[Array, ""]:
     return 0.5 * jnp.sum(_shoelace_terms(curve.points)[3])
 
 
-@curve_kernel
+@kernel
 def area_centroid(curve: Curve) -> Float[Array, "2"]:
     """Centre of mass of the enclosed region, `(2,)`: `(1 / 6A) sum_i (p_i + p_{i+1}) (p_i x p_{i+1})`.
 
@@ -56,7 +59,7 @@ def area_centroid(curve: Curve) -> Float[Array, "2"]:
     return origin + safe_div(moment, 0.5 * jnp.sum(cross))
 
 
-@curve_kernel
+@kernel
 def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     """Isoperimetric ratio `4 pi |A| / L^2`: 1 for a circle, `pi / (n tan(pi / n))` for a regular n-gon, less otherwise.
 
@@ -67,7 +70,7 @@ def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
     return safe_div(4 * jnp.pi * jnp.abs(enclosed_area(curve)), perimeter**2)
 
 
-@curve_kernel
+@kernel
 def cyclic_residual(curve: Curve) -> Float[Array, ""]:
     """How far the vertices are from lying on one circle: `std_i |p_i - c| / mean_i |p_i - c|`.
 
@@ -196,9 +199,22 @@ def _edge_pair_sweep(curve: Curve, block: int, with_clearance: bool):
     return ~jnp.any(hits), safe_sqrt(jnp.min(near_sq)), safe_sqrt(jnp.min(far_sq))
 
 
-@curve_kernel(static_argnames=("block",))
-def simplicity_and_clearance(curve: Curve, *, block: int = 128) -> tuple[Bool[Array, ""], Float[Array, ""]]:
-    """`(is_simple(curve), clearance)`: whether the curve is simple, and by how much.
+class SimplicityAndClearance(NamedTuple):
+    """What `simplicity_and_clearance` returns (a named tuple: `simple, clearance = ...` still unpacks).
+
+    Attributes:
+        is_simple: boolean scalar, `is_simple(curve)`.
+        clearance: scalar, the smallest distance between two edges that must not meet.
+    """
+
+    is_simple: Bool[Array, ""]
+    clearance: Float[Array, ""]
+
+
+@keyword_options
+@kernel(static_argnames=("block",))
+def simplicity_and_clearance(curve: Curve, *, block: int = 128) -> SimplicityAndClearance:
+    """`SimplicityAndClearance(is_simple, clearance)`: whether the curve is simple, and by how much.
 
     The clearance is the smallest distance between two edges that must not meet: between
     non-adjacent edges the segment distance (the least endpoint-to-segment distance, as they do not
@@ -211,10 +227,17 @@ def simplicity_and_clearance(curve: Curve, *, block: int = 128) -> tuple[Bool[Ar
     per pair. Differentiable (finite gradients also where the clearance is 0, e.g. as a penalty that
     keeps a curve simple during shape optimisation). Equivalent: the least `shapely` `distance`
     between the edges' `LineString`s, taking adjacent edges by their far endpoints (the tests check
-    exactly that); reference for the certificate: the flows' `_track`.
+    exactly that); the flows' certificate of simplicity (`ddgjax.curves._flow_certificate`) rests on it.
+
+    Args:
+        curve: any curve (open or closed).
+        block: edges tested against all edges at a time (static; O(block * n) memory).
+
+    Returns:
+        `SimplicityAndClearance`: `is_simple` (boolean scalar) and `clearance` (scalar, length units).
     """
     simple, near, far = _edge_pair_sweep(curve, block, with_clearance=True)
-    return simple, jnp.minimum(near, far)
+    return SimplicityAndClearance(simple, jnp.minimum(near, far))
 
 
 def near_and_far_clearances(curve: Curve, *, block: int = 128) -> tuple[Bool[Array, ""], Float[Array, ""], Float[Array, ""]]:
@@ -223,12 +246,13 @@ def near_and_far_clearances(curve: Curve, *, block: int = 128) -> tuple[Bool[Arr
     Near: edges at most `NEAR_EDGES` apart along the curve (`inf` if there are none); far: the
     rest (`inf` if none). Near edges move almost together in a smooth flow, so the flows certify
     them by the relative motion of nearby vertices and the far ones by the total motion
-    (`ddgjax.curves._flow`).
+    (`ddgjax.curves._flow_certificate`).
     """
     return _edge_pair_sweep(curve, block, with_clearance=True)
 
 
-@curve_kernel(static_argnames=("block",))
+@keyword_options
+@kernel(static_argnames=("block",))
 def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
     """True when the curve does not intersect or touch itself (boolean scalar, jit-compatible).
 

@@ -1,8 +1,9 @@
 """Built-in closed polygons (regular, flower, star, random, the Figure 3 polygon) and a file loader.
 
 Every shape is built with NumPy in float64 on the host, deterministically, and wrapped in a
-`Curve` with `jnp.asarray`, so its points follow the active JAX default dtype (float32 unless the
-caller enabled x64; the library never changes `jax.config`). All built-in shapes are simple and
+`Curve` whose points have the float dtype `dtype=` (default: JAX's default float, float32 unless the
+caller enabled x64; the library never changes `jax.config`), as the `ddgjax.mesh` shapes do. Options
+after the vertex count are keyword-only. All built-in shapes are simple and
 traversed counterclockwise (positive signed area, turning number +1), the orientation for which
 the turning angles are positive (DESIGN.md, Plane curves).
 """
@@ -20,18 +21,22 @@ from ._curve import Curve
 __all__ = ["figure3_polygon", "flower", "load_polygon", "random_polygon", "regular_polygon", "star"]
 
 
-def _radial(angles: np.ndarray, radii: np.ndarray, center=(0.0, 0.0)) -> Curve:
+def _closed(points: np.ndarray, dtype) -> Curve:
+    """A closed `Curve` through the float64 `points`, in `dtype` (default: JAX's default float)."""
+    return Curve(jnp.asarray(points, dtype=jnp.result_type(float) if dtype is None else dtype), closed=True)
+
+
+def _radial(angles: np.ndarray, radii: np.ndarray, center=(0.0, 0.0), dtype=None) -> Curve:
     """The closed polygon with vertices `center + radii * (cos, sin)(angles)`.
 
     With increasing angles spanning less than one turn and gaps below pi, each edge stays in its
     own angular sector around `center`, so the polygon is simple, star-shaped and counterclockwise.
     """
     c = np.asarray(center, dtype=np.float64).reshape(2)
-    points = c + radii[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
-    return Curve(jnp.asarray(points), closed=True)
+    return _closed(c + radii[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1), dtype)
 
 
-def regular_polygon(n: int, radius: float = 1.0, center: tuple[float, float] = (0.0, 0.0)) -> Curve:
+def regular_polygon(n: int, *, radius: float = 1.0, center: tuple[float, float] = (0.0, 0.0), dtype=None) -> Curve:
     """Regular `n`-gon inscribed in the circle of `radius` about `center`, counterclockwise.
 
     Vertex `k` is `center + radius * (cos(2 pi k / n), sin(2 pi k / n))`. Every turning angle is
@@ -42,6 +47,7 @@ def regular_polygon(n: int, radius: float = 1.0, center: tuple[float, float] = (
         n: number of vertices, at least 3.
         radius: circumradius, > 0.
         center: the circle's centre `(x, y)`.
+        dtype: float dtype of the points (default: JAX's default float).
 
     Returns:
         A closed `Curve` with points of shape `(n, 2)`.
@@ -52,10 +58,10 @@ def regular_polygon(n: int, radius: float = 1.0, center: tuple[float, float] = (
     n = check_count("n", n, 3)
     radius = check_positive("radius", radius)
     angles = 2 * np.pi * np.arange(n) / n
-    return _radial(angles, np.full(n, radius), center)
+    return _radial(angles, np.full(n, radius), center, dtype)
 
 
-def flower(n: int = 128, petals: int = 5, amplitude: float = 0.3, radius: float = 1.0) -> Curve:
+def flower(n: int = 128, *, petals: int = 5, amplitude: float = 0.3, radius: float = 1.0, dtype=None) -> Curve:
     """Flower-shaped polygon: the polar curve `r(phi) = radius (1 + amplitude cos(petals phi))`.
 
     Sampled at `n` equally spaced angles. Simple for `0 <= amplitude < 1` (star-shaped about the
@@ -66,6 +72,7 @@ def flower(n: int = 128, petals: int = 5, amplitude: float = 0.3, radius: float 
         petals: number of lobes, at least 1.
         amplitude: relative depth of the lobes, in `[0, 1)`.
         radius: mean radius, > 0.
+        dtype: float dtype of the points (default: JAX's default float).
 
     Returns:
         A closed counterclockwise `Curve` with points of shape `(n, 2)`.
@@ -76,10 +83,12 @@ def flower(n: int = 128, petals: int = 5, amplitude: float = 0.3, radius: float 
     if not 0 <= amplitude < 1:
         raise DDGInputError(f"amplitude: expected a number in [0, 1) so the flower stays simple, got {amplitude!r}")
     angles = 2 * np.pi * np.arange(n) / n
-    return _radial(angles, radius * (1 + amplitude * np.cos(petals * angles)))
+    return _radial(angles, radius * (1 + amplitude * np.cos(petals * angles)), dtype=dtype)
 
 
-def star(tips: int = 5, inner_radius: float = 0.5, outer_radius: float = 1.0, subdivisions: int = 8) -> Curve:
+def star(
+    tips: int = 5, *, inner_radius: float = 0.5, outer_radius: float = 1.0, subdivisions: int = 8, dtype=None
+) -> Curve:
     """Star polygon with `tips` points, each edge split into `subdivisions` equal segments.
 
     The corners alternate between `outer_radius` (at angles `2 pi k / tips`) and `inner_radius`
@@ -91,6 +100,7 @@ def star(tips: int = 5, inner_radius: float = 0.5, outer_radius: float = 1.0, su
         inner_radius: radius of the reflex corners, `0 < inner_radius < outer_radius`.
         outer_radius: radius of the tips, > 0.
         subdivisions: segments per straight edge, at least 1.
+        dtype: float dtype of the points (default: JAX's default float).
 
     Returns:
         A closed counterclockwise `Curve` with points of shape `(2 * tips * subdivisions, 2)`.
@@ -106,10 +116,12 @@ def star(tips: int = 5, inner_radius: float = 0.5, outer_radius: float = 1.0, su
     corners = radii[:, None] * np.stack([np.cos(angles), np.sin(angles)], axis=1)
     t = np.arange(subdivisions)[None, :, None] / subdivisions
     points = (1 - t) * corners[:, None, :] + t * np.roll(corners, -1, axis=0)[:, None, :]
-    return Curve(jnp.asarray(points.reshape(-1, 2)), closed=True)
+    return _closed(points.reshape(-1, 2), dtype)
 
 
-def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4) -> Curve:
+def random_polygon(
+    n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4, dtype=None
+) -> Curve:
     """Random simple, generally non-convex polygon: a random radial function sampled at jittered angles.
 
     `r(phi) = 1 + sum_{m=2}^{modes} (a_m cos(m phi) + b_m sin(m phi))` with Gaussian `a_m, b_m`
@@ -124,6 +136,7 @@ def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int 
         amplitude: largest relative radial perturbation, in `[0, 1)`.
         modes: highest Fourier mode of the perturbation, at least 2.
         jitter: largest angular shift of a vertex as a fraction of the grid step, in `[0, 0.5)`.
+        dtype: float dtype of the points (default: JAX's default float).
 
     Returns:
         A closed counterclockwise `Curve` with points of shape `(n, 2)`.
@@ -140,10 +153,10 @@ def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int 
     a, b = rng.standard_normal((2, m.size)) / m
     perturbation = np.cos(np.outer(angles, m)) @ a + np.sin(np.outer(angles, m)) @ b
     scale = np.max(np.abs(perturbation))
-    return _radial(angles, 1 + amplitude * perturbation / np.where(scale > 0, scale, 1.0))
+    return _radial(angles, 1 + amplitude * perturbation / np.where(scale > 0, scale, 1.0), dtype=dtype)
 
 
-def figure3_polygon() -> Curve:
+def figure3_polygon(*, dtype=None) -> Curve:
     """The non-convex polygon of the `ddgjax flow` demo, in the spirit of the reading report's Figure 3.
 
     A 64-vertex star-shaped polygon with two deep bays and unevenly spaced vertices (denser on the
@@ -153,13 +166,16 @@ def figure3_polygon() -> Curve:
     `r(phi) = 1 + 0.3 cos(2 phi) + 0.25 sin(3 phi) + 0.1 cos(5 phi)`, sampled at
     `phi_k = t_k + 0.35 sin(t_k)`, `t_k = 2 pi k / 64`.
 
+    Args:
+        dtype: float dtype of the points (default: JAX's default float).
+
     Returns:
         A closed counterclockwise `Curve` with points of shape `(64, 2)`.
     """
     t = 2 * np.pi * np.arange(64) / 64
     angles = t + 0.35 * np.sin(t)
     radii = 1 + 0.3 * np.cos(2 * angles) + 0.25 * np.sin(3 * angles) + 0.1 * np.cos(5 * angles)
-    return _radial(angles, radii)
+    return _radial(angles, radii, dtype=dtype)
 
 
 def load_polygon(path: str | os.PathLike) -> Curve:

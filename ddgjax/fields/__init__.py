@@ -1,16 +1,17 @@
 """Direction fields: the discrete Levi-Civita connection, the connection Laplacian, smoothest n-direction fields.
 
-- Connection (angle form; conventions in `ddgjax.fields._connection`): `edge_polar_angles`,
+- Connection (angle form; conventions in `ddgjax.fields._connection`, whose treatment of boundary
+  vertices every function takes as `boundary_scaling="geodesic" | "unscaled"`): `edge_polar_angles`,
   `edge_transport_angles` (`rho_ij = theta_ji + pi - theta_ij`), `face_holonomies`,
-  `tangent_bases` (`e1, e2, normal`).
+  `tangent_bases` (`TangentBases(e1, e2, normal)`).
 - `connection_laplacian(mesh, *, n=1)`: complex Hermitian PSD, `u^H A u = sum w_ij |u_j - e^{i n rho_ij} u_i|^2`;
   `connection_mass_matrix`.
-- `smoothest_field(mesh, *, n=1, alignment=None, alignment_weight=1.0)` -> `(nv,)` complex: the
-  globally smoothest field (smallest eigenvector) or the screened alignment to a guidance field
-  (`principal_curvature_alignment`), differentiable in the vertex positions;
-  `smoothest_field_solution(...)` -> `SmoothestField` adds the unnormalised solution and its energy.
+- `smoothest_field(mesh, *, n=1, alignment=None, alignment_weight=1.0, throw=True)` ->
+  `SmoothestField(field, solution, energy)`: the globally smoothest field (smallest eigenvector) or
+  the screened alignment to a guidance field (`principal_curvature_alignment`), differentiable in
+  the vertex positions; `field` is `(nv,)` complex.
 - `field_singularities(mesh, field, *, n)`: the index of every face (Poincare-Hopf: they sum to `chi`).
-- `interpolate_field(mesh, vertices, values, *, n=1)`: the smoothest field through given values.
+- `interpolate_field(mesh, *, fixed_vertices, fixed_values, n=1)`: the smoothest field through given values.
 - `field_to_vectors(mesh, field, *, n, at="vertices" | "faces")`: the `n` directions as 3D unit vectors.
 
 Fields are complex `n`-th powers in the vertices' polar coordinates. Reference: Knoeppel, Crane,
@@ -20,6 +21,7 @@ Pinkall, Schroeder, "Globally optimal direction fields" (2013).
 from ._connection import edge_polar_angles as edge_polar_angles
 from ._connection import edge_transport_angles as edge_transport_angles
 from ._connection import face_holonomies as face_holonomies
+from ._connection import TangentBases as TangentBases
 from ._connection import tangent_bases as tangent_bases
 from ._interpolation import interpolate_field as interpolate_field
 from ._laplacian import connection_laplacian as connection_laplacian
@@ -28,5 +30,4 @@ from ._singularities import field_singularities as field_singularities
 from ._smoothest import SmoothestField as SmoothestField
 from ._smoothest import principal_curvature_alignment as principal_curvature_alignment
 from ._smoothest import smoothest_field as smoothest_field
-from ._smoothest import smoothest_field_solution as smoothest_field_solution
 from ._vectors import field_to_vectors as field_to_vectors

@@ -4,10 +4,12 @@ Conventions (one place; every function of `ddgjax.fields` follows them):
 
 - **Polar coordinates at a vertex.** The corner angles `alpha` around vertex `i` are rescaled by
   `s_i = 2 pi / sum alpha` at an interior vertex, so that they close up to a full turn. At a
-  boundary vertex, `boundary="geodesic"` (the default, as Knoeppel et al. 2013 and geometry-central /
-  potpourri3d do) rescales them to sum to `pi`, as if the boundary were a geodesic (a field along
-  the boundary is then parallel along it); `boundary="unscaled"` keeps them (`s_i = 1`), so a flat
-  region stays flat up to its boundary (a flat disk carries the constant field with zero energy).
+  boundary vertex, `boundary_scaling="geodesic"` (the default, as Knoeppel et al. 2013 and
+  geometry-central / potpourri3d do) rescales them to sum to `pi`, as if the boundary were a geodesic
+  (a field along the boundary is then parallel along it); `boundary_scaling="unscaled"` keeps them
+  (`s_i = 1`), so a flat region stays flat up to its boundary (a flat disk carries the constant field
+  with zero energy). Every function of `ddgjax.fields` takes this choice as `boundary_scaling=`
+  (`boundary=` is a boundary condition elsewhere in ddgjax; docs/conventions.md).
   The *reference outgoing edge* of vertex `i` (polar angle 0) is the first edge of its reference
   corner (`ddgjax.fields._plan`); walking counterclockwise (with the faces' orientation) each edge
   `i -> j` gets the polar angle `theta_ij` in `[0, 2 pi)`: the sum of the rescaled corner angles
@@ -20,7 +22,7 @@ Conventions (one place; every function of `ddgjax.fields` follows them):
   `z exp(2 pi i k / n)`), transported by `exp(i n rho_ij)`.
 - **Face curvature** (holonomy): transport around face `abc` turns vectors by
   `Omega_f = sum_corners s_i alpha - pi` (mod `2 pi`); `sum_f Omega_f = 2 pi chi` on a closed mesh (and
-  with `boundary="geodesic"` on every mesh), the discrete Gauss-Bonnet theorem of the rescaled angles.
+  with `boundary_scaling="geodesic"` on every mesh), the discrete Gauss-Bonnet theorem of the rescaled angles.
 
 References: F. Knoeppel, K. Crane, U. Pinkall, P. Schroeder, "Globally optimal direction fields"
 (SIGGRAPH 2013), section 5; N. Sharp, Y. Soliman, K. Crane, "The vector heat method" (2019), section
@@ -28,6 +30,8 @@ References: F. Knoeppel, K. Crane, U. Pinkall, P. Schroeder, "Globally optimal d
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -41,13 +45,14 @@ from .._numerics import safe_div, safe_normalize
 from ..mesh import Mesh, corner_angles, scatter_corners_to_vertices, vertex_normals
 from ._plan import FieldPlan, field_plan
 
-BOUNDARIES = ("geodesic", "unscaled")
+BOUNDARY_SCALINGS = ("geodesic", "unscaled")
+"""`boundary_scaling=`: how the polar coordinates treat boundary vertices (module docstring)."""
 _OPERATION = "ddgjax.fields (the discrete connection)"
 
 
-def check_boundary(boundary: str) -> str:
-    """`boundary` if it is one of `BOUNDARIES`, else `DDGInputError`."""
-    return check_choice("boundary", boundary, BOUNDARIES)
+def check_boundary_scaling(boundary_scaling: str) -> str:
+    """`boundary_scaling` if it is one of `BOUNDARY_SCALINGS`, else `DDGInputError`."""
+    return check_choice("boundary_scaling", boundary_scaling, BOUNDARY_SCALINGS)
 
 
 def plan_of(mesh: Mesh) -> FieldPlan:
@@ -55,11 +60,11 @@ def plan_of(mesh: Mesh) -> FieldPlan:
     return field_plan(mesh, _OPERATION)
 
 
-def scaled_corner_angles(mesh: Mesh, plan: FieldPlan, boundary: str) -> Float[Array, "nf 3"]:
+def scaled_corner_angles(mesh: Mesh, plan: FieldPlan, boundary_scaling: str) -> Float[Array, "nf 3"]:
     """Corner angles times their vertex's scale `s_i` (module docstring), `(nf, 3)`."""
     angles = corner_angles(mesh)
     sums = scatter_corners_to_vertices(mesh, angles)
-    if boundary == "geodesic":
+    if boundary_scaling == "geodesic":
         target = jnp.where(plan.boundary, jnp.pi, 2.0 * jnp.pi)
     else:
         target = jnp.where(plan.boundary, sums, 2.0 * jnp.pi)
@@ -105,10 +110,10 @@ class ConnectionAngles(eqx.Module):
     corner_polar: Float[Array, "nf 3"]
 
 
-@kernel(static_argnames=("boundary",))
-def connection_angles(mesh: Mesh, plan: FieldPlan, boundary: str) -> ConnectionAngles:
+@kernel(static_argnames=("boundary_scaling",))
+def connection_angles(mesh: Mesh, plan: FieldPlan, boundary_scaling: str) -> ConnectionAngles:
     """`ConnectionAngles` of the mesh (one compiled program per mesh size; the other kernels take its output)."""
-    scaled = scaled_corner_angles(mesh, plan, boundary)
+    scaled = scaled_corner_angles(mesh, plan, boundary_scaling)
     first, second = corner_polar_angles(scaled, plan)
     edge_polar = jnp.mod(take_rows(jnp.concatenate([first, second]), plan.edge_angle_source), 2.0 * jnp.pi)
     return ConnectionAngles(
@@ -119,13 +124,13 @@ def connection_angles(mesh: Mesh, plan: FieldPlan, boundary: str) -> ConnectionA
     )
 
 
-def connection(mesh: Mesh, boundary: str) -> ConnectionAngles:
-    """`connection_angles` after the checks of `boundary` and of the mesh (`plan_of`)."""
-    check_boundary(boundary)
-    return connection_angles(mesh, plan_of(mesh), boundary)
+def connection(mesh: Mesh, boundary_scaling: str) -> ConnectionAngles:
+    """`connection_angles` after the checks of `boundary_scaling` and of the mesh (`plan_of`)."""
+    check_boundary_scaling(boundary_scaling)
+    return connection_angles(mesh, plan_of(mesh), boundary_scaling=boundary_scaling)
 
 
-def edge_polar_angles(mesh: Mesh, *, boundary: str = "geodesic") -> Float[Array, "ne 2"]:
+def edge_polar_angles(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Float[Array, "ne 2"]:
     """Polar angle of each edge at both its ends, `(ne, 2)`, in `[0, 2 pi)` (module docstring).
 
     Column 0 is `theta_ij` of the edge `i -> j` at `i = mesh.edges[:, 0]` (the low end), column 1 is
@@ -135,12 +140,12 @@ def edge_polar_angles(mesh: Mesh, *, boundary: str = "geodesic") -> Float[Array,
 
     Args:
         mesh: the mesh.
-        boundary: `"geodesic"` (default; boundary angle sums rescaled to `pi`) or `"unscaled"`.
+        boundary_scaling: `"geodesic"` (default; boundary angle sums rescaled to `pi`) or `"unscaled"`.
 
     Reference: Knoeppel et al. 2013, section 5.1. geometry-central: `halfedgeVectorsInVertex` (as
     complex numbers `l exp(i theta)`).
     """
-    return connection(mesh, boundary).edge_polar
+    return connection(mesh, boundary_scaling).edge_polar
 
 
 def wrap_angle(angle: Float[Array, "..."]) -> Float[Array, "..."]:
@@ -148,7 +153,7 @@ def wrap_angle(angle: Float[Array, "..."]) -> Float[Array, "..."]:
     return angle - 2.0 * jnp.pi * jnp.floor((angle + jnp.pi) / (2.0 * jnp.pi))
 
 
-def edge_transport_angles(mesh: Mesh, *, boundary: str = "geodesic") -> Float[Array, " ne"]:
+def edge_transport_angles(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Float[Array, " ne"]:
     """Transport angle `rho_ij` of each edge from its low end `i` to its high end `j`, `(ne,)`, in `[-pi, pi)`.
 
     A tangent vector `z` at `i` (in `i`'s polar coordinates) transported along the edge is
@@ -158,15 +163,15 @@ def edge_transport_angles(mesh: Mesh, *, boundary: str = "geodesic") -> Float[Ar
 
     Args:
         mesh: the mesh.
-        boundary: `"geodesic"` (default) or `"unscaled"` (module docstring).
+        boundary_scaling: `"geodesic"` (default) or `"unscaled"` (module docstring).
 
     Reference: Knoeppel et al. 2013, eq. (5); geometry-central `transportVectorsAlongHalfedge` (per
     halfedge, as the unit complex number `exp(i rho)`).
     """
-    return wrap_angle(connection(mesh, boundary).transport)
+    return wrap_angle(connection(mesh, boundary_scaling).transport)
 
 
-def face_holonomies(mesh: Mesh, *, boundary: str = "geodesic") -> Float[Array, " nf"]:
+def face_holonomies(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Float[Array, " nf"]:
     """Curvature of the connection on each face, `Omega_f = sum_corners s_i alpha - pi`, `(nf,)`.
 
     Transport around the face's boundary (counterclockwise) turns a vector by `Omega_f` (mod
@@ -175,21 +180,37 @@ def face_holonomies(mesh: Mesh, *, boundary: str = "geodesic") -> Float[Array, "
     (integrated Gaussian curvature, discrete Gauss-Bonnet); 0 on faces whose corners all have
     `s_i = 1` (flat interior vertices). Differentiable in the vertex positions.
 
+    `boundary_scaling`: `"geodesic"` (default) or `"unscaled"` (module docstring).
+
     Reference: Knoeppel et al. 2013, section 5.2 (the "angle defect of the rescaled angles").
     """
-    return connection(mesh, boundary).holonomy
+    return connection(mesh, boundary_scaling).holonomy
+
+
+class TangentBases(NamedTuple):
+    """Per-vertex orthonormal frames (`tangent_bases`); unpacks as `e1, e2, normal = ...`.
+
+    Attributes:
+        e1: `(nv, 3)` the direction of polar angle 0 (the reference outgoing edge, made tangent).
+        e2: `(nv, 3)` `normal x e1`, polar angle `pi / 2`.
+        normal: `(nv, 3)` the angle-weighted vertex normal.
+    """
+
+    e1: Float[Array, "nv 3"]
+    e2: Float[Array, "nv 3"]
+    normal: Float[Array, "nv 3"]
 
 
 @kernel
-def _tangent_bases(mesh: Mesh, plan: FieldPlan):
+def _tangent_bases(mesh: Mesh, plan: FieldPlan) -> TangentBases:
     normals = vertex_normals(mesh, weighting="angle")
     edges = take_rows(mesh.vertices, plan.reference_neighbor) - mesh.vertices
     e1 = safe_normalize(edges - jnp.sum(edges * normals, axis=-1, keepdims=True) * normals)
-    return e1, jnp.cross(normals, e1), normals
+    return TangentBases(e1, jnp.cross(normals, e1), normals)
 
 
-def tangent_bases(mesh: Mesh) -> tuple[Float[Array, "nv 3"], Float[Array, "nv 3"], Float[Array, "nv 3"]]:
-    """Per-vertex orthonormal frames `(e1, e2, normal)`, each `(nv, 3)`, matching the polar coordinates.
+def tangent_bases(mesh: Mesh) -> TangentBases:
+    """Per-vertex orthonormal frames `TangentBases(e1, e2, normal)`, each `(nv, 3)`, matching the polar coordinates.
 
     `normal` is the angle-weighted vertex normal (`vertex_normals(mesh, weighting="angle")`), `e1` the
     vertex's reference outgoing edge (polar angle 0) projected to the tangent plane and normalised,

@@ -15,16 +15,18 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .._compile import kernel
-from .._errors import DDGInputError, check_choice
+from .._errors import DDGInputError
+from .._options import check_mass
 from .._indexing import take_rows_or_zero
-from ..internal import VertexPlan, vertex_plan
-from ..laplacian import mass_matrix
+from ..internal import vertex_plan
+from ..laplacian import TriangulationPlan, mass_matrix
 from ..mesh import Mesh, edge_cotan_weights
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._connection import connection
 from ._plan import FieldPlan
 
-MASSES = ("voronoi", "barycentric")
+LUMPED_MASSES = ("voronoi", "barycentric")
+"""The `mass=` values of tangent fields: the lumped ones (`connection_mass_matrix`)."""
 
 
 def check_degree(n) -> int:
@@ -35,7 +37,7 @@ def check_degree(n) -> int:
 
 
 @kernel
-def _values(mesh: Mesh, vertex: VertexPlan, transport: Float[Array, " ne"], n: Float[Array, ""]) -> Complex[Array, " nnz"]:
+def _values(mesh: Mesh, vertex: TriangulationPlan, transport: Float[Array, " ne"], n: Float[Array, ""]) -> Complex[Array, " nnz"]:
     # `n` is traced, not static: one program per mesh size serves every n.
     weights = edge_cotan_weights(mesh)
     rotations = jnp.exp(-1j * n * transport)
@@ -45,7 +47,7 @@ def _values(mesh: Mesh, vertex: VertexPlan, transport: Float[Array, " ne"], n: F
     return take_rows_or_zero(entries, vertex.source)
 
 
-def connection_laplacian(mesh: Mesh, *, n: int = 1, boundary: str = "geodesic") -> SparseMatrix:
+def connection_laplacian(mesh: Mesh, *, n: int = 1, boundary_scaling: str = "geodesic") -> SparseMatrix:
     """The connection Laplacian `A` of `n`-direction fields, a complex Hermitian `SparseMatrix` on the vertex pattern.
 
     `u^H A u = sum_ij w_ij |u_j - exp(i n rho_ij) u_i|^2` (module docstring): the smoothness energy of
@@ -63,7 +65,7 @@ def connection_laplacian(mesh: Mesh, *, n: int = 1, boundary: str = "geodesic") 
     Args:
         mesh: the mesh.
         n: number of directions (1 vector field, 2 line field, 4 cross field), keyword-only.
-        boundary: `"geodesic"` (default, as geometry-central) or `"unscaled"` (`ddgjax.fields._connection`).
+        boundary_scaling: `"geodesic"` (default, as geometry-central) or `"unscaled"` (`ddgjax.fields._connection`).
 
     Returns:
         `(nv, nv)` complex `SparseMatrix`.
@@ -74,20 +76,22 @@ def connection_laplacian(mesh: Mesh, *, n: int = 1, boundary: str = "geodesic") 
     change of basis); geometry-central `vertexConnectionLaplacian`.
     """
     n = check_degree(n)
-    angles = connection(mesh, boundary)
+    angles = connection(mesh, boundary_scaling)
     plan = vertex_plan(mesh)
     values = _values(mesh, plan, angles.transport, jnp.asarray(n, angles.transport.dtype))
     return SparseMatrix(values, plan.pattern, hermitian=True, positive_semidefinite=True)
 
 
 def connection_mass_matrix(mesh: Mesh, *, mass: str = "voronoi") -> SparseMatrix:
-    """The lumped mass matrix of tangent fields at vertices: `mass_matrix(mesh, kind=mass)`, `(nv, nv)`, real diagonal.
+    """The lumped mass matrix of tangent fields at vertices: `mass_matrix(mesh, mass=mass)`, `(nv, nv)`, real diagonal.
 
     `u^H M u` is the squared `L2` norm of a vertex field. Only the lumped kinds (`"voronoi"`,
-    `"barycentric"`): the consistent Galerkin mass of tangent fields would need transported products.
+    `"barycentric"`); `"galerkin"` is refused (`DDGInputError`): the consistent mass of tangent fields
+    couples neighbouring vertices, whose vectors live in different tangent planes, so its off-diagonal
+    entries would need the transport (`exp(i n rho_ij)`) too, which the scalar Galerkin mass does not have.
     """
-    check_choice("mass", mass, MASSES)
-    return mass_matrix(mesh, kind=mass)
+    check_mass(mass, LUMPED_MASSES)
+    return mass_matrix(mesh, mass=mass)
 
 
 def real_form(matrix: SparseMatrix, plan: FieldPlan) -> SparseMatrix:

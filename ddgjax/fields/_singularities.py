@@ -48,7 +48,7 @@ def _indices(mesh: Mesh, field: Complex[Array, " nv"], transport, holonomy, n) -
 
 
 def field_singularities(
-    mesh: Mesh, field: Inexact[ArrayLike, " nv"], *, n: int, boundary: str = "geodesic"
+    mesh: Mesh, field: Inexact[ArrayLike, " nv"], *, n: int, boundary_scaling: str = "geodesic"
 ) -> Float[Array, " nf"]:
     """Index of an `n`-direction field around every face, `(nf,)`, multiples of `1 / n` (module docstring).
 
@@ -59,15 +59,15 @@ def field_singularities(
     Args:
         mesh: the mesh.
         field: `(nv,)` complex `n`-th powers in the vertices' polar coordinates (e.g.
-            `smoothest_field(mesh, n=n)`), with the same `boundary` convention.
+            `smoothest_field(mesh, n=n).field`), with the same `boundary_scaling` convention.
         n: number of directions (keyword-only, required: the field's representation does not say it).
-        boundary: `"geodesic"` (default) or `"unscaled"`.
+        boundary_scaling: `"geodesic"` (default) or `"unscaled"`.
 
     Returns:
         `(nf,)` face indices.
     """
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)
-    angles = connection(mesh, boundary)
+    angles = connection(mesh, boundary_scaling)
     field = _complex_field("field", field, mesh.n_vertices)
     return _indices(mesh, field, angles.transport, angles.holonomy, jnp.asarray(n, angles.holonomy.dtype))

@@ -14,6 +14,11 @@
   `s A^{-1} M q`, one step of inverse iteration from `q` (smoother than `q`, not the eigenvector:
   that is Knoeppel's limit `lambda_t -> lambda_1`, which is not offered here).
 
+`smoothest_field` returns both the unit field and what it came from (`SmoothestField`: the field,
+the minimiser `u` and its energy), since a loss uses any of them. Outcomes (`throw=`): the
+eigensolver's (`RESULTS.eigensolver_failed`) or the solve's (`ddgjax.RESULTS`), as
+`smallest_eigenpairs` and `linear_solve` report them.
+
 Derivatives in the vertex positions: the solve is differentiated implicitly (always defined). On the
 eigenvector path the eigenvalue `lambda = u^H A u` (the energy) has an exact gradient where the
 complex eigenvalue is simple. The eigenvector itself is defined up to a phase `exp(i c)` (the pair
@@ -28,25 +33,30 @@ References: F. Knoeppel, K. Crane, U. Pinkall, P. Schroeder, "Globally optimal d
 
 from __future__ import annotations
 
-import equinox as eqx
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float, Inexact
 
 from .._compile import kernel
-from .._errors import DDGInputError, check_positive
+from .._errors import DDGInputError, check_choice, check_positive
 from .._numerics import safe_reciprocal, safe_sqrt
+from .._options import check_solver
+from .._results import Solution, outcome
 from ..mesh import Mesh, edge_dihedral_angles, edge_lengths, require_mesh
 from ..solve import linear_solve
-from ..spectral import smallest_eigenpairs
-from ._connection import check_boundary, connection, plan_of
+from ..spectral import EIGENSOLVERS, smallest_eigenpairs
+from ._connection import check_boundary_scaling, connection, plan_of
 from ._laplacian import check_degree, connection_laplacian, connection_mass_matrix, real_form, real_form_diagonal
 from ._plan import require_referenced
 
 
-class SmoothestField(eqx.Module):
-    """A direction field from `smoothest_field_solution` (complex `n`-th powers in the vertices' polar coordinates).
+class SmoothestField(NamedTuple):
+    """A direction field from `smoothest_field` (complex `n`-th powers in the vertices' polar coordinates).
+
+    Unpacks as `field, solution, energy = smoothest_field(...)`.
 
     Attributes:
         field: `(nv,)` unit complex numbers `u_i / |u_i|` (0 where `u_i = 0`): the field's directions.
@@ -55,13 +65,11 @@ class SmoothestField(eqx.Module):
             `(A + s M) u = s M q` (magnitude near `|q|` where the alignment wins).
         energy: `()` the smoothness `u^H A u / u^H M u` of `solution` (the smallest eigenvalue on the
             eigenvector path).
-        n: number of directions (static).
     """
 
     field: Complex[Array, " nv"]
     solution: Complex[Array, " nv"]
     energy: Float[Array, ""]
-    n: int = eqx.field(static=True)
 
 
 def smoothest_field(
@@ -70,45 +78,27 @@ def smoothest_field(
     n: int = 1,
     alignment: Inexact[ArrayLike, " nv"] | None = None,
     alignment_weight: float = 1.0,
-    boundary: str = "geodesic",
+    boundary_scaling: str = "geodesic",
     mass: str = "voronoi",
     method: str = "auto",
-) -> Complex[Array, " nv"]:
-    """The globally smoothest `n`-direction field: `(nv,)` unit complex numbers, one per vertex (module docstring).
-
-    Each is the `n`-th power of the vertex's directions in its tangent basis (`tangent_bases`, the
-    polar coordinates of `edge_polar_angles`); 0 where the solution vanishes. The arguments and the
-    method are those of `smoothest_field_solution`, which also returns the unnormalised solution and
-    its energy. geometry-central: `computeSmoothestVertexDirectionField(geometry, n)`.
-    """
-    return smoothest_field_solution(
-        mesh, n=n, alignment=alignment, alignment_weight=alignment_weight, boundary=boundary, mass=mass, method=method
-    ).field
-
-
-def smoothest_field_solution(
-    mesh: Mesh,
-    *,
-    n: int = 1,
-    alignment: Inexact[ArrayLike, " nv"] | None = None,
-    alignment_weight: float = 1.0,
-    boundary: str = "geodesic",
-    mass: str = "voronoi",
-    method: str = "auto",
-) -> SmoothestField:
+    solver: str = "auto",
+    throw: bool = True,
+) -> SmoothestField | Solution:
     """The globally smoothest `n`-direction field on the vertices, optionally aligned to a guidance field.
 
     Without `alignment`: the eigenvector of the smallest eigenvalue of `A u = lambda M u` (module
     docstring), with a deterministic phase (its entry of largest magnitude, the first on ties, is real
     and positive). With `alignment = q`: the solution of `(A + s M) u = s M q`, `s = alignment_weight`
-    (Knoeppel's `lambda_t = -s`). `A` is `connection_laplacian(mesh, n=n, boundary=boundary)`, `M`
-    `connection_mass_matrix(mesh, mass=mass)`.
+    (Knoeppel's `lambda_t = -s`). `A` is `connection_laplacian(mesh, n=n, boundary_scaling=...)`, `M`
+    `connection_mass_matrix(mesh, mass=mass)`. The field's value at a vertex is the `n`-th power of
+    its directions in the vertex's tangent basis (`tangent_bases`, the polar coordinates of
+    `edge_polar_angles`); `field_to_vectors` turns it into 3D vectors.
 
-    On a flat disk with `boundary="unscaled"` the answer is a constant field (energy 0); with the
-    default `"geodesic"` boundary the boundary bends the connection (geometry-central's convention),
-    so it is not. Differentiable in the vertex positions (module docstring for what is defined);
-    works under `jit` (the eigensolve and the solve are host calls on CPU). Needs a manifold,
-    consistently oriented mesh without unreferenced vertices (`MeshDataError` otherwise).
+    On a flat disk with `boundary_scaling="unscaled"` the answer is a constant field (energy 0); with
+    the default `"geodesic"` the boundary bends the connection (geometry-central's convention), so it
+    is not. Differentiable in the vertex positions (module docstring for what is defined); works
+    under `jit` (the eigensolve and the solve are host calls on CPU). Needs a manifold, consistently
+    oriented mesh without unreferenced vertices (`MeshDataError` otherwise).
 
     Args:
         mesh: the mesh.
@@ -116,40 +106,52 @@ def smoothest_field_solution(
         alignment: `(nv,)` complex guidance `q` in the same representation (e.g.
             `principal_curvature_alignment(mesh, n=4)`), or `None`.
         alignment_weight: `s > 0`, the weight of `|u - q|_M^2` against the smoothness (default 1).
-        boundary: `"geodesic"` (default) or `"unscaled"` (`ddgjax.fields._connection`).
-        mass: `"voronoi"` (default) or `"barycentric"` lumped mass.
-        method: the backend of `smallest_eigenpairs` (`"auto"`, `"arpack"`, `"subspace"`) or, with
-            alignment, of `linear_solve` (`"auto"`, `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`).
+        boundary_scaling: `"geodesic"` (default) or `"unscaled"` (`ddgjax.fields._connection`).
+        mass: `"voronoi"` (default) or `"barycentric"` lumped mass (`connection_mass_matrix`; a
+            `"galerkin"` mass is refused).
+        method: the eigensolver without alignment (`"auto"`, `"arpack"`, `"subspace"`;
+            `ddgjax.spectral.smallest_eigenpairs`).
+        solver: the backend of the linear solves (`ddgjax.LINEAR_SOLVERS`): the aligned solve, and the
+            subspace iteration's.
+        throw: raise when the eigensolve or the solve fails (default), or return a `ddgjax.Solution`
+            holding the `SmoothestField`, `result` and the eigensolver's or the solve's `stats`.
 
     Returns:
-        `SmoothestField` (`field`, `solution`, `energy`, `n`).
+        `SmoothestField(field, solution, energy)` (in a `ddgjax.Solution` with `throw=False`).
 
     Reference: Knoeppel, Crane, Pinkall, Schroeder (2013), sections 5-6. geometry-central:
-    `computeSmoothestVertexDirectionField(geometry, n)` (unit field; its phase is arbitrary).
+    `computeSmoothestVertexDirectionField(geometry, n)` (the unit field; its phase is arbitrary) and
+    `computeCurvatureAlignedVertexDirectionField`.
     """
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)
-    check_boundary(boundary)
+    check_boundary_scaling(boundary_scaling)
+    check_choice("method", method, EIGENSOLVERS)
+    check_solver(solver)
     plan = plan_of(mesh)
     require_referenced(mesh, "smoothest_field")  # the name users call
-    A = connection_laplacian(mesh, n=n, boundary=boundary)
+    A = connection_laplacian(mesh, n=n, boundary_scaling=boundary_scaling)
     M = connection_mass_matrix(mesh, mass=mass)
     if alignment is None:
-        values, vectors = smallest_eigenpairs(
-            real_form(A, plan), real_form_diagonal(M.values), 2, method=method, hermitian_real_form=True
+        eigensolve = smallest_eigenpairs(
+            real_form(A, plan), real_form_diagonal(M.values), 2, method=method, solver=solver, hermitian_real_form=True, throw=False
         )
+        values, vectors = eigensolve.value
         nv = mesh.n_vertices
         u = jax.lax.complex(vectors[:nv, 0], vectors[nv:, 0])
         # The pair's mean: invariant within the cluster, so its gradient is defined.
         energy = jnp.mean(values)
         largest = jnp.argmax(jnp.abs(u))
         u = jnp.conj(unit(u[largest])) * u
+        result, stats = eigensolve.result, eigensolve.stats
     else:
         q = _complex_field("alignment", alignment, mesh.n_vertices)
         s = check_positive("alignment_weight", alignment_weight)
-        u = linear_solve(A + s * M, s * (M @ q), method=method).value
+        solve = linear_solve(A + s * M, s * (M @ q), method=solver, throw=False)
+        u = solve.value
         energy = jnp.real(jnp.vdot(u, A @ u)) / jnp.real(jnp.vdot(u, M @ u))
-    return SmoothestField(field=unit(u), solution=u, energy=energy, n=n)
+        result, stats = solve.result, {"residual": solve.residual, "num_steps": solve.num_steps}
+    return outcome(SmoothestField(field=unit(u), solution=u, energy=energy), result, throw, stats)
 
 
 def unit(u: Complex[Array, "*shape"]) -> Complex[Array, "*shape"]:
@@ -177,7 +179,7 @@ def _curvature_alignment(mesh: Mesh, angles: Float[Array, "ne 2"], n: int) -> Co
     return magnitude * unit(q) ** (n // 2)
 
 
-def principal_curvature_alignment(mesh: Mesh, *, n: int = 4, boundary: str = "geodesic") -> Complex[Array, " nv"]:
+def principal_curvature_alignment(mesh: Mesh, *, n: int = 4, boundary_scaling: str = "geodesic") -> Complex[Array, " nv"]:
     """Guidance field of the principal curvature directions, `(nv,)` complex, for `smoothest_field(alignment=...)`.
 
     From the edge-based shape operator (Cohen-Steiner & Morvan's normal cycle): each edge at vertex
@@ -197,7 +199,7 @@ def principal_curvature_alignment(mesh: Mesh, *, n: int = 4, boundary: str = "ge
     Args:
         mesh: the mesh.
         n: an even number of directions (2 or 4 typically), keyword-only.
-        boundary: the polar coordinates' boundary convention (`ddgjax.fields._connection`).
+        boundary_scaling: the polar coordinates' boundary convention (`ddgjax.fields._connection`).
 
     Reference: D. Cohen-Steiner, J.-M. Morvan, "Restricted Delaunay triangulations and normal cycle"
     (2003); Knoeppel et al. 2013, section 6 (curvature alignment with `q = (k1 - k2) exp(i n phi)`).
@@ -207,4 +209,4 @@ def principal_curvature_alignment(mesh: Mesh, *, n: int = 4, boundary: str = "ge
         raise DDGInputError(f"n: principal directions are lines, so they give fields with an even n; got {n}")
     mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("principal_curvature_alignment (signed dihedral angles)")
-    return _curvature_alignment(mesh, connection(mesh, boundary).edge_polar, n)
+    return _curvature_alignment(mesh, connection(mesh, boundary_scaling).edge_polar, n=n)

@@ -45,7 +45,7 @@ def _face_vectors(mesh: Mesh, field, vertex_angles, n: int):
 
 
 def field_to_vectors(
-    mesh: Mesh, field: Inexact[ArrayLike, " nv"], *, n: int, at: str = "vertices", boundary: str = "geodesic"
+    mesh: Mesh, field: Inexact[ArrayLike, " nv"], *, n: int, at: str = "vertices", boundary_scaling: str = "geodesic"
 ) -> Float[Array, "m k 3"]:
     """The `n` directions of an `n`-direction field as 3D unit vectors, `(nv, n, 3)` or `(nf, n, 3)`.
 
@@ -59,15 +59,15 @@ def field_to_vectors(
 
     Args:
         mesh: the mesh.
-        field: `(nv,)` complex `n`-th powers (e.g. `smoothest_field(mesh, n=n)`).
+        field: `(nv,)` complex `n`-th powers (e.g. `smoothest_field(mesh, n=n).field`).
         n: number of directions (keyword-only).
         at: `"vertices"` (default) or `"faces"`.
-        boundary: the polar coordinates' convention the field was computed with.
+        boundary_scaling: the polar coordinates' convention the field was computed with.
     """
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)
     check_choice("at", at, ("vertices", "faces"))
-    angles = connection(mesh, boundary)
+    angles = connection(mesh, boundary_scaling)
     field = _complex_field("field", field, mesh.n_vertices)
     if at == "vertices":
         return _vertex_vectors(mesh, plan_of(mesh), field, n)

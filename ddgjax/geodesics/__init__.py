@@ -1,9 +1,10 @@
 """Geodesic distance on triangle meshes, differentiable in the vertex positions.
 
-- `heat_distance(mesh, sources, *, t_coef=1.0, ...)`: the heat method (Crane, Weischedel & Wardetzky
-  2013): a short heat flow from the sources, its normalised gradient, a Poisson solve.
+- `heat_distance(mesh, sources, *, t_coef=1.0, boundary="average", solver="auto", throw=True, ...)`:
+  the heat method (Crane, Weischedel & Wardetzky 2013): a short heat flow from the sources, its
+  normalised gradient, a Poisson solve.
 - `heat_distance_solver(mesh, ...)`: the same with the factorisations kept, `solver.distance(sources)`
-  per query (`HeatDistanceSolver`).
+  per query (`HeatDistanceSolver`; `solver.steps(sources)` gives the intermediate `HeatMethodSteps`).
 """
 
 from ._heat import HeatDistanceSolver as HeatDistanceSolver

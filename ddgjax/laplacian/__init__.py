@@ -1,6 +1,10 @@
-"""The cotan Laplacian (FEM and DEC routes), mass matrices, the Dirichlet energy and converters.
-Also the intrinsic Delaunay Laplacian and mass matrix (edge flips replayed in JAX), both operators from squared edge
-lengths, and `laplacian_and_mass(mesh, mass=, robust=)`, the pair a solver runs on (`robust=` picks the intrinsic ones).
+"""The cotan Laplacian, mass matrices, the Dirichlet energy and converters, all assembled from squared edge lengths.
+
+The intrinsic core (`cotan_laplacian_from_lengths_sq`, `mass_matrix_from_lengths_sq` on a
+`triangulation_plan`) serves the mesh's own operators (`cotan_laplacian`, `mass_matrix`, the
+matrix-free `laplacian_apply` and `dirichlet_energy`) and the intrinsic Delaunay ones (edge flips
+replayed in JAX); `laplacian_and_mass(mesh, mass=, robust=)` is the pair a solver runs on
+(`robust=` picks the intrinsic ones).
 
 Conventions (DESIGN.md): `L` is the positive semidefinite weak (integrated) cotan Laplacian,
 `(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`, so `L == -igl.cotmatrix(V, F)` and
@@ -18,9 +22,10 @@ from ._intrinsic import IntrinsicTriangulation as IntrinsicTriangulation
 from ._intrinsic import intrinsic_delaunay as intrinsic_delaunay
 from ._intrinsic import intrinsic_delaunay_laplacian as intrinsic_delaunay_laplacian
 from ._intrinsic import intrinsic_delaunay_mass_matrix as intrinsic_delaunay_mass_matrix
-from ._lengths import TriangulationPlan as TriangulationPlan
 from ._lengths import cotan_laplacian_from_lengths_sq as cotan_laplacian_from_lengths_sq
 from ._lengths import mass_matrix_from_lengths_sq as mass_matrix_from_lengths_sq
-from ._lengths import triangulation_plan as triangulation_plan
 from ._mass import mass_matrix as mass_matrix
+from ._operators import LaplacianAndMass as LaplacianAndMass
 from ._operators import laplacian_and_mass as laplacian_and_mass
+from ._plan import TriangulationPlan as TriangulationPlan
+from ._plan import triangulation_plan as triangulation_plan

@@ -1,13 +1,15 @@
-"""The cotan Laplacian, by the FEM route (hat-function gradients) and the DEC route (`d0^T *1 d0`).
+"""The cotan Laplacian of a mesh: assembled (`cotan_laplacian`), applied matrix-free (`laplacian_apply`), as an energy.
 
 Convention (DESIGN.md): `L` is the positive semidefinite weak (integrated) Laplacian,
 
     (L u)_i = 1/2 sum_j (cot a_ij + cot b_ij) (u_i - u_j),
 
 so `L == -igl.cotmatrix(V, F) == gpytoolbox.cotangent_laplacian(V, F)`, and the pointwise
-Laplace-Beltrami operator is `-M^{-1} L`. Both routes land on the vertex pattern (`ddgjax.laplacian._plan`): the edge
-entries `-w_ij` are gathered from per-corner values (no scatter), the diagonal is minus the
-off-diagonal row sum (`L 1 = 0` by construction, exactly the partition of unity `sum_j grad phi_j = 0`).
+Laplace-Beltrami operator is `-M^{-1} L`. Every route computes the same per-corner values, the
+intrinsic core of `ddgjax.laplacian._lengths` on the mesh's squared edge lengths, gathered (no
+scatter) onto the off-diagonal slots of the vertex pattern (`ddgjax.laplacian._plan`); the assembled
+matrix's diagonal is minus the off-diagonal row sum (`L 1 = 0` by construction, exactly the
+partition of unity `sum_j grad phi_j = 0`).
 
 Works on every triangle mesh, as libigl's does: a boundary edge has one cotangent term, a
 non-manifold edge one per incident face, inconsistent orientation does not matter (cotangents are
@@ -27,42 +29,36 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._compile import kernel
-from .._errors import DDGInputError, check_choice
-from .._indexing import take_rows, take_rows_or_zero
-from .._numerics import safe_div, safe_reciprocal, safe_sqrt
-from ..dec import d0, hodge1
-from ..mesh import Mesh, require_mesh
-from ..sparse import SparseMatrix, congruence, gather_sum
-from ._plan import VertexPlan, dec_plan, vertex_plan
+from .._errors import DDGInputError
+from .._indexing import take_rows
+from .._numerics import safe_reciprocal, safe_sqrt
+from ..mesh import Mesh, face_areas, face_edge_lengths_sq, require_mesh
+from ..sparse import SparseMatrix
+from ._lengths import laplacian_values, off_diagonal_entries, psd_matrix
+from ._plan import TriangulationPlan, vertex_plan
 
 
-def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
-    """The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on the vertex pattern (`ddgjax.laplacian._plan`).
+def cotan_laplacian(mesh: Mesh) -> SparseMatrix:
+    """The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on the mesh's vertex pattern.
 
-    `L_ij = -(cot a_ij + cot b_ij) / 2` for an edge `ij`, `L_ii = -sum_{j != i} L_ij`.
+    `L_ij = -(cot a_ij + cot b_ij) / 2` for an edge `ij`, `L_ii = -sum_{j != i} L_ij`, with the
+    cotangents from the squared edge lengths of each face, `cot a_k = (l_{k+1}^2 + l_{k+2}^2 - l_k^2)
+    / (4 A)`: the intrinsic core `cotan_laplacian_from_lengths_sq` applied to the mesh's
+    `face_edge_lengths_sq`, on the storage plan cached for its connectivity
+    (`ddgjax.laplacian._plan`), with the face areas from the embedding (`|e_1 x e_2| / 2`, as
+    `ddgjax.mesh.corner_cotangents` takes them). It is the Galerkin stiffness matrix of
+    piecewise-linear hat functions, `L_ij = int <grad phi_i, grad phi_j>`, and equals the DEC
+    `d0^T *1 d0` (`ddgjax.dec`) to round-off (tests). The per-corner values are gathered straight
+    into the pattern's storage order and the diagonal is minus the off-diagonal row sum, so
+    `L 1 = 0` exactly.
 
-    - `method="fem"` (default, the fast one): Galerkin stiffness matrix of piecewise-linear hat
-      functions, `L_ij = sum_f A_f <grad phi_i, grad phi_j>` with `grad phi_k = (N x e_k) / (2 A_f)`
-      (`e_k` the edge vector opposite corner `k`, `N` the unit normal; `face_hat_gradients`). A
-      rotation by 90 degrees in the face plane keeps dot products, so the per-face product simplifies
-      to `A_f <grad phi_i, grad phi_j> = <e_i, e_j> / (4 A_f)` with `4 A_f = 2 |e_i x e_j|`: two dot
-      products and one cross product per face, no normal or gradient is formed. It equals the cotan
-      formula since `<e_i, e_j> / (2 A_f) = -cot(angle at the third corner)`. The per-corner values are
-      gathered straight into the pattern's storage order (`VertexPlan.slot_corners`) and the
-      diagonal is minus the ELL row sum.
-    - `method="dec"`: `d0^T *1 d0` from `ddgjax.dec.d0` and the circumcentric `ddgjax.dec.hodge1`,
-      summed by `ddgjax.sparse.congruence` (a cross-check of the derivation; slower). Its product ->
-      slot map is built on the host once per mesh topology and cached.
-
-    Both agree to round-off on every mesh (tests). The result is flagged symmetric positive
-    semidefinite (a Gram matrix of hat gradients, whatever the angles), so
-    `cotan_laplacian(m).as_lineax_operator()` is tagged for `lineax.CG`. Works under jit / grad / jvp /
-    vmap over the vertex positions; see the module docstring for non-manifold, boundary and
-    degenerate input.
+    The result is flagged symmetric positive semidefinite (a Gram matrix of hat gradients, whatever
+    the angles), so `cotan_laplacian(m).as_lineax_operator()` is tagged for `lineax.CG`. Works under
+    jit / grad / jvp / vmap over the vertex positions; see the module docstring for non-manifold,
+    boundary and degenerate input.
 
     Args:
         mesh: any triangle mesh.
-        method: `"fem"` or `"dec"` (keyword-only).
 
     Returns:
         `(nv, nv)` `SparseMatrix`; `L == -igl.cotmatrix(V, F)` (`to_igl_cotmatrix` converts).
@@ -71,20 +67,14 @@ def cotan_laplacian(mesh: Mesh, *, method: str = "fem") -> SparseMatrix:
     (1993); K. Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), ch. 6.
     libigl `cotmatrix` (negated); gpytoolbox `cotangent_laplacian`.
     """
-    check_choice("method", method, ("fem", "dec"))
     plan = vertex_plan(mesh)
-    if method == "fem":
-        values = _fem_values(mesh, plan)
-    else:
-        values = congruence(d0(mesh), hodge1(mesh).diagonal(), plan.pattern, dec_plan(mesh)).values
-    return SparseMatrix(values, plan.pattern, symmetric=True, positive_semidefinite=True)
+    return psd_matrix(_values(mesh, plan), plan)
 
 
 @kernel
-def _fem_values(mesh: Mesh, plan: VertexPlan) -> Float[Array, " nnz"]:
-    """Values of the FEM cotan Laplacian on `plan.pattern` (one compiled program per mesh size)."""
-    rows_off = _off_diagonal(plan, _edge_entries(mesh, plan))
-    return _with_diagonal(rows_off, -rows_off.row_sums(), positive_semidefinite=True).values
+def _values(mesh: Mesh, plan: TriangulationPlan) -> Float[Array, " nnz"]:
+    """Values of `cotan_laplacian` on `plan.pattern` (one compiled program per mesh size)."""
+    return laplacian_values(face_edge_lengths_sq(mesh), plan, areas=face_areas(mesh))
 
 
 def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
@@ -123,13 +113,14 @@ def _vertex_values(mesh: Mesh, u) -> Float[Array, "nv *k"]:
     return u if isinstance(u, jax.Array) else jnp.asarray(u)
 
 
-def _apply_laplacian(mesh: Mesh, plan: VertexPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
+def _apply_laplacian(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
     """`laplacian_apply` without the input check (see there)."""
     n = mesh.n_vertices
     shape = jnp.shape(u)
     columns = u.reshape(n, -1)
     pattern = plan.pattern
-    weights = _edge_entries(mesh, plan)[:, None]  # L_ij on the off-diagonal slots nv.. (row i, column j)
+    # L_ij on the off-diagonal slots nv.. (row i, column j): the entries `cotan_laplacian` assembles.
+    weights = off_diagonal_entries(face_edge_lengths_sq(mesh), plan, face_areas(mesh))[:, None]
     ell_end = n * pattern.width
     ell_weights = weights[: ell_end - n].reshape(pattern.width - 1, n, 1)
     ell_heads = pattern.cols[n:ell_end].reshape(pattern.width - 1, n)
@@ -162,7 +153,7 @@ def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
 
 
 @jax.custom_jvp
-def _dirichlet_energy(mesh: Mesh, plan: VertexPlan, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
+def _dirichlet_energy(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
     return 0.5 * jnp.sum(u * _apply_laplacian(mesh, plan, u))
 
 
@@ -245,31 +236,3 @@ def _dot(a, b):
 
 def _cross(a, b):
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-
-
-def vertex_operator(plan: VertexPlan, edge_values: Float[Array, " ne"]) -> SparseMatrix:
-    """Symmetric matrix on `plan.pattern` with `edge_values` off the diagonal and 0 on it (one gather)."""
-    zeros = jnp.zeros(plan.pattern.shape[0], edge_values.dtype)
-    entries = jnp.concatenate([zeros, edge_values, edge_values])
-    values = take_rows_or_zero(entries, plan.source)
-    return SparseMatrix(values, plan.pattern, symmetric=True)
-
-
-def _edge_entries(mesh: Mesh, plan: VertexPlan) -> Float[Array, " n_off"]:
-    """FEM stiffness `L_ij = sum_f <e_i, e_j> / (4 A_f)` on each off-diagonal slot of `plan.pattern`."""
-    edges, normal = _face_edges(mesh)
-    four_areas = 2.0 * safe_sqrt(_dot(normal, normal))
-    # <e_i, e_j> / (4 A) per corner k (the entry of the edge opposite it); 0 on zero-area faces.
-    entries = jnp.stack([safe_div(_dot(edges[(k + 1) % 3], edges[(k + 2) % 3]), four_areas) for k in range(3)], axis=1)
-    return gather_sum(entries.reshape(-1), plan.slot_corners, plan.corner_slots)
-
-
-def _off_diagonal(plan: VertexPlan, edge_entries: Float[Array, " n_off"]) -> SparseMatrix:
-    values = jnp.concatenate([jnp.zeros(plan.pattern.shape[0], edge_entries.dtype), edge_entries])
-    return SparseMatrix(values, plan.pattern, symmetric=True)
-
-
-def _with_diagonal(matrix: SparseMatrix, diagonal: Float[Array, " nv"], *, positive_semidefinite: bool) -> SparseMatrix:
-    # The vertex pattern stores the diagonal first (slots 0..nv-1).
-    values = matrix.values.at[: diagonal.shape[0]].set(diagonal)
-    return SparseMatrix(values, matrix.pattern, symmetric=True, positive_semidefinite=positive_semidefinite)

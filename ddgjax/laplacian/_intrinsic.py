@@ -56,19 +56,14 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._compile import kernel
-from .._errors import DDGInputError, check_choice, is_traced
+from .._errors import DDGInputError, is_traced
 from .._indexing import take_rows
 from .._numerics import safe_div
 from ..mesh import Mesh, MeshTopology, face_areas_from_lengths_sq, require_mesh
+from .._options import check_mass
 from ..sparse import SparseMatrix
-from ._lengths import (
-    MASS_KINDS,
-    TriangulationPlan,
-    cotan_laplacian_from_lengths_sq,
-    mass_matrix_from_lengths_sq,
-    triangulation_plan,
-)
-from ._plan import vertex_plan
+from ._lengths import cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
+from ._plan import TriangulationPlan, triangulation_plan, vertex_plan
 
 # An edge is flipped when cot a + cot b < -_DELAUNAY_TOLERANCE * (the sum of the six cotangents of its
 # two faces, the scale of the test's rounding error; `_delaunay_defects`): a co-circular quad (a + b = pi
@@ -85,7 +80,7 @@ class IntrinsicTriangulation(eqx.Module):
     writes the new diagonals of its flips to slots `ne + s * width + p`.
 
     Attributes:
-        plan: the flipped faces `(nf, 3)` and their vertex-pattern plan (`TriangulationPlan`).
+        plan: the flipped faces `(nf, 3)` and the storage plan of their operators (`TriangulationPlan`).
         face_length_slots: `(nf, 3)` the slot of the edge opposite each corner of `plan.faces`.
         flip_slots: `(n_steps, 5, width)` int32, per step up to `width` flips of one round (they
             share no face, so no flip of a step reads another's result): the slots of the squared
@@ -160,10 +155,8 @@ def intrinsic_delaunay(mesh: Mesh) -> IntrinsicTriangulation:
     edges = topology.edges
     lengths_sq = np.sum((vertices[edges[:, 1]] - vertices[edges[:, 0]]) ** 2, axis=1)
     faces, face_edges, rounds = _flip_to_delaunay(topology, lengths_sq)
-    if rounds:
-        plan = triangulation_plan(faces, topology.n_vertices)
-    else:  # the mesh itself: share the cached plan (and pattern) of `cotan_laplacian(mesh)`
-        plan = TriangulationPlan(faces=mesh.faces, vertex_plan=vertex_plan(mesh))
+    # Without flips the triangulation is the mesh's: share the cached plan (and pattern) of `cotan_laplacian(mesh)`.
+    plan = triangulation_plan(faces, topology.n_vertices) if rounds else vertex_plan(mesh)
     flip_slots, face_length_slots = _replay_layout(rounds, face_edges, topology.n_edges)
     return IntrinsicTriangulation(
         plan=plan,
@@ -197,7 +190,7 @@ def intrinsic_delaunay_laplacian(mesh: Mesh, *, triangulation: IntrinsicTriangul
         triangulation: `intrinsic_delaunay(mesh)` for this connectivity (keyword-only), or `None`.
 
     Returns:
-        `(nv, nv)` `SparseMatrix` on `triangulation.plan.vertex_plan.pattern`.
+        `(nv, nv)` `SparseMatrix` on `triangulation.plan.pattern`.
 
     References: Bobenko & Springborn (2007); Fisher et al. (2007). libigl
     `intrinsic_delaunay_cotmatrix` (negated); `robust_laplacian.mesh_laplacian(V, F, mollify_factor=0)`
@@ -208,31 +201,34 @@ def intrinsic_delaunay_laplacian(mesh: Mesh, *, triangulation: IntrinsicTriangul
 
 
 def intrinsic_delaunay_mass_matrix(
-    mesh: Mesh, *, triangulation: IntrinsicTriangulation | None = None, kind: str = "voronoi"
+    mesh: Mesh, *, triangulation: IntrinsicTriangulation | None = None, mass: str = "voronoi"
 ) -> SparseMatrix:
-    """Lumped mass matrix of the intrinsic Delaunay triangulation, a diagonal `SparseMatrix`.
+    """Mass matrix of the intrinsic Delaunay triangulation, a `SparseMatrix`.
 
-    `M_ii` sums vertex `i`'s share of the area of each intrinsic triangle at it
-    (`mass_matrix_from_lengths_sq`): `kind="voronoi"` (default, as `mass_matrix`) the mixed Voronoi
-    area of Meyer et al. 2003, as libigl's `massmatrix_intrinsic(l, F, MASSMATRIX_TYPE_VORONOI)` on
-    the intrinsic triangulation; `kind="barycentric"` a third of each triangle, the mass matrix of
-    `robust_laplacian.mesh_laplacian`. The total is the surface area (flips keep the metric). Pairs
-    with `intrinsic_delaunay_laplacian` (pass the same `triangulation`): `-M^{-1} L` is the pointwise
-    Laplace-Beltrami operator. Differentiable in `mesh.vertices` as the Laplacian is.
+    The mass matrix of the intrinsic triangles (`mass_matrix_from_lengths_sq` on
+    `IntrinsicTriangulation.face_lengths_sq`), `mass` one of `ddgjax.MASS_MATRICES`:
+    `"voronoi"` (default, as `mass_matrix`) sums the mixed Voronoi area of Meyer et al. 2003 of each
+    intrinsic triangle at a vertex, as libigl's `massmatrix_intrinsic(l, F, MASSMATRIX_TYPE_VORONOI)`
+    on the intrinsic triangulation; `"barycentric"` a third of each triangle, the mass matrix of
+    `robust_laplacian.mesh_laplacian`; `"galerkin"` the consistent FEM mass matrix of the intrinsic
+    hat functions (on the intrinsic Laplacian's pattern). The total is the surface area (flips keep
+    the metric). Pairs with `intrinsic_delaunay_laplacian` (pass the same `triangulation`):
+    `-M^{-1} L` is the pointwise Laplace-Beltrami operator. Differentiable in `mesh.vertices` as the
+    Laplacian is.
 
     Args:
         mesh: an edge-manifold, consistently oriented mesh.
         triangulation: `intrinsic_delaunay(mesh)` (keyword-only), or `None` to compute it here.
-        kind: `"voronoi"` or `"barycentric"` (keyword-only).
+        mass: `"voronoi"`, `"barycentric"` or `"galerkin"` (keyword-only).
 
     Returns:
-        `(nv, nv)` diagonal `SparseMatrix`, symmetric positive semidefinite.
+        `(nv, nv)` `SparseMatrix`, symmetric positive semidefinite: diagonal for the lumped masses.
 
     Reference: Meyer, Desbrun, Schroeder, Barr (2003); libigl `massmatrix_intrinsic`.
     """
-    check_choice("kind", kind, MASS_KINDS)  # before any flips
+    check_mass(mass)  # before any flips
     triangulation = _triangulation_for(mesh, triangulation)
-    return mass_matrix_from_lengths_sq(triangulation.face_lengths_sq(mesh), triangulation.plan, kind=kind)
+    return mass_matrix_from_lengths_sq(triangulation.face_lengths_sq(mesh), triangulation.plan, mass=mass)
 
 
 def _triangulation_for(mesh: Mesh, triangulation) -> IntrinsicTriangulation:

@@ -1,16 +1,19 @@
 """The Laplacian and mass matrix a problem runs on: the mesh's own, or its intrinsic Delaunay ones (`robust=`).
 
-Solvers built on the Laplacian (eigenpairs, heat-method distance) take `robust=False` (the mesh's
-cotan Laplacian and `mass_matrix(mesh, kind=mass)`), `robust=True` (the intrinsic Delaunay Laplacian
-and lumped mass, whose interior weights are non-negative: the maximum principle holds and obtuse
-triangles no longer spoil the solve; Sharp & Crane 2020 call this the "robust" Laplacian), or an
-`IntrinsicTriangulation` from `intrinsic_delaunay(mesh)`, made once on the host, which is what
+Solvers built on the Laplacian (eigenpairs, heat-method distance, Poisson) take `robust=False` (the
+mesh's cotan Laplacian and `mass_matrix(mesh, mass=mass)`), `robust=True` (the intrinsic Delaunay
+Laplacian and mass matrix, whose interior weights are non-negative: the maximum principle holds and
+obtuse triangles no longer spoil the solve; Sharp & Crane 2020 call this the "robust" Laplacian), or
+an `IntrinsicTriangulation` from `intrinsic_delaunay(mesh)`, made once on the host, which is what
 works inside `jit` / `grad` (the flips are host combinatorics).
 """
 
 from __future__ import annotations
 
-from .._errors import DDGInputError, check_choice
+from typing import NamedTuple
+
+from .._errors import DDGInputError
+from .._options import check_mass
 from ..mesh import Mesh
 from ..sparse import SparseMatrix
 from ._cotan import cotan_laplacian
@@ -18,29 +21,51 @@ from ._intrinsic import IntrinsicTriangulation, intrinsic_delaunay, intrinsic_de
 from ._mass import mass_matrix
 
 
+class LaplacianAndMass(NamedTuple):
+    """The pair `laplacian_and_mass` returns (unpacks as `L, M = laplacian_and_mass(mesh)`).
+
+    Attributes:
+        laplacian: `(nv, nv)` the PSD cotan Laplacian `L`.
+        mass: `(nv, nv)` the mass matrix `M`.
+    """
+
+    laplacian: SparseMatrix
+    mass: SparseMatrix
+
+
 def laplacian_and_mass(
     mesh: Mesh, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False
-) -> tuple[SparseMatrix, SparseMatrix]:
-    """`(L, M)`: the cotan Laplacian and the mass matrix of `mesh`, or of its intrinsic Delaunay triangulation (module docstring).
+) -> LaplacianAndMass:
+    """`(L, M)`: the cotan Laplacian and the mass matrix of `mesh`, or of its intrinsic Delaunay triangulation.
+
+    `robust=False`: `cotan_laplacian(mesh)` and `mass_matrix(mesh, mass=mass)`; otherwise
+    `intrinsic_delaunay_laplacian` and `intrinsic_delaunay_mass_matrix` of one triangulation (module
+    docstring). `-M^{-1} L` is the pointwise Laplace-Beltrami operator.
 
     Args:
         mesh: the mesh.
-        mass: `"voronoi"`, `"barycentric"` or (not with `robust`) `"galerkin"`.
+        mass: one of `ddgjax.MASS_MATRICES`, `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         robust: `False`, `True` (flips computed here, on the host: outside `jit`) or an `IntrinsicTriangulation`.
+
+    Returns:
+        `LaplacianAndMass(laplacian, mass)`, two `(nv, nv)` `SparseMatrix`es.
+
+    Reference: Sharp & Crane, "A Laplacian for nonmanifold triangle meshes" (2020). libigl:
+    `-igl.cotmatrix(V, F)`, `igl.massmatrix(V, F, type)`; robust_laplacian: `mesh_laplacian(V, F)`.
     """
     triangulation = resolve_robust(mesh, robust, mass=mass)
     if triangulation is None:
-        return cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
-    return (
+        return LaplacianAndMass(cotan_laplacian(mesh), mass_matrix(mesh, mass=mass))
+    return LaplacianAndMass(
         intrinsic_delaunay_laplacian(mesh, triangulation=triangulation),
-        intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, kind=mass),
+        intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, mass=mass),
     )
 
 
 def resolve_robust(mesh: Mesh, robust: bool | IntrinsicTriangulation, *, mass: str = "voronoi") -> IntrinsicTriangulation | None:
     """The triangulation a `robust=` argument asks for: `None` (the mesh's own), or the intrinsic Delaunay
-    one (`True`: flipped here, on the host), checked against `mass`; `DDGInputError` otherwise."""
-    check_choice("mass", mass, ("voronoi", "barycentric", "galerkin"))
+    one (`True`: flipped here, on the host), after checking `mass`; `DDGInputError` otherwise."""
+    check_mass(mass)
     if robust is False:
         return None
     if robust is True:
@@ -49,6 +74,4 @@ def resolve_robust(mesh: Mesh, robust: bool | IntrinsicTriangulation, *, mass: s
         raise DDGInputError(
             f"robust: expected True, False or an IntrinsicTriangulation (intrinsic_delaunay(mesh)), got {robust!r}"
         )
-    if mass == "galerkin":
-        raise DDGInputError("mass: the intrinsic Delaunay mass matrix is lumped; use 'voronoi' or 'barycentric' with robust=")
     return robust

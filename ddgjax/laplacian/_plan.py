@@ -1,10 +1,23 @@
-"""Storage plan of vertex-vertex operators, built once per connectivity on first use and cached.
+"""The storage plan of vertex-vertex operators on a triangulation: built once per connectivity, on the host.
 
-The cotan Laplacian and the Galerkin mass matrix share one sparsity pattern (the diagonal plus both
-directions of every edge, `SparsityPattern.from_edges`). Their values change with the geometry and
-are re-assembled into that pattern with fixed gathers whose indices are computed here, on the host,
-from the topology alone (DESIGN.md, two phases). A mesh used only for areas or curvature never
-builds a plan.
+The cotan Laplacian and the Galerkin mass matrix share one sparsity pattern: the diagonal plus both
+directions of every pair of distinct vertices joined by an edge (`SparsityPattern.from_edges`).
+Their values change with the metric and are re-assembled into that pattern from per-corner values
+(the corner opposite each edge) with fixed gathers whose indices are computed here from the faces
+alone (DESIGN.md, two phases). One builder, `_build`, makes every plan:
+
+- `triangulation_plan(faces, n_vertices)` for any face list, including the general triangulations
+  (Delta-complexes) that intrinsic triangulations become after edge flips: a face may repeat a
+  vertex (its edge between the two copies is a *loop*) and two vertices may be joined by several
+  edges (*parallel* edges, whose weights add into the one matrix entry). The vertex pairs are found
+  by one sort of the corners' edge keys.
+- `vertex_plan(mesh)` for a `Mesh`: the pairs are the mesh's edges, which its topology already
+  found (the same sort, done once when the mesh was made), and the plan is cached per connectivity,
+  so meshes of one connectivity share it. A mesh used only for areas or curvature builds none.
+
+`dec_plan(mesh)` is another concept: the product -> slot map of the congruence `d0^T W d0` onto the
+same pattern (`ddgjax.sparse.congruence`), for operators given by edge weights (the Hodge
+decomposition's); the cotan Laplacian does not use it.
 """
 
 from __future__ import annotations
@@ -13,48 +26,99 @@ import weakref
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Int
+from jaxtyping import Array, ArrayLike, Int
 
-from .._errors import DDGInputError
+from .._errors import DDGInputError, check_count, first_indices, is_traced
+from ..internal import stable_order
 from ..mesh import Mesh, MeshTopology, require_mesh
 from ..sparse import CongruencePlan, SparsityPattern, congruence_plan
 
 
-class VertexPlan(eqx.Module):
-    """Where per-vertex, per-edge and per-corner values land in the vertex-vertex pattern.
+class TriangulationPlan(eqx.Module):
+    """Faces of a triangulation and where per-corner values land in its `(nv, nv)` vertex pattern.
+
+    Corner `3 f + k` is corner `k` of face `f`; it is opposite the edge `faces[f, k+1] - faces[f, k+2]`
+    (libigl order).
 
     Attributes:
-        pattern: the `(nv, nv)` symmetric pattern (diagonal-first ELL storage, `SparsityPattern`).
+        faces: `(nf, 3)` int32 vertex indices; a face may repeat a vertex (module docstring).
+        pattern: the `(nv, nv)` symmetric pattern (diagonal-first ELL storage, `SparsityPattern`):
+            the diagonal and both directions of every pair of distinct vertices joined by an edge.
         source: `(nnz,)` for each storage slot, its index in the list
-            `[diagonal (nv) | edges low->high (ne) | edges high->low (ne)]`, or `nv + 2 ne` for an ELL
-            padding slot, so values assemble with one gather (`take_rows_or_zero(entries, source)`).
-        slot_corners: `(nnz - nv, m)` for each off-diagonal storage slot `nv + s`, the flat corners
-            `3 f + k` opposite its edge (`3 nf` pads), so per-corner values (cotangents) land in
-            storage order with one gather.
+            `[diagonal (nv) | pairs low->high (n_pairs) | pairs high->low (n_pairs)]`, or
+            `nv + 2 n_pairs` for an ELL padding slot, so per-pair values assemble with one gather
+            (`take_rows_or_zero(entries, source)`).
+        slot_corners: `(nnz - nv, m)` for each off-diagonal storage slot `nv + s`, the corners
+            opposite the edges of its vertex pair (`3 nf` pads), so per-corner values (cotangents)
+            land in storage order with one gather (`ddgjax.sparse.gather_sum`).
         corner_slots: `(3 nf, 2)` its transpose: the two off-diagonal slots (minus `nv`) of each
-            corner's edge, for a scatter-free reverse pass (`ddgjax.sparse.gather_sum`).
+            corner's pair, for a scatter-free reverse pass; loop corners have none (`nnz - nv` pads).
+        loop_corners: `(n_loops,)` the corners opposite a loop edge (empty on a mesh).
+        loop_vertices: `(n_loops,)` the vertex at both ends of that loop.
     """
 
+    faces: Int[Array, "nf 3"]
     pattern: SparsityPattern
     source: Int[Array, " nnz"]
     slot_corners: Int[Array, "n_off m"]
     corner_slots: Int[Array, "n_corners 2"]
+    loop_corners: Int[Array, " n_loops"]
+    loop_vertices: Int[Array, " n_loops"]
+
+    @property
+    def n_vertices(self) -> int:
+        """Number of vertices `nv` (the pattern's size; vertices used by no face included)."""
+        return self.pattern.shape[0]
+
+
+def triangulation_plan(faces: Int[ArrayLike, "nf 3"], n_vertices: int) -> TriangulationPlan:
+    """The `TriangulationPlan` of a face list (NumPy, once per connectivity, outside jit).
+
+    Accepts what an intrinsic triangulation can hold: faces that repeat a vertex and vertex pairs
+    joined by several edges (module docstring); faces need no orientation. Build it once and reuse
+    it for any edge lengths on these faces (`cotan_laplacian_from_lengths_sq`,
+    `mass_matrix_from_lengths_sq`). For a `Mesh`, the operators build and cache its plan themselves.
+
+    Args:
+        faces: `(nf, 3)` non-negative integer vertex indices below `n_vertices`.
+        n_vertices: number of vertices `nv` (vertices used by no face get empty rows).
+
+    Returns:
+        `TriangulationPlan`.
+
+    Raises `DDGInputError` for traced faces, a bad shape or dtype, or indices out of range.
+    libigl and gpytoolbox build their matrices from triplets on every call and have no plan.
+    """
+    if is_traced(faces):
+        raise DDGInputError("faces: triangulation_plan works on the host and needs a concrete array; build it outside jit")
+    n_vertices = check_count("n_vertices", n_vertices)
+    host = np.asarray(faces)
+    if host.ndim != 2 or host.shape[1] != 3 or not np.issubdtype(host.dtype, np.integer):
+        raise DDGInputError(f"faces: expected an (nf, 3) integer array, got shape {host.shape} dtype {host.dtype}")
+    out_of_range = (host < 0) | (host >= n_vertices)
+    if out_of_range.any():
+        raise DDGInputError(
+            f"faces: vertex indices must lie in [0, {n_vertices}), got out-of-range entries in faces {first_indices(out_of_range)}"
+        )
+    host = host.astype(np.int32)
+    return _build(host, n_vertices, *_vertex_pairs(host, n_vertices))
 
 
 # Keyed by topology, which compares by content: meshes of one connectivity share one plan.
-_VERTEX_PLANS: "weakref.WeakKeyDictionary[MeshTopology, VertexPlan]" = weakref.WeakKeyDictionary()
+_VERTEX_PLANS: "weakref.WeakKeyDictionary[MeshTopology, TriangulationPlan]" = weakref.WeakKeyDictionary()
 _DEC_PLANS: "weakref.WeakKeyDictionary[MeshTopology, CongruencePlan]" = weakref.WeakKeyDictionary()
 
 
-def vertex_plan(mesh: Mesh) -> VertexPlan:
-    """The `VertexPlan` of `mesh`'s connectivity (built on the host on first use, then cached)."""
+def vertex_plan(mesh: Mesh) -> TriangulationPlan:
+    """The `TriangulationPlan` of `mesh`'s connectivity (built on the host on first use, then cached)."""
     topology = _topology(mesh)
     plan = _VERTEX_PLANS.get(topology)
     if plan is None:
         # Host work even when called inside a caller's trace: the plan depends on the topology only.
         with jax.ensure_compile_time_eval():
-            plan = _VERTEX_PLANS[topology] = _build_vertex_plan(topology)
+            plan = _VERTEX_PLANS[topology] = _mesh_plan(topology)
     return plan
 
 
@@ -79,22 +143,74 @@ def _topology(mesh: Mesh) -> MeshTopology:
     return topology
 
 
-def _build_vertex_plan(topology: MeshTopology) -> VertexPlan:
-    nv, ne, nf = topology.n_vertices, topology.n_edges, topology.n_faces
-    pattern, source = SparsityPattern.from_edges(topology.edges, nv)
-    # int32 throughout: every index here is below nv + 2 ne + 3 nf.
-    off_source = source[nv:].astype(np.int32)
-    edge = off_source - np.int32(nv)
-    # high -> low entries map to their edge too; padding (2 ne) lands on ne, the padding row.
-    np.subtract(edge, np.int32(ne), out=edge, where=edge >= ne)
-    edge_corners = np.full((ne + 1, topology.edge_faces.shape[1]), 3 * nf, dtype=np.int32)
-    np.copyto(edge_corners[:ne], 3 * topology.edge_faces + topology.edge_face_corners, where=topology.edge_faces >= 0)
-    slot_corners = np.take(edge_corners, edge, axis=0)
-    slot_of_source = np.empty(nv + 2 * ne + 1, dtype=np.int32)
-    slot_of_source[off_source] = np.arange(off_source.size, dtype=np.int32)
-    corner_edges = topology.face_edges.reshape(-1)
-    corner_slots = np.empty((corner_edges.size, 2), dtype=np.int32)
-    corner_slots[:, 0] = np.take(slot_of_source[nv : nv + ne], corner_edges)
-    corner_slots[:, 1] = np.take(slot_of_source[nv + ne : nv + 2 * ne], corner_edges)
-    arrays = jax.device_put({"source": source, "slot_corners": slot_corners, "corner_slots": corner_slots})
-    return VertexPlan(pattern=pattern, **arrays)
+def _mesh_plan(topology: MeshTopology) -> TriangulationPlan:
+    """The plan of a mesh, its vertex pairs read from the topology (its edges, already sorted and numbered)."""
+    pair_corners = np.where(topology.edge_faces >= 0, 3 * topology.edge_faces + topology.edge_face_corners, 3 * topology.n_faces)
+    corner_pairs = topology.face_edges.reshape(-1)
+    return _build(topology.faces, topology.n_vertices, topology.edges, pair_corners.astype(np.int32), corner_pairs)
+
+
+def _vertex_pairs(faces: np.ndarray, nv: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(pairs, pair_corners, corner_pairs)` of a Delta-complex (arguments of `_build`), by one sort of edge keys."""
+    n_corners = faces.size
+    tails = faces[:, [1, 2, 0]].reshape(-1).astype(np.int64)
+    heads = faces[:, [2, 0, 1]].reshape(-1).astype(np.int64)
+    corners = np.flatnonzero(tails != heads)  # loop corners have no pair
+    keys = np.minimum(tails, heads)[corners] * nv + np.maximum(tails, heads)[corners]
+    order, sorted_keys = stable_order(keys)
+    is_first = np.ones(sorted_keys.size, dtype=bool)
+    is_first[1:] = sorted_keys[1:] != sorted_keys[:-1]
+    pair_of_sorted = np.cumsum(is_first) - 1
+    starts = np.flatnonzero(is_first)
+    pairs = np.stack([sorted_keys[starts] // nv, sorted_keys[starts] % nv], axis=1)
+    width = max(1, int(np.diff(np.append(starts, sorted_keys.size)).max(initial=0)))
+    position = np.arange(sorted_keys.size) - starts[pair_of_sorted]
+    pair_corners = np.full((starts.size, width), n_corners, dtype=np.int32)
+    pair_corners[pair_of_sorted, position] = corners[order]
+    corner_pairs = np.full(n_corners, -1, dtype=np.int64)
+    corner_pairs[corners[order]] = pair_of_sorted
+    return pairs, pair_corners, corner_pairs
+
+
+def _build(
+    faces: np.ndarray, nv: int, pairs: np.ndarray, pair_corners: np.ndarray, corner_pairs: np.ndarray
+) -> TriangulationPlan:
+    """The one builder of `TriangulationPlan`s.
+
+    Args:
+        faces: `(nf, 3)` int32.
+        nv: number of vertices.
+        pairs: `(n_pairs, 2)` distinct vertex pairs `low < high`, sorted lexicographically.
+        pair_corners: `(n_pairs, m)` the corners opposite the edges of each pair, padded with `3 nf`.
+        corner_pairs: `(3 nf,)` the pair of each corner's opposite edge, `-1` for a loop.
+    """
+    n_corners = faces.size
+    n_pairs = pairs.shape[0]
+    pattern, source = SparsityPattern.from_edges(pairs, nv)
+    # int32 throughout: every index here is below nv + 2 n_pairs + 3 nf.
+    off_source = source[nv:].astype(np.int32) - np.int32(nv)  # [low->high | high->low | 2 n_pairs: padding]
+    n_off = off_source.size
+    pair_of_slot = np.where(off_source >= n_pairs, off_source - n_pairs, off_source)  # padding -> n_pairs, a row of pads
+    padded = np.concatenate([pair_corners.astype(np.int32), np.full((1, pair_corners.shape[1]), n_corners, np.int32)])
+    slot_corners = np.take(padded, pair_of_slot, axis=0)
+    slot_of_source = np.full(2 * n_pairs + 1, n_off, dtype=np.int32)
+    slot_of_source[off_source] = np.arange(n_off, dtype=np.int32)
+    slot_of_source[2 * n_pairs] = n_off  # padding slots are nobody's
+    corner_slots = np.full((n_corners, 2), n_off, dtype=np.int32)
+    loops = corner_pairs < 0
+    paired = np.flatnonzero(~loops)
+    corner_slots[paired, 0] = slot_of_source[corner_pairs[paired]]
+    corner_slots[paired, 1] = slot_of_source[n_pairs + corner_pairs[paired]]
+    loop_corners = np.flatnonzero(loops).astype(np.int32)
+    face, k = np.divmod(loop_corners, 3)
+    loop_vertices = faces[face, (k + 1) % 3].astype(np.int32)
+    arrays = jax.device_put(
+        {
+            "source": source,
+            "slot_corners": slot_corners,
+            "corner_slots": corner_slots,
+            "loop_corners": loop_corners,
+            "loop_vertices": loop_vertices,
+        }
+    )
+    return TriangulationPlan(faces=jnp.asarray(faces, dtype=jnp.int32), pattern=pattern, **arrays)

@@ -9,7 +9,8 @@ minimises them, and optimistix / lineax see them as ordinary objectives. `phi` i
 an `(nv, k)` array is `k` independent functions whose energies are summed.
 
 Conventions (DESIGN.md): `L` is the positive semidefinite weak cotan Laplacian
-(`L == -igl.cotmatrix(V, F)`), `M` a mass matrix (`mass="voronoi"`, `"barycentric"` or `"galerkin"`),
+(`L == -igl.cotmatrix(V, F)`), `M` a mass matrix (`mass=`, one of `ddgjax.MASS_MATRICES`: `"voronoi"`,
+`"barycentric"` or `"galerkin"`),
 and the pointwise Laplace-Beltrami operator is `Delta = -M^{-1} L` (the analyst's `div grad`,
 negative semidefinite). Integrated divergence: `ddgjax.dec.divergence(mesh, X)_i =
 -sum_f A_f <grad phi_i, X_f>`, so `divergence(gradient(u)) == -L u`.
@@ -26,12 +27,12 @@ so the minimiser of `E_X(phi) = int |grad phi - X|^2` solves `Delta phi = rho` w
     poisson_energy(phi, rho) = 1/2 phi^T L phi + phi^T M rho,    gradient  L phi + M rho = -M (Delta phi - rho).
 
 This is the sign of the DDG exercises' reference solution `test-spp-soln.txt`
-(`(L + 1e-8 I) phi = -M (rho - mean rho)`, tests) and of `solve_poisson` (issue 13: `Delta phi = rho`,
-`-Delta u = 1` on the disk gives `(1 - r^2) / 4`). The report's finite-element paragraph drops the
+(`(L + 1e-8 I) phi = -M (rho - mean rho)`, tests) and of `solve_poisson` (`Delta phi = rho`: `-Delta u = 1` on the
+unit disk, `solve_poisson(disk, -1)`, gives `(1 - r^2) / 4`). The report's finite-element paragraph drops the
 minus sign of Green's identity and arrives at `L phi = M rho` (`-Delta phi = rho`); for that
 equation pass `-rho` (gradient `L phi - M rho`). A source (`rho > 0`) is a minimum of `phi`.
 
-References: the DDG reading report (`../shared/reference/ddg-reading-report.txt`, "Dirichlet energy",
+References: the DDG reading report ("Dirichlet energy",
 "Poisson problem"); K. Crane, *Discrete Differential Geometry: An Applied Introduction* (2020),
 ch. 6; K. Crane, C. Weischedel, M. Wardetzky, *The heat method for distance computation* (2017).
 """
@@ -44,14 +45,12 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Real
 
 from .._compile import kernel
-from .._errors import DDGInputError, check_choice, check_float_shape
+from .._errors import DDGInputError, check_float_shape
+from .._options import check_mass
 from ..dec import gradient
 from ..laplacian import dirichlet_energy as dirichlet_energy
 from ..laplacian import mass_matrix
 from ..mesh import Mesh, face_areas, require_mesh
-
-_MASS_KINDS = ("voronoi", "barycentric", "galerkin")
-
 
 def screened_dirichlet_energy(
     mesh: Mesh, phi: Float[ArrayLike, "nv *k"], screening: Real[ArrayLike, ""], *, mass: str = "voronoi"
@@ -66,7 +65,8 @@ def screened_dirichlet_energy(
         mesh: any triangle mesh.
         phi: `(nv,)` or `(nv, k)` vertex values (columns summed).
         screening: the scalar `s` (may be traced; differentiable).
-        mass: `"voronoi"` (default), `"barycentric"` or `"galerkin"` (`ddgjax.laplacian.mass_matrix`).
+        mass: one of `ddgjax.MASS_MATRICES`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`
+            (`ddgjax.laplacian.mass_matrix`).
 
     Returns:
         The scalar energy.
@@ -77,10 +77,10 @@ def screened_dirichlet_energy(
     """
     mesh = require_mesh("mesh", mesh)
     phi = _vertex_values("phi", mesh, phi)
-    check_choice("mass", mass, _MASS_KINDS)
+    check_mass(mass)
     if np.ndim(screening) != 0 or not np.isrealobj(screening):
         raise DDGInputError(f"screening: expected a real scalar, got {_describe(screening)}")
-    return dirichlet_energy(mesh, phi) + 0.5 * screening * jnp.sum(phi * (mass_matrix(mesh, kind=mass) @ phi))
+    return dirichlet_energy(mesh, phi) + 0.5 * screening * jnp.sum(phi * (mass_matrix(mesh, mass=mass) @ phi))
 
 
 def poisson_energy(
@@ -99,7 +99,8 @@ def poisson_energy(
         mesh: any triangle mesh.
         phi: `(nv,)` or `(nv, k)` vertex values (columns summed).
         rho: pointwise right-hand side at the vertices, the shape of `phi`.
-        mass: `"voronoi"` (default), `"barycentric"` or `"galerkin"` (`ddgjax.laplacian.mass_matrix`).
+        mass: one of `ddgjax.MASS_MATRICES`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`
+            (`ddgjax.laplacian.mass_matrix`).
 
     Returns:
         The scalar energy.
@@ -111,8 +112,8 @@ def poisson_energy(
     mesh = require_mesh("mesh", mesh)
     phi = _vertex_values("phi", mesh, phi)
     rho = _vertex_values("rho", mesh, rho, like=phi)
-    check_choice("mass", mass, _MASS_KINDS)
-    return dirichlet_energy(mesh, phi) + jnp.sum(phi * (mass_matrix(mesh, kind=mass) @ rho))
+    check_mass(mass)
+    return dirichlet_energy(mesh, phi) + jnp.sum(phi * (mass_matrix(mesh, mass=mass) @ rho))
 
 
 def gradient_fitting_energy(mesh: Mesh, phi: Float[ArrayLike, "nv *k"], field: Float[ArrayLike, "nf 3 *k"]) -> Float[Array, ""]:

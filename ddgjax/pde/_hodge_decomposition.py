@@ -43,9 +43,13 @@ a rectangular grid); there `*1^{-1}`, hence the co-exact part, is undefined and 
 one of many (the three parts still sum to `omega`, closed and co-closed as stated). Use
 `dual="barycentric"` on such meshes.
 
-Differentiable in `omega` and in the vertex positions (through `*1`, `L` and the solves) in reverse
-mode (`jax.grad`, `jax.vjp`; `linear_solve` has no forward-mode rule yet), under `jit` and `vmap`
-over `omega`. The mesh must be consistently oriented (`d1` and the co-exact part need an orientation).
+Differentiable in `omega` and in the vertex positions (through `*1`, `L` and the solves) in forward
+and reverse mode, under `jit` and `vmap` over `omega`. The mesh must be consistently oriented (`d1`
+and the co-exact part need an orientation). Two steps can fail on the values: the Laplacian solve of
+steps 1-2 (`ddgjax.solve.linear_solve`, backend `solver=`) and the Gram system of step 3 (singular
+when `*1` vanishes on the harmonic forms); the outcome is the first failing one (`ddgjax.RESULTS`,
+`throw=`). An eager call runs one compiled program; the tree-cotree basis and the storage plans are
+host work before it, once per connectivity.
 
 References: K. Crane, *Discrete Differential Geometry: An Applied Introduction* (2020), "Hodge
 decomposition"; K. Crane, F. de Goes, M. Desbrun, P. Schroeder, *Digital Geometry Processing with
@@ -68,13 +72,14 @@ from scipy.sparse import csgraph
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_float_shape
-from .._options import DUAL_CELLS as DUALS
+from .._options import DUAL_CELLS, check_solver
+from .._results import RESULTS, Solution, first_failure, outcome
 from ..dec import d0, hodge_star_entries
 from ..internal import dec_plan, vertex_plan
-from ..laplacian import cotan_laplacian
-from ..mesh import Mesh, MeshTopology, require_mesh
+from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq
+from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
 from ..solve import linear_solve
-from ..sparse import congruence, dirichlet_blocks
+from ..sparse import CongruencePlan, DirichletPlan, congruence, dirichlet_blocks
 from ._poisson import DirichletData
 
 
@@ -104,8 +109,9 @@ def hodge_decomposition(
     omega: Float[ArrayLike, "ne *k"],
     *,
     dual: str = "voronoi",
-    method: str = "auto",
-) -> HodgeDecomposition:
+    solver: str = "auto",
+    throw: bool = True,
+) -> HodgeDecomposition | Solution:
     """Split a 1-form into its exact, co-exact and harmonic parts, `omega = d alpha + delta beta + gamma`.
 
     `d alpha` minimises `|omega - d alpha|_{*1}` over 0-forms (`d0^T *1 d0 alpha = d0^T *1 omega`),
@@ -118,23 +124,27 @@ def hodge_decomposition(
             components); `MeshDataError` otherwise.
         omega: `(ne,)` 1-form on `mesh.edges` (integrals along each edge from its lower to its higher
             vertex index), or `(ne, k)` for `k` forms at once.
-        dual: the Hodge star `*1` (`ddgjax.dec.hodge1`): `"voronoi"` (default) and `"circumcentric"`
-            are the cotan ratio `(cot a + cot b) / 2` of the DDG exercises; `"barycentric"` is
-            positive on every mesh.
-        method: the backend of `linear_solve` (`"auto"`, `"cholesky"`, `"cg"`).
+        dual: the Hodge star `*1` (`ddgjax.dec.hodge1`), one of `ddgjax.DUAL_CELLS`: `"voronoi"`
+            (default) and `"circumcentric"` are the cotan ratio `(cot a + cot b) / 2` of the DDG
+            exercises; `"barycentric"` is positive on every mesh.
+        solver: the backend of the Laplacian solve, one of `ddgjax.LINEAR_SOLVERS` (`"auto"`,
+            `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`).
+        throw: raise on a failed step (default), or return the outcome.
 
     Returns:
-        `HodgeDecomposition` with `exact`, `coexact`, `harmonic`, each the shape of `omega`
-        (unpacks in that order). A failed solve raises through `ddgjax.RESULTS`.
+        `HodgeDecomposition` with `exact`, `coexact`, `harmonic`, each the shape of `omega` (unpacks in
+        that order); with `throw=False` a `ddgjax.Solution` holding it as `value`, the first failing
+        step's outcome as `result` and `stats` `{"residual", "num_steps"}` of the Laplacian solve.
 
-    Differentiable in `omega` and the vertex positions in reverse mode. Comparing with the DDG
-    exercises (`test-decomp-soln.txt`): their edges are numbered and oriented by first appearance in
-    the faces, so map with `mesh.edges` and a sign; the three parts do not depend on the global sign of
-    `d0` or `d1`. References: module docstring.
+    Differentiable in `omega` and the vertex positions. Comparing with the DDG exercises
+    (`test-decomp-soln.txt`): their edges are numbered and oriented by first appearance in the
+    faces, so map with `mesh.edges` and a sign; the three parts do not depend on the global sign of
+    `d0` or `d1`. References: module docstring; the DDG exercises' `HodgeDecomposition`.
     """
     mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.pde.hodge_decomposition")
-    check_choice("dual", dual, DUALS)
+    check_choice("dual", dual, DUAL_CELLS)
+    check_solver(solver)
     ne = mesh.n_edges
     if np.ndim(omega) not in (1, 2) or np.shape(omega)[0] != ne:
         raise DDGInputError(
@@ -144,48 +154,73 @@ def hodge_decomposition(
     omega = jnp.asarray(omega)
     if not jnp.issubdtype(omega.dtype, jnp.floating):
         omega = omega.astype(mesh.vertices.dtype)
-    exact, coexact, harmonic = _decompose(mesh, omega.reshape(ne, -1), dual=dual, method=method)
+    plan = vertex_plan(mesh)
+    pins = DirichletData(mesh, None, None, (), plan.pattern)  # one vertex per component pinned to 0
+    parts, result, stats = _decompose(
+        mesh,
+        omega.reshape(ne, -1),
+        closed_cocycle_basis(mesh.topology),
+        plan,
+        dec_plan(mesh) if dual == "barycentric" else None,
+        pins.plan,
+        dual=dual,
+        solver=solver,
+    )
     shape = omega.shape
-    return HodgeDecomposition(exact=exact.reshape(shape), coexact=coexact.reshape(shape), harmonic=harmonic.reshape(shape))
+    parts = HodgeDecomposition(*(part.reshape(shape) for part in parts))
+    return outcome(parts, result, throw, stats)
 
 
-@kernel(static_argnames=("dual", "method"))
-def _decompose(mesh: Mesh, columns: Float[Array, "ne c"], *, dual: str, method: str) -> tuple[Array, Array, Array]:
-    """The three parts of the columns of `columns` (module docstring, steps 1-4); one program per connectivity."""
+@kernel(static_argnames=("dual", "solver"))
+def _decompose(
+    mesh: Mesh,
+    columns: Float[Array, "ne c"],
+    cocycles: Float[Array, "ne g"],
+    plan: TriangulationPlan,
+    congruence_plan: CongruencePlan | None,
+    pins: DirichletPlan | None,
+    *,
+    dual: str,
+    solver: str,
+) -> tuple[tuple[Array, Array, Array], RESULTS, dict[str, Array]]:
+    """`((exact, coexact, harmonic), result, stats)` of the columns of `columns` (module docstring, steps 1-4).
+
+    `mesh` comes without its topology: the tree-cotree `cocycles`, the vertex `plan`, the
+    `congruence_plan` of `d0^T *1 d0` (barycentric `*1` only) and the `pins` of one vertex per
+    component are passed in.
+    """
     n_columns = columns.shape[1]
-
     star = hodge_star_entries(mesh, 1, dual=dual)
-    generators = jnp.asarray(closed_cocycle_basis(mesh.topology), columns.dtype)
+    generators = cocycles.astype(columns.dtype)
     forms = jnp.concatenate([columns, generators], axis=1)
     derivative = d0(mesh)
-    potentials = _solve_laplacian(mesh, star, derivative.T @ (star[:, None] * forms), dual, method)
+    if dual == "barycentric":
+        laplacian = congruence(derivative, star, plan.pattern, congruence_plan)
+    else:  # d0^T *1 d0 for the cotan *1 is the cotan Laplacian, assembled faster from the lengths
+        laplacian = cotan_laplacian_from_lengths_sq(face_edge_lengths_sq(mesh), plan)
+    rhs = derivative.T @ (star[:, None] * forms)
+    if pins is None:  # every vertex is pinned (isolated vertices only): every potential is 0
+        potentials, solved = jnp.zeros_like(rhs), RESULTS.successful
+        stats = {"residual": jnp.zeros((), rhs.dtype), "num_steps": jnp.zeros((), jnp.int32)}
+    else:
+        free_free, _ = dirichlet_blocks(laplacian, pins)
+        solution = linear_solve(free_free, rhs[pins.free], method=solver, throw=False)
+        potentials = pins.join(solution.value, jnp.zeros((pins.fixed.shape[0], rhs.shape[1]), rhs.dtype))
+        solved, stats = solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
     exact_forms = derivative @ potentials
     exact = exact_forms[:, :n_columns]
     remainder = columns - exact
+    projected = RESULTS.successful
     if generators.shape[1]:
         basis = generators - exact_forms[:, n_columns:]  # closed and co-closed: the harmonic forms
         weighted = star[:, None] * basis
         coefficients = jnp.linalg.solve(basis.T @ weighted, weighted.T @ remainder)
         harmonic = basis @ coefficients
+        # A singular Gram matrix (*1 vanishing on the harmonic forms) leaves no finite projection.
+        projected = RESULTS.where(jnp.all(jnp.isfinite(coefficients)), RESULTS.successful, RESULTS.singular)
     else:
         harmonic = jnp.zeros_like(remainder)
-    return exact, remainder - harmonic, harmonic
-
-
-def _solve_laplacian(
-    mesh: Mesh, star: Float[Array, " ne"], rhs: Float[Array, "nv c"], dual: str, method: str
-) -> Float[Array, "nv c"]:
-    """`d0^T *1 d0 x = rhs` (compatible right-hand sides), one vertex per component pinned to 0."""
-    if dual == "barycentric":
-        laplacian = congruence(d0(mesh), star, vertex_plan(mesh).pattern, dec_plan(mesh))
-    else:
-        laplacian = cotan_laplacian(mesh)  # d0^T *1 d0 for the cotan *1, by the faster FEM assembly
-    pins = DirichletData(mesh, None, None, rhs.shape[1:])
-    if pins.plan is None:
-        return jnp.zeros_like(rhs)
-    free_free, _ = dirichlet_blocks(laplacian, pins.plan)
-    free = linear_solve(free_free, rhs[pins.plan.free], method=method).value
-    return pins.plan.join(free, pins.fixed_values(rhs.dtype))
+    return (exact, remainder - harmonic, harmonic), first_failure(solved, projected), stats
 
 
 _COCYCLES: "weakref.WeakKeyDictionary[MeshTopology, np.ndarray]" = weakref.WeakKeyDictionary()

@@ -9,21 +9,27 @@ system is
 the minimiser of `poisson_energy(mesh, phi, rho) = 1/2 phi^T L phi + phi^T M rho`. (The solution of
 `-Delta u = f`, e.g. `(1 - r^2) / 4` for `f = 1` on the unit disk, is `solve_poisson(mesh, -f)`.)
 
-Boundary conditions: Dirichlet values on any vertex set (`dirichlet_vertices`), natural Neumann
-(zero normal derivative) everywhere else. A connected component without Dirichlet vertices (a
-closed surface, or a free piece) determines `phi` only up to a constant and needs `int rho = 0`:
-there `rho` is made compatible by removing its area-weighted mean (`rho - int rho / area`), and the
-solution is the one with `int phi = 0` on that component. This is exact, not a regularisation: one
-vertex per such component is pinned to 0, the remaining positive definite system is solved, and
-the constant is fixed afterwards. Unreferenced vertices (empty rows) are set to 0.
+Boundary conditions: Dirichlet values on any vertex set (`fixed_vertices=`, `fixed_values=`),
+natural Neumann (zero normal derivative) everywhere else. A connected component without a fixed
+vertex (a closed surface, or a free piece) determines `phi` only up to a constant and needs
+`int rho = 0`: there `rho` is made compatible by removing its area-weighted mean
+(`rho - int rho / area`), and the solution is the one with `int phi = 0` on that component. This is
+exact, not a regularisation: one vertex per such component is pinned to 0, the remaining positive
+definite system is solved, and the constant is fixed afterwards. Unreferenced vertices (empty rows)
+are set to 0.
 
 `robust=True` (or an `IntrinsicTriangulation`) solves with the intrinsic Delaunay Laplacian and
-lumped mass (`ddgjax.laplacian.laplacian_and_mass`): non-negative interior weights, so a harmonic
+mass matrix (`ddgjax.laplacian.laplacian_and_mass`): non-negative interior weights, so a harmonic
 interpolant obeys the maximum principle on meshes with obtuse triangles too.
 
-The solve goes through `ddgjax.solve.linear_solve` on the free-free block of `L`
-(`ddgjax.sparse.dirichlet_blocks`), so `phi` is differentiable with respect to `rho`, the Dirichlet
-values and the vertex positions (reverse mode), under `jit` and `vmap`.
+How it runs: the bookkeeping that depends on the connectivity (components, pins, the block plan of
+`ddgjax.sparse.dirichlet_plan`) is host work before one compiled program, which assembles `L` and `M`
+from the squared edge lengths (the intrinsic core of `ddgjax.laplacian`, on the mesh's own lengths or
+the intrinsic Delaunay ones) and solves the free-free block with `ddgjax.solve.linear_solve` (the
+backend is `solver=`). `phi` is differentiable with respect to `rho`, the fixed values and the
+vertex positions (forward and reverse mode), under `jit` and `vmap`. A failed solve is an outcome
+(`ddgjax.RESULTS`, `throw=`): with `throw=False` the answer is a `ddgjax.Solution` whose `stats` are
+the linear solve's relative `residual` and `num_steps`.
 
 References: the reading report, "The Poisson problem" (Crane's DDG notes, ch. 6); libigl
 `min_quad_with_fixed` and `harmonic`; gpytoolbox `min_quad_with_fixed`.
@@ -31,93 +37,119 @@ References: the reading report, "The Poisson problem" (Crane's DDG notes, ch. 6)
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .._errors import DDGInputError, check_choice
-from .._results import RESULTS, raise_if_failed
+from .._compile import kernel
+from .._errors import DDGInputError
+from .._options import check_mass, check_solver
+from .._results import RESULTS, Solution, outcome
 from ..internal import resolve_robust, vertex_plan
-from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..mesh import Mesh, require_mesh
+from ..laplacian import (
+    IntrinsicTriangulation,
+    TriangulationPlan,
+    cotan_laplacian_from_lengths_sq,
+    mass_matrix_from_lengths_sq,
+)
+from ..mesh import Mesh, face_edge_lengths_sq, require_mesh
 from ..solve import linear_solve
-from ..sparse import dirichlet_blocks, dirichlet_plan
-
-MASSES = ("voronoi", "barycentric", "galerkin")
+from ..sparse import DirichletPlan, dirichlet_blocks, dirichlet_plan
 
 
 def solve_poisson(
     mesh: Mesh,
     rho: Float[ArrayLike, "nv *k"],
     *,
-    dirichlet_vertices: Int[ArrayLike, " n_fixed"] | None = None,
-    dirichlet_values: Float[ArrayLike, " n_fixed *k"] | None = None,
+    fixed_vertices: Int[ArrayLike, " n_fixed"] | None = None,
+    fixed_values: Float[ArrayLike, " n_fixed *k"] | None = None,
     mass: str = "voronoi",
     robust: bool | IntrinsicTriangulation = False,
-    method: str = "auto",
-) -> Float[Array, "nv *k"]:
-    """Solve the Poisson problem `Delta phi = rho`, i.e. `L phi = -M rho` (module docstring).
+    solver: str = "auto",
+    throw: bool = True,
+) -> Float[Array, "nv *k"] | Solution:
+    """Solve the Poisson problem `Delta phi = rho`, i.e. `L phi = -M rho`, with Dirichlet values where given.
+
+    `L` is the PSD cotan Laplacian and `M` the mass matrix (`Delta = -M^{-1} L`, docs/conventions.md),
+    so `phi` minimises `poisson_energy(mesh, phi, rho) = 1/2 phi^T L phi + phi^T M rho` with
+    `phi = fixed_values` on `fixed_vertices` and natural Neumann conditions elsewhere. Components
+    without a fixed vertex get a compatible `rho` and a zero-mean `phi` (module docstring).
+    Differentiable in `rho`, `fixed_values` and the vertex positions; one compiled program per
+    connectivity and size.
 
     Args:
         mesh: any triangle mesh (closed, with boundary, several components).
-        rho: `(nv,)` or `(nv, k)` pointwise right-hand side at the vertices.
-        dirichlet_vertices: `(n_fixed,)` distinct vertex indices whose values are prescribed (concrete,
+        rho: `(nv,)` or `(nv, k)` pointwise right-hand side at the vertices (`k` problems at once).
+        fixed_vertices: `(n_fixed,)` distinct vertex indices whose values are prescribed (concrete,
             host data). Default: none (Neumann everywhere).
-        dirichlet_values: `(n_fixed,)` or `(n_fixed, k)` values there (default 0).
-        mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
+        fixed_values: `(n_fixed,)` or `(n_fixed, k)` values there (default 0).
+        mass: the mass matrix `M`, one of `ddgjax.MASS_MATRICES`: `"voronoi"` (default),
+            `"barycentric"` or `"galerkin"`.
         robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
             `IntrinsicTriangulation` from `intrinsic_delaunay(mesh)` inside `jit` / `grad`).
-        method: the backend of `linear_solve` (`"auto"`, `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`).
+        solver: the backend of the linear solve, one of `ddgjax.LINEAR_SOLVERS` (`"auto"`,
+            `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`; `ddgjax.solve.linear_solve`'s `method`).
+        throw: raise on a failed solve (default), or return the outcome.
 
     Returns:
-        `phi`, the shape of `rho`. A failed solve raises through `ddgjax.RESULTS` (use
-        `linear_solve(..., throw=False)` on the blocks to inspect one).
+        `phi`, the shape of `rho`; with `throw=False` a `ddgjax.Solution` holding it as `value`, the
+        solve's outcome as `result` (an item of `ddgjax.RESULTS`) and `stats`
+        `{"residual": |A x - b| / |b|, "num_steps": CG iterations}` of the free-free system.
 
-    libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix`.
+    Reference: the reading report, "The Poisson problem"; Crane's DDG notes, ch. 6.
+    libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix(V, F)`;
+    gpytoolbox: `min_quad_with_fixed(L, c=M @ rho, k=known, y=values)`.
     """
-    phi, result = poisson_with_result(
-        mesh,
-        rho,
-        dirichlet_vertices=dirichlet_vertices,
-        dirichlet_values=dirichlet_values,
-        mass=mass,
-        robust=robust,
-        method=method,
-    )
-    return raise_if_failed(phi, result, throw=True)
-
-
-def poisson_with_result(
-    mesh, rho, *, dirichlet_vertices=None, dirichlet_values=None, mass="voronoi", robust=False, method="auto"
-):
-    """`solve_poisson`'s `(phi, result)` (`ddgjax.RESULTS`), raising nothing: for callers that check the
-    outcome themselves (a program without the run-time check, which JAX's persistent cache keeps)."""
     mesh = require_mesh("mesh", mesh)
-    check_choice("mass", mass, MASSES)
+    check_mass(mass)
+    check_solver(solver)
     triangulation = resolve_robust(mesh, robust, mass=mass)
     rho = _vertex_values("rho", mesh, rho)
-    pattern = (vertex_plan(mesh) if triangulation is None else triangulation.plan.vertex_plan).pattern
-    dirichlet = DirichletData(mesh, dirichlet_vertices, dirichlet_values, rho.shape[1:], pattern)
+    plan = vertex_plan(mesh) if triangulation is None else triangulation.plan
+    dirichlet = DirichletData(mesh, fixed_vertices, fixed_values, rho.shape[1:], plan.pattern)
     if dirichlet.plan is None:  # every vertex prescribed: nothing to solve
         phi = jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
-        return phi, RESULTS.successful
-    fixed_values = dirichlet.fixed_values(rho.dtype)
-    floating = dirichlet.floating[dirichlet.labels]  # vertices whose component has no Dirichlet vertex
-    return _solve(
-        mesh, triangulation, rho, fixed_values, dirichlet.plan, dirichlet.labels, floating, dirichlet.n_components, mass, method
+        stats = {"residual": jnp.zeros((), rho.dtype), "num_steps": jnp.zeros((), jnp.int32)}
+        return outcome(phi, RESULTS.successful, throw, stats)
+    phi, result, stats = _solve(
+        mesh,
+        triangulation,
+        plan,
+        rho,
+        dirichlet.fixed_values(rho.dtype),
+        dirichlet.plan,
+        dirichlet.labels,
+        dirichlet.floating,
+        n_components=dirichlet.n_components,
+        mass=mass,
+        solver=solver,
     )
+    return outcome(phi, result, throw, stats)
 
 
-# One compiled program per connectivity and size (the mesh's topology is static): an eager call does
-# not dispatch (and compile) each operation separately. The outcome is checked outside it, so the
-# program has no host callback and JAX's persistent compilation cache can keep it.
-@functools.partial(jax.jit, static_argnums=(7, 8, 9))
-def _solve(mesh, triangulation, rho, fixed_values, plan, labels, floating, n_components, mass, method):
-    robust = False if triangulation is None else triangulation
-    laplacian, mass_matrix_ = laplacian_and_mass(mesh, mass=mass, robust=robust)
+# The outcome is checked outside the program (`outcome`), so it has no host callback and JAX's
+# persistent compilation cache can keep it.
+@kernel(static_argnames=("n_components", "mass", "solver"))
+def _solve(
+    mesh: Mesh,
+    triangulation: IntrinsicTriangulation | None,
+    plan: TriangulationPlan,
+    rho: Float[Array, "nv *k"],
+    fixed_values: Float[Array, " n_fixed *k"],
+    blocks: DirichletPlan,
+    labels: Int[Array, " nv"],
+    floating: Bool[Array, " nv"],
+    *,
+    n_components: int,
+    mass: str,
+    solver: str,
+) -> tuple[Float[Array, "nv *k"], RESULTS, dict[str, Array]]:
+    """`(phi, result, stats)` of `solve_poisson` (module docstring). `mesh` comes without its topology:
+    everything that needs it (`plan`, `blocks`, the component `labels` and `floating` mask) is passed in."""
+    lengths_sq = face_edge_lengths_sq(mesh) if triangulation is None else triangulation.face_lengths_sq(mesh)
+    laplacian = cotan_laplacian_from_lengths_sq(lengths_sq, plan)
+    mass_matrix_ = mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
     areas = mass_matrix_.row_sums()  # M 1: the area of each vertex (Galerkin rows sum to it too)
     component_area = jax.ops.segment_sum(areas, labels, n_components)
 
@@ -128,74 +160,102 @@ def _solve(mesh, triangulation, rho, fixed_values, plan, labels, floating, n_com
 
     compatible = rho - jnp.where(_broadcast(floating, rho), component_mean(rho), 0.0)
     rhs = -(mass_matrix_ @ compatible)
-    free_free, free_fixed = dirichlet_blocks(laplacian, plan)
-    solution = linear_solve(free_free, rhs[plan.free] - free_fixed @ fixed_values, method=method, throw=False)
-    phi = plan.join(solution.value, fixed_values)
-    return phi - jnp.where(_broadcast(floating, phi), component_mean(phi), 0.0), solution.result
+    free_free, free_fixed = dirichlet_blocks(laplacian, blocks)
+    solution = linear_solve(free_free, rhs[blocks.free] - free_fixed @ fixed_values, method=solver, throw=False)
+    phi = blocks.join(solution.value, fixed_values)
+    phi = phi - jnp.where(_broadcast(floating, phi), component_mean(phi), 0.0)
+    return phi, solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
 
 
 def harmonic_interpolation(
     mesh: Mesh,
-    vertices: Int[ArrayLike, " n_fixed"],
-    values: Float[ArrayLike, " n_fixed *k"],
     *,
+    fixed_vertices: Int[ArrayLike, " n_fixed"],
+    fixed_values: Float[ArrayLike, " n_fixed *k"],
     robust: bool | IntrinsicTriangulation = False,
-    method: str = "auto",
-) -> Float[Array, "nv *k"]:
-    """The report's smoothest interpolant: `L phi = 0` away from `vertices`, `phi = values` on them.
+    solver: str = "auto",
+    throw: bool = True,
+) -> Float[Array, "nv *k"] | Solution:
+    """The report's smoothest interpolant: `L phi = 0` away from `fixed_vertices`, `phi = fixed_values` on them.
 
-    The minimiser of the Dirichlet energy `1/2 int |grad phi|^2` with the given values (natural
-    Neumann boundary elsewhere). A component without a constrained vertex gets 0 (its harmonic
-    functions are the constants; the zero-mean one). Differentiable in `values` and the vertex
-    positions. libigl: `igl.harmonic(V, F, vertices, values, 1)`; gpytoolbox: `min_quad_with_fixed`
-    with `L` and no linear term.
+    The minimiser of the Dirichlet energy `1/2 int |grad phi|^2 = 1/2 phi^T L phi` with the given
+    values (natural Neumann boundary elsewhere): `solve_poisson` with `rho = 0`. A component without
+    a fixed vertex gets 0 (its harmonic functions are the constants; the zero-mean one).
+    Differentiable in `fixed_values` and the vertex positions.
 
     Args:
         mesh: any triangle mesh.
-        vertices: `(n_fixed,)` distinct vertex indices, at least one.
-        values: `(n_fixed,)` or `(n_fixed, k)` values at them (e.g. `(n_fixed, 3)` positions).
+        fixed_vertices: `(n_fixed,)` distinct vertex indices, at least one (concrete, host data).
+        fixed_values: `(n_fixed,)` or `(n_fixed, k)` values at them (e.g. `(n_fixed, 3)` positions).
         robust: the intrinsic Delaunay Laplacian (`solve_poisson`): with it the interpolant lies
             between the smallest and largest values (the maximum principle) on any mesh.
-        method: the backend of `linear_solve`.
+        solver: the backend of the linear solve, one of `ddgjax.LINEAR_SOLVERS`.
+        throw: raise on a failed solve (default), or return the outcome.
+
+    Returns:
+        `phi`, `(nv,)` or `(nv, k)`; with `throw=False` a `ddgjax.Solution` (as `solve_poisson`).
+
+    Reference: the reading report, "Dirichlet energy"; Crane's DDG notes, ch. 6. libigl:
+    `igl.harmonic(V, F, fixed_vertices, fixed_values, 1)`; gpytoolbox: `min_quad_with_fixed` with
+    `L` and no linear term.
     """
     mesh = require_mesh("mesh", mesh)
-    if vertices is None or np.size(vertices) == 0:
-        raise DDGInputError("vertices: expected at least one vertex to interpolate from, got none")
-    values = jnp.asarray(values)
-    if values.ndim not in (1, 2):
-        raise DDGInputError(f"values: expected shape (n_fixed,) or (n_fixed, k), got {values.shape}")
-    rho = jnp.zeros((mesh.n_vertices,) + values.shape[1:], values.dtype if jnp.issubdtype(values.dtype, jnp.floating) else float)
-    return solve_poisson(mesh, rho, dirichlet_vertices=vertices, dirichlet_values=values, robust=robust, method=method)
+    if fixed_vertices is None or np.size(fixed_vertices) == 0:
+        raise DDGInputError("fixed_vertices: expected at least one vertex to interpolate from, got none")
+    fixed_values = jnp.asarray(fixed_values)
+    if fixed_values.ndim not in (1, 2):
+        raise DDGInputError(f"fixed_values: expected shape (n_fixed,) or (n_fixed, k), got {fixed_values.shape}")
+    dtype = fixed_values.dtype if jnp.issubdtype(fixed_values.dtype, jnp.floating) else float
+    rho = jnp.zeros((mesh.n_vertices,) + fixed_values.shape[1:], dtype)
+    return solve_poisson(
+        mesh, rho, fixed_vertices=fixed_vertices, fixed_values=fixed_values, robust=robust, solver=solver, throw=throw
+    )
 
 
 class DirichletData:
-    """Host bookkeeping of a Poisson problem: components, pinned vertices, the block plan."""
+    """Host bookkeeping of a Poisson problem (module docstring): components, pinned vertices, the block plan.
+
+    Built from the mesh's topology (outside every kernel) and checked: `vertices` and `values` are a
+    caller's `fixed_vertices` / `fixed_values` (`None`, `None` for none), `trailing` the trailing shape
+    of the right-hand side, `pattern` the Laplacian's sparsity pattern the plan is of (default: the
+    mesh's own). Shared with the other solvers that pin one vertex per free component
+    (`ddgjax.internal.DirichletData`).
+
+    Attributes:
+        vertices, values: the checked fixed vertices (host int64) and their values.
+        fixed: `(n_fixed + n_pinned,)` host indices held fixed in the solve: `vertices`, then one pinned
+            vertex per component without a fixed vertex, then the unreferenced vertices.
+        plan: the `DirichletPlan` of `fixed` on `pattern`, or `None` when every vertex is fixed.
+        n_pinned: how many indices `fixed` adds to `vertices` (all held at 0).
+        labels: `(nv,)` the component of each vertex (unreferenced vertices: `n_components - 1`).
+        n_components: the number of labels (the face components, plus one for unreferenced vertices).
+        floating: `(nv,)` whether each vertex's component has no fixed vertex (re-centred to zero mean).
+    """
 
     def __init__(self, mesh: Mesh, vertices, values, trailing: tuple[int, ...], pattern=None):
-        """`pattern`: the Laplacian's sparsity pattern the plan is of (default: the mesh's own)."""
         topology = mesh.topology
         n = mesh.n_vertices
         if vertices is None:
             if values is not None:
-                raise DDGInputError("dirichlet_values: given without dirichlet_vertices; pass both or neither")
+                raise DDGInputError("fixed_values: given without fixed_vertices; pass both or neither")
             vertices = np.zeros(0, dtype=np.int64)
         vertices = np.asarray(vertices)
         if vertices.ndim != 1 or not (np.issubdtype(vertices.dtype, np.integer) or vertices.size == 0):
             raise DDGInputError(
-                f"dirichlet_vertices: expected a 1-d integer array of vertex indices, got shape {vertices.shape} dtype {vertices.dtype}"
+                f"fixed_vertices: expected a 1-d integer array of vertex indices, got shape {vertices.shape} dtype {vertices.dtype}"
             )
         vertices = vertices.astype(np.int64)
         outside = (vertices < 0) | (vertices >= n)
         if outside.any():
-            raise DDGInputError(f"dirichlet_vertices: vertex indices must lie in [0, {n}), got {vertices[outside][:5].tolist()}")
+            raise DDGInputError(f"fixed_vertices: vertex indices must lie in [0, {n}), got {vertices[outside][:5].tolist()}")
         if np.unique(vertices).size != vertices.size:
-            raise DDGInputError("dirichlet_vertices: expected distinct vertices, got repeated ones")
+            raise DDGInputError("fixed_vertices: expected distinct vertices, got repeated ones")
         if values is None:
             values = jnp.zeros((vertices.size,) + trailing)
         values = jnp.asarray(values)
         if values.shape != (vertices.size,) + trailing:
             raise DDGInputError(
-                f"dirichlet_values: expected shape {(vertices.size,) + trailing} (one value per Dirichlet vertex, "
+                f"fixed_values: expected shape {(vertices.size,) + trailing} (one value per fixed vertex, "
                 f"as many columns as rho), got {values.shape}"
             )
         # Component of each vertex (unreferenced vertices: their own label, past the face components).
@@ -221,9 +281,10 @@ class DirichletData:
         self.n_pinned = pins.size + extra.size
         self.labels = jnp.asarray(labels)
         self.n_components = topology.n_components + 1
-        self.floating = jnp.asarray(floating)
+        self.floating = jnp.asarray(floating[labels])
 
     def fixed_values(self, dtype) -> Float[Array, " n_fixed *k"]:
+        """The values of `fixed` in `dtype`: `values`, then zeros for the pinned and unreferenced vertices."""
         zeros = jnp.zeros((self.n_pinned,) + self.values.shape[1:], dtype)
         return jnp.concatenate([self.values.astype(dtype), zeros])
 

@@ -42,7 +42,7 @@ BATCH = "batch"
 """The name of the device-mesh axis a batch is sharded along."""
 
 
-def batch_sharding(n_devices: int | None = None, *, devices: Sequence[jax.Device] | None = None) -> NamedSharding:
+def batch_sharding(*, n_devices: int | None = None, devices: Sequence[jax.Device] | None = None) -> NamedSharding:
     """`NamedSharding(device_mesh, P("batch"))`: arrays split along their leading axis over `n_devices` devices.
 
     Args:
@@ -54,7 +54,7 @@ def batch_sharding(n_devices: int | None = None, *, devices: Sequence[jax.Device
         A sharding for `(B, ...)` arrays with `B` divisible by the device count; its
         `.mesh` is the one-axis device mesh (`ddgjax.sharding.device_mesh`).
     """
-    return NamedSharding(device_mesh(BATCH, n_devices, devices=devices), P(BATCH))
+    return NamedSharding(device_mesh(BATCH, n_devices=n_devices, devices=devices), P(BATCH))
 
 
 def replicated(sharding: NamedSharding) -> NamedSharding:
@@ -90,6 +90,6 @@ def shard_batch(batch: PyTree, sharding: NamedSharding | None = None) -> PyTree:
     if size % n_devices:
         raise DDGInputError(
             f"batch: a batch of {size} does not split evenly over {n_devices} devices; pad it to a multiple of "
-            f"{n_devices} or use batch_sharding(n_devices) with a divisor of {size}"
+            f"{n_devices} or use batch_sharding(n_devices=...) with a divisor of {size}"
         )
     return jax.device_put(batch, sharding)

@@ -22,7 +22,7 @@ from jax.sharding import Mesh as DeviceMesh
 from .._errors import DDGInputError
 
 
-def device_mesh(axis_name: str, n_devices: int | None = None, *, devices: Sequence[jax.Device] | None = None) -> DeviceMesh:
+def device_mesh(axis_name: str, *, n_devices: int | None = None, devices: Sequence[jax.Device] | None = None) -> DeviceMesh:
     """A one-axis `jax.sharding.Mesh` named `axis_name` over `devices` (default `jax.devices()`), or their first `n_devices`.
 
     Args:

@@ -33,7 +33,8 @@ from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, ArrayLike, Float, Real
 
 from .._compile import kernel
-from .._errors import DDGInputError, check_choice
+from .._errors import DDGInputError
+from .._options import check_mass
 from .._indexing import take_rows
 from .._results import raise_if_failed
 from ..internal import linear_solution, preconditioned_cg
@@ -42,7 +43,8 @@ from ..solve import LinearSolution
 from ..sparse import gather_sum
 from ._partition import VERTICES, LocalPlan, VertexPartition
 
-MASSES = ("voronoi", "barycentric")
+LUMPED_MASSES = ("voronoi", "barycentric")
+"""The `mass=` values `sharded_cg` supports: the lumped (diagonal) ones of `ddgjax.MASS_MATRICES`."""
 
 
 def sharded_laplacian_apply(
@@ -78,8 +80,9 @@ def sharded_cg(
 ) -> LinearSolution:
     """Solve `(L + shift M) x = b` on a vertex-partitioned mesh by Jacobi-preconditioned CG (module docstring).
 
-    `L` the cotan Laplacian, `M` the lumped mass (`mass="voronoi"` or `"barycentric"`, as
-    `ddgjax.laplacian.mass_matrix`). With `shift > 0` the system is positive definite; the heat step
+    `L` the cotan Laplacian, `M` a lumped mass matrix (`mass="voronoi"` or `"barycentric"`, as
+    `ddgjax.laplacian.mass_matrix`; the full `"galerkin"` one is refused: each device keeps only the
+    diagonal of its own rows). With `shift > 0` the system is positive definite; the heat step
     `(M + t L) x = M u` is `(L + M / t) x = M u / t`. With `shift = 0` on a closed mesh `L` is
     singular: CG converges only for a right-hand side orthogonal to the constants.
 
@@ -87,7 +90,7 @@ def sharded_cg(
         partition: from `partition_vertices(mesh)`.
         b: `(n_padded,)` right-hand side in partitioned layout (`partition.shard(b)`; 0 on padding).
         shift: `>= 0` (may be traced).
-        mass: `"voronoi"` (default) or `"barycentric"`.
+        mass: `"voronoi"` (default) or `"barycentric"`, the lumped `ddgjax.MASS_MATRICES`.
         vertices: positions in partitioned layout (default `partition.vertices`).
         rtol, max_steps, residual_tolerance, throw: as `ddgjax.solve.linear_solve` (CG stops at
             `|b - A x| <= rtol |b|`; `max_steps` defaults to `10 n_padded`).
@@ -96,7 +99,11 @@ def sharded_cg(
         `ddgjax.solve.LinearSolution` whose `value` is sharded `P("vertices")`; failures through
         `ddgjax.RESULTS` (`throw=`). SciPy: `scipy.sparse.linalg.spsolve(L + shift * M, b)`.
     """
-    check_choice("mass", mass, MASSES)
+    if check_mass(mass) not in LUMPED_MASSES:
+        raise DDGInputError(
+            f"mass: sharded_cg supports the lumped mass matrices {', '.join(map(repr, LUMPED_MASSES))}, got {mass!r} "
+            "(each device keeps only the diagonal of its rows; the full Galerkin mass matrix is not partitioned)"
+        )
     b, vertices = _check(partition, b, vertices)
     if b.ndim != 1:
         raise DDGInputError(f"b: expected one right-hand side of shape ({partition.n_padded},), got {b.shape}")
@@ -161,7 +168,7 @@ def _shard_map(function, device_mesh, n_in: int, n_out: int):
 
 
 # kernel: XLA:CPU without the YNNPACK fusions that slow the short reductions of geometry (ddgjax._compile).
-@functools.partial(kernel, static_argnames=("device_mesh", "n_local"))
+@kernel(static_argnames=("device_mesh", "n_local"))
 def _apply(plan: LocalPlan, vertices, u, *, device_mesh, n_local: int):
     geometry = _shard_map(functools.partial(_local_geometry, n_local=n_local, mass="voronoi"), device_mesh, 2, 2)
     apply = _shard_map(_local_apply, device_mesh, 3, 1)
@@ -169,7 +176,7 @@ def _apply(plan: LocalPlan, vertices, u, *, device_mesh, n_local: int):
     return apply(plan, weights, u)
 
 
-@functools.partial(kernel, static_argnames=("device_mesh", "n_local", "mass", "rtol", "max_steps", "residual_tolerance"))
+@kernel(static_argnames=("device_mesh", "n_local", "mass", "rtol", "max_steps", "residual_tolerance"))
 def _cg(plan: LocalPlan, vertices, b, shift, *, device_mesh, n_local, mass, rtol, max_steps, residual_tolerance):
     geometry = _shard_map(functools.partial(_local_geometry, n_local=n_local, mass=mass), device_mesh, 2, 2)
     apply = _shard_map(_local_apply, device_mesh, 3, 1)

@@ -1,6 +1,6 @@
 """The vertices of one large mesh split across devices: a host-side partition with explicit halos.
 
-`partition_vertices(mesh, n_devices)` reorders the vertices for locality (reverse Cuthill-McKee on
+`partition_vertices(mesh, n_devices=...)` reorders the vertices for locality (reverse Cuthill-McKee on
 the vertex adjacency, so that neighbours get nearby numbers), pads their count to a multiple of
 the device count, and gives device `d` the contiguous block of `n_local` vertices
 `[d n_local, (d + 1) n_local)` of that order. Everything a device needs to compute its rows of the
@@ -155,7 +155,7 @@ def locality_order(mesh: Mesh, *, order: str = "rcm") -> np.ndarray:
 
 
 def partition_vertices(
-    mesh: Mesh, n_devices: int | None = None, *, devices: Sequence[jax.Device] | None = None, order: str = "rcm"
+    mesh: Mesh, *, n_devices: int | None = None, devices: Sequence[jax.Device] | None = None, order: str = "rcm"
 ) -> VertexPartition:
     """Split `mesh`'s vertices into contiguous blocks of a locality order, one per device, with halos (module docstring).
 
@@ -172,7 +172,7 @@ def partition_vertices(
     mesh = require_mesh("mesh", mesh)
     if mesh.topology is None:
         raise DDGInputError("mesh: partition_vertices needs the mesh's topology; call it outside jit")
-    sharding = NamedSharding(device_mesh(VERTICES, n_devices, devices=devices), P(VERTICES))
+    sharding = NamedSharding(device_mesh(VERTICES, n_devices=n_devices, devices=devices), P(VERTICES))
     n_dev, n = sharding.mesh.size, mesh.n_vertices
     permutation = locality_order(mesh, order=order)
     n_local = -(-n // n_dev)

@@ -1,16 +1,19 @@
-"""Laplacian linear systems: energies, differentiable sparse solves, Dirichlet / Poisson problems, flows.
+"""Sparse linear algebra: differentiable solves of symmetric (Hermitian) positive definite systems.
 
-- Energies as plain scalar JAX functions of the unknowns and the mesh (`dirichlet_energy`,
-  `screened_dirichlet_energy`, `poisson_energy`, the report's `gradient_fitting_energy` `E_X`),
-  differentiable in the unknowns and the vertex positions. Sign convention: the report's Poisson
 - `linear_solve(A, b, *, method=...)` and `factorize(A, *, method=...).solve(b)`: symmetric (or
   complex Hermitian) positive definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD
   through `sparsax`), SciPy's SuperLU, a pure-JAX conjugate gradient preconditioned by Jacobi or an
-  algebraic-multigrid V-cycle (`amg_hierarchy`, `amg_refresh`), or pyamg's CG on the host; all
-  usable inside `jit` / `scan` / `vmap`, differentiable in `b` and in the matrix values by implicit
-  differentiation; failures through `ddgjax.RESULTS` (`throw=`).
+  algebraic-multigrid V-cycle, or pyamg's CG on the host (`method` one of `ddgjax.LINEAR_SOLVERS`);
+  all usable inside `jit` / `scan` / `vmap`, differentiable in `b` and in the matrix values by
+  implicit differentiation; the answer is a `LinearSolution` with `value`, `result` (an item of
+  `ddgjax.RESULTS`), `residual` and `num_steps` (`throw=`).
+- `amg_hierarchy`, `amg_refresh`, `amg_v_cycle`, `amg_preconditioner`: a smoothed-aggregation
+  multigrid hierarchy built by pyamg on the host, applied in pure JAX (any device).
 - `SparseCholesky(pattern)`: the same solves as a lineax solver (the matrix recovered from operator
   products by column colouring), so `optimistix.Newton` minimises an energy with them.
+
+The geometry problems that solve with these (Poisson, harmonic interpolation, Hodge decomposition,
+mean curvature flow) are in `ddgjax.pde`; there `solver=` names the backend passed on as `method=`.
 """
 
 from ._amg import AMGHierarchy as AMGHierarchy

@@ -55,6 +55,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from ..sparse import SparseMatrix, SparsityPattern, from_scipy
 
@@ -220,7 +221,7 @@ def amg_hierarchy(
             galerkins.append(None)
             operators.append(_to_jax(coarser.A, dtype, symmetrize=True))
         prolongators.append((_to_jax(P, dtype), _to_jax(P.T, dtype)))
-    return _assemble(tuple(operators), tuple(prolongators), tuple(galerkins), smoother, int(steps))
+    return _assemble(tuple(operators), tuple(prolongators), tuple(galerkins), smoother=smoother, steps=int(steps))
 
 
 def amg_refresh(hierarchy: AMGHierarchy, A: SparseMatrix) -> AMGHierarchy:
@@ -255,7 +256,7 @@ def amg_refresh(hierarchy: AMGHierarchy, A: SparseMatrix) -> AMGHierarchy:
     prolongators = tuple((level.P, level.R) for level in hierarchy.levels)
     galerkins = tuple(level.galerkin for level in hierarchy.levels)
     steps = hierarchy.levels[0].weights.shape[0] if hierarchy.levels else 1
-    return _assemble(tuple(operators), prolongators, galerkins, hierarchy.smoother, steps)
+    return _assemble(tuple(operators), prolongators, galerkins, smoother=hierarchy.smoother, steps=steps)
 
 
 def amg_v_cycle(hierarchy: AMGHierarchy, r: Float[ArrayLike, " n *k"]) -> Float[Array, " n *k"]:
@@ -312,8 +313,8 @@ def _smooth(level: AMGLevel, x, r):
     return x
 
 
-@eqx.filter_jit
-def _assemble(operators, prolongators, galerkins, smoother: str, steps: int) -> AMGHierarchy:
+@kernel(static_argnames=("smoother", "steps"))
+def _assemble(operators, prolongators, galerkins, *, smoother: str, steps: int) -> AMGHierarchy:
     """The `AMGHierarchy` of the level operators: inverse diagonals, smoother weights, coarse pseudo-inverse.
 
     One compiled program for every level (per set of level sizes), shared by `amg_hierarchy` and

@@ -1,14 +1,16 @@
 """Differentiable solves of symmetric (Hermitian) positive definite sparse systems `A x = b`.
 
-`linear_solve(A, b)` solves with one of four backends, chosen by `method=`:
+`linear_solve(A, b)` solves with one of four backends, chosen by `method=` (`ddgjax.LINEAR_SOLVERS`;
+a problem-level function passes its `solver=` here):
 
 - `"cholesky"`: a sparse direct Cholesky factorisation on the host, CHOLMOD called through XLA's
   foreign-function interface by `sparsax` (so it runs inside `jit`, `lax.scan` and `vmap`, with no
   Python round trip); the symbolic analysis of a pattern is computed once and cached. Installed by
   the `cholmod` extra (`pip install "ddgjax[cholmod]"`): its wheels bundle GPL-2+ CHOLMOD modules,
   so the MIT bare install leaves it out (benchmarks/README.md compares the candidates).
-- `"superlu"`: SciPy's SuperLU in symmetric mode on the host, through `jax.pure_callback`: the
-  direct solver of the bare install (`ddgjax.solve._host`).
+- `"superlu"`: SciPy's sparse LU (`scipy.sparse.linalg.splu`, COLAMD column ordering) on the host,
+  through `jax.pure_callback`: the direct solver of the bare install (`ddgjax.solve._host`; SuperLU's
+  symmetric mode was measured slower on mesh Laplacians).
 - `"cg"`: a preconditioned conjugate gradient in pure JAX (`preconditioned_cg`), for any device and
   jit-only pipelines; the preconditioner is Jacobi (`diag(A)^{-1}`) or an algebraic-multigrid
   V-cycle (`preconditioner="amg"` or an `AMGHierarchy`; `ddgjax.solve._amg`), which keeps the
@@ -69,12 +71,12 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Inexact, Int
 
 from .._errors import DDGInputError, check_choice, is_traced
+from .._options import LINEAR_SOLVERS
 from .._results import RESULTS, raise_if_failed
 from ..sparse import SparseMatrix, SparsityPattern
 from ._amg import AMGHierarchy, amg_hierarchy, amg_v_cycle
 from ._host import HOST_METHODS, host_factor, host_solve
 
-METHODS = ("auto", "cholesky", "superlu", "cg", "pyamg")
 PRECONDITIONERS = ("jacobi", "amg")
 
 # Above this many unknowns `"auto"` without CHOLMOD prefers pyamg's CG to SuperLU: on mesh Laplacians
@@ -118,7 +120,8 @@ def linear_solve(
             `cotan_laplacian`, `mass_matrix`, `M + t * L`, a free-free Dirichlet block); positive
             definite by the caller's promise.
         b: `(n,)` or `(n, k)` right-hand side(s), real or complex.
-        method: `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"` or `"auto"` (module docstring).
+        method: the backend, one of `ddgjax.LINEAR_SOLVERS`: `"cholesky"`, `"superlu"`, `"cg"`,
+            `"pyamg"` or `"auto"` (default; module docstring).
         preconditioner: for `"cg"`: `"jacobi"` (default), `"amg"` (a smoothed-aggregation hierarchy
             built on the host from `A`'s concrete values) or an `AMGHierarchy` from `amg_hierarchy`
             (built once outside `jit`, passed in; for a complex `A`, of its real form above). Giving
@@ -278,7 +281,7 @@ def _check_rhs_shape(n: int, b) -> Inexact[Array, "n *k"]:
 
 def _choose(method, preconditioner, system: SparseMatrix) -> tuple[str, str | AMGHierarchy | None]:
     """The backend and the CG preconditioner that run, `"auto"` resolved (module docstring), or `DDGInputError`."""
-    check_choice("method", method, METHODS)
+    check_choice("method", method, LINEAR_SOLVERS)
     if preconditioner is not None and not isinstance(preconditioner, AMGHierarchy):
         check_choice("preconditioner", preconditioner, PRECONDITIONERS)
     if method == "auto":

@@ -33,9 +33,10 @@ import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
 from .._errors import DDGInputError, check_choice
+from .._options import LINEAR_SOLVERS
 from .._results import RESULTS
 from ..sparse import SparseMatrix, SparsityPattern
-from ._linear import METHODS, Factorization, factorize
+from ._linear import Factorization, factorize
 
 # ddgjax's outcome of a solve -> lineax's (pairs: enumeration items are not hashable).
 _LINEAX_RESULTS = (
@@ -124,7 +125,7 @@ class SparseCholesky(lx.AbstractLinearSolver):
             )
         self.pattern = pattern
         self.colouring = column_colouring(pattern)
-        self.method = check_choice("method", method, METHODS)
+        self.method = check_choice("method", method, LINEAR_SOLVERS)
 
     def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]) -> Factorization:
         n = self.pattern.shape[0]

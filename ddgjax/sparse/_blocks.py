@@ -11,6 +11,8 @@ jit, grad and vmap: the blocks of the cotan Laplacian of moving vertices cost no
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -137,7 +139,21 @@ def dirichlet_plan(matrix: SparseMatrix | SparsityPattern, fixed: Int[ArrayLike,
     )
 
 
-def dirichlet_blocks(matrix: SparseMatrix, plan: DirichletPlan | Int[ArrayLike, " n_fixed"]) -> tuple[SparseMatrix, SparseMatrix]:
+class DirichletBlocks(NamedTuple):
+    """The two blocks `dirichlet_blocks` returns (unpacks as `A_ff, A_fc = dirichlet_blocks(A, plan)`).
+
+    Attributes:
+        free_free: `(n_free, n_free)` `A_ff = A[free][:, free]`, the matrix of the reduced system, on
+            `plan.free_free`, with `A`'s symmetry and semidefinite flags.
+        free_fixed: `(n_free, n_fixed)` `A_fc = A[free][:, fixed]`, which moves the fixed values to the
+            right-hand side (`b_f - A_fc u_c`), on `plan.free_fixed`, unflagged.
+    """
+
+    free_free: SparseMatrix
+    free_fixed: SparseMatrix
+
+
+def dirichlet_blocks(matrix: SparseMatrix, plan: DirichletPlan | Int[ArrayLike, " n_fixed"]) -> DirichletBlocks:
     """The free-free block `A_ff = A[f][:, f]` and the free-fixed block `A_fc = A[f][:, c]` of a square matrix.
 
     With `c` the fixed indices and `f` the free rest (ascending), a Dirichlet problem `A u = b`,
@@ -159,8 +175,8 @@ def dirichlet_blocks(matrix: SparseMatrix, plan: DirichletPlan | Int[ArrayLike, 
             concrete pattern arrays).
 
     Returns:
-        `(A_ff, A_fc)`: `(n_free, n_free)` and `(n_free, n_fixed)` `SparseMatrix`es on `plan.free_free`
-        and `plan.free_fixed`.
+        `DirichletBlocks(free_free, free_fixed)`: `A_ff` and `A_fc`, `(n_free, n_free)` and
+        `(n_free, n_fixed)` `SparseMatrix`es on `plan.free_free` and `plan.free_fixed`.
     """
     if not isinstance(matrix, SparseMatrix):
         raise DDGInputError(
@@ -177,7 +193,7 @@ def dirichlet_blocks(matrix: SparseMatrix, plan: DirichletPlan | Int[ArrayLike, 
     _check_positions(matrix.pattern, plan)
     free_free = gather_sum(matrix.values, plan.free_free_source, plan.free_free_readers)
     free_fixed = gather_sum(matrix.values, plan.free_fixed_source, plan.free_fixed_readers)
-    return SparseMatrix(free_free, plan.free_free, **_flags(matrix)), SparseMatrix(free_fixed, plan.free_fixed)
+    return DirichletBlocks(SparseMatrix(free_free, plan.free_free, **_flags(matrix)), SparseMatrix(free_fixed, plan.free_fixed))
 
 
 def _check_fixed(fixed, n: int) -> np.ndarray:

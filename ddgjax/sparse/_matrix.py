@@ -11,8 +11,10 @@ import scipy.sparse as sp
 from jax.experimental import sparse as jsparse
 from jaxtyping import Array, ArrayLike, Float, Inexact, Int
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_count, is_traced
 from .._indexing import take_rows, take_rows_or_zero
+from .._results import RESULTS, raise_if_failed
 from ._nonnegative import NonNegative
 from ._pattern import SparsityPattern
 
@@ -551,8 +553,9 @@ def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, what: str):
                     f"{what}: the pattern lacks diagonal entries (first at row {int(missing[0])}), so a diagonal "
                     "cannot be added onto it"
                 )
-        else:
-            values = eqx.error_if(values, jnp.sum(on_diagonal) != n, f"{what}: the pattern lacks diagonal entries")
+        else:  # a pattern passed into jit: counted when the program runs
+            result = RESULTS.where(jnp.sum(on_diagonal) == n, RESULTS.successful, RESULTS.missing_diagonal)
+            values = raise_if_failed(values, result, throw=True)
         return values + jnp.where(on_diagonal, diagonal[pattern.rows], 0)
     raise DDGInputError(
         f"{what}: adding a diagonal needs a pattern that stores the whole diagonal (a host-built "
@@ -561,7 +564,8 @@ def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, what: str):
     )
 
 
-_compiled_product = jax.jit(SparseMatrix._product)
+# Eager products run as one compiled program per pattern layout and shape (`SparseMatrix.__matmul__`).
+_compiled_product = kernel(SparseMatrix._product)
 
 
 def _stored(x: Inexact[Array, "n *batch"]) -> Inexact[Array, "n *batch"]:

@@ -6,8 +6,8 @@ regularisation weight passed into a jitted function) has no value to look at whi
 flags are dropped and `lineax.CG` refuses `M + t L`. Wrapping the scalar states the sign in the
 program instead: `nonnegative(t) * L` keeps the flags, and the promise is checked where it can be,
 on the host for a concrete `t` (`DDGInputError`) and at run time for a traced one
-(`equinox.error_if`, the library's results convention), so a negative `t` raises rather than
-mis-tagging an indefinite operator.
+(`ddgjax.RESULTS.negative_value`, the library's results convention), so a negative `t` raises
+rather than mis-tagging an indefinite operator.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Real
 
 from .._errors import DDGInputError, is_traced
+from .._results import RESULTS, raise_if_failed
 
 
 class NonNegative(eqx.Module):
@@ -44,10 +45,10 @@ def nonnegative(value: Real[ArrayLike, ""] | NonNegative) -> NonNegative:
     has the values of `t * L` and keeps `positive_semidefinite` / `negative_semidefinite`, so
     `(M + nonnegative(t) * L).as_lineax_operator()` is tagged positive semidefinite and `lineax.CG`
     takes it with `t` traced. A concrete `value` is checked now (`DDGInputError` when negative or
-    NaN); a traced one is checked when the program runs: a negative or NaN value raises through
-    `equinox.error_if` (`equinox.EquinoxRuntimeError` under `equinox.filter_jit`; under `vmap`, when
-    any member is) instead of tagging an indefinite operator PSD. Differentiable in `value`. SciPy has no flags, so no equivalent; lineax's
-    tags are the same promise, unchecked.
+    NaN); a traced one is checked when the program runs: a negative or NaN value raises with the
+    message of `ddgjax.RESULTS.negative_value` (under `vmap`, when any member is) instead of tagging
+    an indefinite operator PSD. Differentiable in `value`. SciPy has no flags, so no equivalent;
+    lineax's tags are the same promise, unchecked.
 
     Args:
         value: a real scalar, `()` (a `NonNegative` is returned as it is).
@@ -61,5 +62,6 @@ def nonnegative(value: Real[ArrayLike, ""] | NonNegative) -> NonNegative:
     if value.ndim != 0 or not (jnp.issubdtype(value.dtype, jnp.floating) or jnp.issubdtype(value.dtype, jnp.integer)):
         raise DDGInputError(f"value: expected a real scalar, got shape {value.shape} dtype {value.dtype}")
     if is_traced(value):
-        value = eqx.error_if(value, ~(value >= 0), "nonnegative(value): the value is negative or NaN")
+        result = RESULTS.where(value >= 0, RESULTS.successful, RESULTS.negative_value)
+        value = raise_if_failed(value, result, throw=True)
     return NonNegative(value)  # a concrete value is checked on construction

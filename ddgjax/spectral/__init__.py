@@ -1,18 +1,21 @@
 """Spectral geometry: the smallest eigenpairs of the Laplacian, differentiable in the vertex positions.
 
-- `eigenpairs(mesh, k, *, mass="voronoi", boundary="neumann" | "dirichlet")`: the `k` smallest
-  eigenpairs of `L phi = lambda M phi` (the discrete `-Delta phi = lambda phi`), M-orthonormal, with
-  a deterministic sign.
+- `eigenpairs(mesh, k, *, mass="voronoi", boundary="neumann" | "dirichlet", throw=True)`: the `k`
+  smallest eigenpairs of `L phi = lambda M phi` (the discrete `-Delta phi = lambda phi`),
+  M-orthonormal, with a deterministic sign, as `Eigenpairs(values, vectors)` (a named tuple).
 - `smallest_eigenpairs(L, M, k)`: the same for any sparse generalised symmetric problem, by ARPACK's
   shift-invert Lanczos on the host (inside `jit` through a callback), differentiable (`custom_vjp`)
   in both matrices' values: eigenvalues always, eigenvectors away from clusters of equal
-  eigenvalues, and every function invariant within a cluster.
+  eigenvalues, and every function invariant within a cluster. A failed eigensolve is
+  `ddgjax.RESULTS.eigensolver_failed` (`throw=False` returns a `ddgjax.Solution`).
 - `shape_operators(mesh, k)` / `shape_operators_of_meshes(meshes, k)`: what a learning pipeline
   precomputes per shape (lumped mass, eigenpairs, `L`, the face gradient operator `gradient_operator`).
-- On an eigenbasis: `spectral_coefficients`, `spectral_reconstruction`, `spectral_filter`,
-  `heat_kernel`, `heat_kernel_signature`.
+- On an eigenbasis: `spectral_coefficients`, `spectral_reconstruction`, `spectral_filter(..., response=)`,
+  `heat_kernel(values, vectors, sources, t=)`, `heat_kernel_signature(values, vectors, t=)`.
 """
 
+from ._generalized import EIGENSOLVERS as EIGENSOLVERS
+from ._generalized import Eigenpairs as Eigenpairs
 from ._generalized import smallest_eigenpairs as smallest_eigenpairs
 from ._laplacian import eigenpairs as eigenpairs
 from ._laplacian import heat_kernel as heat_kernel

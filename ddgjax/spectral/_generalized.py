@@ -4,7 +4,15 @@
 a symmetric positive semidefinite `L` and a symmetric positive definite `M` (the cotan Laplacian and
 a mass matrix) and eigenvectors `Phi = [phi_1 ... phi_k]` normalised `Phi^T M Phi = I`, each with a
 deterministic sign: its entry of largest magnitude is positive. Within a cluster of equal
-eigenvalues (the sphere's `2l + 1`) the basis is whatever the solver found.
+eigenvalues (the sphere's `2l + 1`) the basis is whatever the solver found. The answer is an
+`Eigenpairs(values, vectors)` named tuple (it unpacks as `values, vectors = ...`).
+
+**Outcome** (`throw=`, `ddgjax.RESULTS`): ARPACK's non-convergence (or a singular shift-invert
+factor) on the host and a subspace iteration that runs out of steps or loses the rank of its basis
+are `RESULTS.eigensolver_failed`; a mass matrix the dense path finds not positive definite is
+`RESULTS.not_positive_definite`. `throw=True` (default) raises with the item's message;
+`throw=False` returns a `ddgjax.Solution` whose `stats["residual"]` is the largest relative
+eigen-residual `|L phi_i - lambda_i M phi_i| / (lambda_k |M phi_i|)` of the `k` pairs.
 
 **Forward**, `method="arpack"` (host, the default on CPU): ARPACK's shift-invert Lanczos (`scipy.sparse.linalg.eigsh(L, k, M, sigma)`,
 which factors `L - sigma M` once with SuperLU), called through `jax.pure_callback`, so it runs
@@ -33,7 +41,9 @@ rotate the basis inside the eigenspace, which is undefined; any function that is
 such rotations (sums over a cluster, spectral distances, heat kernels, projections onto a cluster's
 span) gets its exact gradient, and no gradient is ever NaN. A cluster cut by the `k`-th eigenvalue
 (`lambda_k == lambda_{k+1}`) makes the eigenvectors of that cluster undefined: ask for a `k` that
-closes the cluster (the eigenvalues' gradients are correct regardless).
+closes the cluster (the eigenvalues' gradients are correct regardless). An adjoint solve that does not
+converge raises `RESULTS.eigensolver_failed`'s message whatever `throw` was: a gradient has no
+outcome to carry it.
 
 References: ARPACK (R. Lehoucq, D. Sorensen, C. Yang, 1998); N. van der Aa, H. ter Morsche, R.
 Mattheij, "Computation of eigenvalue and eigenvector derivatives for a general complex-valued
@@ -42,6 +52,8 @@ eigensystem" (2007); M. B. Giles (2008) for the adjoint form. SciPy:
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -53,20 +65,37 @@ import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError, check_choice, check_count, is_traced
-from .._options import LINEAR_SOLVERS as SOLVE_METHODS
+from .._options import check_solver
+from .._results import RESULTS, Solution, outcome, raise_if_failed
 from ..internal import PRECONDITIONERS, auto_method, preconditioned_cg
 from ..solve import AMGHierarchy, amg_hierarchy, factorize
 from ..sparse import SparseMatrix, nonnegative
 
 # Eigenvalues within this fraction of the largest computed one count as one cluster (module docstring).
 _CLUSTER_TOLERANCE = 1e-8
-METHODS = ("auto", "arpack", "subspace")
+EIGENSOLVERS = ("auto", "arpack", "subspace")
+"""`method=` of `smallest_eigenpairs` and `eigenpairs`: the eigensolver (module docstring)."""
 # The subspace iteration's stopping test (relative to the block's largest Ritz value) and step limit.
 _SUBSPACE_TOLERANCE = 1e-10
 _SUBSPACE_MAX_STEPS = 500
 # Relative residual of the adjoint conjugate gradient, and its iteration limit.
 _ADJOINT_RTOL = 1e-10
 _ADJOINT_MAX_STEPS = 1000
+# The forward's status codes (an integer array, so the host callback can return one), and their outcomes.
+_CONVERGED, _FAILED, _NOT_POSITIVE_DEFINITE = 0, 1, 2
+
+
+class Eigenpairs(NamedTuple):
+    """The `k` smallest eigenpairs of `L phi = lambda M phi`; unpacks as `values, vectors = ...`.
+
+    Attributes:
+        values: `(k,)` the eigenvalues, ascending.
+        vectors: `(n, k)` their eigenvectors, M-orthonormal (`vectors.T @ M @ vectors = I`), each
+            with its entry of largest magnitude positive.
+    """
+
+    values: Float[Array, " k"]
+    vectors: Float[Array, "n k"]
 
 
 def smallest_eigenpairs(
@@ -78,7 +107,8 @@ def smallest_eigenpairs(
     solver: str = "auto",
     preconditioner: str | AMGHierarchy | None = None,
     hermitian_real_form: bool = False,
-) -> tuple[Float[Array, " k"], Float[Array, "n k"]]:
+    throw: bool = True,
+) -> Eigenpairs | Solution:
     """The `k` smallest eigenpairs of `L phi = lambda M phi` (module docstring), differentiable in both matrices' values.
 
     Args:
@@ -99,9 +129,15 @@ def smallest_eigenpairs(
             host path solves the complex problem (ARPACK's complex mode, `k / 2` eigenpairs, half the
             unknowns and a quarter of the factor) and returns the pairs, so `k` must be even. Results
             and derivatives are those of the real-form problem.
+        throw: raise when the eigensolver fails (default), or return a `ddgjax.Solution` holding the
+            pairs, `result` (`RESULTS.eigensolver_failed`, `RESULTS.not_positive_definite`) and
+            `stats["residual"]` (module docstring).
 
     Returns:
-        `(eigenvalues (k,), eigenvectors (n, k))`, ascending, `Phi^T M Phi = I`, in `L`'s dtype.
+        `Eigenpairs(values (k,), vectors (n, k))`, ascending, `Phi^T M Phi = I`, in `L`'s dtype
+        (in a `ddgjax.Solution` with `throw=False`).
+
+    SciPy: `scipy.sparse.linalg.eigsh(L, k, M, sigma=0)`; libigl: `igl.eigs(L, M, k, igl.EIGS_TYPE_SM)`.
     """
     for name, matrix in (("L", L), ("M", M)):
         if not isinstance(matrix, SparseMatrix):
@@ -114,16 +150,33 @@ def smallest_eigenpairs(
     k = check_count("k", k)
     if k >= n:
         raise DDGInputError(f"k: expected fewer eigenpairs than unknowns ({n}), got {k}")
-    check_choice("method", method, METHODS)
+    check_choice("method", method, EIGENSOLVERS)
     if method == "auto":
         method = "arpack" if jax.default_backend() == "cpu" else "subspace"
-    check_choice("solver", solver, SOLVE_METHODS)
+    check_solver(solver)
     preconditioner = _subspace_preconditioner(L, M, method, solver, preconditioner)
     hermitian_real_form = bool(hermitian_real_form)
     if hermitian_real_form and (n % 2 or k % 2):
         raise DDGInputError(f"hermitian_real_form: needs an even size and an even k (pairs), got n = {n}, k = {k}")
     options = (method, solver, preconditioner, hermitian_real_form)
-    return _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, options)
+    values, vectors, status = _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, options)
+    result = RESULTS.where(
+        status == _CONVERGED,
+        RESULTS.successful,
+        RESULTS.where(status == _FAILED, RESULTS.eigensolver_failed, RESULTS.not_positive_definite),
+    )
+    pairs = Eigenpairs(values, vectors)
+    if throw:
+        return outcome(pairs, result, throw)
+    return outcome(pairs, result, throw, {"residual": _relative_residual(L, M, jax.lax.stop_gradient(pairs))})
+
+
+def _relative_residual(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> Float[Array, ""]:
+    """`max_i |L phi_i - lambda_i M phi_i| / (lambda_k |M phi_i|)` (the subspace iteration's stopping measure)."""
+    values, vectors = pairs
+    mass = M @ vectors
+    residual = jnp.linalg.norm(L @ vectors - mass * values, axis=0) / jnp.linalg.norm(mass, axis=0)
+    return jnp.max(residual) / jnp.maximum(jnp.abs(values[-1]), jnp.finfo(values.dtype).tiny)
 
 
 def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGHierarchy | None:
@@ -155,31 +208,60 @@ def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGH
 
 
 def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int, k: int, hermitian_real_form: bool):
-    """NumPy: ARPACK shift-invert (or a dense solve when small), ascending, M-normalised, signs fixed."""
+    """NumPy: ARPACK shift-invert (or a dense solve when small), ascending, M-normalised, signs fixed; and
+    the status (`_CONVERGED`, or zeros with `_FAILED` / `_NOT_POSITIVE_DEFINITE`)."""
     L = sp.csc_matrix((np.asarray(l_values, np.float64), (l_rows, l_cols)), shape=(n, n))
     M = sp.csc_matrix((np.asarray(m_values, np.float64), (m_rows, m_cols)), shape=(n, n))
-    if hermitian_real_form:
-        values, vectors = _complex_eigenpairs(L, M, k // 2)
-        values = np.repeat(values, 2)
-        x, y = vectors.real, vectors.imag
-        vectors = np.stack([np.vstack([x, y]), np.vstack([-y, x])], axis=2).reshape(n, k)  # u, i u per pair
-    else:
-        values, vectors = _real_eigenpairs(L, M, k)
+    dtype = l_values.dtype
+    try:
+        if hermitian_real_form:
+            values, vectors = _complex_eigenpairs(L, M, k // 2)
+            values = np.repeat(values, 2)
+            x, y = vectors.real, vectors.imag
+            vectors = np.stack([np.vstack([x, y]), np.vstack([-y, x])], axis=2).reshape(n, k)  # u, i u per pair
+        else:
+            values, vectors = _real_eigenpairs(L, M, k)
+    except _EigensolverFailure as failure:
+        return np.zeros(k, dtype), np.zeros((n, k), dtype), np.int32(failure.status)
     largest = np.argmax(np.abs(vectors), axis=0)
     vectors = vectors * np.sign(vectors[largest, np.arange(k)])
-    return values.astype(l_values.dtype), vectors.astype(l_values.dtype)
+    return values.astype(dtype), vectors.astype(dtype), np.int32(_CONVERGED)
+
+
+class _EigensolverFailure(Exception):
+    """A host eigensolve that failed, with its status code (`_FAILED` or `_NOT_POSITIVE_DEFINITE`)."""
+
+    def __init__(self, status: int):
+        super().__init__(status)
+        self.status = status
+
+
+def _dense_eigenpairs(A: np.ndarray, B: np.ndarray, k: int):
+    """The `k` smallest eigenpairs of a small dense problem; SciPy refuses a `B` that is not positive definite."""
+    try:
+        return sla.eigh(A, B, subset_by_index=(0, k - 1))
+    except np.linalg.LinAlgError as error:
+        raise _EigensolverFailure(_NOT_POSITIVE_DEFINITE) from error
+
+
+def _arpack_eigenpairs(A, B, k: int, start: np.ndarray):
+    """ARPACK's shift-invert Lanczos below 0, Rayleigh-Ritz on its vectors (`_rayleigh_ritz`)."""
+    shift = -1e-8 * A.diagonal().real.sum() / B.diagonal().sum()
+    try:
+        _, vectors = spla.eigsh(A, k=k, M=B, sigma=shift, which="LM", v0=start, tol=0.0)
+        return _rayleigh_ritz(A, B, vectors)
+    # No convergence; SuperLU's exactly singular factor (RuntimeError); the block's B-Gram matrix not
+    # positive definite (LinAlgError: ARPACK's vectors lost rank).
+    except (spla.ArpackNoConvergence, spla.ArpackError, RuntimeError, np.linalg.LinAlgError) as error:
+        raise _EigensolverFailure(_FAILED) from error
 
 
 def _real_eigenpairs(L: sp.csc_matrix, M: sp.csc_matrix, k: int):
     n = L.shape[0]
     if n <= 2 * k + 64:
-        values, vectors = sla.eigh(L.toarray(), M.toarray(), subset_by_index=(0, k - 1))
-    else:
-        shift = -1e-8 * L.diagonal().sum() / M.diagonal().sum()
-        start = np.ones(n) + np.linspace(0.0, 1.0, n)  # deterministic; not orthogonal to anything natural
-        _, vectors = spla.eigsh(L, k=k, M=M, sigma=shift, which="LM", v0=start, tol=0.0)
-        values, vectors = _rayleigh_ritz(L, M, vectors)
-    return values, vectors
+        return _dense_eigenpairs(L.toarray(), M.toarray(), k)
+    start = np.ones(n) + np.linspace(0.0, 1.0, n)  # deterministic; not orthogonal to anything natural
+    return _arpack_eigenpairs(L, M, k, start)
 
 
 def _rayleigh_ritz(A, B, vectors):
@@ -201,18 +283,19 @@ def _complex_eigenpairs(L: sp.csc_matrix, M: sp.csc_matrix, k: int):
     A = (L[:h, :h] + 1j * L[h:, :h]).tocsc()
     B = M[:h, :h].tocsc()
     if h <= 2 * k + 64:
-        values, vectors = sla.eigh(A.toarray(), B.toarray(), subset_by_index=(0, k - 1))
+        values, vectors = _dense_eigenpairs(A.toarray(), B.toarray(), k)
     else:
-        shift = -1e-8 * A.diagonal().real.sum() / B.diagonal().sum()
-        start = (np.ones(h) + np.linspace(0.0, 1.0, h)) * (1 + 0.5j)
-        _, vectors = spla.eigsh(A, k=k, M=B, sigma=shift, which="LM", v0=start, tol=0.0)
-        values, vectors = _rayleigh_ritz(A, B, vectors)
+        values, vectors = _arpack_eigenpairs(A, B, k, (np.ones(h) + np.linspace(0.0, 1.0, h)) * (1 + 0.5j))
     return values.real, vectors
 
 
 def _host_forward(l_pattern, m_pattern, k, hermitian_real_form, l_values, m_values):
     n = l_pattern.shape[0]
-    shapes = (jax.ShapeDtypeStruct((k,), l_values.dtype), jax.ShapeDtypeStruct((n, k), l_values.dtype))
+    shapes = (
+        jax.ShapeDtypeStruct((k,), l_values.dtype),
+        jax.ShapeDtypeStruct((n, k), l_values.dtype),
+        jax.ShapeDtypeStruct((), jnp.int32),
+    )
     return jax.pure_callback(
         lambda *arrays: _host_eigenpairs(*arrays, n=n, k=k, hermitian_real_form=hermitian_real_form),
         shapes,
@@ -242,15 +325,15 @@ def _eigenpairs(values, l_pattern, m_pattern, k, options):
 
 @_eigenpairs.def_fwd
 def _eigenpairs_fwd(perturbed, values, l_pattern, m_pattern, k, options):
-    eigenvalues, eigenvectors = _forward(l_pattern, m_pattern, k, options, *values)
-    return (eigenvalues, eigenvectors), (eigenvalues, eigenvectors)
+    eigenvalues, eigenvectors, status = _forward(l_pattern, m_pattern, k, options, *values)
+    return (eigenvalues, eigenvectors, status), (eigenvalues, eigenvectors)
 
 
 @_eigenpairs.def_bwd
 def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_pattern, k, options):
     """`(L_bar, M_bar)` on the patterns' storage slots (module docstring: reverse mode)."""
     eigenvalues, Phi = residuals
-    values_bar, Phi_bar = cotangents
+    values_bar, Phi_bar, _ = cotangents  # the status is an integer: no cotangent
     l_values, m_values = values
     if values_bar is None:
         values_bar = jnp.zeros_like(eigenvalues)
@@ -303,8 +386,9 @@ def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str, p
     (Cholesky-QR, twice) and rotated to the Ritz vectors of `L` in its span (Rayleigh-Ritz). The error
     in eigenpair `i <= k` falls by about `(lambda_i - sigma) / (lambda_{m+1} - sigma)` per step (< 1/2
     for surface Laplacians, whose eigenvalues grow linearly). It stops when every one of the first
-    `k` has `|L phi - lambda M phi| <= 1e-10 lambda_m |M phi|`, or after 500 steps (then it raises).
-    Fixed shapes throughout, so it runs under `jit`, `vmap` and on any device.
+    `k` has `|L phi - lambda M phi| <= 1e-10 lambda_m |M phi|`, or after 500 steps (status `_FAILED`,
+    as when the basis loses rank and the residual is NaN). Fixed shapes throughout, so it runs under
+    `jit`, `vmap` and on any device. Returns `(values, vectors, status)`.
     """
     n = L.shape[0]
     m = min(n, 2 * k + 8)
@@ -328,7 +412,7 @@ def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str, p
 
     def unfinished(state):
         _, _, residual, step = state
-        return (residual > _SUBSPACE_TOLERANCE) & (step < _SUBSPACE_MAX_STEPS)
+        return (residual > _SUBSPACE_TOLERANCE) & (step < _SUBSPACE_MAX_STEPS)  # a NaN residual stops too
 
     def iteration(state):
         X, _, _, step = state
@@ -337,15 +421,11 @@ def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str, p
 
     values, X, residual = ritz(start)
     X, values, residual, _ = jax.lax.while_loop(unfinished, iteration, (X, values, residual, jnp.zeros((), jnp.int32)))
-    X = eqx.error_if(
-        X,
-        residual > _SUBSPACE_TOLERANCE,
-        "eigenpairs: the subspace iteration did not converge in 500 steps (use method='arpack')",
-    )
+    status = jnp.where(residual <= _SUBSPACE_TOLERANCE, _CONVERGED, _FAILED).astype(jnp.int32)
     values, X = values[:k], X[:, :k]
     largest = jnp.argmax(jnp.abs(X), axis=0)
     X = X * jnp.sign(X[largest, jnp.arange(k)])
-    return values, X
+    return values, X, status
 
 
 def _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar, solves: dict):
@@ -363,12 +443,8 @@ def _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar, solves: dict):
         operator = lambda z: project_t(L @ project(z) - eigenvalue * (M @ project(z)))
         preconditioner = lambda r: project(shifted.solve(project_t(r), throw=False).value)
         z, (_, converged) = preconditioned_cg(operator, project_t(phi_bar), preconditioner, _ADJOINT_RTOL, _ADJOINT_MAX_STEPS)
-        z = eqx.error_if(
-            z,
-            ~converged,
-            "eigenpairs: the adjoint solve for an eigenvector's gradient did not converge (is lambda_k part of a cluster "
-            "that continues past k? ask for a k that closes the cluster)",
-        )
-        return -project(z)
+        # A gradient carries no outcome: a failed adjoint raises whatever the forward's `throw` was.
+        result = RESULTS.where(converged, RESULTS.successful, RESULTS.eigensolver_failed)
+        return -project(raise_if_failed(z, result, throw=True))
 
     return jax.vmap(column, in_axes=(0, 1), out_axes=1)(eigenvalues, Phi_bar)

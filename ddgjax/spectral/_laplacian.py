@@ -10,7 +10,9 @@ multiplicity `2 l + 1`. Eigenvectors are M-orthonormal, `Phi^T M Phi = I`: the d
 On top of an eigenbasis: `spectral_coefficients` (`c = Phi^T M f`), `spectral_reconstruction`
 (`Phi c`), `spectral_filter` (`Phi g(Lambda) Phi^T M f`), `heat_kernel` (`k_t(x, y) = sum_i
 exp(-lambda_i t) phi_i(x) phi_i(y)`) and `heat_kernel_signature` (`k_t(x, x)`, Sun, Ovsjanikov &
-Guibas 2009), all plain JAX functions of the eigenpairs, so differentiable through them.
+Guibas 2009), all plain JAX functions of the eigenpairs, so differentiable through them. They take
+the eigenvalues and eigenvectors as their first two arguments, so an `Eigenpairs` passes unpacked:
+`heat_kernel(*eigenpairs(mesh, 30), sources, t=0.1)`.
 
 References: B. Vallet & B. Lévy, "Spectral geometry processing with manifold harmonics" (2008);
 J. Sun, M. Ovsjanikov & L. Guibas, "A concise and provably informative multi-scale signature based
@@ -20,18 +22,20 @@ on heat diffusion" (2009). libigl: `igl.eigs(L, M, k, igl.EIGS_TYPE_SM)`; SciPy:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_choice
+from .._options import BOUNDARY_CONDITIONS, check_mass
+from .._results import Solution, outcome
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, require_mesh
 from ..solve import AMGHierarchy
 from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
-from ._generalized import smallest_eigenpairs
-
-BOUNDARY_CONDITIONS = ("neumann", "dirichlet")
+from ._generalized import Eigenpairs, smallest_eigenpairs
 
 
 def eigenpairs(
@@ -44,7 +48,8 @@ def eigenpairs(
     method: str = "auto",
     solver: str = "auto",
     preconditioner: str | AMGHierarchy | None = None,
-) -> tuple[Float[Array, " k"], Float[Array, "nv k"]]:
+    throw: bool = True,
+) -> Eigenpairs | Solution:
     """The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
 
     Args:
@@ -58,10 +63,13 @@ def eigenpairs(
             `"auto"`), the backend of its solves and their CG preconditioner
             (`ddgjax.spectral.smallest_eigenpairs`; with Dirichlet conditions a hierarchy is of the
             free-free block).
+        throw: raise when the eigensolver fails (default), or return a `ddgjax.Solution` with the
+            pairs, `result` and `stats` (`smallest_eigenpairs`).
 
     Returns:
-        `(eigenvalues (k,), eigenvectors (nv, k))`, ascending, M-orthonormal, each eigenvector's entry
-        of largest magnitude positive. Differentiable in the vertex positions
+        `Eigenpairs(values (k,), vectors (nv, k))` (unpacks as `values, vectors = ...`), ascending,
+        M-orthonormal, each eigenvector's entry of largest magnitude positive; in a `ddgjax.Solution`
+        with `throw=False`. Differentiable in the vertex positions
         (`ddgjax.spectral.smallest_eigenpairs`: eigenvalues always; eigenvectors away from clusters
         of equal eigenvalues; any function invariant within a cluster), under `jit` and `vmap`.
 
@@ -69,9 +77,10 @@ def eigenpairs(
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
+    check_mass(mass)
     L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     if boundary == "neumann":
-        return smallest_eigenpairs(L, M, k, method=method, solver=solver, preconditioner=preconditioner)
+        return smallest_eigenpairs(L, M, k, method=method, solver=solver, preconditioner=preconditioner, throw=throw)
     fixed = mesh.topology.boundary_vertices
     if fixed.size == 0:
         raise DDGInputError("boundary: 'dirichlet' needs a mesh with a boundary; this mesh is closed (use 'neumann')")
@@ -81,8 +90,10 @@ def eigenpairs(
         M_ff = diagonal_matrix(M.diagonal()[plan.free], positive_semidefinite=True)
     else:  # the Galerkin mass lives on the Laplacian's pattern
         M_ff, _ = dirichlet_blocks(M, plan)
-    values, vectors = smallest_eigenpairs(L_ff, M_ff, k, method=method, solver=solver, preconditioner=preconditioner)
-    return values, plan.join(vectors, jnp.zeros((fixed.size, k), vectors.dtype))
+    solution = smallest_eigenpairs(L_ff, M_ff, k, method=method, solver=solver, preconditioner=preconditioner, throw=False)
+    values, vectors = solution.value
+    pairs = Eigenpairs(values, plan.join(vectors, jnp.zeros((fixed.size, k), vectors.dtype)))
+    return outcome(pairs, solution.result, throw, solution.stats)
 
 
 def spectral_coefficients(
@@ -105,12 +116,21 @@ def spectral_reconstruction(vectors: Float[ArrayLike, "nv k"], coefficients: Flo
 
 
 def spectral_filter(
-    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], M: SparseMatrix, f: Float[ArrayLike, "nv *m"], response
+    values: Float[ArrayLike, " k"],
+    vectors: Float[ArrayLike, "nv k"],
+    M: SparseMatrix,
+    f: Float[ArrayLike, "nv *m"],
+    *,
+    response: Callable[[Float[Array, " k"]], ArrayLike],
 ) -> Float[Array, "nv *m"]:
     """`Phi g(Lambda) Phi^T M f`: `f` filtered by the frequency response `g` (a JAX function of the eigenvalues).
 
-    E.g. `response = lambda lam: lam < 50` keeps the low frequencies (smoothing), `jnp.exp(-t lam)` is
-    heat diffusion for time `t` restricted to the basis.
+    E.g. `response=lambda lam: lam < 50` keeps the low frequencies (smoothing), `jnp.exp(-t lam)` is
+    heat diffusion for time `t` restricted to the basis. `values, vectors` as `eigenpairs` returns
+    them (`spectral_filter(*pairs, M, f, response=...)`), `M` the mass matrix they are orthonormal in,
+    `f` of shape `(nv,)` or `(nv, m)`; the result has `f`'s shape. Differentiable in every argument.
+
+    Reference: B. Vallet, B. Levy, "Spectral geometry processing with manifold harmonics" (2008), section 4.
     """
     values = jnp.asarray(values)
     coefficients = spectral_coefficients(vectors, M, f)
@@ -119,11 +139,36 @@ def spectral_filter(
 
 
 def heat_kernel(
-    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], t: float, sources: ArrayLike
+    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], sources: Int[ArrayLike, " n_sources"], *, t: float
 ) -> Float[Array, "nv n_sources"]:
-    """`k_t(x, y) = sum_i exp(-lambda_i t) phi_i(x) phi_i(y)` for every vertex `x` and each source vertex `y`.
+    """The heat kernel `k_t(x, y)` of the surface, truncated to an eigenbasis, from each source vertex `y` to every vertex `x`.
 
-    The heat at time `t` from a unit of heat at `y` (per unit area), truncated to the basis.
+    The solution of the heat equation `du/dt = Delta u` (`Delta = -M^{-1} L`, the pointwise
+    Laplace-Beltrami operator) started from a unit of heat concentrated at `y` is
+
+        k_t(x, y) = sum_i exp(-lambda_i t) phi_i(x) phi_i(y),
+
+    summed over the eigenpairs of `L phi = lambda M phi` (`eigenpairs`), whose eigenvectors are
+    M-orthonormal, so `k_t` is a density per unit area: `1^T M k_t(., y) = 1` on a closed
+    surface with the constant eigenvector in the basis (Neumann), and `k_t(x, y) = k_t(y, x)`.
+    Truncating to the `k` smallest pairs drops the terms `exp(-lambda_i t)` of the higher frequencies,
+    so the kernel is accurate for `t` large against `1 / lambda_k`; small times need many pairs (or a
+    backward-Euler heat step, `ddgjax.geodesics`). Differentiable in `values`, `vectors` (so in the
+    vertex positions through `eigenpairs`) and `t`.
+
+    Args:
+        values: `(k,)` eigenvalues, as `eigenpairs` returns them.
+        vectors: `(nv, k)` their M-orthonormal eigenvectors.
+        sources: `(n_sources,)` vertex indices `y` (concrete integers; one integer gives one column).
+        t: the diffusion time, `> 0` (keyword-only).
+
+    Returns:
+        `(nv, n_sources)`: column `j` is `k_t(., sources[j])`.
+
+    `heat_kernel(*eigenpairs(mesh, 100), sources, t=0.01)`. References: J. Sun, M. Ovsjanikov, L.
+    Guibas, "A concise and provably informative multi-scale signature based on heat diffusion" (2009),
+    eq. (2); B. Vallet, B. Levy (2008). libigl / gpytoolbox / potpourri3d: none (compute the
+    eigenpairs with `igl.eigs` and sum the series by hand).
     """
     values, vectors = jnp.asarray(values), jnp.asarray(vectors)
     sources = np.atleast_1d(np.asarray(sources))
@@ -135,14 +180,16 @@ def heat_kernel(
 
 
 def heat_kernel_signature(
-    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], times: Float[ArrayLike, " *n_times"] | float
+    values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], *, t: Float[ArrayLike, " *n_times"] | float
 ) -> Float[Array, "nv n_times"]:
-    """The heat kernel signature `HKS(x, t) = k_t(x, x) = sum_i exp(-lambda_i t) phi_i(x)^2` (Sun et al. 2009).
+    """The heat kernel signature `HKS(x, t) = k_t(x, x) = sum_i exp(-lambda_i t) phi_i(x)^2` (Sun et al. 2009), `(nv, n_times)`.
 
+    `t` is one time or a `(n_times,)` array of times (keyword-only); one column per time.
     Invariant within clusters of equal eigenvalues (a sum of `phi_i^2` over an eigenspace does not
-    depend on its basis), so differentiable on symmetric shapes too.
+    depend on its basis), so differentiable on symmetric shapes too. `values, vectors` as
+    `heat_kernel` takes them: `heat_kernel_signature(*eigenpairs(mesh, 100), t=times)`.
     """
-    values, vectors, times = jnp.asarray(values), jnp.asarray(vectors), jnp.atleast_1d(jnp.asarray(times))
+    values, vectors, times = jnp.asarray(values), jnp.asarray(vectors), jnp.atleast_1d(jnp.asarray(t))
     return (vectors**2) @ jnp.exp(-values[:, None] * times[None, :])
 
 

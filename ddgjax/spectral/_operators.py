@@ -20,11 +20,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._errors import DDGInputError
-from ..laplacian import cotan_laplacian, mass_matrix
+from .._options import check_mass
+from .._results import Solution, outcome
+from ..laplacian import laplacian_and_mass
 from ..mesh import Mesh, face_hat_gradients, require_mesh
 from ..sparse import SparseMatrix, SparsityPattern
 from ._generalized import smallest_eigenpairs
+
+LUMPED_MASSES = ("voronoi", "barycentric")
+"""The `mass=` values `shape_operators` takes: a learning pipeline applies `M^{-1}` pointwise, so `M` is lumped."""
 
 
 class ShapeOperators(eqx.Module):
@@ -45,14 +49,22 @@ class ShapeOperators(eqx.Module):
     gradient: SparseMatrix
 
 
-def shape_operators(mesh: Mesh, k: int, *, mass: str = "voronoi") -> ShapeOperators:
-    """`ShapeOperators` of one mesh: lumped `mass` (`"voronoi"` or `"barycentric"`), `k` eigenpairs, `L`, `G`."""
+def shape_operators(mesh: Mesh, k: int, *, mass: str = "voronoi", throw: bool = True) -> ShapeOperators | Solution:
+    """`ShapeOperators` of one mesh: the lumped mass, `k` eigenpairs of `L phi = lambda M phi`, `L`, `G`.
+
+    `mass`: `"voronoi"` (default) or `"barycentric"`; `"galerkin"` is refused (`DDGInputError`): the
+    operators are stored for pipelines that divide by the vertex areas, which a full mass matrix does
+    not have. `throw`: as `ddgjax.spectral.eigenpairs` (a failed eigensolve raises, or with
+    `throw=False` the `ShapeOperators` come in a `ddgjax.Solution`). libigl / gpytoolbox: none in one
+    call (DiffusionNet's `get_operators` computes the same set).
+    """
     mesh = require_mesh("mesh", mesh)
-    L, M = cotan_laplacian(mesh), mass_matrix(mesh, kind=mass)
-    if not M.pattern.is_diagonal:
-        raise DDGInputError(f"mass: expected a lumped mass ('voronoi' or 'barycentric'), got {mass!r}")
-    values, vectors = smallest_eigenpairs(L, M, k)
-    return ShapeOperators(mass=M.diagonal(), values=values, vectors=vectors, laplacian=L, gradient=gradient_operator(mesh))
+    check_mass(mass, LUMPED_MASSES)
+    L, M = laplacian_and_mass(mesh, mass=mass)
+    solution = smallest_eigenpairs(L, M, k, throw=False)
+    values, vectors = solution.value
+    operators = ShapeOperators(mass=M.diagonal(), values=values, vectors=vectors, laplacian=L, gradient=gradient_operator(mesh))
+    return outcome(operators, solution.result, throw, solution.stats)
 
 
 def gradient_operator(mesh: Mesh) -> SparseMatrix:
@@ -69,14 +81,15 @@ def gradient_operator(mesh: Mesh) -> SparseMatrix:
 
 
 def shape_operators_of_meshes(
-    meshes: Iterable[Mesh], k: int, *, mass: str = "voronoi", progress: bool = True
-) -> list[ShapeOperators]:
+    meshes: Iterable[Mesh], k: int, *, mass: str = "voronoi", progress: bool = True, throw: bool = True
+) -> list[ShapeOperators | Solution]:
     """`shape_operators` of every mesh of a dataset, with a `tqdm` progress bar (`progress=False` silences it).
 
     A folder of files: `shape_operators_of_meshes(map(ddgjax.io.load_mesh, sorted(folder.glob("*.obj"))), k)`.
     A host loop; each shape compiles once per connectivity size. Stack same-size results with
-    `jax.tree.map(jnp.stack, *operators)` to batch them.
+    `jax.tree.map(jnp.stack, *operators)` to batch them. With `throw=False` each entry is a
+    `ddgjax.Solution` (`shape_operators`).
     """
     from tqdm.auto import tqdm
 
-    return [shape_operators(mesh, k, mass=mass) for mesh in tqdm(meshes, disable=not progress, desc="shapes")]
+    return [shape_operators(mesh, k, mass=mass, throw=throw) for mesh in tqdm(meshes, disable=not progress, desc="shapes")]
