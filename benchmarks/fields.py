@@ -5,7 +5,7 @@ eigenvector of the smallest eigenvalue of `A u = lambda M u` (`A` the connection
 `n = 4`, `M` the Voronoi mass; Knoeppel et al. 2013), on a few meshes of `../shared/meshes` and an
 icosphere of ~100k faces:
 
-- ddgjax `smoothest_field(mesh, n=4)` (jitted in the vertex positions: assembly, real form,
+- ddgjax `smoothest_field(mesh, n=4).field` (jitted in the vertex positions: assembly, real form,
   `smallest_eigenpairs(k=2, hermitian_real_form=True)`, i.e. complex ARPACK shift-invert on the
   host, phase fix), and its value and gradient (the energy, the smallest eigenvalue, as loss);
 - SciPy, the same complex Hermitian matrices assembled in NumPy from ddgjax's transport angles and
@@ -36,7 +36,7 @@ import scipy.sparse.linalg as spla  # noqa: E402
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from solve import fmt, jit, mesh_sections_parser, run_sections, timed_interleaved, warmed  # noqa: E402
 
-from ddgjax.fields import connection_mass_matrix, edge_transport_angles, smoothest_field, smoothest_field_solution  # noqa: E402
+from ddgjax.fields import connection_mass_matrix, edge_transport_angles, smoothest_field  # noqa: E402
 from ddgjax.io import load_mesh  # noqa: E402
 from ddgjax.mesh import edge_cotan_weights, icosphere  # noqa: E402
 
@@ -95,8 +95,8 @@ def section_smoothest(args):
 def _smoothest_on(name, mesh, args):
     A, M = scipy_matrices(mesh)
     shift = -1e-8 * A.diagonal().real.sum() / M.diagonal().real.sum()
-    ours = jit(lambda V: smoothest_field(mesh.with_vertices(V), n=N))
-    energy_and_gradient = jit(jax.value_and_grad(lambda V: smoothest_field_solution(mesh.with_vertices(V), n=N).energy))
+    ours = jit(lambda V: smoothest_field(mesh.with_vertices(V), n=N).field)
+    energy_and_gradient = jit(jax.value_and_grad(lambda V: smoothest_field(mesh.with_vertices(V), n=N).energy))
     calls = {
         "ddgjax smoothest_field (jit)": (ours, (mesh.vertices,)),
         "scipy eigsh (complex, shift-invert)": (lambda: scipy_eigsh(A, M, shift), ()),
@@ -106,7 +106,7 @@ def _smoothest_on(name, mesh, args):
         calls["scipy inverse iteration (complex splu)"] = (lambda: scipy_inverse_iteration(A, M, shift), ())
     times, results = timed_interleaved(warmed(calls), args.repeats, args.budget)
     expected = results["scipy eigsh (complex, shift-invert)"][0]
-    error = abs(float(smoothest_field_solution(mesh, n=N).energy) - expected) / expected
+    error = abs(float(smoothest_field(mesh, n=N).energy) - expected) / expected
     reference = times["ddgjax smoothest_field (jit)"][0]
     print(
         f"\n## {name}: nv = {mesh.n_vertices}, nf = {mesh.n_faces}  (min / median ms; ratio to ddgjax's field)  "

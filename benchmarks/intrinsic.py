@@ -52,7 +52,7 @@ def jittered_icosphere(subdivisions: int, amount: float = 0.3, seed: int = 0) ->
 def laplacian_and_mass(mesh: Mesh):
     triangulation = intrinsic_delaunay(mesh)
     L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation)
-    M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, kind="barycentric")
+    M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, mass="barycentric")
     return L.values, M.values
 
 

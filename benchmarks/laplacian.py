@@ -6,9 +6,16 @@ For each mesh (icospheres of growing size, `../shared/meshes/armadillo_loop1.ply
   object each repeat whose connectivity no living mesh shares (NumPy topology, the Laplacian's
   storage plan, then the assembly kernel compiled once per mesh size; the compile of the first mesh
   of each size is reported separately);
-- **re-assembly** for moved vertices with the topology kept (jitted), against libigl's full build;
+- **re-assembly** for moved vertices with the topology kept (jitted), against libigl's full build; the
+  same program compiled by a plain `jax.jit` (XLA:CPU's YNNPACK fusions on), with the number of
+  `__ynn_fusion` kernels in each compiled program: the measured reason for `ddgjax.cpu_compiler_options()`,
+  which ddgjax's own kernels compile with (a property of XLA's output, so checked here, not in the tests);
 - **`L @ x`** against SciPy's CSR product on the same matrix;
-- **gradient** of the Dirichlet energy `u^T L u / 2` w.r.t. the vertices, against the energy itself.
+- **matrix-free `L u`** (`laplacian_apply`, its own fused program) against assembling `L` and
+  multiplying, both from moved vertices: the measured reason for keeping the matrix-free route;
+- **gradient** of the Dirichlet energy `u^T L u / 2` w.r.t. the vertices (`dirichlet_energy`, whose
+  derivative is written out per face), against the energy itself and against autodiff of the
+  assembled `0.5 u^T (L u)`.
 
 Functions jitted here (as a user would) compile with `ddgjax.cpu_compiler_options()`, as the README
 recommends (triangulax's too). Times are min / median over repeats, in ms. Run:
@@ -34,7 +41,7 @@ import numpy as np  # noqa: E402
 import robust_laplacian  # noqa: E402
 
 import ddgjax  # noqa: E402
-from ddgjax.laplacian import cotan_laplacian, dirichlet_energy  # noqa: E402
+from ddgjax.laplacian import cotan_laplacian, dirichlet_energy, laplacian_apply  # noqa: E402
 from ddgjax.mesh import Mesh, icosphere  # noqa: E402
 
 try:
@@ -143,7 +150,21 @@ def bench_mesh(name, V, F, repeats, run_robust):
     reassemble = jit(lambda m, W: cotan_laplacian(m.with_vertices(W)).values)
     moved = jnp.asarray(V * 1.01)
     reassemble_compile = first_call(reassemble, mesh, moved)
-    rows["ddgjax re-assembly (moved vertices, jitted)"] = timed(reassemble, mesh, moved, repeats=repeats)[0]
+    plain_reassemble = jax.jit(lambda m, W: cotan_laplacian(m.with_vertices(W)).values)
+    first_call(plain_reassemble, mesh, moved)
+    rows.update(
+        timed_interleaved(
+            {
+                "ddgjax re-assembly (moved vertices, jitted)": (reassemble, (mesh, moved)),
+                "ddgjax re-assembly, plain jax.jit (YNNPACK fusions on)": (plain_reassemble, (mesh, moved)),
+            },
+            repeats=repeats,
+        )
+    )
+    fusions = {
+        name: compiled.lower(mesh, moved).compile().as_text().count("__ynn_fusion")
+        for name, compiled in (("with cpu_compiler_options()", reassemble), ("plain jax.jit", plain_reassemble))
+    }
     # --- L @ x -------------------------------------------------------------------------------
     L = cotan_laplacian(mesh)
     csr = L.to_scipy()
@@ -195,6 +216,22 @@ def bench_mesh(name, V, F, repeats, run_robust):
             repeats=repeats,
         )
     )
+    # The matrix-free routes against the assembled matrix they equal (tests check the values).
+    apply = jit(lambda m, W: laplacian_apply(m.with_vertices(W), u))
+    assembled_apply = jit(lambda m, W: cotan_laplacian(m.with_vertices(W)) @ u)
+    assembled_gradient = jit(jax.grad(lambda m, W: 0.5 * jnp.vdot(u, cotan_laplacian(m.with_vertices(W)) @ u), argnums=1))
+    for fn in (apply, assembled_apply, assembled_gradient):
+        first_call(fn, mesh, moved)
+    rows.update(
+        timed_interleaved(
+            {
+                "ddgjax laplacian_apply(moved, u) (matrix-free, jitted)": (apply, (mesh, moved)),
+                "ddgjax cotan_laplacian(moved) @ u (assembled, jitted)": (assembled_apply, (mesh, moved)),
+                "ddgjax grad_V 0.5 u^T (L u), autodiff of the assembly": (assembled_gradient, (mesh, moved)),
+            },
+            repeats=repeats,
+        )
+    )
     if tx_linops is not None:
         hemesh = tx_mesh.HeMesh.from_triangles(nv, jnp.asarray(F))
         tx_apply = jit(lambda h, W, u: tx_linops.compute_cotan_laplace(W, h, u))
@@ -204,7 +241,7 @@ def bench_mesh(name, V, F, repeats, run_robust):
         first_call(tx_grad, hemesh, moved)
         rows["triangulax grad_V energy (jitted)"] = timed(tx_grad, hemesh, moved, repeats=repeats)[0]
     compiles = {"assembly": compile_ms, "re-assembly": reassemble_compile, "L @ x": matvec_compile, "grad": gradient_compile}
-    return nv, nf, rows, compiles
+    return nv, nf, rows, compiles, fusions
 
 
 def main(argv=None) -> int:
@@ -230,11 +267,12 @@ def main(argv=None) -> int:
     for name, V, F in meshes:
         # Small meshes take well under a millisecond per call: more repeats for a stable minimum.
         repeats = args.repeats * (4 if F.shape[0] < 100_000 else 1)
-        nv, nf, rows, compiles = bench_mesh(name, V, F, repeats, F.shape[0] <= args.robust_max_faces)
+        nv, nf, rows, compiles, fusions = bench_mesh(name, V, F, repeats, F.shape[0] <= args.robust_max_faces)
         print(f"\n## {name}: {nv} vertices, {nf} faces  (min / median ms)")
         for key, value in rows.items():
             print(f"  {key:55s} {value if isinstance(value, str) else fmt(value)}")
         print("  compile (first call, ms): " + ", ".join(f"{k} {v:.0f}" for k, v in compiles.items()))
+        print("  __ynn_fusion kernels in the re-assembly program: " + ", ".join(f"{k} {v}" for k, v in fusions.items()))
         igl_ms = rows["igl.cotmatrix"][0]
         ratios = {
             "build / igl": rows["ddgjax build = Mesh.from_arrays + cotan_laplacian, new mesh each time"][0] / igl_ms,
@@ -245,6 +283,12 @@ def main(argv=None) -> int:
             / rows["scipy CSR L @ x, loop of 100 (per product)"][0],
             "L@X(k=3) / scipy": rows["ddgjax L @ X (k=3)"][0] / rows["scipy CSR L @ X (k=3)"][0],
             "grad / energy": rows["ddgjax grad_V energy (jitted)"][0] / rows["ddgjax energy u^T L u / 2 (jitted)"][0],
+            "plain jit / re-assembly": rows["ddgjax re-assembly, plain jax.jit (YNNPACK fusions on)"][0]
+            / rows["ddgjax re-assembly (moved vertices, jitted)"][0],
+            "assembled / matrix-free L u": rows["ddgjax cotan_laplacian(moved) @ u (assembled, jitted)"][0]
+            / rows["ddgjax laplacian_apply(moved, u) (matrix-free, jitted)"][0],
+            "autodiff / closed-form grad": rows["ddgjax grad_V 0.5 u^T (L u), autodiff of the assembly"][0]
+            / rows["ddgjax grad_V energy (jitted)"][0],
         }
         print("  ratios (min times): " + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
     return 0

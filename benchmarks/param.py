@@ -69,12 +69,12 @@ def _maps_on(name, mesh, args):
 
     def lscm_energy(vertices):
         moved = mesh.with_vertices(vertices)
-        return map_distortion(moved, lscm(moved, pinned_vertices=pins, pinned_positions=positions)).total_conformal_energy
+        return map_distortion(moved, lscm(moved, fixed_vertices=pins, fixed_values=positions)).total_conformal_energy
 
     ours = {
         "ddgjax tutte_embedding (uniform)": jit(lambda v: tutte_embedding(mesh.with_vertices(v))),
         "ddgjax harmonic_map": jit(lambda v: harmonic_map(mesh.with_vertices(v))),
-        "ddgjax lscm": jit(lambda v: lscm(mesh.with_vertices(v), pinned_vertices=pins, pinned_positions=positions)),
+        "ddgjax lscm": jit(lambda v: lscm(mesh.with_vertices(v), fixed_vertices=pins, fixed_values=positions)),
         "ddgjax boundary_first_flattening": jit(lambda v: boundary_first_flattening(mesh.with_vertices(v))),
         "ddgjax lscm energy value_and_grad": jit(jax.value_and_grad(lscm_energy)),
     }

@@ -8,7 +8,7 @@ prints the table. Workloads:
   function over a batch of icosphere(4) shapes (2,562 vertices each), the batch sharded
   `P("batch")` (`shard_batch`). Strong scaling: 32 shapes whatever the device count; weak scaling:
   4 shapes per device.
-- **batch flow**: `jax.jit(jax.vmap(...))` of 5 steps of `mean_curvature_flow(..., method="cg")` on
+- **batch flow**: `jax.jit(jax.vmap(...))` of 5 steps of `mean_curvature_flow(..., solver="cg")` on
   16 icosphere(3) shapes (strong scaling).
 - **partitioned CG**: `sharded_cg` on `(L + M) x = b`, 200 CG iterations (`max_steps=200`,
   `throw=False`, so every device count does the same work). Strong scaling: icosphere(7) (163,842
@@ -84,7 +84,7 @@ def child(repeats: int) -> None:
 
     sphere3 = icosphere(3)
     flow = jax.jit(
-        jax.vmap(lambda V: mean_curvature_flow(sphere3.with_vertices(V), h=1e-3, steps=5, method="cg").final),
+        jax.vmap(lambda V: mean_curvature_flow(sphere3.with_vertices(V), tau=1e-3, steps=5, solver="cg").value),
         compiler_options=options,
     )
     V = batch(sphere3, 16)

@@ -157,7 +157,7 @@ def laplacian_systems(mesh, rng):
     """`{system name: (A, b, B, m)}`: SPD CSR matrix, one and eight right-hand sides, and the lumped
     mass of the unknowns (for the heat steps of the scan)."""
     L = cotan_laplacian(mesh).to_scipy().tocsr()
-    M = mass_matrix(mesh, kind="voronoi").to_scipy().tocsr()
+    M = mass_matrix(mesh, mass="voronoi").to_scipy().tocsr()
     m = M.diagonal()
     n = L.shape[0]
     h = float(np.mean(np.asarray(edge_lengths(mesh))))

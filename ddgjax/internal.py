@@ -14,9 +14,8 @@ _NAMES = {
     "vertex_plan": "ddgjax.laplacian._plan",
     "dec_plan": "ddgjax.laplacian._plan",
     "resolve_robust": "ddgjax.laplacian._operators",
-    # Dirichlet bookkeeping of a Poisson problem (ddgjax.pde)
+    # Dirichlet bookkeeping of a Poisson problem: fixed and pinned vertices, components (ddgjax.pde)
     "DirichletData": "ddgjax.pde._poisson",
-    "poisson_with_result": "ddgjax.pde._poisson",
     # linear algebra (ddgjax.solve)
     "PRECONDITIONERS": "ddgjax.solve._linear",
     "auto_method": "ddgjax.solve._linear",

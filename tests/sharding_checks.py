@@ -46,7 +46,7 @@ def batch_checks() -> dict:
         return dirichlet_energy(SPHERE.with_vertices(V), u)
 
     def flow(V):
-        return mean_curvature_flow(SPHERE.with_vertices(V), h=1e-3, steps=3, method="cg").final
+        return mean_curvature_flow(SPHERE.with_vertices(V), tau=1e-3, steps=3, solver="cg").value
 
     def solve(V):
         mesh = SPHERE.with_vertices(V)

@@ -26,7 +26,7 @@ def test_fields_on_the_built_in_sphere_writes_a_figure(tmp_path):
 
 def test_fields_of_a_torus_file_aligned_and_bad_input(tmp_path):
     path = tmp_path / "torus.obj"
-    save_mesh(path, torus(1.0, 0.4, 32, 12))
+    save_mesh(path, torus(major_radius=1.0, minor_radius=0.4, n_major=32, n_minor=12))
     status, out, err = run_cli(["fields", str(path), "-n", "2", "--align", "1.0", "--no-plot"])
     assert status == 0, err
     # Curvature-aligned line field on a torus: no singularities (chi = 0).

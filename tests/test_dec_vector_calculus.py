@@ -146,7 +146,7 @@ def bob_hodge():
         def dense(apply, n):
             return apply(jnp.eye(n))
 
-        stars = [dec.hodge_star_entries(mesh, k, dual="barycentric") for k in range(3)]
+        stars = [dec.hodge_star_entries(mesh, degree=k, dual="barycentric") for k in range(3)]
         laplacians = [
             dense(lambda x: dec.hodge_laplacian0(mesh, x, dual="barycentric", weak=True), mesh.n_vertices),
             dense(lambda x: dec.hodge_laplacian1(mesh, x, dual="barycentric", weak=True), mesh.n_edges),

@@ -22,6 +22,8 @@ from ddgjax.laplacian import (
     intrinsic_delaunay,
     intrinsic_delaunay_laplacian,
     intrinsic_delaunay_mass_matrix,
+    laplacian_and_mass,
+    mass_matrix,
     mass_matrix_from_lengths_sq,
     triangulation_plan,
 )
@@ -32,7 +34,11 @@ from ddgjax.sparse import dirichlet_blocks
 from conftest import data_path
 
 REAL_MESHES = ["beetle.off", "camelhead.off", "nefertiti.obj"]
-IGL_MASS = {"voronoi": igl.MASSMATRIX_TYPE_VORONOI, "barycentric": igl.MASSMATRIX_TYPE_BARYCENTRIC}
+IGL_MASS = {
+    "voronoi": igl.MASSMATRIX_TYPE_VORONOI,
+    "barycentric": igl.MASSMATRIX_TYPE_BARYCENTRIC,
+    "galerkin": igl.MASSMATRIX_TYPE_FULL,
+}
 
 
 def _relative(a, b) -> float:
@@ -139,7 +145,7 @@ def test_matches_robust_laplacian(real):
     differing = np.unique(difference.row[np.abs(difference.data) > 1e-10 * abs(L).max()])
     if name == "camelhead.off":
         assert _relative(L, L_robust) < 1e-10  # measured 3.4e-12
-        M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, kind="barycentric").to_scipy()
+        M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, mass="barycentric").to_scipy()
         assert _relative(M, M_robust) < 1e-12  # robust_laplacian's mass matrix is the barycentric one
     elif name == "nefertiti.obj":
         # robust_laplacian leaves one edge unflipped at weight -9.7e-7 (within its own flip tolerance);
@@ -187,9 +193,9 @@ def test_harmonic_interpolation_obeys_the_maximum_principle():
     data = np.zeros((boundary.size, 2))
     data[column, 0] = data[column + 1, 1] = 1.0
     free = np.setdiff1d(np.arange(mesh.n_vertices), boundary)
-    robust = harmonic_interpolation(mesh, boundary, data, robust=triangulation)
+    robust = harmonic_interpolation(mesh, fixed_vertices=boundary, fixed_values=data, robust=triangulation)
     np.testing.assert_allclose(robust[free], solutions["intrinsic"][:, [column, column + 1]], rtol=0, atol=1e-12)
-    plain = harmonic_interpolation(mesh, boundary, data)
+    plain = harmonic_interpolation(mesh, fixed_vertices=boundary, fixed_values=data)
     np.testing.assert_allclose(plain[free], cotan[:, [column, column + 1]], rtol=0, atol=1e-12)
 
 
@@ -302,8 +308,30 @@ def test_flips_that_join_two_vertices_twice():
     assert _relative(L, -igl.intrinsic_delaunay_cotmatrix(V, F)[0]) < 1e-13
 
 
+def test_laplacian_and_mass_is_a_named_pair_of_the_mesh_or_its_intrinsic_triangulation(without_type_checker):
+    mesh = _jittered_sphere(2, 0.4)
+    triangulation = intrinsic_delaunay(mesh)
+    assert triangulation.n_flips > 0
+    for mass in ("voronoi", "barycentric", "galerkin"):
+        own = laplacian_and_mass(mesh, mass=mass)
+        L, M = own  # still unpacks
+        assert L is own.laplacian and M is own.mass
+        np.testing.assert_array_equal(own.laplacian.values, cotan_laplacian(mesh).values)
+        np.testing.assert_array_equal(own.mass.values, mass_matrix(mesh, mass=mass).values)
+        robust = laplacian_and_mass(mesh, mass=mass, robust=triangulation)
+        expected_L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation)
+        expected_M = intrinsic_delaunay_mass_matrix(mesh, triangulation=triangulation, mass=mass)
+        np.testing.assert_array_equal(robust.laplacian.values, expected_L.values)
+        np.testing.assert_array_equal(robust.mass.values, expected_M.values)
+        # Flips keep the metric: both sum to the surface area (the sum of every entry, for each choice).
+        np.testing.assert_allclose(float(jnp.sum(robust.mass.values)), float(jnp.sum(M.values)), rtol=1e-13)
+    with pytest.raises(DDGInputError, match="robust: expected True, False or an IntrinsicTriangulation"):
+        laplacian_and_mass(mesh, robust="yes")
+
+
 def test_lengths_core_on_a_delta_complex_matches_libigl():
-    """Faces repeating a vertex (loop edges) and vertex pairs joined by several edges, against libigl."""
+    """Faces repeating a vertex (loop edges) and vertex pairs joined by several edges, against libigl (the
+    Galerkin mass integrates the sum of a repeated vertex's hat functions: libigl's full mass matrix)."""
     F = np.array([[0, 1, 1], [0, 1, 2], [1, 2, 3], [2, 3, 0], [3, 0, 2], [4, 4, 3]])
     rng = np.random.default_rng(2)
     lengths = rng.uniform(1.0, 1.5, F.shape)  # every triple satisfies the triangle inequality
@@ -312,9 +340,9 @@ def test_lengths_core_on_a_delta_complex_matches_libigl():
     assert L.positive_semidefinite and L.symmetric
     padded = lambda A: sp.block_diag([A, sp.csr_matrix((1, 1))])  # libigl sizes by the largest index used
     assert _relative(L.to_scipy(), padded(-igl.cotmatrix_intrinsic(lengths, F))) < 1e-14
-    for kind, igl_kind in IGL_MASS.items():
-        M = mass_matrix_from_lengths_sq(lengths**2, plan, kind=kind).to_scipy()
-        assert _relative(M, padded(igl.massmatrix_intrinsic(lengths, F, igl_kind))) < 1e-14
+    for mass, igl_mass in IGL_MASS.items():
+        M = mass_matrix_from_lengths_sq(lengths**2, plan, mass=mass).to_scipy()
+        assert _relative(M, padded(igl.massmatrix_intrinsic(lengths, F, igl_mass))) < 1e-14, mass
 
 
 def test_degenerate_faces_give_finite_values_and_gradients(jittered):
@@ -356,8 +384,8 @@ def test_bad_input(without_type_checker):
         intrinsic_delaunay_laplacian(mesh, triangulation="flips")
     with pytest.raises(DDGInputError, match="was built for another connectivity"):
         intrinsic_delaunay_laplacian(icosphere(2), triangulation=intrinsic_delaunay(mesh))
-    with pytest.raises(DDGInputError, match="kind: expected one of 'voronoi', 'barycentric'"):
-        intrinsic_delaunay_mass_matrix(mesh, kind="galerkin")
+    with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric', 'galerkin'"):
+        intrinsic_delaunay_mass_matrix(mesh, mass="lumped")
     with pytest.raises(DDGInputError, match="needs concrete vertex positions.*pass triangulation="):
         jax.jit(lambda V: intrinsic_delaunay_laplacian(mesh.with_vertices(V)).values)(mesh.vertices)
     with pytest.raises(MeshDataError, match="intrinsic_delaunay needs an edge-manifold mesh"):
@@ -402,5 +430,13 @@ def test_poisson_problem_with_the_intrinsic_laplacian_matches_libigl_and_differe
     eps = 1e-6
     plus, minus = (value_and_grad(mesh.vertices + s * eps * direction)[0] for s in (1, -1))
     np.testing.assert_allclose(np.sum(np.asarray(gradient) * direction), (plus - minus) / (2 * eps), rtol=1e-6)
-    with pytest.raises(DDGInputError, match="lumped"):
-        solve_poisson(mesh, rho, mass="galerkin", robust=triangulation)
+    # The Galerkin mass of the intrinsic triangles: libigl's full mass matrix on its intrinsic Delaunay
+    # lengths and faces (the same flips here).
+    L, lengths, faces = igl.intrinsic_delaunay_cotmatrix(V, F)
+    M = igl.massmatrix_intrinsic(lengths, faces, igl.MASSMATRIX_TYPE_FULL)
+    area = np.asarray(M.sum(axis=1)).ravel()
+    compatible = rho - area @ rho / area.sum()
+    expected = np.linalg.lstsq(-L.toarray(), -(M @ compatible), rcond=None)[0]
+    expected = expected - area @ expected / area.sum()
+    phi = solve_poisson(mesh, rho, mass="galerkin", robust=triangulation)
+    assert np.abs(np.asarray(phi) - expected).max() < 1e-8 * np.abs(expected).max()

@@ -1,4 +1,5 @@
-"""Tests for ddgjax.laplacian: cotan Laplacian (FEM and DEC), mass matrices, energy, converters."""
+"""Tests for ddgjax.laplacian: cotan Laplacian, mass matrices, energy, converters (the DEC identity
+`d0^T *1 d0 = L`: tests/test_dec_operators.py)."""
 
 from __future__ import annotations
 
@@ -43,10 +44,10 @@ _dense_laplacian = jax.jit(lambda m: cotan_laplacian(m).todense())
 _dense_matrices = jax.jit(
     lambda m: (
         cotan_laplacian(m).todense(),
-        *(mass_matrix(m, kind=kind).todense() for kind in ("voronoi", "barycentric", "galerkin")),
+        *(mass_matrix(m, mass=mass).todense() for mass in ("voronoi", "barycentric", "galerkin")),
     )
 )
-_mass = jax.jit(mass_matrix, static_argnames="kind")
+_mass = jax.jit(mass_matrix, static_argnames="mass")
 _apply = jax.jit(laplacian_apply)
 
 REAL_MESHES = ["beetle.off", "nefertiti.obj", "stanford-bunny.obj", "camelhead.off"]
@@ -82,7 +83,7 @@ def test_matches_libigl_and_gpytoolbox(real):
     parts, mesh = real
     L = _laplacian(mesh)
     ours, for_igl, for_gpytoolbox = L.to_scipy(), to_igl_cotmatrix(L), to_gpytoolbox_cotangent_laplacian(L)
-    masses = {kind: _mass(mesh, kind=kind).to_scipy() for kind in ("voronoi", "barycentric", "galerkin")}
+    masses = {mass: _mass(mesh, mass=mass).to_scipy() for mass in ("voronoi", "barycentric", "galerkin")}
     # Matrix-free L u (these meshes have high-degree vertices: the COO tail of the pattern is used).
     U = np.random.default_rng(0).standard_normal((mesh.n_vertices, 2))
     applied = np.asarray(_apply(mesh, jnp.asarray(U)))
@@ -93,8 +94,8 @@ def test_matches_libigl_and_gpytoolbox(real):
         assert _relative(_block(ours, rows), expected) < 1e-10, name
         assert _relative(_block(for_igl, rows), igl.cotmatrix(V, F)) < 1e-10, name
         assert _relative(_block(for_gpytoolbox, rows), gpytoolbox.cotangent_laplacian(V, F)) < 1e-10, name
-        for kind, igl_type in MASS_TYPES.items():
-            assert _relative(_block(masses[kind], rows), igl.massmatrix(V, F, igl_type)) < 1e-12, (name, kind)
+        for mass, igl_type in MASS_TYPES.items():
+            assert _relative(_block(masses[mass], rows), igl.massmatrix(V, F, igl_type)) < 1e-12, (name, mass)
         galerkin = _block(masses["galerkin"], rows)
         assert _relative(galerkin, igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_FULL)) < 1e-12, name
         assert _relative(galerkin, gpytoolbox.massmatrix(V, F, type="full")) < 1e-12, name
@@ -107,47 +108,13 @@ def test_matches_libigl_and_gpytoolbox(real):
     assert vertex_plan(mesh).pattern.nnz > vertex_plan(mesh).pattern.width * mesh.n_vertices  # the union's tail too
 
 
-def test_fem_equals_dec_on_every_test_mesh():
-    names = sorted(p.name for p in data_path("meshes").iterdir() if p.suffix in (".obj", ".off", ".ply"))
-    assert len(names) >= 20 and "nefertiti_loop1.ply" in names  # tests/data/SOURCES.md
-    # One disjoint union of all meshes (its Laplacian is block diagonal): one compilation, not 23.
-    vertices, faces, owner, offset = [], [], [], 0
-    for k, name in enumerate(names):
-        V, F = igl.read_triangle_mesh(str(data_path("meshes", name)))
-        vertices.append(V)
-        faces.append(F + offset)
-        owner.append(np.full(V.shape[0], k))
-        offset += V.shape[0]
-    union = Mesh.from_arrays(np.concatenate(vertices), np.concatenate(faces))
-    owner = np.concatenate(owner)
-    fem = np.asarray(jax.jit(lambda m: cotan_laplacian(m, method="fem").values)(union))
-    dec = np.asarray(jax.jit(lambda m: cotan_laplacian(m, method="dec").values)(union))
-    rows = np.asarray(vertex_plan(union).pattern.rows)
-    scale = np.zeros(len(names))
-    np.maximum.at(scale, owner[rows], np.abs(fem))
-    error = np.zeros(len(names))
-    np.maximum.at(error, owner[rows], np.abs(dec - fem))
-    # Both routes sum the same cotangents in a different order (the diagonal: row sums vs scatter).
-    worst = int(np.argmax(error / scale))
-    assert error[worst] <= 1e-12 * scale[worst], names[worst]
-
-
-def test_fem_equals_dec_on_builtin_shapes_and_under_jit():
-    # A closed icosphere and a flat grid with boundary as one mesh, their disjoint union (one
-    # compilation per method).
-    mesh = disjoint_union([_arrays(icosphere(2)), _arrays(grid(4, 5))]).mesh
-    fem = jax.jit(lambda m: cotan_laplacian(m, method="fem").values)(mesh)
-    dec = jax.jit(lambda m: cotan_laplacian(m, method="dec").values)(mesh)
-    np.testing.assert_allclose(dec, fem, rtol=0, atol=1e-13)
-
-
 def test_robust_laplacian_on_delaunay_meshes():
     # The equilateral hexagon mesh and an icosphere are Delaunay: robust_laplacian's intrinsic
     # Delaunay Laplacian equals the cotan one (its mass is the barycentric lumped one). Ours on both
     # at once, as blocks of their disjoint union (one compilation).
     parts = [_arrays(icosphere(2)), _load("hexagon.obj")[:2]]
     union = disjoint_union(parts)
-    L, M = _laplacian(union.mesh).to_scipy(), _mass(union.mesh, kind="barycentric").to_scipy()
+    L, M = _laplacian(union.mesh).to_scipy(), _mass(union.mesh, mass="barycentric").to_scipy()
     for k, (V, F) in enumerate(parts):
         L_robust, M_robust = robust_laplacian.mesh_laplacian(np.asarray(V, float), np.asarray(F))
         # robust_laplacian re-derives lengths through its intrinsic mollification (1e-12 relative).
@@ -268,7 +235,7 @@ def test_unreferenced_vertices_have_empty_rows():
     assert unreferenced.size > 0
     L = _laplacian(mesh).to_scipy()
     assert abs(L[unreferenced]).max() == 0
-    assert np.all(np.asarray(_mass(mesh, kind="voronoi").diagonal())[unreferenced] == 0)
+    assert np.all(np.asarray(_mass(mesh, mass="voronoi").diagonal())[unreferenced] == 0)
 
 
 DEGENERATE_V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [1, 1, 0], [1, 0, 0.5]]
@@ -290,7 +257,7 @@ def test_degenerate_faces_contribute_nothing_with_finite_gradients():
         moved = mesh.with_vertices(W)
         return jnp.stack(
             [dirichlet_energy(moved, u)]
-            + [jnp.sum(mass_matrix(moved, kind=k) @ u) for k in ("voronoi", "barycentric", "galerkin")]
+            + [jnp.sum(mass_matrix(moved, mass=k) @ u) for k in ("voronoi", "barycentric", "galerkin")]
         )
 
     jacobian = jax.jit(jax.jacrev(energies))
@@ -309,11 +276,11 @@ def test_jit_vmap_and_gradients():
     np.testing.assert_allclose(batched[1], eager, rtol=1e-14, atol=1e-15)  # fusion order: round-off
     np.testing.assert_allclose(batched[2], assemble(batch[2]), rtol=1e-14, atol=1e-15)
     u = jnp.asarray(rng.standard_normal((mesh.n_vertices, 2)))
-    # Forward mode against finite differences on the DEC route (the FEM route's energy, forward and
-    # reverse mode to second order against each other and finite differences:
+    # Forward mode of the assembled matrix against finite differences (the matrix-free energy, forward
+    # and reverse mode to second order against each other and finite differences:
     # test_forward_mode_equals_reverse_mode).
-    energy_dec = jax.jit(lambda W: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W), method="dec") @ u))
-    check_grads(energy_dec, (batch[0],), order=1, modes=("fwd",))
+    energy = jax.jit(lambda W: 0.5 * jnp.vdot(u, cotan_laplacian(mesh.with_vertices(W)) @ u))
+    check_grads(energy, (batch[0],), order=1, modes=("fwd",))
     # grad_u of the energy is L u.
     np.testing.assert_allclose(jax.jit(jax.grad(lambda w: dirichlet_energy(mesh, w)))(u), _apply(mesh, u), rtol=1e-13, atol=1e-14)
     # Dirichlet energy = 1/2 int |grad u|^2 from the hat gradients: exact for linear u on a flat grid.
@@ -419,8 +386,8 @@ def test_mass_plus_laplacian_matches_scipy(real):
     parts, mesh = real
     L = _laplacian(mesh)
     reference = L.to_scipy()
-    for kind in ("voronoi", "barycentric", "galerkin"):
-        M = _mass(mesh, kind=kind)
+    for mass in ("voronoi", "barycentric", "galerkin"):
+        M = _mass(mesh, mass=mass)
         for t in (1e-3, 0.5):
             heat = M + t * L  # the heat method's and implicit mean curvature flow's operator
             assert heat.pattern.nnz == L.pattern.nnz and heat.positive_semidefinite
@@ -431,7 +398,7 @@ def test_mass_plus_laplacian_matches_scipy(real):
             )
             for name, _, _, rows in parts:  # each mesh at its own scale
                 scale = abs(_block(reference, rows)).max()
-                assert all(abs(_block(error, rows)).max() <= 1e-15 * scale for error in errors), (name, kind, t)
+                assert all(abs(_block(error, rows)).max() <= 1e-15 * scale for error in errors), (name, mass, t)
             assert not (M - t * L).positive_semidefinite and (M - t * L).symmetric
 
 
@@ -493,10 +460,10 @@ def test_bad_arguments():
     mesh = icosphere(0)
     with pytest.raises(DDGInputError, match="equal shapes"):
         cotan_laplacian(mesh) + cotan_laplacian(icosphere(1))
-    with pytest.raises(DDGInputError, match="method"):
-        cotan_laplacian(mesh, method="graph")
-    with pytest.raises(DDGInputError, match="kind"):
-        mass_matrix(mesh, kind="lumped")
+    with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric', 'galerkin'"):
+        mass_matrix(mesh, mass="lumped")
+    with pytest.raises(TypeError, match="positional"):
+        mass_matrix(mesh, "galerkin")  # options are keyword-only
 
 
 def test_energy_gradient_closed_form_equals_autodiff_of_the_assembly(real):

@@ -78,8 +78,8 @@ RADIUS, R, r = 2.0, 1.0, 0.25
 SPHERE_LEVELS = [1, 2, 3]
 TORUS_RESOLUTIONS = [(24, 8), (48, 16)]
 SYNTHETIC_PARTS = (
-    [("sphere", level, icosphere(level, RADIUS)) for level in SPHERE_LEVELS]
-    + [("torus", n, torus(R, r, *n)) for n in TORUS_RESOLUTIONS]
+    [("sphere", level, icosphere(level, radius=RADIUS)) for level in SPHERE_LEVELS]
+    + [("torus", n, torus(major_radius=R, minor_radius=r, n_major=n[0], n_minor=n[1])) for n in TORUS_RESOLUTIONS]
     + [("flat disk", 3, disk(3))]
 )
 SYNTHETIC = disjoint_union([arrays(mesh) for _, _, mesh in SYNTHETIC_PARTS])

@@ -41,7 +41,7 @@ def test_uv_sphere_and_torus_topology():
     assert (sphere.n_vertices, sphere.n_faces) == (7 * 12 + 2, 2 * 7 * 12)
     assert_oriented_manifold(sphere, chi=2, genus=0, loops=0)
     assert host_area_volume(sphere)[1] > 0
-    ring = torus(2.0, 0.5, 24, 8)
+    ring = torus(major_radius=2.0, minor_radius=0.5, n_major=24, n_minor=8)
     assert (ring.n_vertices, ring.n_faces) == (192, 384)
     assert_oriented_manifold(ring, chi=0, genus=1, loops=0)
     assert host_area_volume(ring)[1] > 0
@@ -78,11 +78,11 @@ def test_cylinder_topology_rings_and_outward_normals():
 
 def test_areas_converge_at_second_order():
     cases = {
-        "icosphere": ([1, 2, 3, 4], lambda n: icosphere(n, 1.5), 4 * np.pi * 1.5**2, lambda n: 2.0**-n),
-        "uv_sphere": ([8, 16, 32], lambda n: uv_sphere(n, 2 * n, 1.5), 4 * np.pi * 1.5**2, lambda n: 1 / n),
-        "torus": ([16, 32, 64], lambda n: torus(1.0, 0.25, 3 * n, n), 4 * np.pi**2 * 0.25, lambda n: 1 / n),
-        "disk": ([4, 8, 16], lambda n: disk(n, 2.0), np.pi * 4.0, lambda n: 1 / n),
-        "cylinder": ([8, 16, 32], lambda n: cylinder(n, 2, 1.5, 0.7), 2 * np.pi * 1.5 * 0.7, lambda n: 1 / n),
+        "icosphere": ([1, 2, 3, 4], lambda n: icosphere(n, radius=1.5), 4 * np.pi * 1.5**2, lambda n: 2.0**-n),
+        "uv_sphere": ([8, 16, 32], lambda n: uv_sphere(n, 2 * n, radius=1.5), 4 * np.pi * 1.5**2, lambda n: 1 / n),
+        "torus": ([16, 32, 64], lambda n: torus(major_radius=1.0, minor_radius=0.25, n_major=3 * n, n_minor=n), 4 * np.pi**2 * 0.25, lambda n: 1 / n),
+        "disk": ([4, 8, 16], lambda n: disk(n, radius=2.0), np.pi * 4.0, lambda n: 1 / n),
+        "cylinder": ([8, 16, 32], lambda n: cylinder(n, 2, radius=1.5, height=0.7), 2 * np.pi * 1.5 * 0.7, lambda n: 1 / n),
     }
     for name, (sizes, make, exact, spacing) in cases.items():
         errors = [abs(host_area_volume(make(n))[0] - exact) for n in sizes]
@@ -117,8 +117,8 @@ def test_bad_parameters_are_refused():
         icosphere(-1)
     with pytest.raises(DDGInputError, match="radius: expected a finite number > 0"):
         icosphere(1, radius=0.0)
-    with pytest.raises(DDGInputError, match="r: expected a tube radius smaller than R"):
-        torus(1.0, 2.0)
+    with pytest.raises(DDGInputError, match="minor_radius: expected a tube radius smaller than major_radius"):
+        torus(major_radius=1.0, minor_radius=2.0)
     with pytest.raises(DDGInputError, match="n_lon: expected an integer >= 3"):
         uv_sphere(4, 2)
     with pytest.raises(DDGInputError, match="nx: expected an integer >= 1"):
@@ -129,3 +129,7 @@ def test_bad_parameters_are_refused():
         cylinder(2, 3)
     with pytest.raises(DDGInputError, match="height: expected a finite number > 0"):
         cylinder(8, 3, height=-1.0)
+    # Sizes and dtypes are keyword-only (every argument of torus): a size by position is an error.
+    for call in (lambda: icosphere(1, 2.0), lambda: torus(1.0, 0.25), lambda: grid(2, 2, 1.0), lambda: disk(2, 1.0)):
+        with pytest.raises(TypeError, match="positional"):
+            call()

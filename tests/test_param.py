@@ -103,7 +103,7 @@ def test_lscm_equals_igl_lscm_and_its_energy_matrix(hemisphere):
     loop = np.asarray(hemisphere.topology.boundary_loops[0])
     pins = np.array([loop[3], loop[60]])
     positions = np.array([[0.0, 0.0], [1.0, 0.5]])
-    uv = np.asarray(lscm(hemisphere, pinned_vertices=pins, pinned_positions=positions))
+    uv = np.asarray(lscm(hemisphere, fixed_vertices=pins, fixed_values=positions))
     expected, Q_igl = igl.lscm(V, F, pins, positions)
     np.testing.assert_allclose(uv, expected, rtol=0, atol=1e-10)
     Q = conformal_energy_matrix(hemisphere).to_scipy()
@@ -150,7 +150,7 @@ def test_tutte_has_no_flipped_triangles(name):
     assert int(distortion.n_flipped) == 0
     assert np.all(np.asarray(distortion.area_ratio) > 0)
     if name == "hexagon.obj":
-        square = tutte_embedding(mesh, boundary="square")
+        square = tutte_embedding(mesh, shape="square")
         assert int(map_distortion(mesh, square).n_flipped) == 0
         np.testing.assert_allclose(np.abs(np.asarray(square)).max(axis=0), [1.0, 1.0], rtol=0, atol=1e-12)
 
@@ -163,7 +163,7 @@ def test_tutte_places_the_boundary_by_arc_length(hemisphere):
     uv = np.asarray(tutte_embedding(hemisphere))[loop]
     np.testing.assert_allclose(uv, np.column_stack([np.cos(2 * np.pi * t), np.sin(2 * np.pi * t)]), rtol=0, atol=1e-13)
     given = np.column_stack([np.cos(2 * np.pi * t), np.sin(2 * np.pi * t)]) * 3.0
-    np.testing.assert_allclose(np.asarray(tutte_embedding(hemisphere, boundary=given))[loop], given, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(np.asarray(tutte_embedding(hemisphere, shape=given))[loop], given, rtol=0, atol=1e-13)
 
 
 def test_bff_boundary_lengths_angles_and_rectangle(hemisphere):
@@ -198,7 +198,7 @@ def test_bff_boundary_lengths_angles_and_rectangle(hemisphere):
     np.testing.assert_allclose(np.delete(turning, corners), 0.0, atol=1e-10)
     assert int(map_distortion(hemisphere, rectangle).n_flipped) == 0
 
-    circle = np.asarray(boundary_first_flattening(hemisphere, shape="disk"))[loop]
+    circle = np.asarray(boundary_first_flattening(hemisphere, shape="circle"))[loop]
     radii = np.linalg.norm(circle - circle.mean(axis=0), axis=1)
     assert radii.std() / radii.mean() < 1e-3  # a regular-ish polygon: constant turning per dual length
 
@@ -344,18 +344,23 @@ def test_bad_arguments_are_refused(hemisphere, without_type_checker):
     loop = np.asarray(hemisphere.topology.boundary_loops[0])
     cases = [
         (lambda: tutte_embedding(hemisphere, weights="mean"), "weights"),
-        (lambda: tutte_embedding(hemisphere, boundary="triangle"), "boundary"),
-        (lambda: tutte_embedding(hemisphere, boundary=np.zeros((nb - 1, 2))), r"boundary: expected shape \(100, 2\)"),
+        (lambda: tutte_embedding(hemisphere, shape="triangle"), "shape: expected one of 'circle', 'square'"),
+        (lambda: tutte_embedding(hemisphere, shape=np.zeros((nb - 1, 2))), r"shape: expected shape \(100, 2\)"),
+        (lambda: tutte_embedding(hemisphere, solver="lu"), "solver: expected one of"),
         (lambda: tutte_embedding(np.zeros((3, 3))), "mesh: expected a ddgjax Mesh"),
-        (lambda: lscm(hemisphere, pinned_vertices=[loop[0]], pinned_positions=[[0.0, 0.0]]), "at least two"),
-        (lambda: lscm(hemisphere, pinned_vertices=[0, 0], pinned_positions=np.eye(2)), "distinct"),
-        (lambda: lscm(hemisphere, pinned_vertices=[0, 10**6]), "must lie in"),
-        (lambda: lscm(hemisphere, pinned_vertices=[0, 1], pinned_positions=np.zeros((2, 2))), "one point"),
-        (lambda: lscm(hemisphere, pinned_vertices=[0, 1], pinned_positions=np.zeros((3, 2))), "pinned_positions"),
-        (lambda: lscm(hemisphere, pinned_positions=np.zeros((2, 2))), "without pinned_vertices"),
+        (lambda: lscm(hemisphere, fixed_vertices=[loop[0]], fixed_values=[[0.0, 0.0]]), "fixed_vertices: expected at least two"),
+        (lambda: lscm(hemisphere, fixed_vertices=[0, 0], fixed_values=np.eye(2)), "distinct"),
+        (lambda: lscm(hemisphere, fixed_vertices=[0, 10**6]), "must lie in"),
+        (lambda: lscm(hemisphere, fixed_vertices=[0, 1], fixed_values=np.zeros((2, 2))), "one point"),
+        (
+            lambda: lscm(hemisphere, fixed_vertices=[0, 1], fixed_values=np.zeros((3, 2))),
+            r"fixed_values: expected shape \(2, 2\)",
+        ),
+        (lambda: lscm(hemisphere, fixed_values=np.zeros((2, 2))), "fixed_values: given without fixed_vertices"),
+        (lambda: lscm(hemisphere, solver="lu"), "solver: expected one of"),
         (lambda: boundary_first_flattening(hemisphere, boundary_angles=np.ones(nb)), "2 pi"),
         (lambda: boundary_first_flattening(hemisphere, boundary_scale=np.zeros(3)), "boundary_scale"),
-        (lambda: boundary_first_flattening(hemisphere, shape="disk", boundary_scale=np.zeros(nb)), "at most one"),
+        (lambda: boundary_first_flattening(hemisphere, shape="circle", boundary_scale=np.zeros(nb)), "at most one"),
         (lambda: boundary_first_flattening(hemisphere, shape="rectangle", corners=[loop[0], loop[1], loop[2], 0]), "not on"),
         (lambda: boundary_first_flattening(hemisphere, shape="oval"), "shape"),
         (lambda: map_distortion(hemisphere, np.zeros((3, 2))), "uv: expected shape"),
@@ -366,4 +371,29 @@ def test_bad_arguments_are_refused(hemisphere, without_type_checker):
             call()
     extra = Mesh.from_arrays(np.vstack([np.asarray(hemisphere.vertices), [[5.0, 5, 5]]]), np.asarray(hemisphere.faces))
     with pytest.raises(DDGInputError, match="belong to no face"):
-        lscm(extra, pinned_vertices=[0, hemisphere.n_vertices], pinned_positions=np.eye(2))
+        lscm(extra, fixed_vertices=[0, hemisphere.n_vertices], fixed_values=np.eye(2))
+
+
+def test_outcomes_without_throw(hemisphere, monkeypatch):
+    """Every map takes `throw=False` and returns a `Solution` with the same map and the solves' outcome and
+    stats; a failed eigensolve (ARPACK's non-convergence, forced) is the spectral map's `eigensolver_failed`."""
+    import scipy.sparse.linalg
+
+    from ddgjax import RESULTS, Solution
+
+    for flatten in (tutte_embedding, harmonic_map, lscm, boundary_first_flattening, spectral_conformal_map):
+        solution = flatten(hemisphere, throw=False)
+        assert isinstance(solution, Solution) and solution.result == RESULTS.successful, flatten.__name__
+        np.testing.assert_allclose(solution.value, flatten(hemisphere), rtol=0, atol=1e-12)
+    assert float(tutte_embedding(hemisphere, throw=False).stats["residual"]) < 1e-10
+    iterative = lscm(hemisphere, solver="cg", throw=False)
+    assert iterative.result == RESULTS.successful and int(iterative.stats["num_steps"]) > 0
+    assert boundary_first_flattening(hemisphere, shape="rectangle", throw=False).result == RESULTS.successful
+
+    def no_convergence(*args, **kwargs):
+        raise scipy.sparse.linalg.ArpackNoConvergence("forced", np.zeros(0), np.zeros((0, 0)))
+
+    monkeypatch.setattr(scipy.sparse.linalg, "eigsh", no_convergence)
+    assert spectral_conformal_map(hemisphere, throw=False).result == RESULTS.eigensolver_failed
+    with pytest.raises(Exception, match="The eigensolver did not converge"):
+        spectral_conformal_map(hemisphere)

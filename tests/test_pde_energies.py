@@ -101,7 +101,7 @@ def test_poisson_energy_gradient_is_L_phi_plus_M_rho(case, mass):
     _close(value, 0.5 * phi @ (L @ phi) + phi @ (M @ rho))
     _close(grad, L @ phi + M @ rho)
     # The same with ddgjax's own matrices, exported to SciPy.
-    ours = cotan_laplacian(case.mesh).to_scipy(), mass_matrix(case.mesh, kind=mass).to_scipy()
+    ours = cotan_laplacian(case.mesh).to_scipy(), mass_matrix(case.mesh, mass=mass).to_scipy()
     _close(grad, ours[0] @ phi + ours[1] @ rho)
     # The issue's `L phi - M rho` is the same energy for -Delta phi = rho: pass -rho.
     _close(_poisson(case.mesh, phi, -rho, mass=mass)[1], L @ phi - M @ rho)

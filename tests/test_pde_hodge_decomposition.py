@@ -11,7 +11,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ddgjax import DDGInputError
+from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax._errors import MeshDataError
 from ddgjax.dec import d0, d1, hodge_star_entries
 from ddgjax.mesh import Mesh, icosphere, torus
@@ -60,7 +60,7 @@ def test_matches_the_ddg_exercises_reference(reference):
 
 def _check_identities(mesh: Mesh, omega, parts: HodgeDecomposition, dual: str = "voronoi"):
     exact, coexact, harmonic = (np.asarray(part) for part in parts)
-    star = np.asarray(hodge_star_entries(mesh, 1, dual=dual))
+    star = np.asarray(hodge_star_entries(mesh, degree=1, dual=dual))
     D0, D1 = d0(mesh).to_scipy(), d1(mesh).to_scipy()
     scale = np.abs(omega).max()
     np.testing.assert_allclose(exact + coexact + harmonic, omega, rtol=0, atol=1e-14 * scale)
@@ -80,7 +80,7 @@ def test_parts_are_closed_coclosed_and_orthogonal_on_the_reference_mesh(referenc
     """The reference mesh has 1076 non-Delaunay edges (*1 < 0 there): the identities still hold, and the
     harmonic parts of five forms span 2 g = 4 dimensions."""
     mesh, omega, *_, parts = reference
-    assert np.sum(np.asarray(hodge_star_entries(mesh, 1)) < 0) == 1076
+    assert np.sum(np.asarray(hodge_star_entries(mesh, degree=1)) < 0) == 1076
     for k in range(omega.shape[1]):
         _check_identities(mesh, omega[:, k], HodgeDecomposition(*(part[:, k] for part in parts)))
     singular = np.linalg.svd(np.asarray(parts.harmonic), compute_uv=False)
@@ -102,7 +102,7 @@ def _annulus(n_around: int = 24, n_rings: int = 4) -> tuple[np.ndarray, np.ndarr
 def union():
     """Torus (b1 = 2) + sphere (0) + annulus with boundary (1) + torus (2), as one mesh, jittered: the
     built-in torus's quads are cyclic, so the cotan *1 of their diagonals is exactly 0 (module docstring)."""
-    shapes = [torus(n_major=12, n_minor=6), icosphere(1), torus(R=2.0, r=0.7, n_major=10, n_minor=7)]
+    shapes = [torus(n_major=12, n_minor=6), icosphere(1), torus(major_radius=2.0, minor_radius=0.7, n_major=10, n_minor=7)]
     parts = [(np.asarray(s.vertices), np.asarray(s.topology.faces)) for s in shapes]
     parts = parts[:2] + [_annulus()] + parts[2:]
     rng = np.random.default_rng(7)
@@ -158,7 +158,7 @@ def test_coexact_part_matches_an_independent_face_system_solve(union, dual):
     mesh = union.mesh
     omega = np.random.default_rng(1).standard_normal((mesh.n_edges, 3))
     parts = hodge_decomposition(mesh, omega, dual=dual)
-    star = np.asarray(hodge_star_entries(mesh, 1, dual=dual))
+    star = np.asarray(hodge_star_entries(mesh, degree=1, dual=dual))
     expected = _face_system_coexact(mesh, omega, star)
     np.testing.assert_allclose(parts.coexact, expected, rtol=0, atol=1e-10 * np.abs(omega).max())
     _check_identities(mesh, omega[:, 0], HodgeDecomposition(*(part[:, 0] for part in parts)), dual)
@@ -167,7 +167,7 @@ def test_coexact_part_matches_an_independent_face_system_solve(union, dual):
 def test_pure_forms_are_their_own_part(union):
     mesh = union.mesh
     rng = np.random.default_rng(2)
-    star = np.asarray(hodge_star_entries(mesh, 1))
+    star = np.asarray(hodge_star_entries(mesh, degree=1))
     exact_form = d0(mesh).to_scipy() @ rng.standard_normal(mesh.n_vertices)
     coexact_form = (d1(mesh).to_scipy().T @ rng.standard_normal(mesh.n_faces)) / star
     exact, coexact, harmonic = hodge_decomposition(mesh, np.stack([exact_form, coexact_form, exact_form + coexact_form], 1))
@@ -201,6 +201,26 @@ def test_gradients_with_respect_to_omega_and_vertices():
         finite = (loss(*shifted[0]) - loss(*shifted[1])) / (2 * eps)
         # Central differences with step 1e-6: truncation ~1e-12, rounding ~1e-10 relative.
         np.testing.assert_allclose(jnp.vdot(gradients[k], direction), finite, rtol=1e-6)
+    # Forward mode agrees with reverse mode (the solves differentiate implicitly in both).
+    tangents = (jnp.asarray(rng.standard_normal(omega.shape)), jnp.asarray(rng.standard_normal(V.shape)))
+    _, forward = jax.jvp(loss, (omega, V), tangents)
+    reverse = sum(jnp.vdot(g, t) for g, t in zip(gradients, tangents))
+    np.testing.assert_allclose(forward, reverse, rtol=1e-10)
+
+
+def test_throw_false_returns_the_parts_with_the_first_failing_step():
+    mesh = _small_torus()
+    omega = jnp.asarray(np.random.default_rng(6).standard_normal(mesh.n_edges))
+    solution = hodge_decomposition(mesh, omega, throw=False)
+    assert isinstance(solution, Solution) and solution.result == RESULTS.successful
+    assert isinstance(solution.value, HodgeDecomposition) and float(solution.stats["residual"]) < 1e-10
+    for ours, plain in zip(solution.value, hodge_decomposition(mesh, omega)):
+        np.testing.assert_array_equal(ours, plain)
+    # A NaN fails the Laplacian solve (step 1) and so the projection after it (step 3): the first one is reported.
+    failed = hodge_decomposition(mesh, omega.at[3].set(jnp.nan), throw=False)
+    assert failed.result == RESULTS.nonfinite
+    with pytest.raises(Exception, match="NaN or inf"):
+        hodge_decomposition(mesh, omega.at[3].set(jnp.nan))
 
 
 def test_jit_and_vmap_equal_eager():
@@ -223,6 +243,7 @@ def test_bad_input(without_type_checker):
         (lambda: hodge_decomposition(mesh, np.zeros((mesh.n_edges, 2, 2))), DDGInputError, "omega: expected shape"),
         (lambda: hodge_decomposition(mesh, omega.astype(complex)), DDGInputError, "omega: expected a real"),
         (lambda: hodge_decomposition(mesh, omega, dual="dual"), DDGInputError, "dual: expected one of"),
+        (lambda: hodge_decomposition(mesh, omega, solver="lu"), DDGInputError, "solver: expected one of"),
     ]
     faces = np.asarray(mesh.topology.faces).copy()
     faces[0] = faces[0, ::-1]

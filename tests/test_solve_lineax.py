@@ -30,7 +30,7 @@ _recover = jax.jit(lambda A, colouring: matrix_from_products(A.pattern, colourin
 
 
 def test_colouring_recovers_the_matrix_from_products():
-    for A in (L, mass_matrix(torus(12, 8), kind="galerkin"), M + 0.3 * L):
+    for A in (L, mass_matrix(torus(major_radius=12, minor_radius=8), mass="galerkin"), M + 0.3 * L):
         colouring = column_colouring(A.pattern)
         recovered = _recover(A, colouring)
         assert abs(recovered.to_scipy() - A.to_scipy()).max() < 1e-14 * abs(A.to_scipy()).max()

@@ -459,6 +459,9 @@ def test_adding_a_diagonal_matches_scipy():
         no_diagonal + d
     with pytest.raises(DDGInputError, match="lacks diagonal"):
         _as_csr_layout(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30))) + d
+    # Passed into jit, the pattern is only known when the program runs: the outcome missing_diagonal.
+    with pytest.raises(Exception, match="lacks diagonal entries"):
+        jax.jit(lambda a, b: (a + b).values)(_as_csr_layout(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30))), d)
     with pytest.raises(DDGInputError, match="equal shapes"):
         square + diagonal_matrix(jnp.ones(29))
 
@@ -503,7 +506,7 @@ def disk_operators():
     from ddgjax.mesh import disk
 
     mesh = disk()
-    return mesh, cotan_laplacian(mesh), mass_matrix(mesh), mass_matrix(mesh, kind="galerkin")
+    return mesh, cotan_laplacian(mesh), mass_matrix(mesh), mass_matrix(mesh, mass="galerkin")
 
 
 def test_nonnegative_traced_scalar_keeps_the_psd_flag_into_lineax_cg(disk_operators):

@@ -16,7 +16,7 @@ from scipy.sparse.linalg import spsolve
 from ddgjax._errors import DDGInputError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, grid
-from ddgjax.sparse import DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan, from_scipy
+from ddgjax.sparse import DirichletBlocks, DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan, from_scipy
 
 # jax.test_util.check_grads compares with central finite differences of step 1e-4: their truncation
 # error is ~1e-8 relative, so its float64 default tolerance (1e-5) is used.
@@ -68,9 +68,10 @@ def test_blocks_equal_scipy_slicing(case):
     x = np.random.default_rng(2).random((fixed.size, 2))
     np.testing.assert_allclose(free_fixed @ x, fc_ref @ x, rtol=1e-14)
     np.testing.assert_allclose(free_fixed.T @ (free_fixed @ x), fc_ref.T @ (fc_ref @ x), rtol=1e-13)
-    # The indices alone build the same plan on the host.
+    # The indices alone build the same plan on the host; the blocks are named.
     by_indices = dirichlet_blocks(matrix, fixed)
-    for block, expected in zip(by_indices, (free_free, free_fixed)):
+    assert isinstance(by_indices, DirichletBlocks) and by_indices._fields == ("free_free", "free_fixed")
+    for block, expected in zip((by_indices.free_free, by_indices.free_fixed), (free_free, free_fixed)):
         np.testing.assert_array_equal(block.values, expected.values)
 
 

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import DDGInputError, MeshDataError
-from ..fields import field_singularities, field_to_vectors, principal_curvature_alignment, smoothest_field_solution
+from ..fields import field_singularities, field_to_vectors, principal_curvature_alignment, smoothest_field
 from ..mesh import Mesh, icosphere
 from ._common import load_cli_mesh, write_figure
 
@@ -46,10 +46,10 @@ def run(args: argparse.Namespace) -> int:
         name, mesh = (_DEFAULT_SHAPE, icosphere(3, dtype=jnp.float64)) if args.mesh is None else load_cli_mesh(args.mesh)
         start = time.perf_counter()
         if args.align is None:
-            result = smoothest_field_solution(mesh, n=args.n)
+            result = smoothest_field(mesh, n=args.n)
         else:
             alignment = principal_curvature_alignment(mesh, n=args.n)
-            result = smoothest_field_solution(mesh, n=args.n, alignment=alignment, alignment_weight=args.align)
+            result = smoothest_field(mesh, n=args.n, alignment=alignment, alignment_weight=args.align)
         indices = np.asarray(jax.block_until_ready(field_singularities(mesh, result.field, n=args.n)))
         elapsed = time.perf_counter() - start
     except (DDGInputError, MeshDataError) as error:

@@ -255,15 +255,21 @@ def _failure(result: CurveFlowResult) -> str:
 
 
 def _warnings(runs) -> tuple[list[str], bool]:
-    """Self-intersection and divergence messages, and whether any flow diverged."""
+    """Self-intersection and divergence messages, and whether any flow diverged (ended with non-finite points)."""
     messages, diverged = [], False
+    advice = "lower --tau or use --method semi-implicit"
     for kind, (result, *_) in runs.items():
         failure, step = _failure(result), int(result.first_failure_step)
+        # `result` is the first failure's; a flow that tangled first may still blow up later.
+        blew_up = not np.isfinite(np.asarray(result.value)).all()
+        diverged |= blew_up
         if failure == "nonfinite":
-            diverged = True
-            messages.append(f"flow {kind}: non-finite points by step {step}: lower --tau or use --method semi-implicit")
+            messages.append(f"flow {kind}: non-finite points by step {step}: {advice}")
         elif failure == "self_intersection":
-            messages.append(f"flow {kind}: the curve self-intersected at step {step} (none of the flows guarantees simplicity)")
+            later = f", and its points were non-finite by the end: {advice}" if blew_up else ""
+            messages.append(
+                f"flow {kind}: the curve self-intersected at step {step} (none of the flows guarantees simplicity){later}"
+            )
     return messages, diverged
 
 

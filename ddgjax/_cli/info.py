@@ -25,7 +25,7 @@ from ..mesh import (
     vertex_principal_curvatures,
 )
 
-_DEFAULT_SHAPE = "built-in torus(R=1.0, r=0.25, n_major=48, n_minor=16)"
+_DEFAULT_SHAPE = "built-in torus(major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,7 +68,7 @@ def run_info(args: argparse.Namespace) -> int:
     """Print the report of `args.mesh` (or the default shape); exit code 2 with a message on bad input."""
     try:
         if args.mesh is None:
-            name, mesh = _DEFAULT_SHAPE, torus(1.0, 0.25, 48, 16, dtype=jnp.float64)
+            name, mesh = _DEFAULT_SHAPE, torus(major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16, dtype=jnp.float64)
         else:
             name, mesh = args.mesh, load_mesh(args.mesh, dtype=jnp.float64)
         report = check_mesh(mesh, area_tol=args.area_tol)

@@ -25,7 +25,7 @@ _DEFAULT_SHAPE = "built-in hemisphere (disk(24) lifted onto the unit sphere)"
 # Each method: the call that flattens, and a line on what it keeps.
 METHODS = {
     "bff": (boundary_first_flattening, "Boundary First Flattening, u = 0 on the boundary (boundary lengths kept)"),
-    "bff-disk": (lambda mesh: boundary_first_flattening(mesh, shape="disk"), "Boundary First Flattening onto a disk"),
+    "bff-disk": (lambda mesh: boundary_first_flattening(mesh, shape="circle"), "Boundary First Flattening onto a disk"),
     "bff-rectangle": (
         lambda mesh: boundary_first_flattening(mesh, shape="rectangle"),
         "Boundary First Flattening onto a rectangle (four right-angle corners)",

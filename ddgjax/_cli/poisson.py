@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._compile import kernel
 from .._errors import DDGInputError, MeshDataError
 from .._options import BOUNDARY_CONDITIONS, MASS_MATRICES
 from .._results import RESULTS, Solution
@@ -38,7 +39,7 @@ RHOS = ("auto", "one", "y2", "source")
 SOLVERS = {
     "cholesky": "cholesky (CHOLMOD through sparsax)",
     "superlu": "superlu (SciPy's SuperLU)",
-    "cg": "cg (conjugate gradient in JAX, AMG V-cycle preconditioner)",
+    "cg": "cg (conjugate gradient in JAX, Jacobi preconditioner)",
     "pyamg": "pyamg (SciPy's conjugate gradient with pyamg's V-cycle)",
 }
 RHO_HELP = {
@@ -244,46 +245,55 @@ def _solve(problem: Problem, args) -> Solution:
 
 
 def _measures(problem: Problem, phi, mass: str) -> dict:
-    """What the table reports about the solution `phi`, computed from the library's operators and energies.
+    """What the table reports about the solution `phi`: the compatible `rho`, the residual and the energies.
 
     `residual` is `|L phi + M rho~|` over the free vertices divided by the norm of the right-hand
     side there (`M rho~` and the fixed values' contribution `L phi_D`), with `rho~` the compatible
-    right-hand side (`_compatible`).
+    right-hand side, restated here from the mesh's components (each without a fixed vertex loses the
+    area-weighted mean of `rho`) so that the residual checks the library's answer instead of
+    repeating its computation. The energies are the library's (`poisson_energy`, `dirichlet_energy`).
     """
     mesh, fixed = problem.mesh, problem.fixed
+    topology = mesh.topology
     laplacian, mass_matrix_ = laplacian_and_mass(mesh, mass=mass)
+    labels = np.full(mesh.n_vertices, topology.n_components, dtype=np.int64)  # unreferenced: a label of their own
+    labels[topology.faces.ravel()] = np.repeat(topology.face_components, 3)
+    floating = np.ones(topology.n_components + 1, dtype=bool)
+    floating[labels[fixed]] = False
+    floating[-1] = False
     free = np.ones(mesh.n_vertices, dtype=bool)
     free[fixed] = False
-    free[mesh.topology.unreferenced_vertices] = False
-    compatible = _compatible(mesh, jnp.asarray(problem.rho), mass_matrix_, fixed)
-    lift = jnp.zeros_like(phi).at[fixed].set(problem.values)
-    residual = (laplacian @ phi + mass_matrix_ @ compatible)[free]
-    scale = jnp.linalg.norm((mass_matrix_ @ compatible - laplacian @ lift)[free])
+    free[topology.unreferenced_vertices] = False
+    compatible, residual = _residual(
+        laplacian,
+        mass_matrix_,
+        phi,
+        jnp.asarray(problem.rho),
+        jnp.asarray(problem.values),
+        labels,
+        floating[labels],
+        np.flatnonzero(free),
+        fixed,
+        n_labels=topology.n_components + 1,
+    )
     return {
         "rho": compatible,
-        "residual": jnp.linalg.norm(residual) / jnp.where(scale > 0, scale, 1.0),
+        "residual": residual,
         "energy": poisson_energy(mesh, phi, compatible, mass=mass),
         "dirichlet": dirichlet_energy(mesh, phi),
     }
 
 
-def _compatible(mesh: Mesh, rho, mass_matrix_, dirichlet: np.ndarray):
-    """`rho` less its area-weighted mean on every connected component without a Dirichlet vertex.
-
-    What `solve_poisson` solves with, restated here from the mesh's components so that the residual
-    checks the library's answer instead of repeating its computation.
-    """
-    topology = mesh.topology
-    labels = np.full(mesh.n_vertices, topology.n_components, dtype=np.int64)  # unreferenced: a label of their own
-    labels[topology.faces.ravel()] = np.repeat(topology.face_components, 3)
-    floating = np.ones(topology.n_components + 1, dtype=bool)
-    floating[labels[dirichlet]] = False
-    floating[-1] = False
-    count = topology.n_components + 1
-    integral = jax.ops.segment_sum(mass_matrix_ @ rho, labels, count)
-    area = jax.ops.segment_sum(mass_matrix_.row_sums(), labels, count)
-    mean = jnp.where(floating, integral / jnp.where(area > 0, area, 1.0), 0.0)
-    return rho - mean[labels]
+@kernel(static_argnames=("n_labels",))
+def _residual(laplacian, mass_matrix_, phi, rho, values, labels, floating, free, fixed, *, n_labels: int):
+    """`(rho~, residual)` of `_measures`, in one compiled program."""
+    integral = jax.ops.segment_sum(mass_matrix_ @ rho, labels, n_labels)
+    area = jax.ops.segment_sum(mass_matrix_.row_sums(), labels, n_labels)
+    compatible = rho - jnp.where(floating, (integral / jnp.where(area > 0, area, 1.0))[labels], 0.0)
+    lift = jnp.zeros_like(phi).at[fixed].set(values)
+    residual = (laplacian @ phi + mass_matrix_ @ compatible)[free]
+    scale = jnp.linalg.norm((mass_matrix_ @ compatible - laplacian @ lift)[free])
+    return compatible, jnp.linalg.norm(residual) / jnp.where(scale > 0, scale, 1.0)
 
 
 def _solve_timed(problem: Problem, args) -> tuple[Solution, float, float]:

@@ -21,7 +21,7 @@ from ..mesh import Mesh, torus
 from ..spectral import eigenpairs
 from ._common import load_cli_mesh, write_figure
 
-_DEFAULT_SHAPE = "built-in torus(R=1.0, r=0.4, n_major=64, n_minor=24)"
+_DEFAULT_SHAPE = "built-in torus(major_radius=1.0, minor_radius=0.4, n_major=64, n_minor=24)"
 
 
 def add_geodesic_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,7 +52,7 @@ def _common(parser: argparse.ArgumentParser, output: str) -> None:
 
 def _mesh(args) -> tuple[str, Mesh]:
     if args.mesh is None:
-        return _DEFAULT_SHAPE, torus(1.0, 0.4, 64, 24, dtype=jnp.float64)
+        return _DEFAULT_SHAPE, torus(major_radius=1.0, minor_radius=0.4, n_major=64, n_minor=24, dtype=jnp.float64)
     return load_cli_mesh(args.mesh)
 
 

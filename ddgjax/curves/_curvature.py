@@ -39,7 +39,7 @@ from jaxtyping import Array, Bool, Float
 from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._numerics import cross2, safe_div, safe_norm, safe_normalize, signed_angle_2d
-from ._curve import Curve, keyword_options, require_curve
+from ._curve import Curve, takes_curve
 
 KINDS = ("A", "B", "C", "D")
 """The reading report's four curvatures, the choices of every `kind=` option in `ddgjax.curves`."""
@@ -68,9 +68,9 @@ def _vertex_edges(points: Float[Array, "n 2"]):
     return u, v
 
 
+@takes_curve
 def interior_vertex_mask(curve: Curve) -> Bool[Array, " n"]:
     """`(n,)` booleans: true where a vertex has a turning angle (all of a closed curve; not the endpoints of an open one)."""
-    curve = require_curve("curve", curve)
     return jnp.asarray(_interior_mask(curve.n_points, curve.closed))
 
 
@@ -193,7 +193,7 @@ def _to_form(curve: Curve, kind: str, kappa: Float[Array, " n"], pointwise: bool
     return safe_div(kappa, dual) if pointwise else kappa * dual
 
 
-@keyword_options
+@takes_curve
 @kernel(static_argnames=("kind", "pointwise"))
 def curvature(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, " n"]:
     """Discrete curvature of `kind` (`"A"`, `"B"`, `"C"` or `"D"`) at every vertex, `(n,)`, signed.
@@ -230,7 +230,7 @@ def curvature(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Floa
     return _to_form(curve, kind, kappa, pointwise)
 
 
-@keyword_options
+@takes_curve
 @kernel(static_argnames=("kind",))
 def curvature_normals(curve: Curve, *, kind: str) -> Float[Array, "n 2"]:
     """Unit normal the reading report pairs with curvature `kind`, `(n, 2)`.
@@ -244,7 +244,7 @@ def curvature_normals(curve: Curve, *, kind: str) -> Float[Array, "n 2"]:
     return _curvature_and_normals(curve.points, curve.closed, kind)[1]
 
 
-@keyword_options
+@takes_curve
 @kernel(static_argnames=("kind", "pointwise"))
 def curvature_vectors(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, "n 2"]:
     """Curvature vector `kappa_i N_i` of `kind`, `(n, 2)`: the velocity of the curve-shortening flow.

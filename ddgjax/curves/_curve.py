@@ -125,13 +125,15 @@ def require_curve(name: str, value) -> Curve:
     )
 
 
-def keyword_options(function):
-    """Wrap a public function of a curve so that an option passed by position gets Python's message naming the options.
+def takes_curve(function):
+    """Wrap a public `function(curve, ...)` so that its arguments are checked before anything else sees them.
 
-    `curvature(curve, "A")` then raises `TypeError: curvature() takes 1 positional argument but 2
-    were given; pass its options by keyword: curvature(curve, kind=..., pointwise=...)` rather than
-    `jit`'s complaint about a non-array argument. (The curve itself is checked by `kernel`, or by
-    `require_curve` in a function that is not a kernel.)
+    A first argument that is not a `Curve` gets `require_curve`'s message, and an option passed by
+    position gets Python's message naming the keyword-only options (`curvature(curve, "A")`:
+    `curvature() takes 1 positional argument but 2 were given; pass its options by keyword:
+    curvature(curve, kind=..., pointwise=...)`), rather than a run-time type checker's or `jit`'s
+    complaint about a non-array argument. A `kernel` checks its curve itself; this wrapper is for the
+    public functions that are not kernels, and gives the kernels that take options the hint.
     """
     parameters = inspect.signature(function).parameters.values()
     positional = sum(parameter.kind in (parameter.POSITIONAL_ONLY, parameter.POSITIONAL_OR_KEYWORD) for parameter in parameters)
@@ -139,12 +141,10 @@ def keyword_options(function):
     name = function.__name__
 
     @functools.wraps(function)
-    def checked(*args, **kwargs):
-        if len(args) > positional:
-            raise TypeError(
-                f"{name}() takes {positional} positional argument(s) but {len(args)} were given; "
-                f"pass its options by keyword: {name}(curve, {options})"
-            )
-        return function(*args, **kwargs)
+    def checked(curve, *args, **kwargs):
+        if 1 + len(args) > positional:
+            hint = f"; pass its options by keyword: {name}(curve, {options})" if options else ""
+            raise TypeError(f"{name}() takes {positional} positional argument(s) but {1 + len(args)} were given{hint}")
+        return function(require_curve("curve", curve), *args, **kwargs)
 
     return checked

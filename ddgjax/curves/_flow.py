@@ -34,7 +34,7 @@ from .._loop import (
 )
 from .._results import RESULTS, is_failure, raise_if_failed
 from ._curvature import KINDS, length, total_curvature
-from ._curve import Curve, keyword_options, require_curve, unchecked_curve
+from ._curve import Curve, takes_curve, unchecked_curve
 from ._flow_certificate import SIMPLICITY_CHECKS, state_outcome, track, tracker_start
 from ._flow_step import METHODS, RESCALES, flow_step, rescaled, size
 from ._invariants import centroid, cyclic_residual, enclosed_area, is_simple, isoperimetric_ratio
@@ -178,7 +178,7 @@ def _run(points, tau, *, closed, kind, method, rescale, steps, save_every, check
     )
 
 
-@keyword_options
+@takes_curve
 def curve_shortening_flow(
     curve: Curve,
     *,
@@ -264,7 +264,6 @@ def curve_shortening_flow(
     Equivalent: curvey's `CurveShorteningFlow(resample_mode=None, curvature_fn=...)` (explicit,
     with curvey's finite-difference normals, host loop); no libigl / gpytoolbox counterpart.
     """
-    curve = require_curve("curve", curve)
     check_choice("kind", kind, KINDS)
     check_choice("method", method, METHODS)
     check_choice("rescale", rescale, RESCALES)

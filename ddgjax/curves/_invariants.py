@@ -16,7 +16,7 @@ from jaxtyping import Array, Bool, Float
 from .._compile import kernel
 from .._numerics import cross2, safe_div, safe_norm, safe_reciprocal, safe_sqrt
 from ._curvature import _edge_lengths
-from ._curve import Curve, keyword_options
+from ._curve import Curve, takes_curve
 
 
 @kernel
@@ -211,7 +211,7 @@ class SimplicityAndClearance(NamedTuple):
     clearance: Float[Array, ""]
 
 
-@keyword_options
+@takes_curve
 @kernel(static_argnames=("block",))
 def simplicity_and_clearance(curve: Curve, *, block: int = 128) -> SimplicityAndClearance:
     """`SimplicityAndClearance(is_simple, clearance)`: whether the curve is simple, and by how much.
@@ -251,7 +251,7 @@ def near_and_far_clearances(curve: Curve, *, block: int = 128) -> tuple[Bool[Arr
     return _edge_pair_sweep(curve, block, with_clearance=True)
 
 
-@keyword_options
+@takes_curve
 @kernel(static_argnames=("block",))
 def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
     """True when the curve does not intersect or touch itself (boolean scalar, jit-compatible).

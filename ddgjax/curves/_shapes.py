@@ -86,9 +86,7 @@ def flower(n: int = 128, *, petals: int = 5, amplitude: float = 0.3, radius: flo
     return _radial(angles, radius * (1 + amplitude * np.cos(petals * angles)), dtype=dtype)
 
 
-def star(
-    tips: int = 5, *, inner_radius: float = 0.5, outer_radius: float = 1.0, subdivisions: int = 8, dtype=None
-) -> Curve:
+def star(tips: int = 5, *, inner_radius: float = 0.5, outer_radius: float = 1.0, subdivisions: int = 8, dtype=None) -> Curve:
     """Star polygon with `tips` points, each edge split into `subdivisions` equal segments.
 
     The corners alternate between `outer_radius` (at angles `2 pi k / tips`) and `inner_radius`
@@ -119,9 +117,7 @@ def star(
     return _closed(points.reshape(-1, 2), dtype)
 
 
-def random_polygon(
-    n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4, dtype=None
-) -> Curve:
+def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4, dtype=None) -> Curve:
     """Random simple, generally non-convex polygon: a random radial function sampled at jittered angles.
 
     `r(phi) = 1 + sum_{m=2}^{modes} (a_m cos(m phi) + b_m sin(m phi))` with Gaussian `a_m, b_m`

@@ -28,7 +28,7 @@ from .._compile import kernel
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_reciprocal
-from .._options import DUAL_CELLS as DUALS
+from .._options import DUAL_CELLS
 from ..mesh import Mesh, edge_cotan_weights, edge_lengths, face_areas, face_vertex_positions, require_mesh, vertex_dual_areas
 from ..sparse import SparseMatrix, diagonal_matrix
 
@@ -48,7 +48,7 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array
 
     Non-manifold edges get one term per face (`*1` itself needs no orientation).
     """
-    check_choice("dual", dual, DUALS)
+    check_choice("dual", dual, DUAL_CELLS)
     if dual != "barycentric":
         return edge_cotan_weights(mesh)
     barycentres = jnp.mean(face_vertex_positions(mesh), axis=1)
@@ -59,18 +59,18 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array
     return safe_div(dual_lengths, edge_lengths(mesh))
 
 
-def hodge_star_entries(mesh: Mesh, degree: int, *, dual: str = "voronoi", inverse: bool = False) -> Float[Array, " n"]:
+def hodge_star_entries(mesh: Mesh, *, degree: int, dual: str = "voronoi", inverse: bool = False) -> Float[Array, " n"]:
     """Diagonal of the Hodge star `*_k` (or of its inverse) on primal `degree`-forms, as a vector.
 
-    `degree` 0, 1 or 2 (forms on a triangle mesh): vertex dual areas `(nv,)`, `|e*| / |e|` `(ne,)`,
-    `1 / area` `(nf,)`. `dual` picks the dual mesh: `"voronoi"` (default; mixed areas for `*0`, the
+    `degree` 0, 1 or 2 (forms on a triangle mesh; keyword-only, as `codifferential`'s): vertex dual
+    areas `(nv,)`, `|e*| / |e|` `(ne,)`, `1 / area` `(nf,)`. `dual` picks the dual mesh: `"voronoi"` (default; mixed areas for `*0`, the
     circumcentric `*1`: the pairing of libigl's cotan Laplacian with its Voronoi mass matrix),
     `"circumcentric"` or `"barycentric"`. `*2` does not depend on `dual`. Zero entries invert to zero
     (module docstring). See `hodge0`, `hodge1`, `hodge2` for the matrices and the orientation
     requirement of `*2`.
     """
     mesh = require_mesh("mesh", mesh)
-    check_choice("dual", dual, DUALS)
+    check_choice("dual", dual, DUAL_CELLS)
     check_choice("degree", degree, (0, 1, 2))
     if degree == 0:
         entries = vertex_dual_areas(mesh, dual=dual)
@@ -96,7 +96,7 @@ def hodge0(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> Spars
     Discrete Exterior Calculus* (2013), section 3.8.
     """
     mesh = require_mesh("mesh", mesh)
-    return diagonal_matrix(hodge_star_entries(mesh, 0, dual=dual, inverse=inverse))
+    return diagonal_matrix(hodge_star_entries(mesh, degree=0, dual=dual, inverse=inverse))
 
 
 def hodge1(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> SparseMatrix:
@@ -111,7 +111,7 @@ def hodge1(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> Spars
     `dec_h1` (circumcentric, its own edge order).
     """
     mesh = require_mesh("mesh", mesh)
-    return diagonal_matrix(hodge_star_entries(mesh, 1, dual=dual, inverse=inverse))
+    return diagonal_matrix(hodge_star_entries(mesh, degree=1, dual=dual, inverse=inverse))
 
 
 def hodge2(mesh: Mesh, *, inverse: bool = False) -> SparseMatrix:
@@ -124,4 +124,4 @@ def hodge2(mesh: Mesh, *, inverse: bool = False) -> SparseMatrix:
     gpytoolbox's `dec_h2` is the face area, i.e. `hodge2(mesh, inverse=True)` (and `dec_h2inv` is ours).
     """
     mesh = require_mesh("mesh", mesh)
-    return diagonal_matrix(hodge_star_entries(mesh, 2, inverse=inverse))
+    return diagonal_matrix(hodge_star_entries(mesh, degree=2, inverse=inverse))

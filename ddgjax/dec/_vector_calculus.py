@@ -32,7 +32,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows
-from .._options import DUAL_CELLS as DUALS
+from .._options import DUAL_CELLS
 from ..mesh import Mesh, corner_cotangents, face_edge_vectors, face_hat_gradients, require_mesh, scatter_corners_to_vertices
 from ..sparse import SparseMatrix
 from ._hodge import hodge_star_entries
@@ -114,8 +114,8 @@ def _as_form(name: str, mesh: Mesh, form, degree: int) -> Array:
 
 def _codifferential(mesh: Mesh, form, degree: int, dual: str):
     d = _exterior_derivative(mesh, degree - 1)
-    star_inverse = hodge_star_entries(mesh, degree - 1, dual=dual, inverse=True)
-    star = hodge_star_entries(mesh, degree, dual=dual)
+    star_inverse = hodge_star_entries(mesh, degree=degree - 1, dual=dual, inverse=True)
+    star = hodge_star_entries(mesh, degree=degree, dual=dual)
     return _scale(star_inverse, d.T @ _scale(star, form))
 
 
@@ -133,7 +133,7 @@ def codifferential(
     al. 2013, section 6 (Hodge decomposition uses `*1^{-1} d1^T *2`).
     """
     mesh = require_mesh("mesh", mesh)
-    check_choice("dual", dual, DUALS)
+    check_choice("dual", dual, DUAL_CELLS)
     check_choice("degree", degree, (1, 2))
     if degree == 2:
         mesh.topology.require_oriented("ddgjax.dec.codifferential(degree=2)")
@@ -143,16 +143,16 @@ def codifferential(
 def _hodge_laplacian(mesh: Mesh, name: str, form, degree: int, dual: str, weak: bool):
     if degree > 0:
         mesh.topology.require_oriented(f"ddgjax.dec.hodge_laplacian{degree}")
-    check_choice("dual", dual, DUALS)
+    check_choice("dual", dual, DUAL_CELLS)
     form = _as_form(name, mesh, form, degree)
     result = jnp.zeros_like(form)
     if degree < 2:
         d = _exterior_derivative(mesh, degree)
-        up = d.T @ _scale(hodge_star_entries(mesh, degree + 1, dual=dual), d @ form)
-        result = result + (up if weak else _scale(hodge_star_entries(mesh, degree, dual=dual, inverse=True), up))
+        up = d.T @ _scale(hodge_star_entries(mesh, degree=degree + 1, dual=dual), d @ form)
+        result = result + (up if weak else _scale(hodge_star_entries(mesh, degree=degree, dual=dual, inverse=True), up))
     if degree > 0:
         down = _exterior_derivative(mesh, degree - 1) @ _codifferential(mesh, form, degree, dual)
-        result = result + (_scale(hodge_star_entries(mesh, degree, dual=dual), down) if weak else down)
+        result = result + (_scale(hodge_star_entries(mesh, degree=degree, dual=dual), down) if weak else down)
     return result
 
 

@@ -18,10 +18,10 @@ Fields are complex `n`-th powers in the vertices' polar coordinates. Reference: 
 Pinkall, Schroeder, "Globally optimal direction fields" (2013).
 """
 
+from ._connection import TangentBases as TangentBases
 from ._connection import edge_polar_angles as edge_polar_angles
 from ._connection import edge_transport_angles as edge_transport_angles
 from ._connection import face_holonomies as face_holonomies
-from ._connection import TangentBases as TangentBases
 from ._connection import tangent_bases as tangent_bases
 from ._interpolation import interpolate_field as interpolate_field
 from ._laplacian import connection_laplacian as connection_laplacian

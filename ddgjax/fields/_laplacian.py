@@ -16,8 +16,8 @@ from jaxtyping import Array, Complex, Float
 
 from .._compile import kernel
 from .._errors import DDGInputError
-from .._options import check_mass
 from .._indexing import take_rows_or_zero
+from .._options import check_mass
 from ..internal import vertex_plan
 from ..laplacian import TriangulationPlan, mass_matrix
 from ..mesh import Mesh, edge_cotan_weights

@@ -134,7 +134,13 @@ def smoothest_field(
     M = connection_mass_matrix(mesh, mass=mass)
     if alignment is None:
         eigensolve = smallest_eigenpairs(
-            real_form(A, plan), real_form_diagonal(M.values), 2, method=method, solver=solver, hermitian_real_form=True, throw=False
+            real_form(A, plan),
+            real_form_diagonal(M.values),
+            2,
+            method=method,
+            solver=solver,
+            hermitian_real_form=True,
+            throw=False,
         )
         values, vectors = eigensolve.value
         nv = mesh.n_vertices

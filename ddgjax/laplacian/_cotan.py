@@ -81,11 +81,12 @@ def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k
     """Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (same convention as `cotan_laplacian`).
 
     `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)` with `w_ij = 1/2 (cot a_ij + cot b_ij)`, evaluated term by
-    term: each face's corner values `-cot(alpha) / 2 = <e_i, e_j> / (4 A_f)` are gathered onto the
-    directed edges `i -> j` leaving each vertex (the off-diagonal slots of the vertex pattern (`ddgjax.laplacian._plan`), which
-    list them row by row), multiplied by the edge differences `u_j - u_i`, and summed per vertex. No
-    matrix is assembled: no diagonal, no `SparseMatrix`. Equals `cotan_laplacian(mesh) @ u` to
-    round-off. Every step is a fixed gather or a contiguous sum, no scatter-add (only the few
+    term: the off-diagonal entries `cotan_laplacian` assembles (each corner's `-cot(alpha) / 2` from
+    the squared edge lengths, gathered onto the directed edges `i -> j` leaving each vertex: the
+    off-diagonal slots of the vertex pattern, which list them row by row) are multiplied by the edge
+    differences `u_j - u_i` and summed per vertex. No diagonal and no `SparseMatrix` are formed, one
+    fused program instead of an assembly and a product. Equals `cotan_laplacian(mesh) @ u` to
+    round-off (tests). Every step is a fixed gather or a contiguous sum, no scatter-add (only the few
     directed edges of high-degree vertices that overflow the pattern's ELL width go through a
     sorted `segment_sum`), so the result is also bitwise reproducible on GPU. The corner -> edge
     gather is `ddgjax.sparse.gather_sum`, whose transpose is a gather: differentiable in `u` and in
@@ -145,7 +146,17 @@ def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
     positions, in forward and reverse mode and to second order (Hessian-vector products by
     forward-over-reverse, as optimistix / lineax Newton operators use them). The derivative in the
     vertex positions is written out per face (`_face_energy_gradients`, a custom JVP): autodiff
-    of the assembly would carry the per-corner values through the corner -> edge gather and back.
+    of the assembly would carry the per-corner values through the corner -> edge gather and back
+    (benchmarks/laplacian.py compares the two). Checked against autodiff of
+    `0.5 * u @ (cotan_laplacian(mesh) @ u)` (tests).
+
+    Args:
+        mesh: any triangle mesh.
+        u: `(nv,)` or `(nv, k)` values at the vertices.
+
+    Returns:
+        `()` the energy, summed over the columns of `u`.
+
     Reference: Pinkall & Polthier 1993. libigl / gpytoolbox:
     `0.5 * u @ (L @ u)` with `L = -igl.cotmatrix(V, F)`.
     """

@@ -193,15 +193,14 @@ def _build(
     pair_of_slot = np.where(off_source >= n_pairs, off_source - n_pairs, off_source)  # padding -> n_pairs, a row of pads
     padded = np.concatenate([pair_corners.astype(np.int32), np.full((1, pair_corners.shape[1]), n_corners, np.int32)])
     slot_corners = np.take(padded, pair_of_slot, axis=0)
-    slot_of_source = np.full(2 * n_pairs + 1, n_off, dtype=np.int32)
+    # The slot of each pair low->high and high->low, then n_off: what a loop corner (pair -1) reads.
+    slot_of_source = np.empty(2 * n_pairs + 1, dtype=np.int32)
     slot_of_source[off_source] = np.arange(n_off, dtype=np.int32)
-    slot_of_source[2 * n_pairs] = n_off  # padding slots are nobody's
-    corner_slots = np.full((n_corners, 2), n_off, dtype=np.int32)
-    loops = corner_pairs < 0
-    paired = np.flatnonzero(~loops)
-    corner_slots[paired, 0] = slot_of_source[corner_pairs[paired]]
-    corner_slots[paired, 1] = slot_of_source[n_pairs + corner_pairs[paired]]
-    loop_corners = np.flatnonzero(loops).astype(np.int32)
+    corner_slots = np.empty((n_corners, 2), dtype=np.int32)
+    for column, first in enumerate((0, n_pairs)):
+        slots = np.append(slot_of_source[first : first + n_pairs], np.int32(n_off))
+        np.take(slots, corner_pairs, out=corner_slots[:, column])
+    loop_corners = np.flatnonzero(corner_pairs < 0).astype(np.int32)
     face, k = np.divmod(loop_corners, 3)
     loop_vertices = faces[face, (k + 1) % 3].astype(np.int32)
     arrays = jax.device_put(

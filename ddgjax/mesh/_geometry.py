@@ -9,7 +9,7 @@ to 0, so such a face contributes nothing to the cotan Laplacian or the circumcen
 value and gradient stays finite (libigl returns inf / NaN there). See DESIGN.md, Numerics.
 
 Dual cells: every function that needs the dual cell of a vertex (the dual areas here, the pointwise
-curvatures, the DEC Hodge stars) takes the same keyword-only option `dual=`, one of `DUALS`:
+curvatures, the DEC Hodge stars) takes the same keyword-only option `dual=`, one of `ddgjax.DUAL_CELLS`:
 
 - `"voronoi"` (the default everywhere): the mixed area of Meyer et al. 2003, circumcentric on faces
   without an obtuse angle, `A/2, A/4, A/4` on obtuse ones; never negative; libigl's Voronoi mass
@@ -27,6 +27,7 @@ from jaxtyping import Array, Float
 
 from .._compile import kernel
 from .._errors import check_choice
+from .._options import DUAL_CELLS
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_div, safe_norm, safe_normalize, safe_sqrt, unsigned_angle
 from ._mesh import Mesh
@@ -79,7 +80,30 @@ def face_area_vectors(mesh: Mesh) -> Float[Array, "nf 3"]:
 
 @kernel
 def face_areas(mesh: Mesh) -> Float[Array, " nf"]:
-    """Area of each face, `|(V1 - V0) x (V2 - V0)| / 2` (libigl `doublearea / 2`)."""
+    """Area of each face, `A_f = |(p1 - p0) x (p2 - p0)| / 2`, `(nf,)`, from the embedding.
+
+    `p_k` are the face's corners (`mesh.vertices[mesh.faces[f, k]]`); the cross product is the face's
+    vector area (`face_area_vectors`), so the value does not depend on the corner order or the
+    orientation, and it is accurate to rounding for needle and cap triangles, where a plain Heron
+    formula on the edge lengths cancels (the intrinsic core `face_areas_from_lengths_sq` uses Kahan's
+    stable form; the two agree to round-off). A degenerate face (collinear or coincident corners) has area 0, and the
+    gradient there is finite (zero) rather than NaN (`ddgjax._numerics.safe_norm`, the double-where
+    pattern; DESIGN.md, Numerics); elsewhere the gradient in the corners is
+    `grad_{p_k} A_f = N_f x e_k / 2` (`e_k` the edge opposite corner `k`, `N_f` the unit normal), the
+    hat-function gradients times `A_f`. Sums to `total_area`; the Galerkin and lumped mass matrices
+    are made of it (`ddgjax.laplacian.mass_matrix`).
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf,)` areas, in the vertices' dtype.
+
+    References: U. Pinkall, K. Polthier, "Computing discrete minimal surfaces and their conjugates"
+    (1993) (the area gradient); K. Crane, "Discrete Differential Geometry: An Applied Introduction"
+    (2020). Equivalents: libigl `igl.doublearea(V, F) / 2`;
+    gpytoolbox `doublearea(V, F) / 2`; trimesh `Trimesh.area_faces`.
+    """
     return safe_norm(face_area_vectors(mesh))
 
 
@@ -111,13 +135,14 @@ def _cosine_numerators(lengths_sq: Float[Array, "nf 3"]) -> Float[Array, "nf 3"]
 
 
 def corner_cotangents_from_lengths_sq(
-    lengths_sq: Float[Array, "nf 3"], areas: Float[Array, " nf"] | None = None
+    lengths_sq: Float[Array, "nf 3"], *, areas: Float[Array, " nf"] | None = None
 ) -> Float[Array, "nf 3"]:
-    """Cotangent of each corner angle from the squared lengths of the opposite edges.
+    """Cotangent of each corner angle from the squared lengths of the opposite edges, `(nf, 3)`.
 
     `cot(alpha_k) = (l_{k+1}^2 + l_{k+2}^2 - l_k^2) / (4 A)` (law of cosines over twice the area).
-    `areas` defaults to Kahan's formula; the extrinsic wrapper passes the cross-product area.
-    Zero-area faces get cotangent 0 (module policy). libigl: `cotmatrix_entries` (times 2).
+    `areas` (keyword-only, `(nf,)`) defaults to Kahan's formula; the extrinsic wrappers
+    (`corner_cotangents`, `ddgjax.laplacian.cotan_laplacian`) pass the cross-product area. Zero-area
+    faces get cotangent 0 (module policy). libigl: `cotmatrix_entries` (times 2).
     """
     if areas is None:
         areas = face_areas_from_lengths_sq(lengths_sq)
@@ -127,7 +152,7 @@ def corner_cotangents_from_lengths_sq(
 @kernel
 def corner_cotangents(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Cotangent of each corner angle, `(nf, 3)` (extrinsic lengths and area; see the core)."""
-    return corner_cotangents_from_lengths_sq(face_edge_lengths_sq(mesh), face_areas(mesh))
+    return corner_cotangents_from_lengths_sq(face_edge_lengths_sq(mesh), areas=face_areas(mesh))
 
 
 def corner_angles_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Array, "nf 3"]:
@@ -188,10 +213,6 @@ def scatter_corners_to_vertices(mesh: Mesh, corner_values: Float[Array, "nf 3 *d
     return jax.ops.segment_sum(flat, mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
 
 
-DUALS = ("voronoi", "circumcentric", "barycentric")
-"""The choices of the `dual=` option, shared by `ddgjax.mesh` and `ddgjax.dec` (module docstring)."""
-
-
 def corner_dual_areas_from_lengths_sq(
     lengths_sq: Float[Array, "nf 3"], *, dual: str = "voronoi", areas: Float[Array, " nf"] | None = None
 ) -> Float[Array, "nf 3"]:
@@ -225,7 +246,7 @@ def corner_dual_areas_from_lengths_sq(
     Reference: M. Meyer, M. Desbrun, P. Schroeder, A. Barr, "Discrete differential-geometry operators
     for triangulated 2-manifolds" (2003), Section 3.3 and Fig. 4.
     """
-    check_choice("dual", dual, DUALS)
+    check_choice("dual", dual, DUAL_CELLS)
     if areas is None:
         areas = face_areas_from_lengths_sq(lengths_sq)
     if dual == "barycentric":
@@ -275,7 +296,9 @@ def vertex_normals(mesh: Mesh, *, weighting: str = "area", normalize: bool = Tru
 
     `n_i = sum_{f ni i} w_f N_f`, with `w_f` the face area `A_f` (`"area"`, default), the corner angle
     of `f` at `i` (`"angle"`, Thuermer & Wuethrich 1998) or 1 (`"uniform"`); then normalised to unit
-    length unless `normalize=False`. The unnormalised area-weighted sum `sum_f A_f N_f` is the
+    length unless `normalize=False`. `weighting=` (keyword-only, like `normalize`) weights the faces
+    around a vertex; it is not the `weights=` of ddgjax's vocabulary (uniform or cotan edge weights
+    of a graph Laplacian, `ddgjax.LAPLACIAN_WEIGHTS`), and takes libigl's names for its choices. The unnormalised area-weighted sum `sum_f A_f N_f` is the
     gradient of the enclosed volume times 3 (see `enclosed_volume`). Zero-area faces contribute
     nothing; vertices with a zero sum (unreferenced, or cancelling normals) get the zero vector.
 

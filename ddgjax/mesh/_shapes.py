@@ -1,10 +1,12 @@
-"""Built-in triangle meshes: icosphere, UV sphere, torus, flat disk and grid.
+"""Built-in triangle meshes: icosphere, UV sphere, torus, open cylinder, flat disk and grid.
 
 Each is deterministic, manifold and consistently oriented; closed shapes have outward normals, flat
 ones lie in the plane `z = 0` with normals `+z` (faces counterclockwise seen from above). Topology is
 built with vectorised NumPy (no per-element Python loops, so a 1.3 M-face icosphere takes about a
 second); vertices come back as a JAX array in JAX's default float dtype unless `dtype` is given. Counts are
-integers (Python or NumPy) and sizes positive numbers; anything else raises `DDGInputError`.
+integers (Python or NumPy) and sizes positive numbers; anything else raises `DDGInputError`. A shape's
+resolution counts may be passed by position, its sizes and `dtype` by name only; every argument of
+`torus` is keyword-only (libraries disagree on the order of its radii and counts).
 """
 
 from __future__ import annotations
@@ -16,14 +18,15 @@ from .._errors import DDGInputError, check_count, check_positive
 from ._mesh import Mesh
 
 
-def icosphere(subdivisions=3, radius=1.0, *, dtype=None) -> Mesh:
+def icosphere(subdivisions=3, *, radius=1.0, dtype=None) -> Mesh:
     """Geodesic sphere: an icosahedron, each face split into four `subdivisions` times.
 
     Every new vertex is the midpoint of an edge pushed onto the sphere `|p| = radius` (centred at
     the origin), so all vertices lie on it. Returns a closed genus-0 `Mesh` with outward normals:
     vertices `(10 * 4**s + 2, 3)`, faces `(20 * 4**s, 3)`, `30 * 4**s` edges; every angle is
-    between about 54 and 72 degrees (no obtuse faces). Area tends to `4 pi r^2` at rate `O(h^2)`
-    (`h ~ 2^-s`). `dtype`: float dtype of the vertices (default: JAX's default float).
+    between about 54 and 72 degrees (no obtuse faces). Area tends to `4 pi radius^2` at rate `O(h^2)`
+    (`h ~ 2^-s`). `radius` and `dtype` (float dtype of the vertices, default JAX's default float)
+    are keyword-only.
     Reference: J. R. Baumgardner, P. O. Frederickson, "Icosahedral discretization of the two-sphere"
     (SIAM J. Numer. Anal., 1985). Equivalents: `trimesh.creation.icosphere(s, radius)` (the same faces up to
     vertex numbering, positions within 1e-7), `gpytoolbox.icosphere(s)` (same counts, another
@@ -102,14 +105,15 @@ def _split_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
     return np.concatenate([vertices, midpoints]), new_faces
 
 
-def uv_sphere(n_lat=16, n_lon=32, radius=1.0, *, dtype=None) -> Mesh:
+def uv_sphere(n_lat=16, n_lon=32, *, radius=1.0, dtype=None) -> Mesh:
     """Latitude-longitude sphere: two poles and `n_lat - 1` rings of `n_lon` vertices.
 
     Returns a closed genus-0 `Mesh` with outward normals: vertices `((n_lat - 1) n_lon + 2, 3)`,
     faces `(2 (n_lat - 1) n_lon, 3)` (fans at the poles, each band of quads split along one
-    diagonal). Vertex 0 is the north pole `(0, 0, r)`, the last the south pole; ring `k` (polar
+    diagonal). Vertex 0 is the north pole `(0, 0, radius)`, the last the south pole; ring `k` (polar
     angle `pi k / n_lat`) holds vertices `1 + (k - 1) n_lon ...`. Faces near the poles are thin
-    (angles `O(1 / n_lon)`). Area tends to `4 pi r^2` at rate `O(h^2)`. `dtype` as for `icosphere`.
+    (angles `O(1 / n_lon)`). Area tends to `4 pi radius^2` at rate `O(h^2)`. `radius` and `dtype`
+    (as for `icosphere`) are keyword-only.
     Equivalent: `trimesh.creation.uv_sphere(radius, count=...)`, a latitude-longitude sphere with
     its own counts convention, numbering and pole treatment.
     """
@@ -131,24 +135,29 @@ def uv_sphere(n_lat=16, n_lon=32, radius=1.0, *, dtype=None) -> Mesh:
     return _mesh(radius * vertices, np.concatenate([top, band, bottom]), dtype)
 
 
-def torus(R=1.0, r=0.25, n_major=48, n_minor=16, *, dtype=None) -> Mesh:
-    """Torus of revolution about the z axis: tube radius `r` around a circle of radius `R` in z = 0.
+def torus(*, major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16, dtype=None) -> Mesh:
+    """Torus of revolution about the z axis: a tube of radius `minor_radius` around a circle of radius `major_radius` in z = 0.
 
-    Vertex `(i, j)` (index `i * n_minor + j`) sits at `((R + r cos v) cos u, (R + r cos v) sin u,
-    r sin v)` with `u = 2 pi i / n_major`, `v = 2 pi j / n_minor`; `n_major n_minor` vertices,
-    twice as many faces: vertices `(n_major n_minor, 3)`, faces `(2 n_major n_minor, 3)`, closed,
-    genus 1, outward normals. Area tends to `4 pi^2 R r` at rate `O(h^2)`. Exact curvatures (for
-    tests): Gaussian `cos v / (r (R + r cos v))`, mean `(R + 2 r cos v) / (2 r (R + r cos v))`.
-    `dtype` as for `icosphere`. (`../shared/meshes/torus.obj` is the same surface with the axis
-    along y.) Equivalents: `gpytoolbox.torus(n_major, n_minor, R=R, r=r)`,
+    With `R = major_radius` and `r = minor_radius`, vertex `(i, j)` (index `i * n_minor + j`) sits at
+    `((R + r cos v) cos u, (R + r cos v) sin u, r sin v)` with `u = 2 pi i / n_major`,
+    `v = 2 pi j / n_minor`; `n_major n_minor` vertices, twice as many faces: vertices
+    `(n_major n_minor, 3)`, faces `(2 n_major n_minor, 3)`, closed, genus 1, outward normals. Area
+    tends to `4 pi^2 R r` at rate `O(h^2)`. Exact curvatures (for tests): Gaussian
+    `cos v / (r (R + r cos v))`, mean `(R + 2 r cos v) / (2 r (R + r cos v))`. Every argument is
+    keyword-only; `dtype` as for `icosphere`. (`../shared/meshes/torus.obj` is the same surface with
+    the axis along y.) Equivalents: `gpytoolbox.torus(n_major, n_minor, R=R, r=r)`,
     `trimesh.creation.torus(R, r, n_major, n_minor)` (other vertex numberings).
     """
     check_count("n_major", n_major, 3)
     check_count("n_minor", n_minor, 3)
-    check_positive("R", R)
-    check_positive("r", r)
-    if r >= R:
-        raise DDGInputError(f"r: expected a tube radius smaller than R={R} (a torus without self-intersection), got {r}")
+    check_positive("major_radius", major_radius)
+    check_positive("minor_radius", minor_radius)
+    if minor_radius >= major_radius:
+        raise DDGInputError(
+            f"minor_radius: expected a tube radius smaller than major_radius={major_radius} (a torus without "
+            f"self-intersection), got {minor_radius}"
+        )
+    R, r = major_radius, minor_radius
     u = 2.0 * np.pi * np.arange(n_major) / n_major
     v = 2.0 * np.pi * np.arange(n_minor) / n_minor
     uu, vv = np.meshgrid(u, v, indexing="ij")
@@ -160,14 +169,15 @@ def torus(R=1.0, r=0.25, n_major=48, n_minor=16, *, dtype=None) -> Mesh:
     return _mesh(vertices, faces, dtype)
 
 
-def cylinder(n_around=32, n_along=8, radius=1.0, height=2.0, *, dtype=None) -> Mesh:
+def cylinder(n_around=32, n_along=8, *, radius=1.0, height=2.0, dtype=None) -> Mesh:
     """Open cylinder about the z axis, radius `radius`, over `z in [-height / 2, height / 2]`, without caps.
 
     Vertex `(i, j)` (index `i * n_around + j`) sits at `(radius cos u, radius sin u, -height / 2 + i height
     / n_along)` with `u = 2 pi j / n_around`: `(n_along + 1) n_around` vertices, `2 n_along n_around`
     faces, outward normals; two boundary loops, the rings `i = 0` (vertices `0 .. n_around - 1`) and
     `i = n_along` (the last `n_around`). Genus 0 with two holes: Euler characteristic 0. The start of a
-    minimal surface between two rings (the catenoid). Equivalent: `trimesh.creation.cylinder` (capped).
+    minimal surface between two rings (the catenoid). `radius`, `height` and `dtype` (as for
+    `icosphere`) are keyword-only. Equivalent: `trimesh.creation.cylinder` (capped).
     """
     check_count("n_around", n_around, 3)
     check_count("n_along", n_along, 1)
@@ -183,14 +193,15 @@ def cylinder(n_around=32, n_along=8, radius=1.0, height=2.0, *, dtype=None) -> M
     return _mesh(vertices, faces, dtype)
 
 
-def disk(n_rings=8, radius=1.0, *, dtype=None) -> Mesh:
+def disk(n_rings=8, *, radius=1.0, dtype=None) -> Mesh:
     """Flat disk in z = 0: a centre vertex and `n_rings` concentric rings, ring `k` with `6k` vertices.
 
-    Ring `k` has radius `k r / n_rings`; consecutive rings are zipped together by angle, giving nearly
+    Ring `k` has radius `k radius / n_rings`; consecutive rings are zipped together by angle, giving nearly
     equilateral triangles (exactly the hexagonal lattice for `n_rings = 1`), faces counterclockwise
     seen from `+z`. Vertices `(3 n (n + 1) + 1, 3)` (vertex 0 the centre), faces `(6 n^2, 3)`, one
     boundary loop (the outer ring, counterclockwise). Area (of the inscribed polygon) tends to
-    `pi r^2` at rate `O(h^2)`, `h = r / n_rings`. `dtype` as for `icosphere`. libigl / gpytoolbox
+    `pi radius^2` at rate `O(h^2)`, `h = radius / n_rings`. `radius` and `dtype` (as for
+    `icosphere`) are keyword-only. libigl / gpytoolbox
     build disks by triangulating a boundary polygon instead (`gpytoolbox.regular_circle_polyline` +
     `gpytoolbox.triangulate`), with other interior points.
     """
@@ -227,14 +238,14 @@ def _zip_rings(inner_start: int, m_inner: int, outer_start: int, m_outer: int) -
     return np.stack([inner, outer, third], axis=1)
 
 
-def grid(nx=8, ny=8, size=1.0, *, dtype=None) -> Mesh:
+def grid(nx=8, ny=8, *, size=1.0, dtype=None) -> Mesh:
     """Flat square `[-size/2, size/2]^2` in z = 0, split into `nx` by `ny` cells of two triangles each.
 
     Vertex `(i, j)` (index `j * (nx + 1) + i`) is at `(-size/2 + i size/nx, -size/2 + j size/ny, 0)`;
     every cell is cut along its diagonal from `(i, j)` to `(i+1, j+1)`, faces counterclockwise seen
     from `+z`. Vertices `((nx+1)(ny+1), 3)`, faces `(2 nx ny, 3)`, one boundary loop; right
     triangles, so the circumcentric cotan weight of every diagonal is 0. Area exactly `size^2`.
-    `dtype` as for `icosphere`. Equivalents: `igl.triangulated_grid(nx + 1, ny + 1)` and
+    `size` and `dtype` (as for `icosphere`) are keyword-only. Equivalents: `igl.triangulated_grid(nx + 1, ny + 1)` and
     `gpytoolbox.regular_square_mesh(nx + 1, ny + 1)` (on `[0, 1]^2` and `[-1, 1]^2`, 2-D vertices,
     possibly other diagonals).
     """

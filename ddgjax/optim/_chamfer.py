@@ -11,6 +11,8 @@ the query point and its nearest point, as in PyTorch3D.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
@@ -52,14 +54,39 @@ def chamfer_distance(
     return jnp.mean(jnp.sum(to_b * to_b, axis=-1)) + jnp.mean(jnp.sum(to_a * to_a, axis=-1))
 
 
+class NearestNeighbors(NamedTuple):
+    """What `nearest_neighbors` returns (a named tuple: `in_b, in_a = nearest_neighbors(a, b)` still unpacks).
+
+    Attributes:
+        nearest_in_b: `(na,)` for each point of `points_a`, the index of its nearest point of `points_b`.
+        nearest_in_a: `(nb,)` for each point of `points_b`, the index of its nearest point of `points_a`.
+    """
+
+    nearest_in_b: Int[Array, " na"]
+    nearest_in_a: Int[Array, " nb"]
+
+
 def nearest_neighbors(
     points_a: Float[ArrayLike, "na d"], points_b: Float[ArrayLike, "nb d"], *, chunk_size: int | None = None
-) -> tuple[Int[Array, " na"], Int[Array, " nb"]]:
+) -> NearestNeighbors:
     """Indices of the nearest point of `points_b` for each point of `points_a`, and the other way round.
 
-    One pass of brute force over row chunks of `points_a` (a `lax.scan`): each chunk's pairwise
-    squared distances give the chunk's row minima and update running column minima. Ties go to the
-    lowest index. Not differentiable (integer output; the inputs are held fixed).
+    `nearest_in_b[i] = argmin_j |a_i - b_j|^2` and `nearest_in_a[j] = argmin_i |a_i - b_j|^2`
+    (squared Euclidean distances, computed coordinate by coordinate). One pass of brute force over
+    row chunks of `points_a` (a `lax.scan`): each chunk's pairwise squared distances give the chunk's
+    row minima and update running column minima. Ties go to the lowest index. Not differentiable
+    (integer output; the inputs are held fixed).
+
+    Args:
+        points_a: `(na, d)` points.
+        points_b: `(nb, d)` points of the same dimension.
+        chunk_size: rows of `points_a` per block (static); default: blocks under 2^22 entries.
+
+    Returns:
+        `NearestNeighbors(nearest_in_b (na,), nearest_in_a (nb,))`, int32.
+
+    Equivalent: `scipy.spatial.cKDTree(points_b).query(points_a)[1]` (and the other way round);
+    PyTorch3D `knn_points(a, b, K=1).idx`.
     """
     _check_points("points_a", points_a)
     _check_points("points_b", points_b)
@@ -89,7 +116,7 @@ def nearest_neighbors(
 
     start = (jnp.full((nb,), jnp.inf, a.dtype), jnp.zeros((nb,), jnp.int32))
     (_, nearest_in_a), nearest_in_b = jax.lax.scan(chunk, start, jnp.arange(n_chunks, dtype=jnp.int32) * rows)
-    return nearest_in_b.reshape(-1)[:na].astype(jnp.int32), nearest_in_a.astype(jnp.int32)
+    return NearestNeighbors(nearest_in_b.reshape(-1)[:na].astype(jnp.int32), nearest_in_a.astype(jnp.int32))
 
 
 def _min_and_first_index(d2: Float[Array, "m n"], axis: int) -> tuple[Float[Array, " k"], Int[Array, " k"]]:
@@ -101,9 +128,19 @@ def _min_and_first_index(d2: Float[Array, "m n"], axis: int) -> tuple[Float[Arra
     return jnp.squeeze(smallest, axis), jnp.min(jnp.where(d2 == smallest, ids, n), axis=axis)
 
 
-def sample_points(
-    mesh: Mesh, n: int, key: PRNGKeyArray, *, return_normals: bool = False
-) -> Float[Array, "n 3"] | tuple[Float[Array, "n 3"], Float[Array, "n 3"]]:
+class SampledPoints(NamedTuple):
+    """What `sample_points(..., return_normals=True)` returns (a named tuple: `points, normals = ...` still unpacks).
+
+    Attributes:
+        points: `(n, 3)` the samples.
+        normals: `(n, 3)` the unit normal of each sample's face.
+    """
+
+    points: Float[Array, "n 3"]
+    normals: Float[Array, "n 3"]
+
+
+def sample_points(mesh: Mesh, n: int, key: PRNGKeyArray, *, return_normals: bool = False) -> Float[Array, "n 3"] | SampledPoints:
     """`n` points uniformly distributed by area on the surface, differentiable in the vertices.
 
     Faces are drawn with probability `A_f / sum A` (the draw is not differentiated), and a point in
@@ -119,7 +156,7 @@ def sample_points(
         return_normals: also return the unit normals of the sampled points' faces.
 
     Returns:
-        `(n, 3)` points, or `(points, normals)`.
+        `(n, 3)` points, or with `return_normals` `SampledPoints(points, normals)`.
 
     Reference: G. Turk, "Generating random points in triangles" (Graphics Gems, 1990). PyTorch3D:
     `pytorch3d.ops.sample_points_from_meshes(meshes, n, return_normals=...)`.
@@ -138,7 +175,7 @@ def sample_points(
     points = jnp.einsum("nk,nkd->nd", weights, take_rows(face_vertex_positions(mesh), faces))
     if not return_normals:
         return points
-    return points, take_rows(safe_normalize(face_area_vectors(mesh)), faces)
+    return SampledPoints(points, take_rows(safe_normalize(face_area_vectors(mesh)), faces))
 
 
 def _check_points(name: str, points) -> None:

@@ -1,9 +1,10 @@
-"""`minimize_shape`: gradient-based shape optimisation of a mesh, the whole step under one `jax.jit`.
+"""`minimize_shape`: gradient-based shape optimisation of a mesh, each chunk of steps one compiled program.
 
 One step is `value_and_grad` of the user's loss with respect to the parameters, an optax update,
 the map back to vertex positions (Large Steps: one solve with the kept factor) and, optionally, the
-projection onto the constraint; `lax.scan` runs a chunk of steps per compiled call and a host loop
-over chunks drives a tqdm progress bar (as `ddgjax.curves.curve_shortening_flow` does).
+projection onto the constraint. The steps run in chunks of `chunk_size` through `ddgjax._loop`, the
+loop the flows share: one `lax.scan` over the chunks (one compiled program for the whole run), or,
+with a progress bar, one compiled chunk per call from a host loop.
 
 Parametrisations: `"large_steps"` optimises `U = (I + lambda L) V` (`ddgjax.optim.large_steps`);
 `"vertices"` the free vertex positions themselves. Fixed vertices are not parameters at all in
@@ -23,15 +24,17 @@ Bounds `(lower, upper)`: after every update the vertices are clipped into the bo
 Euclidean projection onto it (projected gradient descent, as `jaxopt.ProjectedGradient` with
 `jaxopt.projection.projection_box`; here inside the user's optax optimiser and reparametrisation).
 
-Failures: a step whose loss or gradient is not finite is not applied (the parameters and the
-optimiser state are kept), and the run reports `RESULTS.nonfinite` with the first such step; with
-`throw=True` (default) it raises, with `throw=False` the returned vertices are the last finite iterate.
+Outcomes (docs/conventions.md): a step whose loss, gradient or update is not finite, or whose Large
+Steps solve failed, is not applied (the parameters and the optimiser state are kept), and the run
+reports the first such step's outcome (`RESULTS.nonfinite`, or the solve's) in `result`; with
+`throw=True` (default) it raises, with `throw=False` the returned vertices are the last good iterate.
 """
 
 from __future__ import annotations
 
-import time
+import functools
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -39,13 +42,15 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import optimistix as optx
-from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, PyTree
 
-from .._compile import cpu_compiler_options
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
-from .._results import RESULTS, raise_if_failed
+from .._loop import Failure, check_progress, finite_outcome, first_failure_step, no_failure, record, run_chunks, scan_steps
+from .._options import check_solver, check_weights
+from .._results import RESULTS, first_failure, is_failure, raise_if_failed
 from ..mesh import Mesh, enclosed_volume, require_mesh
-from ._large_steps import adam_uniform, fixed_vertex_indices, large_steps
+from ._large_steps import LargeSteps, adam_uniform, fixed_vertex_indices, large_steps
 
 PARAMETRIZATIONS = ("large_steps", "vertices")
 CONSTRAINTS = (None, "volume")
@@ -55,31 +60,154 @@ class ShapeOptimizationResult(eqx.Module):
     """What `minimize_shape` returns.
 
     Attributes:
-        vertices: `(nv, 3)` final positions (the last finite iterate if the run failed).
+        value: `(nv, 3)` final positions (the last good iterate if a step failed); `mesh` wraps them.
         loss_history: `(steps + 1,)` the loss after `k` steps, `k = 0, ..., steps` (the first is the
             initial shape's, the last the final shape's; a stochastic loss is evaluated with the
             step's key).
-        result: `RESULTS.successful`, or `RESULTS.nonfinite` when some step's loss or gradient was
-            NaN / inf (that step and the ones after it with the same value were not applied).
-        first_nonfinite_step: that step's index, `steps` when there was none.
+        result: the outcome of the first failing step (`ddgjax.RESULTS`): `successful`,
+            `nonfinite` (a NaN / inf loss, gradient or update) or a failed Large Steps solve's.
+        first_failure_step: int scalar, that step's number (`1, ..., steps`: step `k` updates iterate
+            `k - 1`), `steps + 1` when none failed. Failed steps are not applied.
         initial: the input mesh (its connectivity, for `mesh`).
-        compile_time, run_time: seconds spent compiling the step chunks and running them.
         parametrization: `"large_steps"` or `"vertices"` (static).
     """
 
-    vertices: Float[Array, "nv 3"]
+    value: Float[Array, "nv 3"]
     loss_history: Float[Array, " steps_plus_one"]
     result: RESULTS
-    first_nonfinite_step: Int[Array, ""]
+    first_failure_step: Int[Array, ""]
     initial: Mesh
-    compile_time: float
-    run_time: float
     parametrization: str = eqx.field(static=True)
 
     @property
     def mesh(self) -> Mesh:
-        """The optimised mesh, `initial.with_vertices(vertices)`."""
-        return self.initial.with_vertices(self.vertices)
+        """The optimised mesh, `initial.with_vertices(value)`."""
+        return self.initial.with_vertices(self.value)
+
+
+class _Same:
+    """A static argument compared by identity: any callable (hashable or not) keys a compiled program,
+    and passing the same object again reuses it."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def __hash__(self) -> int:
+        return id(self.value)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _Same) and other.value is self.value
+
+
+class _Problem(eqx.Module):
+    """One run's data (arrays: traced) and the user's loss and optimiser (static, by identity).
+
+    The mesh travels inside this module rather than as a kernel argument of its own, so that it keeps
+    its topology (`kernel` strips it from top-level `Mesh` arguments): the user's loss needs it.
+    """
+
+    mesh: Mesh
+    reparam: LargeSteps | None
+    free: Int[Array, " n_free"] | None
+    free_mask: Bool[Array, " nv"]
+    lower: Float[Array, "nv 3"] | None
+    upper: Float[Array, "nv 3"] | None
+    target_volume: Float[Array, ""] | None
+    loss: _Same = eqx.field(static=True)
+    optimizer: _Same = eqx.field(static=True)
+    keyed: bool = eqx.field(static=True)
+
+    def to_parameters(self, vertices: Float[Array, "nv 3"]) -> PyTree:
+        if self.reparam is not None:
+            return self.reparam.to_parameters(vertices)
+        return vertices if self.free is None else vertices[self.free]
+
+    def to_vertices(self, parameters: PyTree) -> tuple[Float[Array, "nv 3"], RESULTS]:
+        """The vertex positions of `parameters` and the outcome of the solve that maps them (Large Steps)."""
+        if self.reparam is not None:
+            solution = self.reparam.from_parameters(parameters, throw=False)
+            return solution.value, solution.result
+        vertices = parameters if self.free is None else self.mesh.vertices.at[self.free].set(parameters)
+        return vertices, RESULTS.successful
+
+    def objective(self, parameters: PyTree, key: PRNGKeyArray) -> tuple[Float[Array, ""], RESULTS]:
+        vertices, result = self.to_vertices(parameters)
+        shape = self.mesh.with_vertices(vertices)
+        return (self.loss.value(shape, key) if self.keyed else self.loss.value(shape)), result
+
+    def project(self, parameters: PyTree) -> tuple[PyTree, RESULTS]:
+        """`parameters` projected onto the constraint or into the bounds (module docstring), with the solve's outcome."""
+        if self.target_volume is None and self.lower is None:
+            return parameters, RESULTS.successful
+        vertices, result = self.to_vertices(parameters)
+        if self.target_volume is not None:
+            volume = lambda V: enclosed_volume(self.mesh.with_vertices(V))
+            direction = jnp.where(self.free_mask[:, None], jax.grad(volume)(vertices), 0.0)
+            # Scale the unknown so that t ~ a length: direction has units of area.
+            scale = 1.0 / jnp.sqrt(jnp.sum(direction * direction))
+            residual = lambda t, _: volume(vertices + t * scale * direction) - self.target_volume
+            newton = optx.Newton(rtol=1e-12, atol=1e-12)
+            t = optx.root_find(residual, newton, jnp.zeros((), vertices.dtype), throw=False).value
+            vertices = vertices + t * scale * direction
+        if self.lower is not None:
+            vertices = jnp.clip(vertices, self.lower, self.upper)
+        return self.to_parameters(vertices), result
+
+
+class _State(NamedTuple):
+    """The carry of the optimisation loop."""
+
+    parameters: PyTree
+    optimizer_state: PyTree
+    key: PRNGKeyArray
+    failure: Failure
+
+
+def _step(problem: _Problem, state: _State, k) -> tuple[_State, Float[Array, ""]]:
+    """Step `k`: the update of iterate `k - 1`, applied only when everything about it is finite; its loss."""
+    key, subkey = jax.random.split(state.key)
+    (value, solved), gradient = jax.value_and_grad(problem.objective, has_aux=True)(state.parameters, subkey)
+    updates, optimizer_state = problem.optimizer.value.update(gradient, state.optimizer_state, state.parameters)
+    parameters, projected = problem.project(optax.apply_updates(state.parameters, updates))
+    outcome = first_failure(finite_outcome((value, gradient, parameters)), solved, projected)
+    keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(is_failure(outcome), b, a), new, old)
+    parameters, optimizer_state = keep((parameters, optimizer_state), (state.parameters, state.optimizer_state))
+    return _State(parameters, optimizer_state, key, record(state.failure, k, outcome)), value
+
+
+def _chunk(problem: _Problem, state: _State, start, idle, last, count: int) -> tuple[_State, tuple]:
+    """Steps `start + 1, ..., start + count` (those past `last` skipped); their losses, and the loss of the last iterate."""
+    state, values = scan_steps(functools.partial(_step, problem), state, start, count, last=last, idle=idle)
+    # The loss of the chunk's last iterate (the final loss after the last chunk), with the next key.
+    end_value, _ = problem.objective(state.parameters, jax.random.split(state.key)[1])
+    return state, (values, end_value)
+
+
+_compiled_chunk = kernel(_chunk, static_argnames=("count",))
+
+
+@kernel(static_argnames=("chunks", "count"))
+def _run(problem: _Problem, state: _State, idle, last, *, chunks: int, count: int):
+    """Every chunk in one compiled program (the path without a progress bar)."""
+    chunk = lambda state, start: _chunk(problem, state, start, idle, last, count)
+    return run_chunks(chunk, state, chunks=chunks, every=count)
+
+
+@kernel
+def _start(problem: _Problem, key: PRNGKeyArray) -> tuple[_State, Float[Array, ""]]:
+    """The initial state (parameters projected onto the constraint) and a zero of the loss's dtype."""
+    parameters = problem.to_parameters(problem.mesh.vertices)
+    if problem.target_volume is not None:
+        parameters, _ = problem.project(parameters)
+    dtype = jax.eval_shape(problem.objective, parameters, key)[0].dtype
+    state = _State(parameters, problem.optimizer.value.init(parameters), key, no_failure())
+    return state, jnp.zeros((), dtype)
+
+
+@functools.cache
+def _default_optimizer(parametrization: str) -> optax.GradientTransformation:
+    """The default optimiser, one object per parametrisation (so that repeated runs reuse their program)."""
+    return adam_uniform(1e-2) if parametrization == "large_steps" else optax.adam(1e-3)
 
 
 def minimize_shape(
@@ -90,19 +218,22 @@ def minimize_shape(
     optimizer: optax.GradientTransformation | None = None,
     parametrization: str = "large_steps",
     lambda_: float = 10.0,
-    laplacian: str = "uniform",
-    fixed_vertices: Int[ArrayLike, " k"] | Sequence[int] | None = None,
+    weights: str = "uniform",
+    fixed_vertices: Int[ArrayLike, " n_fixed"] | Sequence[int] | None = None,
     constraint: str | None = None,
     bounds: tuple[Float[ArrayLike, "*b"], Float[ArrayLike, "*b"]] | None = None,
     key: PRNGKeyArray | None = None,
     chunk_size: int | None = None,
-    method: str = "auto",
+    solver: str = "auto",
     progress: bool = True,
     throw: bool = True,
 ) -> ShapeOptimizationResult:
-    """Minimise `loss(mesh)` over the vertex positions by a first-order optimiser (module docstring).
+    """Minimise `loss(mesh)` over the vertex positions `V` `(nv, 3)` by a first-order optimiser (module docstring).
 
-    Example (PyTorch3D's mesh-fitting tutorial, with Large Steps):
+    Each step is `U <- U + optimizer_update(grad_U loss(mesh(V(U))))` with `U` the parameters: the
+    Large Steps parameters `U = (I + lambda L) V` (Nicolet et al. 2021) or the free vertices, then
+    the projection onto `constraint` or into `bounds`. Example (PyTorch3D's mesh-fitting tutorial,
+    with Large Steps):
 
         def fit(mesh, key):
             points = sample_points(mesh, 2000, key)
@@ -113,15 +244,18 @@ def minimize_shape(
     Args:
         loss: `loss(mesh) -> scalar`, or `loss(mesh, key) -> scalar` when `key` is given (a new
             key each step, e.g. for `sample_points`); a JAX-traceable function of `mesh.vertices`.
-        mesh: the initial mesh (concrete vertices: the run is driven from the host).
+            It is compiled with the step: passing the same `loss` and `optimizer` objects again
+            reuses the compiled program.
+        mesh: the initial mesh (concrete vertices: the run is set up on the host).
         steps: number of optimiser steps, >= 1.
         optimizer: an optax `GradientTransformation`. Default: `adam_uniform(1e-2)` (the Large Steps
             paper's) for `"large_steps"`, `optax.adam(1e-3)` for `"vertices"`; learning rates are
             in length units, so these suit meshes of size about 1.
         parametrization: `"large_steps"` (default) or `"vertices"`.
-        lambda_, laplacian, method: the Large Steps matrix `I + lambda L` and its factorisation
-            (`ddgjax.optim.large_steps`); ignored for `"vertices"`.
-        fixed_vertices: indices of vertices held in place, or `None`.
+        lambda_, weights, solver: the Large Steps matrix `I + lambda L` (`weights`: one of
+            `ddgjax.LAPLACIAN_WEIGHTS`) and the backend of its factorisation (one of
+            `ddgjax.LINEAR_SOLVERS`; `ddgjax.optim.large_steps`); ignored for `"vertices"`.
+        fixed_vertices: `(n_fixed,)` indices of vertices held in place, or `None`.
         constraint: `None` or `"volume"` (keep the enclosed volume of the initial mesh, by projection;
             the mesh must be closed and consistently oriented for that to be a volume).
         bounds: `(lower, upper)`, each broadcastable to `(nv, 3)` (a scalar, a `(3,)` box corner or
@@ -131,127 +265,85 @@ def minimize_shape(
             projections do not commute; `DDGInputError`).
         key: a PRNG key, split once per step and passed to `loss`; `None` for a loss without one.
         chunk_size: steps per compiled `lax.scan` chunk, i.e. per progress-bar update (default: about
-            a twentieth of `steps`).
-        progress: show a tqdm progress bar over the chunks.
-        throw: raise when a step was not finite (default), or report it in `result`.
+            a twentieth of `steps`); a last chunk reaching past `steps` skips the extra steps.
+        progress: show a tqdm progress bar over the chunks (default); `False` runs every chunk in one
+            compiled program.
+        throw: raise when a step failed (default), or report it in `result`.
 
     Returns:
-        `ShapeOptimizationResult` (`.mesh`, `.vertices`, `.loss_history`, timings).
+        `ShapeOptimizationResult`: `value` the final `(nv, 3)` positions (`.mesh` the mesh),
+        `loss_history` `(steps + 1,)`, `result`, `first_failure_step`.
 
-    The step (`value_and_grad`, optimiser update, reparametrisation, projection) is one jitted
-    function, compiled once per call of `minimize_shape` into one program that runs a chunk (a
-    last chunk reaching past `steps` skips the extra steps). References: Nicolet, Jacobson, Jakob 2021 (Large Steps); PyTorch3D's
-    "Deform a source mesh to form a target mesh" tutorial (the loop it writes by hand).
+    Raises:
+        DDGInputError: a bad option, traced vertices, bounds the initial mesh violates.
+        equinox.EquinoxRuntimeError: with `throw=True`, a failed step.
+
+    References: Nicolet, Jacobson, Jakob 2021 (Large Steps); PyTorch3D's "Deform a source mesh to
+    form a target mesh" tutorial (the loop it writes by hand); `largesteps.optimize.AdamUniform`.
     """
     mesh = require_mesh("mesh", mesh)
     steps = check_count("steps", steps)
     check_choice("parametrization", parametrization, PARAMETRIZATIONS)
     check_choice("constraint", constraint, CONSTRAINTS)
+    check_weights(weights)
+    check_solver(solver)
     if not callable(loss):
         raise DDGInputError(f"loss: expected a function loss(mesh) -> scalar, got {type(loss).__name__}")
     if is_traced(mesh.vertices):
-        raise DDGInputError(
-            "mesh: minimize_shape drives its steps from the host and needs concrete vertices; call it outside jit"
-        )
+        raise DDGInputError("mesh: minimize_shape sets up its run on the host and needs concrete vertices; call it outside jit")
+    progress = check_progress(progress)
     chunk_size = max(1, steps // 20) if chunk_size is None else min(check_count("chunk_size", chunk_size), steps)
-    lower, upper = _box(bounds, mesh, constraint)
-    fixed = fixed_vertex_indices(fixed_vertices, mesh.n_vertices)
-    initial = mesh.vertices
-
-    if parametrization == "large_steps":
-        reparam = large_steps(mesh, lambda_=lambda_, laplacian=laplacian, fixed_vertices=fixed, method=method)
-        to_parameters, to_vertices = reparam.to_parameters, reparam.from_parameters
-        optimizer = adam_uniform(1e-2) if optimizer is None else optimizer
-    else:
-        free = jnp.asarray(np.setdiff1d(np.arange(mesh.n_vertices), fixed), jnp.int32) if fixed.size else None
-        to_parameters = lambda V: V if free is None else V[free]
-        to_vertices = lambda U: U if free is None else initial.at[free].set(U)
-        optimizer = optax.adam(1e-3) if optimizer is None else optimizer
+    optimizer = _default_optimizer(parametrization) if optimizer is None else optimizer
     if not isinstance(optimizer, optax.GradientTransformation):
         raise DDGInputError(
             f"optimizer: expected an optax GradientTransformation (e.g. optax.adam(1e-3)), got {type(optimizer).__name__}"
         )
-
-    free_mask = jnp.ones(mesh.n_vertices, bool).at[jnp.asarray(fixed, jnp.int32)].set(False)
-    target_volume = enclosed_volume(mesh) if constraint == "volume" else None
-
-    def objective(parameters, step_key):
-        shape = mesh.with_vertices(to_vertices(parameters))
-        return loss(shape) if key is None else loss(shape, step_key)
-
-    def project(parameters):
-        vertices = to_vertices(parameters)
-        direction = jnp.where(free_mask[:, None], jax.grad(lambda V: enclosed_volume(mesh.with_vertices(V)))(vertices), 0.0)
-        # Scale the unknown so that t ~ a length: direction has units of area.
-        scale = 1.0 / jnp.sqrt(jnp.sum(direction * direction))
-        residual = lambda t, _: enclosed_volume(mesh.with_vertices(vertices + t * scale * direction)) - target_volume
-        t = optx.root_find(residual, optx.Newton(rtol=1e-12, atol=1e-12), jnp.zeros((), vertices.dtype), throw=False).value
-        return to_parameters(vertices + t * scale * direction)
-
-    def step(carry, index):
-        parameters, state, step_key, first_bad = carry
-        step_key, subkey = jax.random.split(step_key)
-        value, gradient = jax.value_and_grad(objective)(parameters, subkey)
-        updates, new_state = optimizer.update(gradient, state, parameters)
-        new_parameters = optax.apply_updates(parameters, updates)
-        if constraint == "volume":
-            new_parameters = project(new_parameters)
-        if lower is not None:
-            new_parameters = to_parameters(jnp.clip(to_vertices(new_parameters), lower, upper))
-        finite = jnp.isfinite(value) & jnp.all(jnp.isfinite(gradient)) & jnp.all(jnp.isfinite(new_parameters))
-        keep = lambda new, old: jax.tree_util.tree_map(lambda a, b: jnp.where(finite, a, b), new, old)
-        parameters, state = keep((new_parameters, new_state), (parameters, state))
-        first_bad = jnp.where(finite, first_bad, jnp.minimum(first_bad, index))
-        return (parameters, state, step_key, first_bad), value
-
-    def step_or_skip(carry, index):
-        # The last chunk may reach past `steps`: those steps are skipped, so one program serves all chunks.
-        return jax.lax.cond(index < steps, step, lambda c, _: (c, jnp.zeros((), dtype)), carry, index)
-
-    def chunk(carry, start):
-        carry, values = jax.lax.scan(step_or_skip, carry, start + jnp.arange(chunk_size, dtype=jnp.int32))
-        # The loss of the chunk's last iterate (the final loss after the last chunk), with the next key.
-        end_value = objective(carry[0], jax.random.split(carry[2])[1])
-        return carry, values, end_value
-
-    parameters = to_parameters(initial)
-    if constraint == "volume":
-        parameters = project(parameters)
-    dtype = jax.eval_shape(objective, parameters, jax.random.key(0)).dtype
-    carry = (parameters, optimizer.init(parameters), jax.random.key(0) if key is None else key, jnp.asarray(steps, jnp.int32))
-    options = cpu_compiler_options() if jax.default_backend() == "cpu" else {}
-    compile_start = time.perf_counter()
-    compiled = jax.jit(chunk, compiler_options=options or None).lower(carry, jnp.zeros((), jnp.int32)).compile()
-    compile_time = time.perf_counter() - compile_start
-
-    from tqdm.auto import tqdm
-
-    history = []
-    run_start = time.perf_counter()
-    with tqdm(total=steps, desc="minimize_shape", unit="step", disable=not progress) as bar:
-        for start in range(0, steps, chunk_size):
-            carry, values, final_loss = compiled(carry, jnp.asarray(start, jnp.int32))
-            values.block_until_ready()
-            history.append(values[: min(chunk_size, steps - start)])
-            bar.update(min(chunk_size, steps - start))
-            bar.set_postfix(loss=float(final_loss))
-    parameters, _, _, first_bad = carry
-    vertices = to_vertices(parameters)
-    run_time = time.perf_counter() - run_start
-
-    loss_history = jnp.concatenate([*history, final_loss[None]])
-    result = RESULTS.where(first_bad < steps, RESULTS.nonfinite, RESULTS.successful)
-    outcome = ShapeOptimizationResult(
-        vertices=vertices,
-        loss_history=loss_history,
-        result=result,
-        first_nonfinite_step=first_bad,
+    lower, upper = _box(bounds, mesh, constraint)
+    fixed = fixed_vertex_indices(fixed_vertices, mesh.n_vertices)
+    reparam = free = None
+    if parametrization == "large_steps":
+        reparam = large_steps(mesh, lambda_=lambda_, weights=weights, fixed_vertices=fixed, solver=solver)
+    elif fixed.size:
+        free = jnp.asarray(np.setdiff1d(np.arange(mesh.n_vertices), fixed), jnp.int32)
+    problem = _Problem(
+        mesh=mesh,
+        reparam=reparam,
+        free=free,
+        free_mask=jnp.ones(mesh.n_vertices, bool).at[jnp.asarray(fixed, jnp.int32)].set(False),
+        lower=lower,
+        upper=upper,
+        target_volume=enclosed_volume(mesh) if constraint == "volume" else None,
+        loss=_Same(loss),
+        optimizer=_Same(optimizer),
+        keyed=key is not None,
+    )
+    state, idle = _start(problem, jax.random.key(0) if key is None else key)
+    last = jnp.asarray(steps, jnp.int32)
+    chunks = -(-steps // chunk_size)
+    if progress:
+        chunk = lambda state, start: _compiled_chunk(problem, state, start, idle, last, count=chunk_size)
+        state, (values, end_values) = run_chunks(
+            chunk,
+            state,
+            chunks=chunks,
+            every=chunk_size,
+            steps=steps,
+            progress=True,
+            description="minimize_shape",
+            postfix=lambda saved: {"loss": float(saved[1])},
+        )
+    else:
+        state, (values, end_values) = _run(problem, state, idle, last, chunks=chunks, count=chunk_size)
+    vertices, _ = problem.to_vertices(state.parameters)
+    optimised = ShapeOptimizationResult(
+        value=vertices,
+        loss_history=jnp.concatenate([values.reshape(-1)[:steps], end_values[-1:]]),
+        result=state.failure.result,
+        first_failure_step=first_failure_step(state.failure, steps),
         initial=mesh,
-        compile_time=compile_time,
-        run_time=run_time,
         parametrization=parametrization,
     )
-    return raise_if_failed(outcome, outcome.result, throw)
+    return raise_if_failed(optimised, optimised.result, throw)
 
 
 def _box(bounds, mesh: Mesh, constraint):

@@ -41,20 +41,20 @@ import optax
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._errors import DDGInputError, check_choice, check_positive, is_traced
+from .._errors import DDGInputError, check_positive, is_traced
+from .._options import check_solver, check_weights
+from .._results import Solution, outcome
 from ..laplacian import cotan_laplacian
 from ..mesh import Mesh, require_mesh
 from ..solve import Factorization, factorize
 from ..sparse import SparseMatrix, from_scipy
-
-LAPLACIANS = ("uniform", "cotan")
 
 
 class LargeSteps(eqx.Module):
     """The map between vertex positions and Large Steps parameters, `U = (I + lambda L) V` (module docstring).
 
     Made by `large_steps(mesh, lambda_=...)`. A pytree: pass it into `jit` (its factor is referenced
-    by an array token, the matrix values are leaves).
+    by an array token, the matrix values are leaves). Shapes: `V` is `(nv, 3)`, `U` is `(n_free, 3)`.
 
     Attributes:
         matrix: `A_ff`, `(n_free, n_free)`, the free block of `I + lambda L`.
@@ -62,7 +62,7 @@ class LargeSteps(eqx.Module):
         offset: `A_fb V_fixed`, `(n_free, 3)` (zeros without fixed vertices).
         free: `(n_free,)` indices of the free vertices, or `None` when every vertex is free.
         template: `(nv, 3)` positions whose fixed rows are the fixed vertices' positions.
-        lambda_, laplacian: the settings (static).
+        lambda_, weights: the settings (static).
     """
 
     matrix: SparseMatrix
@@ -71,53 +71,69 @@ class LargeSteps(eqx.Module):
     free: Int[Array, " n_free"] | None
     template: Float[Array, "nv 3"]
     lambda_: float = eqx.field(static=True)
-    laplacian: str = eqx.field(static=True)
+    weights: str = eqx.field(static=True)
 
     def to_parameters(self, vertices: Float[Array, "nv 3"]) -> Float[Array, "n_free 3"]:
         """`U = ((I + lambda L) V)_free`, `(n_free, 3)`: the parameters of positions `(nv, 3)`."""
         free = vertices if self.free is None else vertices[self.free]
         return self.matrix @ free + self.offset
 
-    def from_parameters(self, parameters: Float[Array, "n_free 3"]) -> Float[Array, "nv 3"]:
-        """`V = (I + lambda L)^{-1} U` on the free vertices (fixed ones from `template`), `(nv, 3)`; one solve."""
-        solved = self.factorization.solve(parameters - self.offset).value
-        return solved if self.free is None else self.template.at[self.free].set(solved)
+    def from_parameters(self, parameters: Float[Array, "n_free 3"], *, throw: bool = True) -> Float[Array, "nv 3"] | Solution:
+        """`V = (I + lambda L)^{-1} U` on the free vertices (fixed ones from `template`), `(nv, 3)`; one solve.
+
+        The solve reuses the kept factor (an iterative `solver` can fail to converge): with
+        `throw=True` (default) a failed solve raises; with `throw=False` the result is a
+        `ddgjax.Solution` whose `value` is `V` and `result` the solve's outcome.
+        """
+        solution = self.factorization.solve(parameters - self.offset, throw=False)
+        solved = solution.value
+        vertices = solved if self.free is None else self.template.at[self.free].set(solved)
+        stats = {"residual": solution.residual, "num_steps": solution.num_steps}
+        return outcome(vertices, solution.result, throw, stats)
 
 
 def large_steps(
     mesh: Mesh,
     *,
     lambda_: float = 10.0,
-    laplacian: str = "uniform",
+    weights: str = "uniform",
     fixed_vertices: Int[ArrayLike, " k"] | Sequence[int] | None = None,
-    method: str = "auto",
+    solver: str = "auto",
 ) -> LargeSteps:
     """Build the Large Steps map `U = (I + lambda L) V` of `mesh` and factorise it once (module docstring).
+
+    `L` is a PSD Laplacian of the initial mesh (`L 1 = 0`; the cotan one is `-igl.cotmatrix`), so
+    `I + lambda L` is symmetric positive definite; with fixed vertices, its free block `A_ff` is
+    (module docstring). A gradient step on `U` moves `V` by `(I + lambda L)^{-2}`-smoothed gradients.
 
     Args:
         mesh: the initial mesh; `L` is its Laplacian, fixed for the whole optimisation.
         lambda_: smoothing weight `lambda > 0`. With the uniform Laplacian it is dimensionless (the
             paper's examples use 10-100 or so: larger is smoother and slower to reach fine detail);
             with the cotan Laplacian it has units of area.
-        laplacian: `"uniform"` (the graph Laplacian `deg_i delta_ij - [ij edge]`, the paper's
-            default) or `"cotan"` (the PSD cotan Laplacian of the initial mesh, DESIGN.md).
-        fixed_vertices: indices of vertices that stay where they are (e.g. a boundary), or `None`.
-        method: the factorisation backend (`ddgjax.solve.factorize`: `"auto"`, `"cholesky"`,
-            `"superlu"`, `"cg"`, ...).
+        weights: one of `ddgjax.LAPLACIAN_WEIGHTS`: `"uniform"` (the graph Laplacian
+            `deg_i delta_ij - [ij edge]`, the paper's default) or `"cotan"` (the PSD cotan Laplacian
+            of the initial mesh, docs/conventions.md).
+        fixed_vertices: `(n_fixed,)` indices of vertices that stay where they are (e.g. a boundary),
+            or `None`.
+        solver: the backend of the factorisation and its solves, one of `ddgjax.LINEAR_SOLVERS`
+            (`ddgjax.solve.factorize`).
 
     Returns:
-        `LargeSteps` with `to_parameters` / `from_parameters`.
+        `LargeSteps` with `to_parameters` (`(nv, 3) -> (n_free, 3)`) and `from_parameters` (back).
 
     Built on the host from concrete vertex positions (a setup step, like a factorisation): not under
-    `jit`. Reference: Nicolet et al. 2021; `largesteps.geometry.compute_matrix(v, f, lambda_)`.
+    `jit`. Reference: Nicolet et al. 2021. Equivalent: `largesteps.geometry.compute_matrix(v, f,
+    lambda_)` with `to_differential` / `from_differential` (uniform weights, no fixed vertices).
     """
     mesh = require_mesh("mesh", mesh)
     lambda_ = check_positive("lambda_", lambda_)
-    check_choice("laplacian", laplacian, LAPLACIANS)
+    check_weights(weights)
+    check_solver(solver)
     if is_traced(mesh.vertices):
         raise DDGInputError("mesh: large_steps builds its matrix on the host from concrete vertices; call it outside jit")
     nv = mesh.n_vertices
-    if laplacian == "uniform":
+    if weights == "uniform":
         edges = np.asarray(mesh.edges)
         adjacency = sp.coo_matrix((np.ones(2 * len(edges)), (edges.T.reshape(-1), edges[:, ::-1].T.reshape(-1))), shape=(nv, nv))
         stiffness = sp.diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency
@@ -135,12 +151,12 @@ def large_steps(
     matrix = from_scipy(block.astype(np.dtype(vertices.dtype)), positive_semidefinite=True)
     return LargeSteps(
         matrix=matrix,
-        factorization=factorize(matrix, method=method),
+        factorization=factorize(matrix, method=solver),
         offset=offset,
         free=None if free is None else jnp.asarray(free, jnp.int32),
         template=vertices,
         lambda_=lambda_,
-        laplacian=laplacian,
+        weights=weights,
     )
 
 

@@ -17,9 +17,9 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm
+from .._options import check_weights
 from ..mesh import (
     Mesh,
     edge_cotan_weights,
@@ -29,8 +29,6 @@ from ..mesh import (
     vertex_dual_areas,
     vertex_mean_curvature_normals,
 )
-
-SMOOTHING_METHODS = ("uniform", "cotan")
 
 
 def willmore_energy(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, ""]:
@@ -90,17 +88,18 @@ def normal_consistency_loss(mesh: Mesh) -> Float[Array, ""]:
     return safe_div(jnp.sum(terms), jnp.sum(interior).astype(terms.dtype))
 
 
-def laplacian_smoothing_loss(mesh: Mesh, *, method: str = "uniform") -> Float[Array, ""]:
+def laplacian_smoothing_loss(mesh: Mesh, *, weights: str = "uniform") -> Float[Array, ""]:
     """Mean over vertices of `|v_i - sum_j w_ij v_j / sum_j w_ij|`, a scalar `()`: PyTorch3D's `mesh_laplacian_smoothing`.
 
     The distance from each vertex to the weighted mean of its neighbours (not squared, as in
-    PyTorch3D). `method="uniform"`: `w_ij = 1` (the graph Laplacian; topology only).
-    `method="cotan"`: the cotan weights `w_ij = (cot a_ij + cot b_ij) / 2`
+    PyTorch3D). `weights` is one of `ddgjax.LAPLACIAN_WEIGHTS`: `"uniform"`: `w_ij = 1` (the graph
+    Laplacian; topology only); `"cotan"`: the cotan weights `w_ij = (cot a_ij + cot b_ij) / 2`
     (`ddgjax.mesh.edge_cotan_weights`), held fixed under differentiation as PyTorch3D does (its
     weights come from a `no_grad` block): the gradient then moves vertices towards the weighted
     mean, whereas the gradient through the weights would reward collapsing triangles. Then the term
     is `|(L V)_i| / L_ii` with `L` the cotan Laplacian (the factor 1/2 PyTorch3D omits cancels).
-    A vertex without neighbours (or a zero weight sum) contributes 0. PyTorch3D's third method,
+    A vertex without neighbours (or a zero weight sum) contributes 0. PyTorch3D's `method=` is this
+    `weights=` (`"uniform"`, `"cot"`); its third method,
     `"cotcurv"`, is the pointwise mean curvature normal: use `willmore_energy` or
     `ddgjax.mesh.vertex_pointwise_mean_curvature_normals`.
 
@@ -108,15 +107,15 @@ def laplacian_smoothing_loss(mesh: Mesh, *, method: str = "uniform") -> Float[Ar
     optimization" (2006).
     """
     mesh = require_mesh("mesh", mesh)
-    check_choice("method", method, SMOOTHING_METHODS)
+    check_weights(weights)
     V = mesh.vertices
-    weights = jnp.ones(mesh.edges.shape[0], V.dtype) if method == "uniform" else jax.lax.stop_gradient(edge_cotan_weights(mesh))
+    w = jnp.ones(mesh.edges.shape[0], V.dtype) if weights == "uniform" else jax.lax.stop_gradient(edge_cotan_weights(mesh))
     tails, heads = mesh.edges[:, 0], mesh.edges[:, 1]
-    difference = weights[:, None] * (take_rows(V, heads) - take_rows(V, tails))
+    difference = w[:, None] * (take_rows(V, heads) - take_rows(V, tails))
     n = mesh.n_vertices
     # (sum_j w_ij (v_j - v_i)) at i: each edge adds +diff at its tail and -diff at its head.
     pull = jax.ops.segment_sum(difference, tails, num_segments=n) - jax.ops.segment_sum(difference, heads, num_segments=n)
-    weight_sums = jax.ops.segment_sum(jnp.concatenate([weights, weights]), mesh.edges.T.reshape(-1), num_segments=n)
+    weight_sums = jax.ops.segment_sum(jnp.concatenate([w, w]), mesh.edges.T.reshape(-1), num_segments=n)
     return jnp.mean(safe_norm(safe_div(pull, weight_sums[:, None])))
 
 

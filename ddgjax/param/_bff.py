@@ -29,12 +29,15 @@ are the partial sums, `loop[0]` at the origin and the first boundary edge along 
 Interior: harmonic extension of both coordinates with the cotan Laplacian (the paper's extension by
 harmonic functions; the same free-free block as the Dirichlet-to-Neumann step, factored once).
 
-Targets (`shape=`): `"disk"`, the flat disk, `k~_i = 2 pi l_i* / perimeter` with `l_i*` the dual
-boundary length (constant curvature); `"rectangle"`, `k~ = pi / 2` at four corner vertices and 0
-elsewhere, so four right angles and straight sides.
+Targets (`shape=`, as the fixed-boundary maps name theirs): `"circle"`, the flat disk,
+`k~_i = 2 pi l_i* / perimeter` with `l_i*` the dual boundary length (constant curvature);
+`"rectangle"`, `k~ = pi / 2` at four corner vertices and 0 elsewhere, so four right angles and
+straight sides (the aspect ratio is the conformal one, not fixed).
 
 Everything is differentiable in the vertex positions and in `boundary_scale` / `boundary_angles`
-(`ddgjax.solve.linear_solve`'s implicit differentiation), under `jit`, `grad` and `vmap`.
+(`ddgjax.solve.linear_solve`'s implicit differentiation), under `jit`, `grad` and `vmap`. Two solves
+run (the Poisson problem of the conversion, the extension); the map's outcome is the first failing
+one's (`throw=`).
 
 Reference: R. Sawhney, K. Crane, "Boundary First Flattening", ACM Trans. Graph. 37(1), 2017, sections
 4-5 (Dirichlet-to-Neumann and Neumann-to-Dirichlet maps, curve construction, minimal length
@@ -43,26 +46,25 @@ correction, extension). Reference implementation: geometry-central's / the autho
 
 from __future__ import annotations
 
-import functools
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._indexing import take_rows
-from .._options import LINEAR_SOLVERS as METHODS
-from .._results import RESULTS, raise_if_failed
+from .._options import check_solver
+from .._results import Solution, outcome
 from ..internal import vertex_plan
 from ..laplacian import cotan_laplacian
 from ..mesh import Mesh, vertex_angle_defects
 from ..solve import factorize, linear_solve
 from ..sparse import dirichlet_blocks, dirichlet_plan
 from ._disk import boundary_dual_lengths, boundary_edge_lengths, boundary_values, cached_plan, require_disk
-from ._tutte import boundary_plan, harmonic_extension
+from ._tutte import boundary_plan, harmonic_extension, solves_outcome
 
-SHAPES = ("disk", "rectangle")
+SHAPES = ("circle", "rectangle")
+"""`shape=` of `boundary_first_flattening`: a circle (the flat disk) or a rectangle of free aspect ratio."""
 # Tolerance of the Gauss-Bonnet check of concrete `boundary_angles` (their sum must be 2 pi).
 _ANGLE_SUM_TOLERANCE = 1e-6
 
@@ -74,8 +76,9 @@ def boundary_first_flattening(
     boundary_angles: Float[ArrayLike, " nb"] | None = None,
     shape: str | None = None,
     corners: Int[ArrayLike, " 4"] | None = None,
-    method: str = "auto",
-) -> Float[Array, "nv 2"]:
+    solver: str = "auto",
+    throw: bool = True,
+) -> Float[Array, "nv 2"] | Solution:
     """Conformal flattening of a disk-topology mesh by Boundary First Flattening (module docstring), `(nv, 2)`.
 
     Give at most one of `boundary_scale`, `boundary_angles`, `shape`; with none, `u = 0` on the
@@ -88,20 +91,22 @@ def boundary_first_flattening(
             `mesh.topology.boundary_loops[0]`): boundary lengths scale by `exp(u)`.
         boundary_angles: `(nb,)` target exterior (turning) angles `k~` of the boundary curve at the
             boundary vertices, summing to `2 pi` (checked when concrete; `DDGInputError`).
-        shape: `"disk"` (the flat disk: constant curvature) or `"rectangle"` (four right-angle
+        shape: `"circle"` (the flat disk: constant curvature) or `"rectangle"` (four right-angle
             corners, straight sides).
         corners: for `shape="rectangle"`: four distinct boundary vertex indices, in loop order.
             Default: `loop[round(j nb / 4)]`, `j = 0..3` (spread by count along the loop).
-        method: the `ddgjax.solve.linear_solve` backend.
+        solver: the `ddgjax.solve.linear_solve` backend (`ddgjax.LINEAR_SOLVERS`).
+        throw: raise when a solve fails (default), or return a `ddgjax.Solution` (`result`: the
+            first failing solve's; `stats`: their largest `"residual"` and total `"num_steps"`).
 
     Returns:
         `(nv, 2)` positions, `loop[0]` at the origin, the first boundary edge along `+x`,
-        unreferenced vertices at the origin. Differentiable in the vertex positions and in
-        `boundary_scale` / `boundary_angles`.
+        unreferenced vertices at the origin (in a `ddgjax.Solution` with `throw=False`).
+        Differentiable in the vertex positions and in `boundary_scale` / `boundary_angles`.
 
     Reference: Sawhney & Crane 2017. libigl / gpytoolbox: none; the authors' `bff` command line tool.
     """
-    check_choice("method", method, METHODS)
+    check_solver(solver)
     given = [
         name
         for name, value in (("boundary_scale", boundary_scale), ("boundary_angles", boundary_angles), ("shape", shape))
@@ -132,8 +137,10 @@ def boundary_first_flattening(
     if angles is not None or shape is not None:
         fixed = np.concatenate([loop[:1], disk.unreferenced])
         neumann = cached_plan(disk, "bff-neumann", lambda: dirichlet_plan(vertex_plan(mesh).pattern, fixed))
-    uv, result = _flatten(mesh, dirichlet, neumann, jnp.asarray(loop), scale, angles, corner_mask, shape, method)
-    return raise_if_failed(uv, result, throw=True)
+    uv, result, stats = _flatten(
+        mesh, cotan_laplacian(mesh), dirichlet, neumann, jnp.asarray(loop), scale, angles, corner_mask, shape=shape, solver=solver
+    )
+    return outcome(uv, result, throw, stats)
 
 
 def _corner_mask(loop: np.ndarray, corners) -> np.ndarray:
@@ -163,17 +170,17 @@ def _corner_mask(loop: np.ndarray, corners) -> np.ndarray:
     return mask
 
 
-@functools.partial(jax.jit, static_argnums=(7, 8))
-def _flatten(mesh, dirichlet, neumann, loop, scale, angles, corner_mask, shape, method):
-    L = cotan_laplacian(mesh)
+# One program per mesh size; the Laplacian (a kernel of its own) and the plans are made outside.
+@kernel(static_argnames=("shape", "solver"))
+def _flatten(mesh, L, dirichlet, neumann, loop, scale, angles, corner_mask, *, shape, solver):
     dtype = L.values.dtype
     defects = vertex_angle_defects(mesh)
     lengths = boundary_edge_lengths(mesh.vertices, loop)
     duals = boundary_dual_lengths(lengths)
     nb, n = loop.shape[0], mesh.n_vertices
-    factor = None if dirichlet is None else factorize(dirichlet_blocks(L, dirichlet)[0], method=method)
-    results = []
-    if shape == "disk":
+    factor = None if dirichlet is None else factorize(dirichlet_blocks(L, dirichlet)[0], method=solver)
+    conversion = None  # the Poisson solve from the boundary data to the other half
+    if shape == "circle":
         angles = 2.0 * jnp.pi * duals / jnp.sum(duals)
     elif shape == "rectangle":
         angles = jnp.where(jnp.asarray(corner_mask), 0.5 * jnp.pi, 0.0).astype(dtype)
@@ -186,24 +193,21 @@ def _flatten(mesh, dirichlet, neumann, loop, scale, angles, corner_mask, shape, 
             n_unreferenced = dirichlet.fixed.shape[0] - nb
             fixed = jnp.concatenate([u_boundary, jnp.zeros(n_unreferenced, dtype)])
             free_fixed = dirichlet_blocks(L, dirichlet)[1]
-            solution = factor.solve(-defects[dirichlet.free] - free_fixed @ fixed, throw=False)
-            results.append(solution.result)
-            u = dirichlet.join(solution.value, fixed)
+            conversion = factor.solve(-defects[dirichlet.free] - free_fixed @ fixed, throw=False)
+            u = dirichlet.join(conversion.value, fixed)
         angles = take_rows(defects + L @ u, loop)
     else:
         # Neumann-to-Dirichlet: L u = [-Omega_I; k~ - k_B], one vertex pinned to 0, then centred.
         angles = angles.astype(dtype)
         rhs = (-defects).at[loop].set(angles - take_rows(defects, loop))
         free_free, _ = dirichlet_blocks(L, neumann)
-        solution = linear_solve(free_free, rhs[neumann.free], method=method, throw=False)
-        results.append(solution.result)
-        u = neumann.join(solution.value, jnp.zeros(neumann.fixed.shape[0], dtype))
+        conversion = linear_solve(free_free, rhs[neumann.free], method=solver, throw=False)
+        u = neumann.join(conversion.value, jnp.zeros(neumann.fixed.shape[0], dtype))
         u_loop = take_rows(u, loop)
         u_boundary = u_loop - jnp.sum(duals * u_loop) / jnp.sum(duals)
     curve = _boundary_curve(lengths, u_boundary, angles)
-    uv, result = harmonic_extension(L, dirichlet, factor, loop, curve)
-    results.append(result)
-    return uv, functools.reduce(lambda a, b: RESULTS.where(a == RESULTS.successful, b, a), results)
+    uv, extension = harmonic_extension(L, dirichlet, factor, loop, curve)
+    return uv, *solves_outcome(conversion, extension)
 
 
 def _boundary_curve(lengths: Float[Array, " nb"], u: Float[Array, " nb"], angles: Float[Array, " nb"]) -> Float[Array, "nb 2"]:

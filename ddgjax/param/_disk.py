@@ -30,6 +30,7 @@ from .._numerics import safe_div, safe_norm
 from ..mesh import Mesh, MeshTopology, require_mesh
 
 BOUNDARY_SHAPES = ("circle", "square")
+"""`shape=` of the fixed-boundary maps: the convex curves the boundary loop can be placed on."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -148,16 +149,16 @@ def place_boundary(kind: str, edge_lengths: Float[Array, " nb"]) -> Float[Array,
     return corners[side] + fraction * (corners[side + 1] - corners[side])
 
 
-def boundary_argument(boundary, disk: DiskTopology) -> tuple[str | None, Float[Array, "nb 2"] | None]:
+def shape_argument(shape, disk: DiskTopology) -> tuple[str | None, Float[Array, "nb 2"] | None]:
     """`(kind, positions)`: a shape name from `BOUNDARY_SHAPES` or `(nb, 2)` positions, checked (`DDGInputError`)."""
-    if isinstance(boundary, str):
-        if boundary not in BOUNDARY_SHAPES:
+    if isinstance(shape, str):
+        if shape not in BOUNDARY_SHAPES:
             raise DDGInputError(
-                f"boundary: expected one of {', '.join(map(repr, BOUNDARY_SHAPES))} or an (n_boundary, 2) array of "
-                f"positions, got {boundary!r}"
+                f"shape: expected one of {', '.join(map(repr, BOUNDARY_SHAPES))} or an (n_boundary, 2) array of "
+                f"positions, got {shape!r}"
             )
-        return boundary, None
-    return None, boundary_values("boundary", boundary, disk, (2,))
+        return shape, None
+    return None, boundary_values("shape", shape, disk, (2,))
 
 
 def boundary_values(name: str, values, disk: DiskTopology, trailing: tuple[int, ...]) -> Float[Array, "nb ..."]:

@@ -31,11 +31,11 @@ split of a 2x2 matrix is the Wirtinger decomposition `f_z`, `f_zbar` (Beltrami c
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_float_shape, is_traced
 from .._indexing import take_rows
 from .._numerics import cross2, safe_div, safe_norm
@@ -111,7 +111,7 @@ def map_distortion(mesh: Mesh, uv: Float[ArrayLike, "nv 2"]) -> MapDistortion:
     return _distortion(mesh.vertices, mesh.faces, uv if jnp.issubdtype(uv.dtype, jnp.floating) else uv.astype(float))
 
 
-@jax.jit
+@kernel
 def _distortion(vertices, faces, uv) -> MapDistortion:
     corners = take_rows(vertices, faces)
     e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]

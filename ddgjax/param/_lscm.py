@@ -18,7 +18,8 @@ for each boundary edge `a -> b` (`conformal_energy_matrix`). `Q` is symmetric po
 its null space holds the translations (and, for a flat mesh, the rotations and scalings of the
 embedding too).
 
-- `lscm`: `E_C` minimised with two (or more) vertices pinned; the free-free block of `Q` is then
+- `lscm`: `E_C` minimised with two (or more) vertices fixed (`fixed_vertices=`, the pins of Levy et al.);
+  the free-free block of `Q` is then
   positive definite and one `ddgjax.solve.linear_solve` gives the map, differentiable in the vertex
   positions and the pinned positions (implicit differentiation).
 - `spectral_conformal_map`: no pins. Mullen et al. 2008 minimise `E_C` over maps with unit boundary
@@ -44,23 +45,22 @@ this `Q` (tests); geometry-central / potpourri3d: none exposed.
 
 from __future__ import annotations
 
-import functools
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_positive, is_traced
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import cross2, safe_div, safe_norm, safe_sqrt
-from .._options import LINEAR_SOLVERS as METHODS
-from .._results import raise_if_failed
+from .._options import check_solver
+from .._results import Solution, outcome
 from ..mesh import Mesh, edge_cotan_weights, face_areas, vertex_dual_areas
 from ..solve import linear_solve
 from ..sparse import SparseMatrix, SparsityPattern, diagonal_matrix, dirichlet_blocks, dirichlet_plan
-from ..spectral import smallest_eigenpairs
+from ..spectral import EIGENSOLVERS, smallest_eigenpairs
 from ._disk import (
     DiskTopology,
     boundary_dual_lengths,
@@ -69,6 +69,7 @@ from ._disk import (
     require_disk,
     vertex_indices,
 )
+from ._tutte import solves_outcome
 
 
 class ConformalPlan(eqx.Module):
@@ -126,78 +127,80 @@ def _conformal_matrix(mesh: Mesh, plan: ConformalPlan, loop) -> SparseMatrix:
 def lscm(
     mesh: Mesh,
     *,
-    pinned_vertices: Int[ArrayLike, " n_pins"] | None = None,
-    pinned_positions: Float[ArrayLike, "n_pins 2"] | None = None,
-    method: str = "auto",
-) -> Float[Array, "nv 2"]:
+    fixed_vertices: Int[ArrayLike, " n_fixed"] | None = None,
+    fixed_values: Float[ArrayLike, "n_fixed 2"] | None = None,
+    solver: str = "auto",
+    throw: bool = True,
+) -> Float[Array, "nv 2"] | Solution:
     """Least squares conformal map of a disk-topology mesh (Levy et al. 2002; module docstring), `(nv, 2)`.
 
-    Minimises `E_C = E_D - A` over all maps with `uv[pinned_vertices] = pinned_positions`; the
+    Minimises `E_C = E_D - A` over all maps with `uv[fixed_vertices] = fixed_values` (the pins); the
     boundary is free.
 
     Args:
         mesh: a topological disk (else `DDGInputError`).
-        pinned_vertices: `(n_pins,)` distinct referenced vertices, at least two. Default: the boundary
+        fixed_vertices: `(n_fixed,)` distinct referenced vertices, at least two. Default: the boundary
             loop's first vertex and the one half-way along it (by count), `loop[0]` and `loop[nb // 2]`.
-        pinned_positions: `(n_pins, 2)` their positions (at least two distinct). Default (only with
-            default or two pins): `(0, 0)` and `(|p_a - p_b|, 0)`, so the map keeps the pins' 3D
-            distance (and the surface's scale).
-        method: the `ddgjax.solve.linear_solve` backend.
+        fixed_values: `(n_fixed, 2)` their positions in the plane (at least two distinct). Default
+            (only with default or two fixed vertices): `(0, 0)` and `(|p_a - p_b|, 0)`, so the map
+            keeps their 3D distance (and the surface's scale).
+        solver: the `ddgjax.solve.linear_solve` backend (`ddgjax.LINEAR_SOLVERS`).
+        throw: raise when the solve fails (default), or return a `ddgjax.Solution` (`stats`: the
+            solve's `"residual"` and `"num_steps"`).
 
     Returns:
-        `(nv, 2)` positions, unreferenced vertices at the origin; differentiable in the vertex
-        positions and in `pinned_positions`, under `jit`, `grad` and `vmap`.
+        `(nv, 2)` positions, unreferenced vertices at the origin (in a `ddgjax.Solution` with
+        `throw=False`); differentiable in the vertex positions and in `fixed_values`, under `jit`,
+        `grad` and `vmap`.
 
-    libigl: `igl.lscm(V, F, b, bc)` (the same map for the same pins).
+    libigl: `igl.lscm(V, F, b, bc)` (the same map for `b = fixed_vertices`, `bc = fixed_values`).
     """
-    check_choice("method", method, METHODS)
+    check_solver(solver)
     disk = require_disk(mesh, "lscm")
-    pins, positions = _pins(disk, mesh, pinned_vertices, pinned_positions)
+    pins, positions = _pins(disk, mesh, fixed_vertices, fixed_values)
     n = disk.n_vertices
     fixed = np.concatenate([pins, pins + n, disk.unreferenced, disk.unreferenced + n])
     plan = conformal_plan(mesh, disk)
     blocks = cached_plan(disk, ("lscm", tuple(pins.tolist())), lambda: dirichlet_plan(plan.pattern, fixed))
-    uv, result = _lscm(mesh, plan, blocks, jnp.asarray(disk.loop), jnp.asarray(pins), positions, method)
-    return raise_if_failed(uv, result, throw=True)
+    uv, result, stats = _lscm(mesh, plan, blocks, jnp.asarray(disk.loop), jnp.asarray(pins), positions, solver=solver)
+    return outcome(uv, result, throw, stats)
 
 
 def _pins(disk: DiskTopology, mesh: Mesh, vertices, positions) -> tuple[np.ndarray, Float[Array, "n_pins 2"] | None]:
     """Checked `(pins, positions or None)` (`None`: the default positions, computed in the program)."""
     if vertices is None:
         if positions is not None:
-            raise DDGInputError("pinned_positions: given without pinned_vertices; pass both, or pinned_vertices alone")
+            raise DDGInputError("fixed_values: given without fixed_vertices; pass both, or fixed_vertices alone")
         loop = disk.loop
         return np.array([loop[0], loop[loop.size // 2]], dtype=np.int64), None
-    pins = vertex_indices("pinned_vertices", vertices, disk.n_vertices)
+    pins = vertex_indices("fixed_vertices", vertices, disk.n_vertices)
     if pins.size < 2:
         raise DDGInputError(
-            f"pinned_vertices: expected at least two vertices, got {pins.size}: with fewer the conformal energy does "
+            f"fixed_vertices: expected at least two vertices, got {pins.size}: with fewer the conformal energy does "
             "not determine the map's rotation and scale (use spectral_conformal_map for a map without pins)"
         )
     unreferenced = np.intersect1d(pins, disk.unreferenced)
     if unreferenced.size:
-        raise DDGInputError(f"pinned_vertices: vertices {unreferenced.tolist()} belong to no face; pin vertices of the surface")
+        raise DDGInputError(f"fixed_vertices: vertices {unreferenced.tolist()} belong to no face; fix vertices of the surface")
     if positions is None:
         if pins.size != 2:
-            raise DDGInputError(f"pinned_positions: required for {pins.size} pins (the default places exactly two)")
+            raise DDGInputError(f"fixed_values: required for {pins.size} fixed vertices (the default places exactly two)")
         return pins, None
     expected = (pins.size, 2)
     if np.shape(positions) != expected:
-        raise DDGInputError(f"pinned_positions: expected shape {expected} (one row per pinned vertex), got {np.shape(positions)}")
+        raise DDGInputError(f"fixed_values: expected shape {expected} (one row per fixed vertex), got {np.shape(positions)}")
     if not is_traced(positions):
         host = np.asarray(positions)
         if not np.issubdtype(host.dtype, np.number) or np.iscomplexobj(host) or not np.all(np.isfinite(host)):
-            raise DDGInputError(f"pinned_positions: expected finite real coordinates, got {host.tolist()}")
+            raise DDGInputError(f"fixed_values: expected finite real coordinates, got {host.tolist()}")
         if np.all(np.ptp(host, axis=0) == 0):
-            raise DDGInputError(
-                "pinned_positions: all pins at one point collapse the map to that point; give two distinct positions"
-            )
+            raise DDGInputError("fixed_values: all pins at one point collapse the map to that point; give two distinct positions")
     positions = jnp.asarray(positions)
     return pins, positions if jnp.issubdtype(positions.dtype, jnp.floating) else positions.astype(float)
 
 
-@functools.partial(jax.jit, static_argnums=(6,))
-def _lscm(mesh, plan, blocks, loop, pins, positions, method):
+@kernel(static_argnames=("solver",))
+def _lscm(mesh, plan, blocks, loop, pins, positions, *, solver):
     Q = _conformal_matrix(mesh, plan, loop)
     dtype = Q.values.dtype
     if positions is None:
@@ -208,13 +211,20 @@ def _lscm(mesh, plan, blocks, loop, pins, positions, method):
     n_unreferenced = blocks.fixed.shape[0] // 2 - pins.shape[0]
     fixed = jnp.concatenate([positions[:, 0], positions[:, 1], jnp.zeros(2 * n_unreferenced, dtype)])
     free_free, free_fixed = dirichlet_blocks(Q, blocks)
-    solution = linear_solve(free_free, -(free_fixed @ fixed), method=method, throw=False)
+    solution = linear_solve(free_free, -(free_fixed @ fixed), method=solver, throw=False)
     x = blocks.join(solution.value, fixed)
     n = mesh.n_vertices
-    return jnp.stack([x[:n], x[n:]], axis=-1), solution.result
+    return jnp.stack([x[:n], x[n:]], axis=-1), *solves_outcome(solution)
 
 
-def spectral_conformal_map(mesh: Mesh, *, regularization: float = 1e-6) -> Float[Array, "nv 2"]:
+def spectral_conformal_map(
+    mesh: Mesh,
+    *,
+    regularization: float = 1e-6,
+    method: str = "auto",
+    solver: str = "auto",
+    throw: bool = True,
+) -> Float[Array, "nv 2"] | Solution:
     """Spectral conformal parametrisation without pins (Mullen et al. 2008; module docstring), `(nv, 2)`.
 
     The smallest non-trivial generalised eigenvector of `Q x = lambda B_eps x` (conformal energy
@@ -225,23 +235,33 @@ def spectral_conformal_map(mesh: Mesh, *, regularization: float = 1e-6) -> Float
         mesh: a topological disk (else `DDGInputError`).
         regularization: `> 0`, the relative weight of the surface mass added to the boundary mass
             (module docstring; the map moves by a relative `O(regularization)`).
+        method, solver: the eigensolver and the backend of its solves
+            (`ddgjax.spectral.smallest_eigenpairs`).
+        throw: raise when the eigensolver fails (default), or return a `ddgjax.Solution` (its
+            `result` and `stats`).
 
     Returns:
-        `(nv, 2)` positions, unreferenced vertices at the origin. Differentiable in the vertex
+        `(nv, 2)` positions, unreferenced vertices at the origin (in a `ddgjax.Solution` with
+        `throw=False`). Differentiable in the vertex
         positions (`ddgjax.spectral.smallest_eigenpairs`' reverse mode; the eigenvector's arbitrary
         rotation within its double eigenvalue is removed before it is returned, so the gradient is
         exact). On CPU the eigensolve is ARPACK's on the host (through a callback): `jit` works,
         `vmap` runs sequentially.
     """
     regularization = check_positive("regularization", regularization)
+    check_choice("method", method, EIGENSOLVERS)
+    check_solver(solver)
     disk = require_disk(mesh, "spectral_conformal_map")
     plan = conformal_plan(mesh, disk)
     k = 4 + 2 * disk.unreferenced.size
-    return _spectral(mesh, plan, jnp.asarray(disk.loop), jnp.asarray(disk.unreferenced), regularization, k)
+    uv, result, stats = _spectral(
+        mesh, plan, jnp.asarray(disk.loop), jnp.asarray(disk.unreferenced), regularization, k=k, method=method, solver=solver
+    )
+    return outcome(uv, result, throw, stats)
 
 
-@functools.partial(jax.jit, static_argnums=(4, 5))
-def _spectral(mesh, plan, loop, unreferenced, regularization, k):
+@kernel(static_argnames=("k", "method", "solver"))
+def _spectral(mesh, plan, loop, unreferenced, regularization, *, k, method, solver):
     Q = _conformal_matrix(mesh, plan, loop)
     n = mesh.n_vertices
     lengths = boundary_edge_lengths(mesh.vertices, loop)
@@ -253,7 +273,10 @@ def _spectral(mesh, plan, loop, unreferenced, regularization, k):
     mass = regularization * safe_div(perimeter, area) * vertex_dual_areas(mesh)
     mass = mass.at[unreferenced].set(1.0)
     weights = boundary + mass
-    _, vectors = smallest_eigenpairs(Q, diagonal_matrix(jnp.concatenate([weights, weights])), k)
+    eigensolve = smallest_eigenpairs(
+        Q, diagonal_matrix(jnp.concatenate([weights, weights])), k, method=method, solver=solver, throw=False
+    )
+    _, vectors = eigensolve.value
     # Every column of the smallest k lies in the null space of Q (translations, unreferenced vertices;
     # on a flat mesh also the similarities), or is the pair of the smallest positive eigenvalue.
     # Removing translations and unreferenced vertices leaves the map, rotated arbitrarily: take the
@@ -274,4 +297,4 @@ def _spectral(mesh, plan, loop, unreferenced, regularization, k):
     uv = jnp.stack([cos * uv[:, 0] + sin * uv[:, 1], -sin * uv[:, 0] + cos * uv[:, 1]], axis=-1)
     polygon = take_rows(uv, loop)
     image_area = 0.5 * jnp.sum(cross2(polygon, jnp.roll(polygon, -1, axis=0)))
-    return uv * safe_sqrt(safe_div(area, jnp.abs(image_area)))
+    return uv * safe_sqrt(safe_div(area, jnp.abs(image_area))), eigensolve.result, eigensolve.stats

@@ -7,7 +7,8 @@ average of its neighbours,
 
 i.e. `A_ff x_f = -A_fc b` for the weighted graph Laplacian `A` (`ddgjax.sparse.dirichlet_blocks`),
 one sparse solve with two right-hand sides (`ddgjax.solve.linear_solve`, differentiable by implicit
-differentiation). With positive weights (`"uniform"`, `w_ij = 1`) and the boundary on a convex polygon
+differentiation; its outcome is the map's, `throw=`). The boundary's target is `shape=`: a convex
+curve (`"circle"`, `"square"`) or given positions. With positive weights (`"uniform"`, `w_ij = 1`) and the boundary on a convex polygon
 the result is a planar embedding without flipped or degenerate triangles (Tutte 1963; Floater 1997),
 provided no interior edge joins two boundary vertices on one straight side of the polygon (a strictly
 convex boundary such as the circle avoids this). With cotan weights (`"cotan"`, the harmonic map,
@@ -22,82 +23,87 @@ approximation of surface triangulations" (1997); U. Pinkall, K. Polthier (1993) 
 
 from __future__ import annotations
 
-import functools
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._errors import check_choice
+from .._compile import kernel
 from .._indexing import take_rows_or_zero
-from .._options import LINEAR_SOLVERS as METHODS
-from .._results import RESULTS, raise_if_failed
+from .._options import check_solver, check_weights
+from .._results import RESULTS, Solution, first_failure, outcome
 from ..internal import vertex_plan
 from ..laplacian import cotan_laplacian
 from ..mesh import Mesh
 from ..solve import Factorization, factorize
 from ..sparse import DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan
-from ._disk import DiskTopology, boundary_argument, boundary_edge_lengths, cached_plan, place_boundary, require_disk
-
-WEIGHTS = ("uniform", "cotan")
+from ._disk import DiskTopology, boundary_edge_lengths, cached_plan, place_boundary, require_disk, shape_argument
 
 
-def tutte_embedding(mesh: Mesh, *, weights: str = "uniform", boundary="circle", method: str = "auto") -> Float[Array, "nv 2"]:
+def tutte_embedding(
+    mesh: Mesh, *, weights: str = "uniform", shape="circle", solver: str = "auto", throw: bool = True
+) -> Float[Array, "nv 2"] | Solution:
     """Tutte's barycentric embedding of a disk-topology mesh into the plane (module docstring), `(nv, 2)`.
 
     Args:
         mesh: a topological disk (else `DDGInputError`, `ddgjax.param._disk`).
         weights: `"uniform"` (default; `w_ij = 1`, Tutte 1963: no flipped triangles on a convex
             boundary) or `"cotan"` (`w_ij = (cot a_ij + cot b_ij) / 2`: the harmonic map, can flip).
-        boundary: `"circle"` (default: the unit circle), `"square"` (`[-1, 1]^2`), both with the
-            boundary vertices spaced by arc length of the surface's boundary; or `(nb, 2)` positions
-            in the order of `mesh.topology.boundary_loops[0]` (counterclockwise for an
-            orientation-preserving map; a convex polygon for the no-flip guarantee).
-        method: the `ddgjax.solve.linear_solve` backend (`"auto"`, `"cholesky"`, `"superlu"`, `"cg"`,
-            `"pyamg"`).
+        shape: the boundary's target: `"circle"` (default: the unit circle), `"square"`
+            (`[-1, 1]^2`), both with the boundary vertices spaced by arc length of the surface's
+            boundary; or `(nb, 2)` positions in the order of `mesh.topology.boundary_loops[0]`
+            (counterclockwise for an orientation-preserving map; a convex polygon for the no-flip
+            guarantee).
+        solver: the `ddgjax.solve.linear_solve` backend (`ddgjax.LINEAR_SOLVERS`).
+        throw: raise when the solve fails (default), or return a `ddgjax.Solution` (`stats`: the
+            solve's `"residual"` and `"num_steps"`).
 
     Returns:
-        `(nv, 2)` positions; unreferenced vertices at the origin. Differentiable in the vertex
-        positions (through the arc-length placement and, for cotan weights, the matrix) and in
-        `boundary` positions, under `jit`, `grad` and `vmap`.
+        `(nv, 2)` positions; unreferenced vertices at the origin (in a `ddgjax.Solution` with
+        `throw=False`). Differentiable in the vertex positions (through the arc-length placement and,
+        for cotan weights, the matrix) and in `shape` positions, under `jit`, `grad` and `vmap`.
 
     libigl: `igl.harmonic(V, F, b, igl.map_vertices_to_circle(V, b), 1)` is the cotan version with
     the circle (libigl's `harmonic` uses `cotmatrix`); gpytoolbox: `tutte_embedding`.
     """
-    check_choice("weights", weights, WEIGHTS)
-    check_choice("method", method, METHODS)
+    check_weights(weights)
+    check_solver(solver)
     disk = require_disk(mesh, "tutte_embedding")
-    kind, positions = boundary_argument(boundary, disk)
-    plan = boundary_plan(mesh, disk)
-    uv, result = _embed(mesh, plan, jnp.asarray(disk.loop), positions, kind, weights, method)
-    return raise_if_failed(uv, result, throw=True)
+    kind, positions = shape_argument(shape, disk)
+    if weights == "cotan":
+        matrix = cotan_laplacian(mesh)
+    else:  # connectivity only: made once per connectivity and dtype
+        matrix = cached_plan(disk, ("uniform", jnp.dtype(mesh.vertices.dtype).name), lambda: uniform_laplacian(mesh))
+    uv, result, stats = _embed(
+        mesh, matrix, boundary_plan(mesh, disk), jnp.asarray(disk.loop), positions, kind=kind, solver=solver
+    )
+    return outcome(uv, result, throw, stats)
 
 
-def harmonic_map(mesh: Mesh, *, boundary="circle", method: str = "auto") -> Float[Array, "nv 2"]:
+def harmonic_map(mesh: Mesh, *, shape="circle", solver: str = "auto", throw: bool = True) -> Float[Array, "nv 2"] | Solution:
     """The harmonic map of a disk with a fixed boundary: `tutte_embedding(mesh, weights="cotan", ...)`, `(nv, 2)`.
 
     Minimises the Dirichlet energy `1/2 (u^T L u + v^T L v)` (`L` the PSD cotan Laplacian) with the
-    boundary loop on `boundary` (`"circle"` by default, arc-length spacing; see `tutte_embedding`).
-    Can flip triangles on meshes with obtuse angles (`map_distortion`). libigl:
-    `igl.harmonic(V, F, bnd, igl.map_vertices_to_circle(V, bnd), 1)`.
+    boundary loop on `shape` (`"circle"` by default, arc-length spacing; see `tutte_embedding`, whose
+    `solver` and `throw` it takes too). Can flip triangles on meshes with obtuse angles
+    (`map_distortion`). libigl: `igl.harmonic(V, F, bnd, igl.map_vertices_to_circle(V, bnd), 1)`.
     """
-    check_choice("method", method, METHODS)
+    check_solver(solver)
     disk = require_disk(mesh, "harmonic_map")
-    kind, positions = boundary_argument(boundary, disk)
-    plan = boundary_plan(mesh, disk)
-    uv, result = _embed(mesh, plan, jnp.asarray(disk.loop), positions, kind, "cotan", method)
-    return raise_if_failed(uv, result, throw=True)
+    kind, positions = shape_argument(shape, disk)
+    uv, result, stats = _embed(
+        mesh, cotan_laplacian(mesh), boundary_plan(mesh, disk), jnp.asarray(disk.loop), positions, kind=kind, solver=solver
+    )
+    return outcome(uv, result, throw, stats)
 
 
-# One program per connectivity (the mesh's topology is static); the outcome is raised outside.
-@functools.partial(jax.jit, static_argnums=(4, 5, 6))
-def _embed(mesh, plan, loop, positions, kind, weights, method):
+# One program per mesh size; the Laplacian (a kernel of its own) and the plans are made outside.
+@kernel(static_argnames=("kind", "solver"))
+def _embed(mesh, matrix, plan, loop, positions, *, kind, solver):
     lengths = boundary_edge_lengths(mesh.vertices, loop)
     fixed = place_boundary(kind, lengths) if positions is None else positions.astype(lengths.dtype)
-    matrix = cotan_laplacian(mesh) if weights == "cotan" else uniform_laplacian(mesh)
-    factor = factorize(dirichlet_blocks(matrix, plan)[0], method=method) if plan is not None else None
-    return harmonic_extension(matrix, plan, factor, loop, fixed)
+    factor = factorize(dirichlet_blocks(matrix, plan)[0], method=solver) if plan is not None else None
+    uv, solution = harmonic_extension(matrix, plan, factor, loop, fixed)
+    return uv, *solves_outcome(solution)
 
 
 def uniform_laplacian(mesh: Mesh) -> SparseMatrix:
@@ -127,18 +133,32 @@ def harmonic_extension(
     factor: Factorization | None,
     loop,
     boundary_values: Float[Array, "nb k"],
-) -> tuple[Float[Array, "nv k"], RESULTS]:
-    """`(x, result)`: `A_ff x_f = -A_fc b` with `x = b` on the loop and 0 at unreferenced vertices.
+):
+    """`(x, solution)`: `A_ff x_f = -A_fc b` with `x = b` on the loop and 0 at unreferenced vertices.
 
     `plan` from `boundary_plan`, `factor` a factorisation of its free-free block of `matrix` (reused
-    by callers that solve with it more than once); `None` for both when no vertex is free.
+    by callers that solve with it more than once); `None` for both when no vertex is free, and then
+    `solution` is `None` (nothing solved); else the `LinearSolution` (not raising: callers report it).
     """
     n = matrix.shape[0]
     if plan is None:
         zeros = jnp.zeros((n,) + boundary_values.shape[1:], boundary_values.dtype)
-        return zeros.at[loop].set(boundary_values), RESULTS.successful
+        return zeros.at[loop].set(boundary_values), None
     n_unreferenced = plan.fixed.shape[0] - boundary_values.shape[0]
     fixed = jnp.concatenate([boundary_values, jnp.zeros((n_unreferenced,) + boundary_values.shape[1:], boundary_values.dtype)])
     free_fixed = dirichlet_blocks(matrix, plan)[1]
     solution = factor.solve(-(free_fixed @ fixed), throw=False)
-    return plan.join(solution.value.astype(fixed.dtype), fixed), solution.result
+    return plan.join(solution.value.astype(fixed.dtype), fixed), solution
+
+
+def solves_outcome(*solutions) -> tuple[RESULTS, dict]:
+    """`(result, stats)` of the solves that ran (`None`: one that was not needed): the first failing
+    outcome, and the largest relative residual and the total CG iterations."""
+    ran = [solution for solution in solutions if solution is not None]
+    if not ran:
+        return RESULTS.successful, {"residual": jnp.zeros(()), "num_steps": jnp.zeros((), jnp.int32)}
+    stats = {
+        "residual": jnp.max(jnp.stack([solution.residual for solution in ran])),
+        "num_steps": sum(solution.num_steps for solution in ran),
+    }
+    return first_failure(*(solution.result for solution in ran)), stats

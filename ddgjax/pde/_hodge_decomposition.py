@@ -190,7 +190,7 @@ def _decompose(
     component are passed in.
     """
     n_columns = columns.shape[1]
-    star = hodge_star_entries(mesh, 1, dual=dual)
+    star = hodge_star_entries(mesh, degree=1, dual=dual)
     generators = cocycles.astype(columns.dtype)
     forms = jnp.concatenate([columns, generators], axis=1)
     derivative = d0(mesh)

@@ -37,6 +37,8 @@ References: the reading report, "The Poisson problem" (Crane's DDG notes, ch. 6)
 
 from __future__ import annotations
 
+import weakref
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -53,9 +55,9 @@ from ..laplacian import (
     cotan_laplacian_from_lengths_sq,
     mass_matrix_from_lengths_sq,
 )
-from ..mesh import Mesh, face_edge_lengths_sq, require_mesh
+from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
 from ..solve import linear_solve
-from ..sparse import DirichletPlan, dirichlet_blocks, dirichlet_plan
+from ..sparse import DirichletPlan, SparsityPattern, dirichlet_blocks, dirichlet_plan
 
 
 def solve_poisson(
@@ -117,10 +119,11 @@ def solve_poisson(
         triangulation,
         plan,
         rho,
-        dirichlet.fixed_values(rho.dtype),
+        dirichlet.values,
         dirichlet.plan,
         dirichlet.labels,
         dirichlet.floating,
+        n_pinned=dirichlet.n_pinned,
         n_components=dirichlet.n_components,
         mass=mass,
         solver=solver,
@@ -130,23 +133,25 @@ def solve_poisson(
 
 # The outcome is checked outside the program (`outcome`), so it has no host callback and JAX's
 # persistent compilation cache can keep it.
-@kernel(static_argnames=("n_components", "mass", "solver"))
+@kernel(static_argnames=("n_pinned", "n_components", "mass", "solver"))
 def _solve(
     mesh: Mesh,
     triangulation: IntrinsicTriangulation | None,
     plan: TriangulationPlan,
     rho: Float[Array, "nv *k"],
-    fixed_values: Float[Array, " n_fixed *k"],
+    values: Float[Array, " n_fixed *k"],
     blocks: DirichletPlan,
     labels: Int[Array, " nv"],
     floating: Bool[Array, " nv"],
     *,
+    n_pinned: int,
     n_components: int,
     mass: str,
     solver: str,
 ) -> tuple[Float[Array, "nv *k"], RESULTS, dict[str, Array]]:
     """`(phi, result, stats)` of `solve_poisson` (module docstring). `mesh` comes without its topology:
     everything that needs it (`plan`, `blocks`, the component `labels` and `floating` mask) is passed in."""
+    fixed_values = jnp.concatenate([values.astype(rho.dtype), jnp.zeros((n_pinned,) + rho.shape[1:], rho.dtype)])
     lengths_sq = face_edge_lengths_sq(mesh) if triangulation is None else triangulation.face_lengths_sq(mesh)
     laplacian = cotan_laplacian_from_lengths_sq(lengths_sq, plan)
     mass_matrix_ = mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
@@ -258,35 +263,56 @@ class DirichletData:
                 f"fixed_values: expected shape {(vertices.size,) + trailing} (one value per fixed vertex, "
                 f"as many columns as rho), got {values.shape}"
             )
-        # Component of each vertex (unreferenced vertices: their own label, past the face components).
-        labels = np.full(n, topology.n_components, dtype=np.int32)
-        labels[topology.faces.ravel()] = np.repeat(topology.face_components, 3)
-        unreferenced = topology.unreferenced_vertices
-        constrained = np.zeros(topology.n_components + 1, dtype=bool)
-        constrained[labels[vertices]] = True
-        floating = ~constrained
-        floating[-1] = False  # unreferenced vertices are fixed to 0, not re-centred
-        # Pin the lowest vertex of each floating component (components are numbered by first face).
-        first_vertex = np.full(topology.n_components, n, dtype=np.int64)
-        np.minimum.at(first_vertex, labels[labels < topology.n_components], np.flatnonzero(labels < topology.n_components))
-        pins = first_vertex[floating[:-1]]
-        extra = np.setdiff1d(unreferenced, vertices)
-        fixed = np.concatenate([vertices, pins, extra])
-        self.fixed = fixed  # host copy: the plan's arrays are traced when this runs inside jit
-        if pattern is None:
-            pattern = vertex_plan(mesh).pattern
-        self.plan = dirichlet_plan(pattern, fixed) if fixed.size < n else None
         self.vertices = vertices
         self.values = values
-        self.n_pinned = pins.size + extra.size
-        self.labels = jnp.asarray(labels)
-        self.n_components = topology.n_components + 1
-        self.floating = jnp.asarray(floating[labels])
+        if pattern is None:
+            pattern = vertex_plan(mesh).pattern
+        self.fixed, self.plan, self.n_pinned, self.labels, self.n_components, self.floating = _pins(
+            topology, vertices, pattern
+        )
 
     def fixed_values(self, dtype) -> Float[Array, " n_fixed *k"]:
         """The values of `fixed` in `dtype`: `values`, then zeros for the pinned and unreferenced vertices."""
         zeros = jnp.zeros((self.n_pinned,) + self.values.shape[1:], dtype)
         return jnp.concatenate([self.values.astype(dtype), zeros])
+
+
+# The host bookkeeping of the last few problems per connectivity: solving again with the same fixed
+# vertices (new values, a new right-hand side, moved vertices) skips it.
+_PINS: "weakref.WeakKeyDictionary[MeshTopology, dict]" = weakref.WeakKeyDictionary()
+_PINS_KEPT = 8
+
+
+def _pins(topology: MeshTopology, vertices: np.ndarray, pattern: SparsityPattern) -> tuple:
+    """`DirichletData`'s `(fixed, plan, n_pinned, labels, n_components, floating)` for these fixed vertices (cached)."""
+    kept = _PINS.setdefault(topology, {})
+    key = (vertices.tobytes(), id(pattern))
+    entry = kept.get(key)
+    if entry is not None and entry[0] is pattern:
+        return entry[1]
+    n = topology.n_vertices
+    # Component of each vertex (unreferenced vertices: their own label, past the face components).
+    labels = np.full(n, topology.n_components, dtype=np.int32)
+    labels[topology.faces.ravel()] = np.repeat(topology.face_components, 3)
+    constrained = np.zeros(topology.n_components + 1, dtype=bool)
+    constrained[labels[vertices]] = True
+    floating = ~constrained
+    floating[-1] = False  # unreferenced vertices are fixed to 0, not re-centred
+    # Pin the lowest vertex of each floating component (components are numbered by first face).
+    first_vertex = np.full(topology.n_components, n, dtype=np.int64)
+    np.minimum.at(first_vertex, labels[labels < topology.n_components], np.flatnonzero(labels < topology.n_components))
+    pins = first_vertex[floating[:-1]]
+    extra = np.setdiff1d(topology.unreferenced_vertices, vertices)
+    fixed = np.concatenate([vertices, pins, extra])
+    fixed.setflags(write=False)
+    # Host work even inside a caller's trace: it depends on the connectivity and the indices only.
+    with jax.ensure_compile_time_eval():
+        plan = dirichlet_plan(pattern, fixed) if fixed.size < n else None
+        pinned = (fixed, plan, pins.size + extra.size, jnp.asarray(labels), topology.n_components + 1, jnp.asarray(floating[labels]))
+    if len(kept) >= _PINS_KEPT:
+        kept.pop(next(iter(kept)))
+    kept[key] = (pattern, pinned)
+    return pinned
 
 
 def _vertex_values(name: str, mesh: Mesh, values) -> Float[Array, "nv *k"]:

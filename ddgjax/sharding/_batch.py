@@ -13,13 +13,14 @@ connectivity and other closed-over arrays are replicated). Results come back sha
     grads = jax.jit(jax.vmap(jax.grad(energy)))(V)               # (B, nv, 3), sharded like V
 
 What shards: everything written in JAX, i.e. energies and their derivatives, geometry, operators
-(`cotan_laplacian`, `mass_matrix`, `laplacian_apply`), `mean_curvature_flow(..., method="cg")` and
-`linear_solve(..., method="cg")` (Jacobi preconditioner: an `"amg"` hierarchy is built on the host
-from concrete values, so it cannot be made per shape inside `vmap`). A vmapped CG runs until every
-member of the batch has converged: the stopping test is one all-reduce per iteration. What does not:
-the host backends (`method="cholesky"`, `"superlu"`, `"pyamg"`, and `"auto"` on CPU, which picks
-one of them) call the host through XLA's FFI or `jax.pure_callback`; they run, but on the host of
-each process, not on the devices the batch lives on. Pass `method="cg"` for sharded solves.
+(`cotan_laplacian`, `mass_matrix`, `laplacian_apply`), and the solves with the conjugate gradient:
+`linear_solve(..., method="cg")` and the problems with `solver="cg"` (`solve_poisson`,
+`mean_curvature_flow`, ...), with the Jacobi preconditioner (an `"amg"` hierarchy is built on the
+host from concrete values, so it cannot be made per shape inside `vmap`). A vmapped CG runs until
+every member of the batch has converged: the stopping test is one all-reduce per iteration. What does
+not: the host backends (`"cholesky"`, `"superlu"`, `"pyamg"`, and `"auto"` on CPU, which picks one
+of them) call the host through XLA's FFI or `jax.pure_callback`; they run, but on the host of each
+process, not on the devices the batch lives on. Pass `method="cg"` / `solver="cg"` for sharded solves.
 
 Reference: JAX documentation, "Distributed arrays and automatic parallelization"
 (`jax.sharding.NamedSharding`, `jax.device_put`, computation follows data).

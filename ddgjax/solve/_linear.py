@@ -70,6 +70,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Inexact, Int
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._options import LINEAR_SOLVERS
 from .._results import RESULTS, raise_if_failed
@@ -181,24 +182,38 @@ class Factorization(eqx.Module):
     residual_tolerance: float = eqx.field(static=True)
 
     def solve(self, b: Inexact[ArrayLike, "n *k"], *, throw: bool = True) -> LinearSolution:
-        """Solve `A x = b` for `b` of shape `(n,)` or `(n, k)`, reusing the factorisation."""
+        """Solve `A x = b` for `b` of shape `(n,)` or `(n, k)`, reusing the factorisation.
+
+        Returns the `LinearSolution` (raising on failure when `throw`); an eager call runs one
+        compiled program per factorisation kind and shape.
+        """
         n = self.system.shape[0] // (1 if self.complex_dtype is None else 2)
-        b = _check_rhs_shape(n, b)
-        if self.complex_dtype is not None:
-            b = b.astype(jnp.result_type(b.dtype, self.complex_dtype))
-            rhs = jnp.concatenate([b.real, b.imag])
-        elif jnp.iscomplexobj(b):  # a real A: the real and imaginary parts are two real columns
-            rhs = jnp.stack([b.real, b.imag], axis=-1).reshape(n, -1)
-        else:
-            rhs = b if jnp.issubdtype(b.dtype, jnp.floating) else b.astype(self.system.values.dtype)
-        value, stats = _solve_factored(self, rhs)
-        solution = linear_solution(self.system.__matmul__, rhs, value, stats, self.method, self.residual_tolerance)
-        if self.complex_dtype is not None:
-            value = jax.lax.complex(value[:n], value[n:])
-        elif jnp.iscomplexobj(b):
-            value = value.reshape(b.shape + (2,))
-            value = jax.lax.complex(value[..., 0], value[..., 1])
-        return raise_if_failed(eqx.tree_at(lambda s: s.value, solution, value), solution.result, throw)
+        solution = _solve(self, _check_rhs_shape(n, b))
+        return raise_if_failed(solution, solution.result, throw)
+
+
+# The outcome is checked by the caller (`raise_if_failed`), so the program holds no run-time check.
+@kernel
+def _solve(factorization: Factorization, b: Inexact[Array, "n *k"]) -> LinearSolution:
+    """`Factorization.solve`'s `LinearSolution` of `A x = b`: the real system, its solve, its outcome."""
+    n = factorization.system.shape[0] // (1 if factorization.complex_dtype is None else 2)
+    if factorization.complex_dtype is not None:
+        b = b.astype(jnp.result_type(b.dtype, factorization.complex_dtype))
+        rhs = jnp.concatenate([b.real, b.imag])
+    elif jnp.iscomplexobj(b):  # a real A: the real and imaginary parts are two real columns
+        rhs = jnp.stack([b.real, b.imag], axis=-1).reshape(n, -1)
+    else:
+        rhs = b if jnp.issubdtype(b.dtype, jnp.floating) else b.astype(factorization.system.values.dtype)
+    value, stats = _solve_factored(factorization, rhs)
+    solution = linear_solution(
+        factorization.system.__matmul__, rhs, value, stats, factorization.method, factorization.residual_tolerance
+    )
+    if factorization.complex_dtype is not None:
+        value = jax.lax.complex(value[:n], value[n:])
+    elif jnp.iscomplexobj(b):
+        value = value.reshape(b.shape + (2,))
+        value = jax.lax.complex(value[..., 0], value[..., 1])
+    return eqx.tree_at(lambda s: s.value, solution, value)
 
 
 def factorize(
@@ -228,10 +243,8 @@ def factorize(
         raise DDGInputError(f"max_steps: expected an integer >= 1, got {max_steps!r}")
     values = jax.lax.stop_gradient(system.values)
     token, hierarchy = None, None
-    if method == "cholesky":
-        token = _cholmod_factor(system.pattern, values)
-    elif method in HOST_METHODS:
-        token = host_factor(method, system.pattern, values)
+    if method == "cholesky" or method in HOST_METHODS:
+        token = _factor(system.pattern, values, method=method)
     elif isinstance(preconditioner, AMGHierarchy):
         if preconditioner.shape != system.shape:
             raise DDGInputError(
@@ -358,8 +371,12 @@ def linear_solution(apply, b, value, stats, method: str, residual_tolerance: flo
     return LinearSolution(value=value, result=result, residual=residual, num_steps=num_steps, method=method)
 
 
-def _cholmod_factor(pattern, values) -> Int[Array, "2"]:
-    """A CHOLMOD factor token (`sparsax.factor`) of the matrix with `values` on `pattern`, in float64."""
+@kernel(static_argnames=("method",))
+def _factor(pattern: SparsityPattern, values: Float[Array, " nnz"], *, method: str) -> Int[Array, "..."]:
+    """The host factor's token of the matrix with `values` on `pattern`: CHOLMOD's (`sparsax.factor`, in
+    float64) for `"cholesky"`, else SuperLU's or pyamg's (`host_factor`); one compiled program per pattern."""
+    if method != "cholesky":
+        return host_factor(method, pattern, values)
     import sparsax
 
     # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,

@@ -172,7 +172,9 @@ def smallest_eigenpairs(
 
 
 def _relative_residual(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> Float[Array, ""]:
-    """`max_i |L phi_i - lambda_i M phi_i| / (lambda_k |M phi_i|)` (the subspace iteration's stopping measure)."""
+    """`max_i |L phi_i - lambda_i M phi_i| / (lambda_k |M phi_i|)`: the eigen-residual relative to the spectrum's
+    scale (the subspace iteration stops on the same measure over its larger block; NaN for the zeros of a
+    failed host solve)."""
     values, vectors = pairs
     mass = M @ vectors
     residual = jnp.linalg.norm(L @ vectors - mass * values, axis=0) / jnp.linalg.norm(mass, axis=0)
