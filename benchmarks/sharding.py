@@ -63,8 +63,8 @@ def child(repeats: int) -> None:
     import ddgjax
     from ddgjax.laplacian import dirichlet_energy, laplacian_apply
     from ddgjax.mesh import icosphere, torus
-    from ddgjax.sharding import batch_sharding, partition_vertices, shard_batch, sharded_cg, sharded_laplacian_apply
     from ddgjax.pde import mean_curvature_flow
+    from ddgjax.sharding import batch_sharding, partition_vertices, shard_batch, sharded_cg, sharded_laplacian_apply
 
     n = jax.device_count()
     rng = np.random.default_rng(0)

@@ -699,8 +699,8 @@ def section_optimistix(args):
 def _optimistix_on(name, mesh, args):
     import optimistix as optx
 
-    from ddgjax.solve import SparseCholesky, linear_solve
     from ddgjax.pde import screened_dirichlet_energy
+    from ddgjax.solve import SparseCholesky, linear_solve
 
     L = cotan_laplacian(mesh)
     s = 1.0 / mean_edge_length(mesh) ** 2

@@ -27,7 +27,7 @@ import pathlib
 import numpy as np
 
 from ._errors import DDGInputError
-from .mesh._mesh import Mesh, require_mesh
+from .mesh import Mesh, require_mesh
 
 # The public API; everything else here (the imports, the readers) is an implementation detail.
 __all__ = ["load_mesh", "save_mesh"]
@@ -76,6 +76,14 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh) -> None:
     OBJ and OFF keep every vertex (unreferenced ones too) with 17 significant digits and PLY is
     binary float64, so `load_mesh` gives back the same arrays exactly; STL is binary float32 and
     keeps only the triangles (see the module docstring).
+
+    Args:
+        path: file path; the extension (case-insensitive) selects the format (the path first, as
+            `igl.write_triangle_mesh(path, V, F)` and `numpy.save(file, array)` take it).
+        mesh: the mesh to write.
+
+    Raises `DDGInputError` for an unknown extension or anything but a `Mesh`.
+    Equivalent: `igl.write_triangle_mesh(path, V, F)`.
     """
     mesh = require_mesh("mesh", mesh)
     path = pathlib.Path(path)

@@ -21,9 +21,9 @@ import scipy.sparse.linalg as spla  # noqa: E402
 from ddgjax import DDGInputError  # noqa: E402
 from ddgjax.laplacian import cotan_laplacian, dirichlet_energy, laplacian_apply, mass_matrix  # noqa: E402
 from ddgjax.mesh import icosphere, torus  # noqa: E402
-from ddgjax.sharding import batch_sharding, partition_vertices, shard_batch, sharded_cg, sharded_laplacian_apply  # noqa: E402
-from ddgjax.solve import linear_solve
 from ddgjax.pde import mean_curvature_flow  # noqa: E402
+from ddgjax.sharding import batch_sharding, partition_vertices, shard_batch, sharded_cg, sharded_laplacian_apply  # noqa: E402
+from ddgjax.solve import linear_solve  # noqa: E402
 
 SPHERE = icosphere(2)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import matplotlib.image
+import pytest
 
 from ddgjax.io import save_mesh
 from ddgjax.mesh import torus
@@ -14,6 +15,7 @@ def _row(out: str, key: str) -> str:
     return next(line for line in out.splitlines() if line.startswith(key))[10:].strip()
 
 
+@pytest.mark.slow
 def test_fields_on_the_built_in_sphere_writes_a_figure(tmp_path):
     output = tmp_path / "fields.png"
     status, out, err = run_cli(["fields", "--output", str(output)])
@@ -24,6 +26,7 @@ def test_fields_on_the_built_in_sphere_writes_a_figure(tmp_path):
     assert matplotlib.image.imread(output).shape[0] > 100
 
 
+@pytest.mark.slow
 def test_fields_of_a_torus_file_aligned_and_bad_input(tmp_path):
     path = tmp_path / "torus.obj"
     save_mesh(path, torus(major_radius=1.0, minor_radius=0.4, n_major=32, n_minor=12))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import matplotlib.image
 import numpy as np
+import pytest
 
 from conftest import run_cli
 
@@ -12,6 +13,7 @@ def _row(out: str, key: str) -> str:
     return next(line for line in out.splitlines() if line.startswith(key))[10:].strip()
 
 
+@pytest.mark.slow
 def test_willmore_example_rounds_the_bumpy_sphere_and_writes_a_figure(tmp_path):
     output = tmp_path / "optimize.png"
     status, out, err = run_cli(["optimize", "--no-progress", "--output", str(output)])  # 300 steps: 0.2 s after compiling

@@ -83,6 +83,7 @@ def test_regular_polygon_closed_forms(n):
     np.testing.assert_allclose(values["B_pointwise"], 1 / r, rtol=1e-13)
 
 
+@pytest.mark.slow
 def test_pointwise_curvatures_converge_to_one_over_r_with_rate_two():
     r = 0.8
     ns = np.array([16, 32, 64, 128])
@@ -240,6 +241,7 @@ def _curve_energy(points, closed=True):
 _energy_value_and_grad = jax.jit(jax.value_and_grad(_curve_energy), static_argnums=1)
 
 
+@pytest.mark.slow
 def test_coincident_points_give_finite_values_and_gradients_under_jit(wobbly):
     duplicated = np.asarray(wobbly.points).copy()
     duplicated[6] = duplicated[5]  # same size as wobbly: the closed program is the gradient test's

@@ -125,6 +125,7 @@ def test_no_flow_keeps_all_three(shape_runs):
     assert drift(runs["D"]) > 1e-3
 
 
+@pytest.mark.slow
 def test_no_flow_guarantees_simplicity(shape_runs):
     """The report: "none of the flows can guarantee that the polygonal curve stays simple".
 
@@ -223,6 +224,7 @@ def test_self_intersection_is_reported():
     assert int(certified.first_failure_step) == int(every.first_failure_step)
 
 
+@pytest.mark.slow
 def test_throw_raises_on_failure_eagerly_and_under_jit():
     # Eagerly (and under equinox.filter_jit) equinox raises its own error; a plain jax.jit wraps the
     # same message in a JaxRuntimeError. Both are RuntimeErrors.
@@ -235,6 +237,7 @@ def test_throw_raises_on_failure_eagerly_and_under_jit():
     assert int(_tangling_star_flow(throw=False).first_failure_step) <= 20
 
 
+@pytest.mark.slow
 def test_nonfinite_input_is_reported():
     # Traced points are not validated (Curve's checks need concrete values), so NaN reaches the flow.
     points = star(5).points.at[3, 0].set(jnp.nan)
@@ -268,6 +271,7 @@ def _step_by_step_simplicity(curve, kind, tau, steps):
     return np.asarray(states.is_simple)
 
 
+@pytest.mark.slow
 def test_a_transient_crossing_between_saves_is_reported(polygon):
     # The B flow collapses a short edge of this polygon at step 76 (tau = shortest edge / 20): the
     # curve is non-simple for a moment and simple again at the next save, which "saved" cannot see.
@@ -284,6 +288,7 @@ def test_a_transient_crossing_between_saves_is_reported(polygon):
         assert int(result.first_failure_step) == first, check
 
 
+@pytest.mark.slow
 def test_certified_tracking_is_exact_on_a_simple_run(polygon):
     # up to flow time 0.2, before the edge collapse of the test above (at 0.23)
     result = curve_shortening_flow(polygon, kind="B", tau=2e-3, steps=100, save_every=100)
@@ -304,6 +309,7 @@ def _plain_explicit_step(points, tau, closed, kind):
 
 
 @pytest.mark.parametrize("closed", [True, False])
+@pytest.mark.slow
 def test_closed_form_step_derivatives_match_autodiff(polygon, closed):
     # _explicit_step carries a hand-derived tangent (custom_jvp); both modes must equal autodiff.
     rng = np.random.default_rng(3)
@@ -392,6 +398,7 @@ def _loss(points, tau, method):
 
 
 @pytest.mark.parametrize("method", ["explicit", "semi-implicit"])
+@pytest.mark.slow
 def test_gradient_through_the_whole_flow_matches_finite_differences(small, method):
     value_and_grad = jax.jit(jax.value_and_grad(lambda P, tau: _loss(P, tau, method), argnums=(0, 1)))
 
@@ -409,6 +416,7 @@ def test_gradient_through_the_whole_flow_matches_finite_differences(small, metho
     np.testing.assert_allclose(g_tau, numeric_tau, rtol=1e-6)  # step 1e-8 on tau: round-off ~1e-8 relative
 
 
+@pytest.mark.slow
 def test_vmap_matches_single_runs(small):
     batch = jnp.stack([small.points, 1.5 * small.points, small.points[::-1]])
     run = lambda P: curve_shortening_flow(Curve(P), kind="D", tau=1e-3, steps=30, save_every=10).cyclic_residual
@@ -417,6 +425,7 @@ def test_vmap_matches_single_runs(small):
         np.testing.assert_allclose(row, run(points), rtol=1e-13, atol=1e-16)
 
 
+@pytest.mark.slow
 def test_progress_bar_path_matches_the_pure_path(small, capsys):
     pure = curve_shortening_flow(small, kind="B", tau=1e-3, steps=30, save_every=10)
     shown = curve_shortening_flow(small, kind="B", tau=1e-3, steps=30, save_every=10, progress=True)

@@ -117,6 +117,7 @@ def test_open_curves_are_closed_by_their_chord(wobbly):
         ([[0, 0], [3, 1], [3, 2], [1, 1 / 3], [0, 2]], True, False),
     ],
 )
+@pytest.mark.slow
 def test_is_simple_cases(points, closed, simple):
     assert bool(is_simple(Curve(np.asarray(points, dtype=float), closed=closed))) is simple
 
@@ -146,6 +147,7 @@ def test_is_simple_agrees_with_shapely_on_random_polygons():
     assert 0 < ours.sum() < len(ours)  # both outcomes are exercised
 
 
+@pytest.mark.slow
 def test_degenerate_input_is_finite_with_finite_gradients_under_jit(wobbly):
     P = np.asarray(wobbly.points)
 
@@ -160,6 +162,7 @@ def test_degenerate_input_is_finite_with_finite_gradients_under_jit(wobbly):
         assert np.isfinite(float(value)) and np.isfinite(np.asarray(gradient)).all()
 
 
+@pytest.mark.slow
 def test_gradients_against_closed_forms(wobbly):
     P = np.asarray(wobbly.points)
     # d(area)/dp_i = (1/2) J^T (p_{i+1} - p_{i-1}) with J the 90-degree rotation
@@ -194,6 +197,7 @@ def test_property_invariance(seed, scale, angle):
     assert bool(moved["simple"]) == bool(base["simple"])
 
 
+@pytest.mark.slow
 def test_clearance_against_shapely():
     for curve in (star(), random_polygon(30, seed=2), Curve(np.asarray(star().points)[:12], closed=False)):
         simple, clearance = simplicity_and_clearance(curve)
@@ -237,6 +241,7 @@ def test_near_and_far_clearances_split_by_distance_along_the_curve():
     np.testing.assert_allclose([ours_near, ours_far], [near, far], rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_clearance_gradient_matches_finite_differences_and_stays_finite():
     curve = random_polygon(16, seed=3)
     clearance = jax.jit(lambda P: simplicity_and_clearance(Curve(P))[1])

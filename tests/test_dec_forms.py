@@ -230,6 +230,7 @@ def sphere_sharp_errors(mesh):
     return jnp.max(jnp.abs(at_vertices)), jnp.max(jnp.abs(at_faces))
 
 
+@pytest.mark.slow
 def test_sharp_converges_on_the_sphere():
     levels = [2, 3, 4]
     errors = np.array([[float(e) for e in sphere_sharp_errors(icosphere(level))] for level in levels])
@@ -316,6 +317,7 @@ def test_forms_bad_input():
         dec.integrate_1form(mesh, lambda p: p[0])
 
 
+@pytest.mark.slow
 def test_forms_are_differentiable_in_the_vertices():
     mesh = load("tet.obj")
 

@@ -304,6 +304,7 @@ def _dec_laplacian_values(mesh: Mesh):
     return np.asarray(dec_route(mesh)), np.asarray(jax.jit(lambda m: cotan_laplacian(m).values)(mesh)), pattern
 
 
+@pytest.mark.slow
 def test_d0_star1_d0_is_the_cotan_laplacian_on_every_test_mesh():
     """The DEC route to the Laplacian, `d0^T *1 d0`, against the lengths core `cotan_laplacian` assembles
     from: every test mesh (boundaries, slivers, non-manifold and non-orientable ones) as blocks of one
@@ -380,6 +381,7 @@ def test_single_right_triangle_closed_forms():
     np.testing.assert_allclose(values["h2inv"], [0.5], rtol=1e-15)
 
 
+@pytest.mark.slow
 def test_degenerate_faces_give_finite_values_and_gradients():
     """One exactly collinear (zero-area) face and one needle: finite stars and finite gradients."""
     V = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0], [1, 1e-9, 0]])

@@ -68,6 +68,7 @@ def libigl_laplacian(mesh):
 
 
 @pytest.mark.parametrize("name", ["bob_small.ply", "small_disk.obj", "hourglass_ico.obj"])
+@pytest.mark.slow
 def test_gradient_and_divergence_against_libigl_and_gpytoolbox(name):
     mesh, r = load(name), fields(name)
     V, F = np.asarray(mesh.vertices), mesh.topology.faces
@@ -212,6 +213,7 @@ def test_vector_calculus_bad_input():
     assert dec.gradient(mesh, np.zeros(4)).shape == (4, 3)
 
 
+@pytest.mark.slow
 def test_degenerate_faces_and_derivatives():
     """Zero-area and needle faces: finite values and gradients; vmap over vertex positions."""
     V = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0], [1, 1e-9, 0]])

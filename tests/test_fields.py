@@ -97,6 +97,7 @@ def _dense(matrix) -> np.ndarray:
 
 
 @pytest.mark.parametrize("name", ["disk(5)", "icosphere(2)", "small_disk.obj", "sphere_small.ply"])
+@pytest.mark.slow
 def test_connection_laplacian_equals_potpourri3d_up_to_a_change_of_tangent_bases(name):
     pp3d = pytest.importorskip("potpourri3d")
     mesh = {"disk(5)": lambda: disk(5), "icosphere(2)": lambda: icosphere(2)}.get(
@@ -114,6 +115,7 @@ def test_connection_laplacian_equals_potpourri3d_up_to_a_change_of_tangent_bases
 
 
 @pytest.mark.parametrize("name", ["sphere.obj", "torus.obj", "double-torus.obj", "hemisphere.obj"])
+@pytest.mark.slow
 def test_holonomy_is_the_transport_around_each_face_and_sums_to_two_pi_chi(name):
     mesh = load_mesh(data_path("meshes", name))
     rho = np.asarray(edge_transport_angles(mesh))
@@ -138,6 +140,7 @@ def test_polar_angles_are_the_edges_angles_in_the_tangent_frame_on_a_flat_disk()
     assert np.all(np.asarray(face_holonomies(mesh, boundary_scaling="unscaled")) == pytest.approx(0.0, abs=1e-14))
 
 
+@pytest.mark.slow
 def test_tangent_frames_are_orthonormal_with_e1_along_the_reference_edge():
     mesh = load_mesh(data_path("meshes", "spot.obj"))
     e1, e2, normal = (np.asarray(x) for x in tangent_bases(mesh))
@@ -181,6 +184,7 @@ def test_flat_connection_laplacian_is_the_cotan_laplacian_in_other_bases():
 
 
 @pytest.mark.parametrize("n", [1, 4])
+@pytest.mark.slow
 def test_flat_disk_carries_a_constant_field_with_zero_energy_and_no_singularities(n):
     mesh = disk(5)
     result = smoothest_field(mesh, n=n, boundary_scaling="unscaled")
@@ -196,6 +200,7 @@ def test_flat_disk_carries_a_constant_field_with_zero_energy_and_no_singularitie
 
 
 @pytest.mark.parametrize("name", ["sphere.obj", "torus.obj", "double-torus.obj", "icosphere(2)"])
+@pytest.mark.slow
 def test_poincare_hopf_indices_are_multiples_of_one_over_n_and_sum_to_chi(name):
     mesh = icosphere(2) if name == "icosphere(2)" else load_mesh(data_path("meshes", name))
     chi = mesh.topology.euler_characteristic
@@ -210,6 +215,7 @@ def test_poincare_hopf_indices_are_multiples_of_one_over_n_and_sum_to_chi(name):
             np.testing.assert_array_equal(np.sort(indices[indices != 0]), [-1.0, -1.0])
 
 
+@pytest.mark.slow
 def test_cube_cross_field_is_parallel_off_the_corners_with_a_quarter_singularity_at_each_corner():
     mesh = _cube(4)
     V = np.asarray(mesh.vertices)
@@ -255,6 +261,7 @@ def test_phase_is_deterministic_and_the_field_is_an_eigenvector():
     assert abs(u[largest].imag) <= 1e-15 * abs(u[largest]) and u[largest].real > 0  # rotated by its own phase: round-off
 
 
+@pytest.mark.slow
 def test_principal_curvature_alignment_points_around_a_cylinder():
     mesh = _cylinder(24, 8)
     V = np.asarray(mesh.vertices)
@@ -303,6 +310,7 @@ def test_interpolation_solves_the_dirichlet_problem_of_the_connection_laplacian(
     np.testing.assert_array_equal(u[fixed], values)
 
 
+@pytest.mark.slow
 def test_interpolated_transport_agrees_with_potpourri3d_vector_heat_near_the_source():
     pp3d = pytest.importorskip("potpourri3d")
     mesh = icosphere(3)
@@ -331,6 +339,7 @@ def _central_difference(function, V, direction, h=1e-5):
     return (function(V + h * direction) - function(V - h * direction)) / (2 * h)
 
 
+@pytest.mark.slow
 def test_energy_and_phase_fixed_field_gradients_match_finite_differences():
     mesh = _ellipsoid()
     V = mesh.vertices
@@ -357,6 +366,7 @@ def test_energy_and_phase_fixed_field_gradients_match_finite_differences():
         assert float(jnp.sum(gradient * direction)) == pytest.approx(float(expected), rel=1e-6)
 
 
+@pytest.mark.slow
 def test_connection_laplacian_values_pass_check_grads():
     mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
     rng = np.random.default_rng(2)
@@ -369,6 +379,7 @@ def test_connection_laplacian_values_pass_check_grads():
     check_grads(energy, (mesh.vertices,), order=1, modes=["rev", "fwd"], eps=1e-6)
 
 
+@pytest.mark.slow
 def test_jit_and_vmap_equal_eager():
     mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
     V = mesh.vertices

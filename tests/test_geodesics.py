@@ -18,6 +18,7 @@ from ddgjax.mesh import Mesh, disk, edge_lengths, icosphere
 from conftest import data_path, read_ddg_reference
 
 
+@pytest.mark.slow
 def test_every_step_matches_the_ddg_reference():
     data = read_ddg_reference("test-heat-soln.txt")
     mesh = Mesh.from_arrays(data["v"], data["f"].astype(np.int64) - 1)
@@ -44,6 +45,7 @@ def test_matches_potpourri3d(name):
     np.testing.assert_allclose(ours, expected, rtol=0, atol=1e-3 * expected.max())
 
 
+@pytest.mark.slow
 def test_sphere_great_circle_distance_error_falls_under_refinement():
     errors, sizes = [], []
     for subdivisions in (2, 3, 4):

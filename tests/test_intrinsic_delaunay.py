@@ -79,6 +79,7 @@ def _vertices_and_faces(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
 NEGATIVE_WEIGHTS = {"beetle.off": (10709, 124), "camelhead.off": (4881, 0), "nefertiti.obj": (17878, 0)}
 
 
+@pytest.mark.slow
 def test_matches_libigl_intrinsic_delaunay(real):
     name, mesh, triangulation, L = real
     V, F = _vertices_and_faces(mesh)
@@ -114,6 +115,7 @@ def test_matches_libigl_intrinsic_delaunay(real):
     assert set(map(tuple, negative.tolist())) <= boundary
 
 
+@pytest.mark.slow
 def test_replayed_lengths_match_an_extended_precision_replay(real):
     """The JAX replay of the flips against the same flips in 80-bit `np.longdouble`, from the same coordinates."""
     _, mesh, triangulation, _ = real
@@ -137,6 +139,7 @@ def test_replayed_lengths_match_an_extended_precision_replay(real):
     np.testing.assert_allclose(triangulation.face_lengths_sq(mesh), reference, rtol=2e-12)
 
 
+@pytest.mark.slow
 def test_matches_robust_laplacian(real):
     name, mesh, triangulation, L = real
     V, F = _vertices_and_faces(mesh)
@@ -167,6 +170,7 @@ def test_matches_robust_laplacian(real):
         assert near_boundary[differing].all()
 
 
+@pytest.mark.slow
 def test_harmonic_interpolation_obeys_the_maximum_principle():
     """Harmonic measure of each boundary vertex of camelhead: `L_ff U = -L_fc` (data e_k on the boundary)."""
     mesh, triangulation, intrinsic = _prepared("camelhead.off")
@@ -242,6 +246,7 @@ def jittered():
     return mesh, triangulation, (u, w), gradient, derivative
 
 
+@pytest.mark.slow
 def test_gradients_match_finite_differences_of_the_flipped_operator(jittered):
     mesh, triangulation, (u, w), gradient, derivative = jittered
     assert triangulation.n_flips == 16 and triangulation.n_rounds == 2
@@ -403,6 +408,7 @@ def test_bad_input(without_type_checker):
         triangulation_plan([[0.0, 1.0, 2.0]], 3)
 
 
+@pytest.mark.slow
 def test_poisson_problem_with_the_intrinsic_laplacian_matches_libigl_and_differentiates():
     """`solve_poisson(robust=...)`: `L phi = -M rho` with the intrinsic Delaunay L and lumped mass on a
     closed surface (zero-mean rho and phi), against SciPy on libigl's intrinsic Delaunay Laplacian and

@@ -79,6 +79,7 @@ def _block(matrix: sp.spmatrix, rows: slice) -> sp.csr_matrix:
     return sp.csr_matrix(matrix)[rows][:, rows]
 
 
+@pytest.mark.slow
 def test_matches_libigl_and_gpytoolbox(real):
     parts, mesh = real
     L = _laplacian(mesh)
@@ -171,6 +172,7 @@ def _closed_forms(mesh, scale):
 
 
 @pytest.mark.parametrize("scale", [1e-8, 1.0, 1e8])
+@pytest.mark.slow
 def test_single_element_closed_forms(elements, scale):
     s3 = np.sqrt(3)
     L, voronoi, barycentric, galerkin = _closed_forms(elements["right"], scale)
@@ -265,6 +267,7 @@ def test_degenerate_faces_contribute_nothing_with_finite_gradients():
         assert np.all(np.isfinite(jacobian(W)))
 
 
+@pytest.mark.slow
 def test_jit_vmap_and_gradients():
     mesh = icosphere(1)
     V = mesh.vertices
@@ -289,6 +292,7 @@ def test_jit_vmap_and_gradients():
     np.testing.assert_allclose(jax.jit(dirichlet_energy)(flat, linear), 0.5 * 13.0 * 4.0, rtol=1e-13)
 
 
+@pytest.mark.slow
 def test_forward_mode_equals_reverse_mode():
     """The energy's derivatives in the vertex positions (u with two columns), to second order: forward
     and reverse mode against each other and against central differences."""
@@ -466,6 +470,7 @@ def test_bad_arguments():
         mass_matrix(mesh, "galerkin")  # options are keyword-only
 
 
+@pytest.mark.slow
 def test_energy_gradient_closed_form_equals_autodiff_of_the_assembly(real):
     """The per-face derivative of `dirichlet_energy` (its custom JVP) against autodiff through the
     assembled matrix, on slivers (beetle, nefertiti), unreferenced vertices (bunny) and a boundary

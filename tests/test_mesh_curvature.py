@@ -140,6 +140,7 @@ BUMPY, N_CLOSED = bumpy_union()
 # ---------------------------------------------------------------- Gauss-Bonnet and references
 
 
+@pytest.mark.slow
 def test_gauss_bonnet_on_every_test_mesh():
     """sum K_i = 2 pi chi on all meshes in tests/data/meshes, non-manifold and non-orientable ones included.
 
@@ -229,6 +230,7 @@ def test_signed_curvatures_refuse_meshes_without_an_orientation(name, problem):
 # ---------------------------------------------------------------- convergence to analytic curvature
 
 
+@pytest.mark.slow
 def test_sphere_curvatures_converge(synthetic):
     errors = {"K": [], "H": [], "HN": [], "k1": [], "k2": []}
     for part in synthetic[: len(SPHERE_LEVELS)]:
@@ -254,6 +256,7 @@ def test_sphere_curvatures_converge(synthetic):
     assert abs(total - 4 * np.pi * RADIUS) < 3e-3 * 4 * np.pi * RADIUS
 
 
+@pytest.mark.slow
 def test_torus_curvatures_converge_at_second_order(synthetic):
     errors = {"K": [], "H": [], "k1": [], "k2": []}
     for part in synthetic[len(SPHERE_LEVELS) : len(SPHERE_LEVELS) + len(TORUS_RESOLUTIONS)]:
@@ -358,6 +361,7 @@ def weighted_outputs(V):
 WEIGHTED_OUTPUTS = jax.jit(weighted_outputs)
 
 
+@pytest.mark.slow
 def test_gradients_match_finite_differences():
     # Central differences in float64 with eps=1e-6: agreement to ~1e-6 is the expected accuracy.
     check_grads(WEIGHTED_OUTPUTS, (SMALL.vertices,), order=1, modes=("rev",), eps=1e-6, atol=1e-6, rtol=1e-6)

@@ -343,6 +343,7 @@ def test_jit_and_vmap_equal_eager():
     np.testing.assert_allclose(batched["dihedral"][2], batched["dihedral"][0], atol=1e-14)
 
 
+@pytest.mark.slow
 def test_gradients_match_finite_differences():
     # Central differences in float64 with eps=1e-6: agreement to ~1e-6 is the expected accuracy.
     check_grads(WEIGHTED_OUTPUTS, (SMALL.vertices,), order=1, modes=("rev",), eps=1e-6, atol=1e-6, rtol=1e-6)

@@ -76,11 +76,17 @@ def test_cylinder_topology_rings_and_outward_normals():
     assert np.all(np.sum(normals[:, :2] * corners.mean(axis=1)[:, :2], axis=1) > 0)  # outward
 
 
+@pytest.mark.slow
 def test_areas_converge_at_second_order():
     cases = {
         "icosphere": ([1, 2, 3, 4], lambda n: icosphere(n, radius=1.5), 4 * np.pi * 1.5**2, lambda n: 2.0**-n),
         "uv_sphere": ([8, 16, 32], lambda n: uv_sphere(n, 2 * n, radius=1.5), 4 * np.pi * 1.5**2, lambda n: 1 / n),
-        "torus": ([16, 32, 64], lambda n: torus(major_radius=1.0, minor_radius=0.25, n_major=3 * n, n_minor=n), 4 * np.pi**2 * 0.25, lambda n: 1 / n),
+        "torus": (
+            [16, 32, 64],
+            lambda n: torus(major_radius=1.0, minor_radius=0.25, n_major=3 * n, n_minor=n),
+            4 * np.pi**2 * 0.25,
+            lambda n: 1 / n,
+        ),
         "disk": ([4, 8, 16], lambda n: disk(n, radius=2.0), np.pi * 4.0, lambda n: 1 / n),
         "cylinder": ([8, 16, 32], lambda n: cylinder(n, 2, radius=1.5, height=0.7), 2 * np.pi * 1.5 * 0.7, lambda n: 1 / n),
     }

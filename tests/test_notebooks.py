@@ -13,6 +13,9 @@ import pathlib
 
 import pytest
 
+# The slow tier (pyproject.toml): each notebook runs a kernel of its own, end to end.
+pytestmark = pytest.mark.slow
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
 

@@ -70,6 +70,7 @@ def test_safe_reciprocal_is_zero_with_zero_gradient_at_zero():
     np.testing.assert_allclose(jax.vmap(jax.grad(safe_reciprocal))(x), [-1 / 16, 0.0, -4.0], rtol=1e-15)
 
 
+@pytest.mark.slow
 def test_safe_normalize_values_and_gradients():
     x = jnp.array([[3.0, 4.0], [0.0, 0.0]])
     np.testing.assert_allclose(safe_normalize(x), [[0.6, 0.8], [0.0, 0.0]], rtol=1e-15)

@@ -56,6 +56,7 @@ def _bumpy(mesh: Mesh) -> Mesh:
 # --- Willmore energy -----------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_willmore_sphere_converges_to_4pi_at_second_order():
     errors = [abs(float(willmore_energy(icosphere(s))) - 4 * np.pi) for s in (2, 3, 4)]
     rates = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
@@ -66,6 +67,7 @@ def test_willmore_sphere_converges_to_4pi_at_second_order():
     assert float(willmore_energy(scaled)) == pytest.approx(float(willmore_energy(icosphere(2))), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_willmore_torus_closed_form_and_clifford_torus():
     # W(c) = (pi / 2r) int_0^2pi (R + 2 r cos u)^2 / (R + r cos u) du = pi^2 c^2 / sqrt(c^2 - 1), c = R / r.
     for c in (np.sqrt(2), 3.0):
@@ -165,6 +167,7 @@ def test_chamfer_gradient():
     assert np.all(np.isfinite(jax.grad(chamfer_distance)(a, a)))
 
 
+@pytest.mark.slow
 def test_sample_points_on_surface_uniform_and_differentiable():
     sphere = icosphere(3)
     key = jax.random.key(4)
@@ -237,6 +240,7 @@ def _cylinder(n_theta: int, n_z: int, h: float) -> tuple[Mesh, np.ndarray]:
     return mesh, np.asarray(mesh.topology.boundary_vertices)
 
 
+@pytest.mark.slow
 def test_catenoid_between_two_rings():
     h = 0.5  # half the ring separation, below the critical 0.6627
     # The stable catenoid r = a cosh(z / a) through both rings: the larger root of a cosh(h / a) = 1.
@@ -254,6 +258,7 @@ def test_catenoid_between_two_rings():
     assert errors[1] < 5e-4 and errors[1] < errors[0] / 3
 
 
+@pytest.mark.slow
 def test_willmore_minimisation_of_a_bumpy_sphere_at_fixed_volume():
     sphere = icosphere(2)
     bumpy = _bumpy(sphere)
@@ -270,6 +275,7 @@ def test_willmore_minimisation_of_a_bumpy_sphere_at_fixed_volume():
     assert float(enclosed_volume(result.mesh)) == pytest.approx(volume, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_mesh_fitting_chamfer_pytorch3d_style():
     target_mesh = icosphere(4)
     target_mesh = target_mesh.with_vertices(target_mesh.vertices * jnp.array([1.3, 1.0, 0.7]))

@@ -117,6 +117,7 @@ def test_lscm_equals_igl_lscm_and_its_energy_matrix(hemisphere):
     np.testing.assert_allclose(np.linalg.norm(default[a] - default[b]), np.linalg.norm(V[a] - V[b]), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_conformal_maps_of_the_hemisphere_converge():
     """BFF with u = 0 is the stereographic projection up to a rigid motion (scale 1 on the equator), with error
     O(h^2) (measured rate 2.0); LSCM and the spectral map are conformal in the limit (mean quasi-conformal
@@ -142,6 +143,7 @@ def test_conformal_maps_of_the_hemisphere_converge():
 
 
 @pytest.mark.parametrize("name", DISK_MESHES)
+@pytest.mark.slow
 def test_tutte_has_no_flipped_triangles(name):
     """Positive weights and a convex boundary: every triangle keeps a positive area (Floater 1997)."""
     mesh = load_mesh(data_path("meshes", name))
@@ -166,6 +168,7 @@ def test_tutte_places_the_boundary_by_arc_length(hemisphere):
     np.testing.assert_allclose(np.asarray(tutte_embedding(hemisphere, shape=given))[loop], given, rtol=0, atol=1e-13)
 
 
+@pytest.mark.slow
 def test_bff_boundary_lengths_angles_and_rectangle(hemisphere):
     """u = 0 keeps each boundary edge's length up to the closing correction (0.2% on this 100-edge boundary,
     shrinking with refinement); target angles are the turning angles of the result exactly (the correction
@@ -247,6 +250,7 @@ def _curved_patch():
     return mesh.with_vertices(V)
 
 
+@pytest.mark.slow
 def test_gradients_of_a_distortion_energy_match_finite_differences():
     """One energy through four maps (LSCM, BFF's Dirichlet-to-Neumann and Neumann-to-Dirichlet paths, the
     harmonic map), so one compilation covers them; weights break the symmetries of a plain sum."""
@@ -272,6 +276,7 @@ def test_gradients_of_a_distortion_energy_match_finite_differences():
     check_grads(jax.jit(energy), (mesh.vertices,), order=1, modes=("rev",), eps=1e-6, atol=1e-6, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_spectral_map_gradient_matches_finite_differences():
     mesh = _curved_patch()
 
@@ -292,6 +297,7 @@ def test_jit_and_eager_agree(hemisphere):
         np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager), rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_single_triangle_unreferenced_vertices_and_float32():
     """A single triangle: Tutte puts it on the circle; LSCM, BFF and the spectral map give a similar copy
     (BFF with u = 0 a congruent one). An unreferenced vertex goes to the origin and changes nothing else."""

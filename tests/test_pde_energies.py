@@ -95,6 +95,7 @@ def test_dirichlet_energy_is_the_laplacian_one(case):
 
 
 @pytest.mark.parametrize("mass", list(MASS_TYPES))
+@pytest.mark.slow
 def test_poisson_energy_gradient_is_L_phi_plus_M_rho(case, mass):
     L, M, phi, rho = case.L, case.M[mass], case.phi, case.rho
     value, grad = _poisson(case.mesh, phi, rho, mass=mass)
@@ -224,6 +225,7 @@ def test_sign_matches_the_ddg_exercises_poisson_reference():
     assert np.abs(np.asarray(_poisson(mesh, phi, -rho, mass="barycentric")[1])).max() > scale
 
 
+@pytest.mark.slow
 def test_vertex_gradients_against_finite_differences():
     """Forward and reverse mode in the vertex positions against central differences (what
     jax.test_util.check_grads does at order 1), on a closed icosphere and a disk with boundary joined

@@ -34,6 +34,7 @@ def test_matches_the_ddg_exercises_reference(modified, tag):
     assert np.linalg.norm(plain - plain.mean(axis=0) - data[tag], axis=1).max() > 1e-6
 
 
+@pytest.mark.slow
 def test_sphere_shrinks_at_the_discrete_and_the_smooth_rate():
     """On a sphere each step gives r_{n+1} (1 + 2 tau / r_n^2) = r_n (M, L of the surface the step starts
     on), and r(t)^2 = r_0^2 - 4 t for the smooth flow (r' = -2 / r): first order in tau (measured 0.98).

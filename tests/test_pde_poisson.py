@@ -43,6 +43,7 @@ def _jittered_disk(n_rings: int) -> Mesh:
     return mesh.with_vertices(V)
 
 
+@pytest.mark.slow
 def test_unit_disk_converges_to_the_analytic_solution_at_second_order():
     """-Delta u = 1, u = 0 on the boundary: u = (1 - r^2) / 4; in ddgjax's sign, solve_poisson(mesh, -1).
     Three sizes determine the rate (measured 1.92 here; 2.05 from 8, 16 and 32 rings). The three disks
@@ -68,6 +69,7 @@ def test_unit_disk_converges_to_the_analytic_solution_at_second_order():
     np.testing.assert_allclose(u, (1 - V[:, 0] ** 2 - V[:, 1] ** 2) / 4, rtol=0, atol=1e-13)
 
 
+@pytest.mark.slow
 def test_sphere_with_spherical_harmonic_right_hand_sides():
     """On the unit sphere Delta Y_l = -l (l + 1) Y_l, so Delta phi = Y_l gives phi = -Y_l / (l (l + 1)).
     Measured rate 2.02 (2.00 from one subdivision more). The three spheres are solved as one mesh, their
@@ -140,7 +142,9 @@ def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_f
     W = np.asarray(flat.vertices)
     linear = 0.3 + 2.0 * W[:, 0] - 1.5 * W[:, 1]
     rim = flat.topology.boundary_vertices
-    np.testing.assert_allclose(harmonic_interpolation(flat, fixed_vertices=rim, fixed_values=linear[rim]), linear, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        harmonic_interpolation(flat, fixed_vertices=rim, fixed_values=linear[rim]), linear, rtol=0, atol=1e-12
+    )
 
 
 def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_elsewhere():
@@ -200,7 +204,10 @@ def test_bad_input(without_type_checker):
             "fixed_values: expected shape",
         ),
         (lambda: solve_poisson(mesh, rho, fixed_values=np.zeros(3)), "fixed_values: given without fixed_vertices"),
-        (lambda: harmonic_interpolation(mesh, fixed_vertices=[], fixed_values=[]), "fixed_vertices: expected at least one vertex"),
+        (
+            lambda: harmonic_interpolation(mesh, fixed_vertices=[], fixed_values=[]),
+            "fixed_vertices: expected at least one vertex",
+        ),
         (lambda: solve_poisson(mesh, rho, solver="lu"), "solver: expected one of"),
     ]
     for call, message in cases:

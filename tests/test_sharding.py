@@ -23,6 +23,9 @@ from ddgjax.sharding import batch_sharding, partition_vertices, shard_batch, sha
 
 from conftest import REPO
 
+# The slow tier (pyproject.toml): the checks run in a subprocess with 8 host devices.
+pytestmark = pytest.mark.slow
+
 SHARDED = "P('batch',)"
 VERTICES = "P('vertices',)"
 

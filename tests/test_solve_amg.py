@@ -107,6 +107,7 @@ def test_amg_cg_reaches_1e_10_on_camelhead_and_matches_spsolve(camelhead):
     np.testing.assert_allclose(x, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 
+@pytest.mark.slow
 def test_v_cycle_is_symmetric_positive_definite(heat):
     # A small coarsest level forces three levels on these ~700-unknown matrices, so the recursion is
     # exercised; a Dirichlet block and a heat operator, both smoothers, and a Chebyshev degree above one.
@@ -157,6 +158,7 @@ def refreshable(heat):
     return amg_hierarchy(A, refreshable=True, max_coarse=30)
 
 
+@pytest.mark.slow
 def test_refresh_reproduces_the_build_and_follows_new_values(heat, refreshable):
     mesh, A, _ = heat
     hierarchy = refreshable
@@ -191,6 +193,7 @@ def test_semidefinite_laplacian_gets_a_semidefinite_preconditioner():
     assert eigenvalues[0] > -1e-12 * eigenvalues[-1]
 
 
+@pytest.mark.slow
 def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead):
     A, hierarchy = camelhead
     b = _rhs(A.shape[0])

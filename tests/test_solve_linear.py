@@ -18,6 +18,7 @@ from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, icosphere
 from ddgjax.solve import factorize, linear_solve
 from ddgjax.solve._amg import amg_hierarchy
+from ddgjax.solve import _linear
 from ddgjax.solve._linear import _real_form
 from ddgjax.sparse import SparseMatrix, from_scipy
 
@@ -37,8 +38,8 @@ def _options(backend: str, A: SparseMatrix) -> dict:
 SPHERE = icosphere(2)
 DISK = disk(6)
 
-# One compiled program per backend and shape, shared by the tests (an eager call dispatches every
-# small operation and traces CG's loop anew each time). `options` is `_options(...)`: its strings are static.
+# One compiled program per backend and shape for the whole call (the AMG hierarchy of "cg-amg" included),
+# shared by the tests. `options` is `_options(...)`: its strings are static.
 _solve = eqx.filter_jit(lambda A, b, options: linear_solve(A, b, **options))
 
 
@@ -77,6 +78,7 @@ def test_solves_match_scipy_spsolve(method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_jit_vmap_and_scan(method):
     A = _heat_operator(SPHERE)
     options = _options(method, A)
@@ -101,6 +103,7 @@ def test_jit_vmap_and_scan(method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_a_kept_factorisation_solves_many_right_hand_sides(method):
     A = _heat_operator(SPHERE)
     options = _options(method, A)
@@ -149,6 +152,7 @@ def _symmetric_direction(A: SparseMatrix, seed: int) -> jax.Array:
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_gradients_in_b_and_values_match_finite_differences(method):
     A = _heat_operator(icosphere(1))
     options = _options(method, A)
@@ -203,6 +207,20 @@ def test_cg_that_does_not_converge_is_reported():
         jax.jit(lambda b: linear_solve(A, b, method="cg", max_steps=2).value)(b)
 
 
+@pytest.mark.parametrize("method", ("cholesky", "superlu", "cg"))
+def test_eager_solves_reuse_their_compiled_programs(method):
+    """An eager `linear_solve` runs two compiled programs (the host factor's and the solve's, one per
+    factorisation kind and shape), not one dispatch per operation: new values and a new right-hand side
+    on the same pattern compile nothing."""
+    A = _heat_operator(SPHERE, t=1.0)
+    b = _rhs(A.shape[0])
+    linear_solve(A, b, method=method)
+    programs = (_linear._solve._cache_size(), _linear._factor._cache_size())
+    again = linear_solve(2.0 * A, 2.0 * b, method=method)
+    assert (_linear._solve._cache_size(), _linear._factor._cache_size()) == programs
+    np.testing.assert_allclose(again.value, linear_solve(A, b, method=method).value, rtol=1e-8)  # CG's rtol 1e-10
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_singular_system_with_incompatible_rhs_is_reported_not_hidden(method):
     options = _options(method, cotan_laplacian(SPHERE))
@@ -246,6 +264,7 @@ def test_bad_input(without_type_checker):
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_forward_mode_and_hessian_vector_products(method):
     A = _heat_operator(icosphere(1))
     options = _options(method, A)
@@ -271,6 +290,7 @@ def test_forward_mode_and_hessian_vector_products(method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_right_hand_sides_with_zeros_and_float32_systems(method):
     A = _heat_operator(SPHERE)
     single = SparseMatrix(A.values.astype(jnp.float32), A.pattern, symmetric=True, positive_semidefinite=True)
@@ -299,6 +319,7 @@ def _connection_heat_operator(mesh, t=0.1, seed=0):
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_complex_hermitian_systems_match_scipy_and_differentiate(method):
     A = _connection_heat_operator(icosphere(1))
     assert A.hermitian and not A.symmetric

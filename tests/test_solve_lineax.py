@@ -16,8 +16,8 @@ from ddgjax import DDGInputError
 from ddgjax.dec import gradient
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import face_areas, icosphere, torus
-from ddgjax.solve import SparseCholesky, linear_solve
 from ddgjax.pde import screened_dirichlet_energy
+from ddgjax.solve import SparseCholesky, linear_solve
 from ddgjax.solve._lineax import column_colouring, matrix_from_products
 from ddgjax.sparse import from_scipy
 
@@ -47,6 +47,7 @@ def test_colouring_recovers_the_matrix_from_products():
     assert abs(recovered.to_scipy() - A.to_scipy()).max() < 1e-13
 
 
+@pytest.mark.slow
 def test_lineax_solves_and_differentiates_with_it():
     A = M + 0.1 * L
     operator = lx.FunctionLinearOperator(lambda v: A @ v, jax.ShapeDtypeStruct((MESH.n_vertices,), RHO.dtype))
@@ -59,6 +60,7 @@ def test_lineax_solves_and_differentiates_with_it():
 
 
 @pytest.mark.parametrize("method", ["cholesky", "cg"])
+@pytest.mark.slow
 def test_newton_on_a_quadratic_energy_is_the_direct_solve(method):
     """Screened Poisson: the minimiser of 1/2 phi^T (L + sM) phi - phi^T M rho solves (L + sM) phi = M rho."""
     screening = 2.0
@@ -83,6 +85,7 @@ def test_newton_on_a_quadratic_energy_is_the_direct_solve(method):
     np.testing.assert_allclose(grad, expected, rtol=1e-8, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_newton_iterates_on_a_non_quadratic_energy():
     """A regularised p-Dirichlet energy (p = 3) plus screening: Newton converges in a few steps."""
     areas = face_areas(MESH)

@@ -52,6 +52,7 @@ def pair(request):
     return from_scipy(reference), reference
 
 
+@pytest.mark.slow
 def test_products_transpose_and_exports_match_scipy(pair):
     matrix, reference = pair
     rng = np.random.default_rng(1)
@@ -199,6 +200,7 @@ def test_lineax_cg_solves(spd):
     np.testing.assert_allclose(operator.as_matrix(), reference.toarray(), rtol=1e-14)
 
 
+@pytest.mark.slow
 def test_gradients_through_values_and_rhs(spd):
     matrix, _ = spd
     x = jnp.asarray(np.random.default_rng(10).random((25, 2)))
@@ -461,7 +463,9 @@ def test_adding_a_diagonal_matches_scipy():
         _as_csr_layout(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30))) + d
     # Passed into jit, the pattern is only known when the program runs: the outcome missing_diagonal.
     with pytest.raises(Exception, match="lacks diagonal entries"):
-        jax.jit(lambda a, b: (a + b).values)(_as_csr_layout(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30))), d)
+        jax.jit(lambda a, b: (a + b).values)(
+            _as_csr_layout(sp.csr_matrix((np.ones(3), ([0, 1, 2], [1, 2, 0])), shape=(30, 30))), d
+        )
     with pytest.raises(DDGInputError, match="equal shapes"):
         square + diagonal_matrix(jnp.ones(29))
 

@@ -106,6 +106,7 @@ def test_blocks_under_jit_and_vmap_with_new_values(case):
     assert not {"sort", "while", "scatter-add", "scatter"} & names
 
 
+@pytest.mark.slow
 def test_gradients_of_block_values_against_finite_differences(case):
     matrix, fixed, plan = case
     rng = np.random.default_rng(4)

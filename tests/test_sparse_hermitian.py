@@ -71,6 +71,7 @@ def test_from_scipy_detects_hermitian_not_symmetric(hpd):
     assert real_symmetric.symmetric and not real_symmetric.hermitian and real_symmetric.self_adjoint
 
 
+@pytest.mark.slow
 def test_products_transposes_and_exports_match_scipy(hpd):
     matrix, reference = hpd
     rng = np.random.default_rng(3)

@@ -45,6 +45,7 @@ def _hemisphere(n_rings):
     return flat.with_vertices(jnp.asarray(vertices))
 
 
+@pytest.mark.slow
 def test_unit_sphere_converges_to_l_l_plus_1_at_second_order():
     errors, sizes = [], []
     for subdivisions in (2, 3, 4):
@@ -88,6 +89,7 @@ def test_hemisphere_spectrum(boundary, expected):
     np.testing.assert_allclose(values, expected, rtol=0.02, atol=0.02)
 
 
+@pytest.mark.slow
 def test_unit_disk_dirichlet_spectrum_is_the_squared_bessel_zeros():
     j0, j1, j2 = jn_zeros(0, 2), jn_zeros(1, 1), jn_zeros(2, 1)
     expected = np.sort(np.concatenate([j0**2, np.repeat(j1**2, 2), np.repeat(j2**2, 2)]))
@@ -95,6 +97,7 @@ def test_unit_disk_dirichlet_spectrum_is_the_squared_bessel_zeros():
     np.testing.assert_allclose(values, expected, rtol=0.01)
 
 
+@pytest.mark.slow
 def test_unit_square_spectrum():
     square = grid(24, 24, size=1.0)
     dirichlet, _ = eigenpairs(square, 4, boundary="dirichlet")
@@ -108,6 +111,7 @@ def _finite_difference(f, V, seed=0, eps=1e-6):
     return direction, (f(V + eps * direction) - f(V - eps * direction)) / (2 * eps)
 
 
+@pytest.mark.slow
 def test_gradients_of_eigenvalues_eigenvectors_and_cluster_invariant_functions():
     mesh = icosphere(2)
 
@@ -194,6 +198,7 @@ def test_bad_input(without_type_checker):
             call()
 
 
+@pytest.mark.slow
 def test_pure_jax_subspace_iteration_agrees_with_arpack():
     # k closes the clusters: 1 + 3 + 5 on the sphere; j01, j11 (2), j21 (2), j02, j31 (2) on the disk.
     for mesh, boundary, k in ((icosphere(2), "neumann", 9), (disk(6), "dirichlet", 8)):
@@ -216,6 +221,7 @@ def _subspace_eigenpairs(mesh, V, *, k, boundary, solver):
     return eigenpairs(mesh.with_vertices(V), k, boundary=boundary, method="subspace", solver=solver)
 
 
+@pytest.mark.slow
 def test_subspace_iteration_with_a_multigrid_hierarchy_passed_into_jit_differentiates():
     """A hierarchy of L built outside jit preconditions the forward and the adjoint solves inside it; the
     gradient of the eigenvalue sum (invariant within clusters) equals ARPACK's path."""
@@ -238,6 +244,7 @@ def test_subspace_iteration_with_a_multigrid_hierarchy_passed_into_jit_different
         )
 
 
+@pytest.mark.slow
 def test_shape_operators_for_a_folder_of_meshes(tmp_path):
     from ddgjax.dec import gradient
     from ddgjax.io import load_mesh, save_mesh
@@ -258,6 +265,7 @@ def test_shape_operators_for_a_folder_of_meshes(tmp_path):
         shape_operators(icosphere(1), 3, mass="galerkin")
 
 
+@pytest.mark.slow
 def test_robust_eigenpairs_are_those_of_robust_laplacian():
     import robust_laplacian
 

@@ -45,12 +45,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(run=run_info)
 
 
-@kernel
-def _statistics(mesh: Mesh) -> dict:
+@kernel(static_argnames=("oriented",))
+def _statistics(mesh: Mesh, *, oriented: bool) -> dict:
     """Every number the report prints, in one compiled call.
 
     The signed mean and principal curvatures exist only with a consistent orientation (they raise
-    `MeshDataError` otherwise); without one they are left out and the report says why.
+    `MeshDataError` otherwise); without one (`oriented`, read from the topology before the kernel,
+    which sees none) they are left out and the report says why.
     """
     stats = {
         "area": total_area(mesh),
@@ -58,7 +59,7 @@ def _statistics(mesh: Mesh) -> dict:
         "defects": vertex_angle_defects(mesh),
         "K": vertex_pointwise_gaussian_curvatures(mesh),
     }
-    if mesh.topology.is_oriented:
+    if oriented:
         stats["H"] = vertex_pointwise_mean_curvatures(mesh)
         stats["principal"] = vertex_principal_curvatures(mesh)
     return stats
@@ -75,7 +76,7 @@ def run_info(args: argparse.Namespace) -> int:
     except (OSError, DDGInputError, MeshDataError) as error:
         print(f"ddgjax info: error: {error}", file=sys.stderr)
         return 2
-    print(format_info(name, report, jax.tree_util.tree_map(np.asarray, _statistics(mesh))))
+    print(format_info(name, report, jax.tree_util.tree_map(np.asarray, _statistics(mesh, oriented=mesh.topology.is_oriented))))
     return 0
 
 

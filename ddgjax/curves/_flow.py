@@ -147,7 +147,7 @@ def _states(points, tau, *, closed, kind, method, rescale, steps, save_every, ch
     def chunk(carry, start):
         return _advance(*carry, start, tau, target, **settings)
 
-    carry = (points, tracker_start(points, closed, check))
+    carry = (points, tracker_start(points, closed=closed, check=check))
     (_, (failure, _)), frames = run_chunks(
         chunk,
         carry,

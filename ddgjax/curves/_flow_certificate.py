@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from .._compile import kernel
 from .._loop import Failure, failed_before, no_failure, record
 from .._numerics import safe_div, safe_reciprocal
 from .._results import RESULTS
@@ -92,6 +93,9 @@ def _certified(p, reference) -> Bool[Array, ""]:
     return jnp.max(jnp.maximum(far, near * inverse_margins_sq[0])) < 1
 
 
+# A kernel: the progress-bar path calls it outside any program, where op-by-op dispatch of the
+# O(n^2) sweep would recompile its loop at every call.
+@kernel(static_argnames=("closed", "check"))
 def tracker_start(points: Float[Array, "n 2"], closed: bool, check: str) -> tuple[Failure, tuple | None]:
     """The tracking state before the first step: `(failure, reference)`; the input is step 0 (`"certified"` tests it)."""
     if check != "certified":

@@ -59,8 +59,8 @@ from .._compile import kernel
 from .._errors import DDGInputError, is_traced
 from .._indexing import take_rows
 from .._numerics import safe_div
-from ..mesh import Mesh, MeshTopology, face_areas_from_lengths_sq, require_mesh
 from .._options import check_mass
+from ..mesh import Mesh, MeshTopology, face_areas_from_lengths_sq, require_mesh
 from ..sparse import SparseMatrix
 from ._lengths import cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
 from ._plan import TriangulationPlan, triangulation_plan, vertex_plan

@@ -179,4 +179,3 @@ def galerkin_values(areas: Float[Array, " nf"], plan: TriangulationPlan) -> Floa
 @kernel
 def _galerkin_from_lengths_sq(lengths_sq: Float[Array, "nf 3"], plan: TriangulationPlan) -> Float[Array, " nnz"]:
     return galerkin_values(face_areas_from_lengths_sq(lengths_sq), plan)
-

@@ -33,9 +33,7 @@ class LaplacianAndMass(NamedTuple):
     mass: SparseMatrix
 
 
-def laplacian_and_mass(
-    mesh: Mesh, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False
-) -> LaplacianAndMass:
+def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False) -> LaplacianAndMass:
     """`(L, M)`: the cotan Laplacian and the mass matrix of `mesh`, or of its intrinsic Delaunay triangulation.
 
     `robust=False`: `cotan_laplacian(mesh)` and `mass_matrix(mesh, mass=mass)`; otherwise

@@ -27,9 +27,9 @@ from jaxtyping import Array, Float
 
 from .._compile import kernel
 from .._errors import check_choice
-from .._options import DUAL_CELLS
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_div, safe_norm, safe_normalize, safe_sqrt, unsigned_angle
+from .._options import DUAL_CELLS
 from ._mesh import Mesh
 
 

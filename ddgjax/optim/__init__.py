@@ -17,6 +17,7 @@
   bounds; `ShapeOptimizationResult` with `.value` (the final vertices), `.result` and
   `first_failure_step` (docs/conventions.md, Outcomes).
 """
+
 from ..geodesics import heat_distance as heat_distance
 from ..mesh import enclosed_volume as enclosed_volume
 from ..mesh import total_area as total_area

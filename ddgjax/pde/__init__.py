@@ -10,8 +10,11 @@
 - `hodge_decomposition(mesh, omega)`: a 1-form split into exact, co-exact and harmonic parts.
 - `mean_curvature_flow(mesh, *, tau, steps, modified=...)`: backward-Euler (modified) mean curvature flow.
 
-Each solves its linear systems with `ddgjax.solve` (`solver=` names the backend) and reports failure
-through `ddgjax.RESULTS` (`throw=`).
+Each solves its linear systems with `ddgjax.solve` (`solver=` names the backend, one of
+`ddgjax.LINEAR_SOLVERS`) and reports failure through `ddgjax.RESULTS`: `throw=True` (default) raises,
+`throw=False` returns a `ddgjax.Solution` (`value`, `result`, `stats`) or, for the flow, its record.
+libigl / gpytoolbox: `min_quad_with_fixed`, `harmonic`; the DDG exercises: `ScalarPoissonProblem`,
+`HodgeDecomposition`, `MeanCurvatureFlow`.
 """
 
 from ._energies import dirichlet_energy as dirichlet_energy

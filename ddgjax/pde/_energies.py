@@ -52,6 +52,7 @@ from ..laplacian import dirichlet_energy as dirichlet_energy
 from ..laplacian import mass_matrix
 from ..mesh import Mesh, face_areas, require_mesh
 
+
 def screened_dirichlet_energy(
     mesh: Mesh, phi: Float[ArrayLike, "nv *k"], screening: Real[ArrayLike, ""], *, mass: str = "voronoi"
 ) -> Float[Array, ""]:

@@ -267,9 +267,7 @@ class DirichletData:
         self.values = values
         if pattern is None:
             pattern = vertex_plan(mesh).pattern
-        self.fixed, self.plan, self.n_pinned, self.labels, self.n_components, self.floating = _pins(
-            topology, vertices, pattern
-        )
+        self.fixed, self.plan, self.n_pinned, self.labels, self.n_components, self.floating = _pins(topology, vertices, pattern)
 
     def fixed_values(self, dtype) -> Float[Array, " n_fixed *k"]:
         """The values of `fixed` in `dtype`: `values`, then zeros for the pinned and unreferenced vertices."""
@@ -308,7 +306,14 @@ def _pins(topology: MeshTopology, vertices: np.ndarray, pattern: SparsityPattern
     # Host work even inside a caller's trace: it depends on the connectivity and the indices only.
     with jax.ensure_compile_time_eval():
         plan = dirichlet_plan(pattern, fixed) if fixed.size < n else None
-        pinned = (fixed, plan, pins.size + extra.size, jnp.asarray(labels), topology.n_components + 1, jnp.asarray(floating[labels]))
+        pinned = (
+            fixed,
+            plan,
+            pins.size + extra.size,
+            jnp.asarray(labels),
+            topology.n_components + 1,
+            jnp.asarray(floating[labels]),
+        )
     if len(kept) >= _PINS_KEPT:
         kept.pop(next(iter(kept)))
     kept[key] = (pattern, pinned)

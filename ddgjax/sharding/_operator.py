@@ -34,8 +34,8 @@ from jaxtyping import Array, ArrayLike, Float, Real
 
 from .._compile import kernel
 from .._errors import DDGInputError
-from .._options import check_mass
 from .._indexing import take_rows
+from .._options import check_mass
 from .._results import raise_if_failed
 from ..internal import linear_solution, preconditioned_cg
 from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq

@@ -38,8 +38,8 @@ def gather_sum(
     `index[s, k] >= n` pads (reads 0); `transpose_index[c]` lists every `s` with `c` among
     `index[s, :]` (each occurrence once, padded with an index `>= m`), so that the transpose is
     `x_bar[c] = sum_j y_bar[transpose_index[c, j]]`. The caller guarantees that the two arrays
-    describe the same incidence (built together on the host, e.g. `VertexPlan.slot_corners` and
-    `VertexPlan.corner_slots` in `ddgjax.laplacian._plan`); negative indices are not allowed.
+    describe the same incidence (built together on the host, e.g. `TriangulationPlan.slot_corners` and
+    `TriangulationPlan.corner_slots` in `ddgjax.laplacian._plan`); negative indices are not allowed.
 
     Linear in `x`; works under `jit`, `grad`, `jvp`, `jacfwd`, `vmap` and nested combinations (module
     docstring). No libigl / gpytoolbox equivalent; in SciPy terms it is `S @ x` (and its transpose

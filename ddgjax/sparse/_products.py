@@ -79,7 +79,8 @@ def congruence(d: SparseMatrix, weights: Float[ArrayLike, " m"], pattern: Sparsi
     slots from the host-built `plan` (`congruence_plan(d_cols, pattern)`). Linear in `w` and
     differentiable in both modes in `w` and `D`'s values; the result is flagged symmetric.
 
-    Used for the DEC Laplacian `d0^T *1 d0` (`cotan_laplacian(mesh, method="dec")`). SciPy:
+    Used for operators given by edge weights, `d0^T W d0` (the Hodge decomposition's; with `W = *1`
+    it is the cotan Laplacian, a test of `ddgjax.laplacian.cotan_laplacian`). SciPy:
     `D.T @ scipy.sparse.diags(w) @ D`. Reference: Crane et al., *Digital Geometry Processing with
     Discrete Exterior Calculus* (2013), section 3.
 
