@@ -44,11 +44,27 @@ def face_edge_vectors(mesh: Mesh) -> Float[Array, "nf 3 3"]:
     return jnp.roll(corners, -2, axis=1) - jnp.roll(corners, -1, axis=1)
 
 
+def _edge_coordinates(mesh: Mesh) -> list[list[Float[Array, " nf"]]]:
+    """`e[k][c]`: coordinate `c` of the edge vector opposite corner `k` of each face, from one `V[F]` gather.
+
+    Coordinate by coordinate on `(nf,)` arrays: XLA:CPU does not vectorise reductions over a size-3
+    axis, and written as those the lengths and areas of the cotan Laplacian (`ddgjax.laplacian`)
+    compile into one kernel with its per-corner values instead of several that write out
+    `(nf, 3, 3)` intermediates (benchmarks/laplacian.py).
+    """
+    corners = face_vertex_positions(mesh)
+    return [[corners[:, (k + 2) % 3, c] - corners[:, (k + 1) % 3, c] for c in range(3)] for k in range(3)]
+
+
+def _dot(a: list, b: list) -> Float[Array, " nf"]:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
 @kernel
 def face_edge_lengths_sq(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Squared length of the edge opposite each corner, `(nf, 3)` (libigl `squared_edge_lengths`)."""
-    vectors = face_edge_vectors(mesh)
-    return jnp.sum(vectors * vectors, axis=-1)
+    edges = _edge_coordinates(mesh)
+    return jnp.stack([_dot(edges[k], edges[k]) for k in range(3)], axis=1)
 
 
 @kernel
@@ -104,7 +120,10 @@ def face_areas(mesh: Mesh) -> Float[Array, " nf"]:
     (2020). Equivalents: libigl `igl.doublearea(V, F) / 2`;
     gpytoolbox `doublearea(V, F) / 2`; trimesh `Trimesh.area_faces`.
     """
-    return safe_norm(face_area_vectors(mesh))
+    # |e_1 x e_2| = |(p1 - p0) x (p2 - p0)|, from the edge coordinates (`_edge_coordinates` says why).
+    _, (x1, y1, z1), (x2, y2, z2) = _edge_coordinates(mesh)
+    normal = [y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2]
+    return 0.5 * safe_sqrt(_dot(normal, normal))
 
 
 @kernel
@@ -146,7 +165,11 @@ def corner_cotangents_from_lengths_sq(
     """
     if areas is None:
         areas = face_areas_from_lengths_sq(lengths_sq)
-    return safe_div(_cosine_numerators(lengths_sq), 4.0 * areas[:, None])
+    # Column by column (no roll, no broadcast of the areas): the cotan Laplacian's per-face arithmetic
+    # then compiles into one kernel with the edge lengths (benchmarks/laplacian.py).
+    columns = [lengths_sq[:, k] for k in range(3)]
+    four_areas = 4.0 * areas
+    return jnp.stack([safe_div(columns[(k + 1) % 3] + columns[(k + 2) % 3] - columns[k], four_areas) for k in range(3)], axis=1)
 
 
 @kernel
