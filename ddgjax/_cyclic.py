@@ -2,7 +2,7 @@
 
 JAX builds `jnp.roll` from two slices and a concatenation, so reverse mode transposes it into two
 zero-padded copies and an addition, which XLA's CPU backend emits as separate kernels. Inside the
-curve flows' tangent (`ddgjax.curves._flow._explicit_step_jvp`, transposed once per step of a
+curve flows' tangent (`ddgjax.curves._flow_step._explicit_step_jvp`, transposed once per step of a
 thousand-step gradient) that made the backward pass several times the forward one. A roll is a
 permutation, so its transpose is the roll the other way: this primitive says so.
 

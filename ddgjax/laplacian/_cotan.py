@@ -32,7 +32,7 @@ from .._compile import kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows
 from .._numerics import safe_reciprocal, safe_sqrt
-from ..mesh import Mesh, face_areas, face_edge_lengths_sq, require_mesh
+from ..mesh import Mesh, face_areas, face_edge_lengths_sq, face_vertex_positions, require_mesh
 from ..sparse import SparseMatrix
 from ._lengths import laplacian_values, off_diagonal_entries, psd_matrix
 from ._plan import TriangulationPlan, vertex_plan
@@ -232,11 +232,11 @@ def _face_edges(mesh: Mesh) -> tuple[list[list[Float[Array, " nf"]]], list[Float
     corner `k` (`p_{k+2} - p_{k+1}`), and `normal[c] = (e_1 x e_2)[c] = 2 A N` (counterclockwise corners).
 
     Coordinate by coordinate on `(nf,)` arrays: XLA's CPU backend does not vectorise reductions over a
-    size-3 axis, which `(nf, 3, 3)` arrays with `sum(axis=-1)` / `jnp.cross` would need.
+    size-3 axis, which `(nf, 3, 3)` arrays with `sum(axis=-1)` / `jnp.cross` would need. From the one
+    `V[F]` gather the edge lengths of the energy's primal read too (`face_edge_lengths_sq`).
     """
-    corners = [take_rows(mesh.vertices[:, c], mesh.faces) for c in range(3)]  # coordinate c of each face's corners, (nf, 3)
-    points = [[corners[c][:, k] for c in range(3)] for k in range(3)]  # points[k][c], (nf,)
-    edges = [[points[(k + 2) % 3][c] - points[(k + 1) % 3][c] for c in range(3)] for k in range(3)]
+    corners = face_vertex_positions(mesh)
+    edges = [[corners[:, (k + 2) % 3, c] - corners[:, (k + 1) % 3, c] for c in range(3)] for k in range(3)]
     return edges, _cross(edges[1], edges[2])
 
 

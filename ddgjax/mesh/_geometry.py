@@ -39,7 +39,11 @@ def face_vertex_positions(mesh: Mesh) -> Float[Array, "nf 3 3"]:
 
 
 def face_edge_vectors(mesh: Mesh) -> Float[Array, "nf 3 3"]:
-    """Edge vectors per face: entry `k` is `V[F[k+2]] - V[F[k+1]]`, the edge opposite corner `k`."""
+    """Edge vectors per face, `(nf, 3, 3)`: entry `k` is `V[F[k+2]] - V[F[k+1]]`, the edge opposite corner `k`.
+
+    Counterclockwise around a counterclockwise face (`e_0 + e_1 + e_2 = 0`). libigl / gpytoolbox have
+    no per-face edge vectors; `V[F[:, [2, 0, 1]]] - V[F[:, [1, 2, 0]]]` in NumPy.
+    """
     corners = face_vertex_positions(mesh)
     return jnp.roll(corners, -2, axis=1) - jnp.roll(corners, -1, axis=1)
 
