@@ -82,6 +82,7 @@ def kernel(
     - The argument types are checked before tracing: a first parameter named `mesh` must be a
       `ddgjax.Mesh`, one named `curve` a `ddgjax.curves.Curve` (`DDGInputError` saying what to call
       otherwise, rather than an `AttributeError` from inside the trace).
+    - Options are keyword-only: too many positional arguments get Python's `TypeError` naming them.
     - Every `Mesh` argument is passed as `mesh.without_topology()`: its static connectivity is not
       part of the cache key, so one program serves every mesh of the same array shapes, and eager
       calls run one compiled program instead of hundreds of op-by-op dispatches. Host work that needs
@@ -105,11 +106,16 @@ def kernel(
         )
     plain = jax.jit(function, static_argnames=static_argnames)
     tuned: dict[tuple, Callable] = {}
-    parameters = list(inspect.signature(function).parameters)
-    first = parameters[0] if parameters else None
+    parameters = inspect.signature(function).parameters.values()
+    first = next(iter(parameters)).name if parameters else None
+    positional = sum(parameter.kind in (parameter.POSITIONAL_ONLY, parameter.POSITIONAL_OR_KEYWORD) for parameter in parameters)
+    keywords = ", ".join(f"{parameter.name}=..." for parameter in parameters if parameter.kind == parameter.KEYWORD_ONLY)
 
     @functools.wraps(function)
     def call(*args, **kwargs):
+        if len(args) > positional:  # Python's own message, naming the options, rather than jit's about static arguments
+            hint = f"; pass its options by keyword: {function.__name__}(..., {keywords})" if keywords else ""
+            raise TypeError(f"{function.__name__}() takes {positional} positional argument(s) but {len(args)} were given{hint}")
         if args and first in _REQUIRED:
             args = (_REQUIRED[first](first, args[0]), *args[1:])
         args = tuple(_prepare(arg, requires_orientation) for arg in args)

@@ -14,6 +14,9 @@ MASS_MATRICES = ("voronoi", "barycentric", "galerkin")
 """`mass=`: the mass matrix. Lumped mixed-Voronoi (Meyer et al. 2003, libigl's default), lumped
 barycentric (a third of each face to each corner) and the full Galerkin (FEM) mass matrix."""
 
+LUMPED_MASS_MATRICES = ("voronoi", "barycentric")
+"""The diagonal members of `MASS_MATRICES`: what an operator that divides by vertex areas accepts."""
+
 DUAL_CELLS = ("voronoi", "circumcentric", "barycentric")
 """`dual=`: the dual cell of a vertex (and the dual edge) in DEC and in pointwise curvatures: mixed
 Voronoi, the plain circumcentric dual (may be negative on obtuse triangles), barycentric."""

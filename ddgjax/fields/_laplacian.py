@@ -17,7 +17,7 @@ from jaxtyping import Array, Complex, Float
 from .._compile import kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows_or_zero
-from .._options import check_mass
+from .._options import LUMPED_MASS_MATRICES, check_mass
 from ..internal import vertex_plan
 from ..laplacian import TriangulationPlan, mass_matrix
 from ..mesh import Mesh, edge_cotan_weights
@@ -25,7 +25,6 @@ from ..sparse import SparseMatrix, diagonal_matrix
 from ._connection import connection
 from ._plan import FieldPlan
 
-LUMPED_MASSES = ("voronoi", "barycentric")
 """The `mass=` values of tangent fields: the lumped ones (`connection_mass_matrix`)."""
 
 
@@ -90,7 +89,7 @@ def connection_mass_matrix(mesh: Mesh, *, mass: str = "voronoi") -> SparseMatrix
     couples neighbouring vertices, whose vectors live in different tangent planes, so its off-diagonal
     entries would need the transport (`exp(i n rho_ij)`) too, which the scalar Galerkin mass does not have.
     """
-    check_mass(mass, LUMPED_MASSES)
+    check_mass(mass, LUMPED_MASS_MATRICES)
     return mass_matrix(mesh, mass=mass)
 
 

@@ -35,7 +35,7 @@ from jaxtyping import Array, ArrayLike, Float, Real
 from .._compile import kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows
-from .._options import check_mass
+from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import raise_if_failed
 from ..internal import linear_solution, preconditioned_cg
 from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
@@ -43,7 +43,6 @@ from ..solve import LinearSolution
 from ..sparse import gather_sum
 from ._partition import VERTICES, LocalPlan, VertexPartition
 
-LUMPED_MASSES = ("voronoi", "barycentric")
 """The `mass=` values `sharded_cg` supports: the lumped (diagonal) ones of `ddgjax.MASS_MATRICES`."""
 
 
@@ -99,9 +98,9 @@ def sharded_cg(
         `ddgjax.solve.LinearSolution` whose `value` is sharded `P("vertices")`; failures through
         `ddgjax.RESULTS` (`throw=`). SciPy: `scipy.sparse.linalg.spsolve(L + shift * M, b)`.
     """
-    if check_mass(mass) not in LUMPED_MASSES:
+    if check_mass(mass) not in LUMPED_MASS_MATRICES:
         raise DDGInputError(
-            f"mass: sharded_cg supports the lumped mass matrices {', '.join(map(repr, LUMPED_MASSES))}, got {mass!r} "
+            f"mass: sharded_cg supports the lumped mass matrices {', '.join(map(repr, LUMPED_MASS_MATRICES))}, got {mass!r} "
             "(each device keeps only the diagonal of its rows; the full Galerkin mass matrix is not partitioned)"
         )
     b, vertices = _check(partition, b, vertices)

@@ -20,14 +20,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._options import check_mass
+from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import Solution, outcome
 from ..laplacian import laplacian_and_mass
 from ..mesh import Mesh, face_hat_gradients, require_mesh
 from ..sparse import SparseMatrix, SparsityPattern
 from ._generalized import smallest_eigenpairs
 
-LUMPED_MASSES = ("voronoi", "barycentric")
 """The `mass=` values `shape_operators` takes: a learning pipeline applies `M^{-1}` pointwise, so `M` is lumped."""
 
 
@@ -59,7 +58,7 @@ def shape_operators(mesh: Mesh, k: int, *, mass: str = "voronoi", throw: bool = 
     call (DiffusionNet's `get_operators` computes the same set).
     """
     mesh = require_mesh("mesh", mesh)
-    check_mass(mass, LUMPED_MASSES)
+    check_mass(mass, LUMPED_MASS_MATRICES)
     L, M = laplacian_and_mass(mesh, mass=mass)
     solution = smallest_eigenpairs(L, M, k, throw=False)
     values, vectors = solution.value
