@@ -18,16 +18,19 @@ from jax.test_util import check_grads
 from ddgjax._errors import DDGInputError
 from ddgjax.laplacian import (
     cotan_laplacian,
+    cotan_laplacian_from_lengths_sq,
     dirichlet_energy,
     from_pytorch3d_cot_laplacian,
     laplacian_apply,
     mass_matrix,
+    mass_matrix_from_lengths_sq,
     to_gpytoolbox_cotangent_laplacian,
     to_igl_cotmatrix,
     to_pytorch3d_cot_laplacian,
+    triangulation_plan,
 )
 from ddgjax.laplacian._plan import vertex_plan
-from ddgjax.mesh import Mesh, grid, icosphere
+from ddgjax.mesh import Mesh, face_edge_lengths_sq, grid, icosphere
 
 from conftest import data_path
 from mesh_union import disjoint_union
@@ -107,6 +110,31 @@ def test_matches_libigl_and_gpytoolbox(real):
         # libigl: as above (slivers).
         np.testing.assert_allclose(applied[rows], expected @ U[rows], rtol=0, atol=1e-10 * scale, err_msg=name)
     assert vertex_plan(mesh).pattern.nnz > vertex_plan(mesh).pattern.width * mesh.n_vertices  # the union's tail too
+
+
+def test_the_mesh_operators_are_the_lengths_core_on_the_mesh_plan():
+    """`cotan_laplacian(mesh)` and `mass_matrix(mesh)` are the intrinsic core on the mesh's squared edge
+    lengths; the plan cached for a mesh (vertex pairs from its topology) is the one a face list gives
+    (`triangulation_plan`, vertex pairs by its own sort). Small meshes with boundaries, non-manifold
+    and non-orientable ones, and slivers (nefertiti_loop1), as one disjoint union."""
+    names = ("tet.obj", "small_disk.obj", "hourglass_ico.obj", "moebius.obj", "triple_vierbein.obj", "nefertiti_loop1.ply")
+    mesh = disjoint_union([_load(name)[:2] for name in names]).mesh
+    plan = triangulation_plan(np.asarray(mesh.faces), mesh.n_vertices)
+    cached = vertex_plan(mesh)
+    for field in ("source", "slot_corners", "corner_slots", "faces"):
+        np.testing.assert_array_equal(getattr(plan, field), getattr(cached, field), err_msg=field)
+    assert plan.pattern.nnz == cached.pattern.nnz and plan.pattern.width == cached.pattern.width
+    np.testing.assert_array_equal(plan.pattern.cols, cached.pattern.cols)
+    lengths_sq = face_edge_lengths_sq(mesh)
+    L = _laplacian(mesh)
+    core = cotan_laplacian_from_lengths_sq(lengths_sq, plan)
+    # The same formula; the areas from the embedding against Kahan's formula on the lengths: round-off
+    # of the slivers' areas (nefertiti's angles reach 179.6 degrees).
+    np.testing.assert_allclose(core.values, L.values, rtol=0, atol=1e-11 * np.abs(L.values).max())
+    for mass in ("voronoi", "barycentric", "galerkin"):
+        M, core = _mass(mesh, mass=mass), mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
+        assert core.pattern.nnz == M.pattern.nnz
+        np.testing.assert_allclose(core.values, M.values, rtol=0, atol=1e-12 * np.abs(M.values).max(), err_msg=mass)
 
 
 def test_robust_laplacian_on_delaunay_meshes():
