@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import sys
+from typing import TYPE_CHECKING
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import scipy.sparse as sp
-from jax.experimental import sparse as jsparse
 from jaxtyping import Array, ArrayLike, Float, Inexact, Int
 
 from .._compile import kernel
@@ -17,6 +18,10 @@ from .._indexing import take_rows, take_rows_or_zero
 from .._results import RESULTS, raise_if_failed
 from ._nonnegative import NonNegative
 from ._pattern import SparsityPattern
+
+if TYPE_CHECKING:  # imported where used: lineax and jax.experimental.sparse add to every `import ddgjax.mesh`
+    import lineax as lx
+    from jax.experimental import sparse as jsparse
 
 
 class SparseMatrix(eqx.Module):
@@ -134,7 +139,7 @@ class SparseMatrix(eqx.Module):
         Real or complex `A` and `x`; the result has JAX's promoted dtype (complex if either is).
         """
         n_cols = self.shape[1]
-        if isinstance(x, (SparseMatrix, jsparse.JAXSparse)) or sp.issparse(x):
+        if isinstance(x, SparseMatrix) or _is_jax_sparse(x) or sp.issparse(x):
             raise DDGInputError(
                 f"x: sparse-sparse products are not supported (A @ B with B a {type(x).__name__}); multiply by a "
                 "dense (n_cols,) vector or (n_cols, k) block, or multiply the exports: A.to_scipy() @ B.to_scipy()"
@@ -315,6 +320,8 @@ class SparseMatrix(eqx.Module):
 
     def to_bcoo(self) -> jsparse.BCOO:
         """`jax.experimental.sparse.BCOO` with the same entries (ELL padding: repeated positions holding 0)."""
+        from jax.experimental import sparse as jsparse
+
         indices = jnp.stack([self.pattern.rows, self.pattern.cols], axis=1)
         return jsparse.BCOO((self.values, indices), shape=self.shape)
 
@@ -357,6 +364,8 @@ class SparseMatrix(eqx.Module):
 
         SciPy equivalent: `scipy.sparse.linalg.aslinearoperator(A.to_scipy())`.
         """
+        import lineax as lx
+
         own_symmetric = self.symmetric or (self.hermitian and not _is_complex(self.values))
         flags = {
             "symmetric": own_symmetric if symmetric is None else symmetric,
@@ -630,3 +639,9 @@ def _same_positions(pa: SparsityPattern, pb: SparsityPattern, op: str) -> bool:
         if not np.array_equal(np.asarray(x), np.asarray(y)):
             return False
     return True
+
+
+def _is_jax_sparse(x) -> bool:
+    """Whether `x` is a `jax.experimental.sparse` array (never, unless the caller has imported that module)."""
+    jsparse = sys.modules.get("jax.experimental.sparse")
+    return jsparse is not None and isinstance(x, jsparse.JAXSparse)
