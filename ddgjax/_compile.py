@@ -134,13 +134,13 @@ def kernel(
 
 
 def _require_mesh(name: str, value):
-    from .mesh._mesh import require_mesh  # the mesh package sits above this module
+    from .mesh import require_mesh  # the mesh package sits above this module
 
     return require_mesh(name, value)
 
 
 def _require_curve(name: str, value):
-    from .curves._curve import require_curve
+    from .curves import require_curve
 
     return require_curve(name, value)
 

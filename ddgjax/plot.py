@@ -27,10 +27,8 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize, to_rgb
 
 from ._errors import DDGInputError, check_choice
-from .curves import Curve, CurveFlowResult
-from .curves._curve import require_curve
-from .mesh._geometry import edge_lengths, vertex_normals
-from .mesh._mesh import Mesh, require_mesh
+from .curves import Curve, CurveFlowResult, require_curve
+from .mesh import Mesh, edge_lengths, require_mesh, vertex_normals
 
 #: `(azimuth, elevation)` in degrees of `plot_mesh_function`'s default view of a non-flat mesh.
 OBLIQUE_VIEW = (-60.0, 20.0)

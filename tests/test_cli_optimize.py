@@ -27,6 +27,7 @@ def test_willmore_example_rounds_the_bumpy_sphere_and_writes_a_figure(tmp_path):
     assert matplotlib.image.imread(output).shape[0] > 100
 
 
+@pytest.mark.slow
 def test_catenoid_example_and_bad_input():
     status, out, err = run_cli(["optimize", "--example", "catenoid", "--steps", "400", "--no-progress", "--no-plot"])
     assert status == 0, err

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import matplotlib.image
+import pytest
 
 from ddgjax._cli.param import hemisphere
 from ddgjax.io import save_mesh
@@ -16,6 +17,7 @@ def _row(out: str, key: str) -> str:
     return next(line for line in out.splitlines() if line.startswith(key))[10:].strip()
 
 
+@pytest.mark.slow
 def test_param_on_the_built_in_hemisphere_writes_a_figure(tmp_path):
     output = tmp_path / "param.png"
     status, out, err = run_cli(["param", "--output", str(output)])
@@ -29,6 +31,7 @@ def test_param_on_the_built_in_hemisphere_writes_a_figure(tmp_path):
     assert matplotlib.image.imread(output).shape[0] > 100
 
 
+@pytest.mark.slow
 def test_param_of_a_mesh_file_by_lscm_and_bad_input(tmp_path):
     path = tmp_path / "patch.obj"
     save_mesh(path, hemisphere(6))

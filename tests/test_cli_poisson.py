@@ -74,6 +74,7 @@ def test_default_run_prints_the_table_and_writes_the_figure(default_run):
     _image_is_a_picture(output)
 
 
+@pytest.mark.slow
 def test_closed_sphere_with_a_spherical_harmonic():
     status, out, err = _run(["poisson", "sphere", "--resolution", "3", "--no-plot"])
     assert status == 0, err
@@ -86,6 +87,7 @@ def test_closed_sphere_with_a_spherical_harmonic():
     assert "figure written" not in out
 
 
+@pytest.mark.slow
 def test_harmonic_interpolation_on_the_disk(tmp_path):
     output = tmp_path / "harmonic.png"
     status, out, err = _run(["poisson", "--harmonic", "--resolution", "12", "--output", str(output)])
@@ -106,6 +108,7 @@ def test_harmonic_interpolation_on_the_disk(tmp_path):
         ("sphere.obj", ["--rho", "source"], "Delta phi = delta at vertex"),
     ],
 )
+@pytest.mark.slow
 def test_a_mesh_file(tmp_path, name, argv, problem):
     path = data_path("meshes", name)
     output = tmp_path / "poisson.png"

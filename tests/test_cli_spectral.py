@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import matplotlib.image
 import numpy as np
+import pytest
 
 from ddgjax.io import save_mesh
 from ddgjax.mesh import icosphere
@@ -11,6 +12,7 @@ from ddgjax.mesh import icosphere
 from conftest import run_cli
 
 
+@pytest.mark.slow
 def test_geodesic_on_the_built_in_torus_writes_a_figure(tmp_path):
     output = tmp_path / "geodesic.png"
     status, out, err = run_cli(["geodesic", "--output", str(output)])

@@ -65,6 +65,7 @@ def _rotation(angle):
 
 
 @pytest.mark.parametrize("n", [3, 40])
+@pytest.mark.slow
 def test_regular_polygon_closed_forms(n):
     r = 1.7
     curve = regular_polygon(n, radius=r, center=(0.3, -2.0))
@@ -138,6 +139,7 @@ def test_normals_are_unit_and_on_the_left(wobbly, wobbly_summary):
         assert np.all(travel[:, 0] * normals[:, 1] - travel[:, 1] * normals[:, 0] > 0), kind
 
 
+@pytest.mark.slow
 def test_length_gradient_is_minus_kappa_b_times_n(wobbly):
     for closed in (True, False):
         curve = Curve(wobbly.points, closed=closed)
@@ -211,6 +213,7 @@ def test_turning_number_and_total_curvature(wobbly):
     assert int(turning_number(double_loop)) == 2
 
 
+@pytest.mark.slow
 def test_collinear_and_reversing_vertices_stay_finite():
     # vertex 1 is collinear (kappa_D = 0, R = infinity); vertex 3 reverses direction exactly
     P = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0], [2.0, 0.5], [0.0, 1.0]])
@@ -264,6 +267,7 @@ def assert_matches_central_differences(f, derivative, x, *, eps=1e-6, rtol=1e-7,
         np.testing.assert_allclose(derivative(x, v), numeric, rtol=rtol, atol=rtol * np.max(np.abs(numeric)))
 
 
+@pytest.mark.slow
 def test_gradients_match_finite_differences(wobbly):
     # first and second derivatives (a Newton step on a curve energy needs the Hessian)
     assert_matches_central_differences(
@@ -283,6 +287,7 @@ def test_gradients_match_finite_differences(wobbly):
     )
 
 
+@pytest.mark.slow
 def test_jit_equals_eager_and_vmap(wobbly, wobbly_summary):
     batch = jnp.stack([wobbly.points, 2 * wobbly.points])
     with jax.disable_jit():

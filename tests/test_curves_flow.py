@@ -165,6 +165,7 @@ def test_b_flow_shrinks_every_edge_at_a_length_free_rate(polygon):
 
 
 @pytest.mark.filterwarnings("ignore:Arrays of 2-dimensional vectors:DeprecationWarning")  # inside curvey
+@pytest.mark.slow
 def test_d_flow_matches_curveys_flow(polygon):
     # curvey's vertex normal is the D normal (perpendicular to p_{i+1} - p_{i-1}); with kappa_D built
     # from curvey's own turning angles its CurveShorteningFlow is the report's D iteration, in NumPy.
@@ -190,6 +191,7 @@ def _one_step_each(points):
     }
 
 
+@pytest.mark.slow
 def test_one_step_is_the_reports_iteration(polygon):
     # the public path for one kind, the step function for all four
     np.testing.assert_allclose(
@@ -210,6 +212,7 @@ def _tangling_star_flow(**options):
     return curve_shortening_flow(curve, kind="A", tau=0.4, steps=20, save_every=5, **options)
 
 
+@pytest.mark.slow
 def test_self_intersection_is_reported():
     saved = _tangling_star_flow(check_simple="saved", throw=False)
     every = _tangling_star_flow(check_simple="every_step", throw=False)
@@ -249,6 +252,7 @@ def test_nonfinite_input_is_reported():
         jax.block_until_ready(flow(points, True).points)
 
 
+@pytest.mark.slow
 def test_throw_under_vmap_raises_if_any_member_failed():
     simple = star(5).points
     tangled = simple.at[jnp.array([0, 40])].set(simple[jnp.array([40, 0])])  # two far vertices swapped
@@ -331,6 +335,7 @@ def test_closed_form_step_derivatives_match_autodiff(polygon, closed):
         np.testing.assert_allclose(grads[0][1], grads[1][1], rtol=1e-12, err_msg=kind)
 
 
+@pytest.mark.slow
 def test_step_derivatives_are_finite_on_degenerate_curves():
     # coincident consecutive points (a zero-length edge) and an exact reversal (theta = pi)
     points = jnp.array([[0.0, 0.0], [1.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 1.0], [0.2, 1.0]])
@@ -354,6 +359,7 @@ def test_semi_implicit_solves_the_linearly_implicit_system(polygon):
         assert np.abs(residual).max() < 1e-13, kind
 
 
+@pytest.mark.slow
 def test_semi_implicit_is_stable_far_beyond_the_explicit_limit(polygon):
     tau = 0.5  # ~16x the shortest edge: explicit B is unstable
     explicit = curve_shortening_flow(polygon, kind="B", tau=tau, steps=20, save_every=2, throw=False)
@@ -370,6 +376,7 @@ def test_semi_implicit_agrees_with_explicit_to_first_order(polygon):
     assert errors[0] / errors[1] == pytest.approx(4.0, rel=0.05)  # one step differs by O(tau^2)
 
 
+@pytest.mark.slow
 def test_rescale_length_keeps_the_length(polygon):
     # throw=False: rescaled or not, the B flow collapses a short edge of this polygon and crosses
     # itself for a moment (test_a_transient_crossing_between_saves_is_reported); the length is kept all the same.
@@ -378,6 +385,7 @@ def test_rescale_length_keeps_the_length(polygon):
     assert float(result.isoperimetric_ratio[-1]) > float(result.isoperimetric_ratio[0])
 
 
+@pytest.mark.slow
 def test_open_curve_keeps_its_endpoints(polygon):
     curve = Curve(polygon.points[:15], closed=False)
     result = curve_shortening_flow(curve, kind="B", tau=2e-3, steps=300, save_every=100)

@@ -33,6 +33,7 @@ def test_transpose_is_the_opposite_roll(shift, axis):
     assert cyclic_shift_p.name in names and "pad" not in names
 
 
+@pytest.mark.slow
 def test_derivatives_match_jnp_roll_in_both_modes_and_nested():
     x = jnp.linspace(-1.0, 2.0, 12).reshape(6, 2)
     weights = jnp.cos(jnp.arange(12.0)).reshape(6, 2)
@@ -52,6 +53,7 @@ def test_derivatives_match_jnp_roll_in_both_modes_and_nested():
 
 @pytest.mark.parametrize("batch_axis", [0, 1, 2])
 @pytest.mark.parametrize(("shift", "axis"), [(1, 0), (-2, 1), (1, -1)])
+@pytest.mark.slow
 def test_vmap_over_any_axis(batch_axis, shift, axis):
     stacked = jnp.moveaxis(jnp.arange(60.0).reshape(3, 5, 4), 0, batch_axis)
     ours = jax.vmap(lambda v: cyclic_shift(v, shift, axis), in_axes=batch_axis)(stacked)

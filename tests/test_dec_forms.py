@@ -46,6 +46,7 @@ def curl_of_vector_potential(p):
 
 
 @pytest.mark.parametrize("name", ["sphere_small.ply", "small_disk.obj", "bob_small.ply"])
+@pytest.mark.slow
 def test_stokes_theorem_on_edges_and_faces(name):
     """d0 of the sampled 0-form = integrated gradient; d1 of the integrated 1-form = integrated curl."""
     mesh = load(name)
@@ -64,6 +65,7 @@ def test_stokes_theorem_on_edges_and_faces(name):
     np.testing.assert_allclose(d_a, curl_a, rtol=0, atol=1e-13 * np.abs(d_a).max())
 
 
+@pytest.mark.slow
 def test_quadrature_is_exact_for_the_stated_degree():
     """Monomials on one triangle and its edges against closed forms; fewer nodes are not exact."""
     corners = np.array([[0.3, -0.2, 0.1], [1.4, 0.1, -0.3], [0.2, 1.1, 0.4]])

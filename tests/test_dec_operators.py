@@ -82,6 +82,7 @@ def to_scipy(matrix):
 
 
 @pytest.mark.parametrize("name", ORIENTED)
+@pytest.mark.slow
 def test_d0_d1_form_an_exact_complex(name):
     mesh, ops = load(name), operators(name)
     D0, D1 = ops["d0"].to_scipy(), ops["d1"].to_scipy()
@@ -113,6 +114,7 @@ def test_patterns_are_traced_not_baked_in():
     ("name", "reason"),
     [("moebius.obj", "consistently oriented faces"), ("triple_vierbein.obj", "edge-manifold mesh")],
 )
+@pytest.mark.slow
 def test_orientation_policy(name, reason):
     mesh = load(name)
     ne, nf = mesh.n_edges, mesh.n_faces
@@ -233,6 +235,7 @@ def ddg_reference():
     return mesh, values, index, sign
 
 
+@pytest.mark.slow
 def test_ddg_reference_solution(ddg_reference):
     mesh, ref, index, sign = ddg_reference
     assert (mesh.n_vertices, mesh.n_faces, mesh.n_edges, mesh.topology.genus) == (3070, 6144, 9216, 2)
@@ -282,6 +285,7 @@ def test_against_gpytoolbox_dec(name):
 
 
 @pytest.mark.parametrize("name", ANY)
+@pytest.mark.slow
 def test_dec_laplacian_and_mass_match_libigl(name):
     """`d0^T *1 d0 = -igl.cotmatrix` and `*0` = libigl's lumped mass matrices, on any mesh."""
     mesh, ops = load(name), operators(name)
@@ -322,6 +326,7 @@ def test_d0_star1_d0_is_the_cotan_laplacian_on_every_test_mesh():
     assert error[worst] <= 1e-12 * scale[worst], names[worst]
 
 
+@pytest.mark.slow
 def test_d0_star1_d0_is_the_cotan_laplacian_on_builtin_shapes_and_differentiates():
     """A closed icosphere and a flat grid with boundary (their disjoint union); and the derivatives of
     `u^T L u` in the vertices through both routes."""
@@ -409,6 +414,7 @@ def test_degenerate_faces_give_finite_values_and_gradients():
     assert float(values[-6]) == 0.0 and float(values[-2]) == 0.0
 
 
+@pytest.mark.slow
 def test_jit_vmap_grad_over_vertex_positions():
     mesh = load("tet.obj")
     scales = jnp.asarray([1.0, 2.0, 0.5])[:, None, None]

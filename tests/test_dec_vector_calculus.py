@@ -100,6 +100,7 @@ def test_divergence_matches_the_ddg_heat_method_reference():
 
 
 @pytest.mark.parametrize("name", ["bob_small.ply", "small_disk.obj"])
+@pytest.mark.slow
 def test_curl_identities(name):
     mesh, r = load(name), fields(name)
     interior = np.setdiff1d(np.arange(mesh.n_vertices), mesh.topology.boundary_vertices)
@@ -171,6 +172,7 @@ def test_codifferential_is_the_adjoint_of_d(bob_hodge):
         np.testing.assert_allclose(left, right, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_hodge_laplacians_are_symmetric_psd_with_harmonic_kernels(bob_hodge):
     """Weak Delta_k symmetric PSD; kernels: constants (k = 0, 2) and 2 * genus harmonic 1-forms."""
     mesh, forms, stars, laplacians, strong1, _, _ = bob_hodge

@@ -248,6 +248,7 @@ def test_cube_cross_field_is_parallel_off_the_corners_with_a_quarter_singularity
         assert np.unique(np.asarray(mesh.faces)[singular][corner[np.asarray(mesh.faces)[singular]]]).size == 8
 
 
+@pytest.mark.slow
 def test_phase_is_deterministic_and_the_field_is_an_eigenvector():
     mesh = _ellipsoid()
     result = smoothest_field(mesh, n=2)
@@ -276,6 +277,7 @@ def test_principal_curvature_alignment_points_around_a_cylinder():
     assert np.abs(np.abs(vectors[..., 2]).max(axis=1) - 1.0).max() < 1e-3
 
 
+@pytest.mark.slow
 def test_alignment_weight_trades_smoothness_for_alignment():
     mesh = _ellipsoid()
     q = principal_curvature_alignment(mesh, n=4)
@@ -291,6 +293,7 @@ def test_alignment_weight_trades_smoothness_for_alignment():
 # --- interpolation --------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_interpolation_from_one_vertex_of_a_flat_disk_is_the_constant_field():
     mesh = disk(5)
     u = interpolate_field(mesh, fixed_vertices=np.array([0]), fixed_values=jnp.array([0.6 - 0.8j]), boundary_scaling="unscaled")
@@ -299,6 +302,7 @@ def test_interpolation_from_one_vertex_of_a_flat_disk_is_the_constant_field():
     np.testing.assert_allclose(vectors, np.broadcast_to(vectors[0], vectors.shape), atol=1e-10)
 
 
+@pytest.mark.slow
 def test_interpolation_solves_the_dirichlet_problem_of_the_connection_laplacian():
     mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
     fixed, values = np.array([0, 7, 20]), jnp.array([1.0 + 0j, 1j, -0.5 + 0.5j])

@@ -33,6 +33,7 @@ def test_every_step_matches_the_ddg_reference():
 
 
 @pytest.mark.parametrize("name", ["spot.obj", "camelhead.off"])
+@pytest.mark.slow
 def test_matches_potpourri3d(name):
     mesh = load_mesh(data_path("meshes", name))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -58,6 +59,7 @@ def test_sphere_great_circle_distance_error_falls_under_refinement():
     assert errors[-1] < 0.015 and 0.8 < rate < 2.2, (errors, rate)  # measured: 0.013, rate 0.9 (first order)
 
 
+@pytest.mark.slow
 def test_kept_solver_queries_jit_vmap_and_points_inside_faces():
     mesh = icosphere(3)
     solver = heat_distance_solver(mesh)
@@ -76,6 +78,7 @@ def test_kept_solver_queries_jit_vmap_and_points_inside_faces():
     assert float(middle.max()) > 3.0
 
 
+@pytest.mark.slow
 def test_disk_boundary_average_and_neumann():
     mesh = disk(16)
     r = np.linalg.norm(np.asarray(mesh.vertices)[:, :2], axis=1)
@@ -89,6 +92,7 @@ def test_disk_boundary_average_and_neumann():
     assert errors["average"] < errors["neumann"], errors  # the paper's point: less bias at the boundary
 
 
+@pytest.mark.slow
 def test_gradient_in_the_vertex_positions_matches_finite_differences():
     mesh = icosphere(2)
     V0 = mesh.vertices * jnp.asarray([1.0, 1.3, 0.8])
@@ -125,6 +129,7 @@ def test_bad_input(without_type_checker):
             call()
 
 
+@pytest.mark.slow
 def test_robust_laplacian_brings_camelhead_distances_near_potpourri3d_robust_mode():
     mesh = load_mesh(data_path("meshes", "camelhead.off"))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -162,6 +167,7 @@ def test_outcomes_without_throw():
         cut.distance([0])
 
 
+@pytest.mark.slow
 def test_dirichlet_heat_flow_on_a_disk():
     """`boundary="dirichlet"` holds the heat at 0 on the rim; "average" is the mean of its heat and the Neumann one."""
     mesh = disk(8)

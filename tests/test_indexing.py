@@ -16,6 +16,7 @@ INDEX_SHAPES = [(5,), (4, 3), (2, 3, 2)]
 
 @pytest.mark.parametrize("x_shape", X_SHAPES)
 @pytest.mark.parametrize("index_shape", INDEX_SHAPES)
+@pytest.mark.slow
 def test_values_equal_numpy_indexing_eager_and_jitted(x_shape, index_shape):
     x = RNG.standard_normal(x_shape)
     index = RNG.integers(0, x_shape[0], size=index_shape).astype(np.int32)
@@ -33,6 +34,7 @@ def test_or_zero_reads_zero_at_padding_indices():
 
 
 @pytest.mark.parametrize("gather", [take_rows, take_rows_or_zero])
+@pytest.mark.slow
 def test_derivatives_and_vmap_match_plain_indexing(gather):
     x = jnp.linspace(-1.0, 2.0, 12).reshape(6, 2)
     index = jnp.array([[5, 0, 0], [2, 3, 5]], dtype=jnp.int32)

@@ -270,6 +270,7 @@ def test_gradients_match_finite_differences_of_the_flipped_operator(jittered):
         )
 
 
+@pytest.mark.slow
 def test_jit_and_vmap_equal_eager(jittered):
     mesh, triangulation, *_ = jittered
     L = intrinsic_delaunay_laplacian(mesh, triangulation=triangulation).values
@@ -350,6 +351,7 @@ def test_lengths_core_on_a_delta_complex_matches_libigl():
         assert _relative(M, padded(igl.massmatrix_intrinsic(lengths, F, igl_mass))) < 1e-14, mass
 
 
+@pytest.mark.slow
 def test_degenerate_faces_give_finite_values_and_gradients(jittered):
     # Face (2, 0, 1) is flat: vertex 1 lies on the segment 0 - 2, a straight angle opposite the edge
     # 0 - 2, which is flipped away (to 1 - 3).

@@ -272,6 +272,7 @@ DEGENERATE_V = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [1, 1, 0], [1, 0, 0.
 DEGENERATE_F = [[0, 1, 2], [1, 4, 2], [0, 3, 1], [1, 3, 4], [1, 5, 4]]  # face 2 is collinear (zero area)
 
 
+@pytest.mark.slow
 def test_degenerate_faces_contribute_nothing_with_finite_gradients():
     V = jnp.asarray(DEGENERATE_V, dtype=float)
     mesh = Mesh.from_arrays(V, DEGENERATE_F)
@@ -383,6 +384,7 @@ def _fan(n_rim: int) -> Mesh:
     return Mesh.from_arrays(V, np.concatenate([upper, lower]))
 
 
+@pytest.mark.slow
 def test_laplacian_apply_is_matrix_free_and_equals_the_matrix():
     fan = _fan(40)
     assert vertex_plan(fan).pattern.nnz > vertex_plan(fan).pattern.width * fan.n_vertices  # its apex overflows into the tail
@@ -414,6 +416,7 @@ def test_laplacian_apply_is_matrix_free_and_equals_the_matrix():
         laplacian_apply(mesh, jnp.ones((mesh.n_vertices, 2, 2)))
 
 
+@pytest.mark.slow
 def test_mass_plus_laplacian_matches_scipy(real):
     parts, mesh = real
     L = _laplacian(mesh)
@@ -434,6 +437,7 @@ def test_mass_plus_laplacian_matches_scipy(real):
             assert not (M - t * L).positive_semidefinite and (M - t * L).symmetric
 
 
+@pytest.mark.slow
 def test_heat_operator_solves_with_lineax_cg_and_differentiates():
     mesh = icosphere(2)
     t = 0.01

@@ -146,7 +146,7 @@ def test_gauss_bonnet_on_every_test_mesh():
 
     The meshes are joined into one disjoint union so the defects come from one compiled call; each
     mesh's sum and chi are read off its vertex / edge / face ranges. nefertiti_loop1.ply (400 k faces,
-    made by tests/conftest.py) adds about 1.5 s.
+    made by tests/conftest.py) is the large one.
     """
     folder = data_path("meshes")
     paths = sorted(p for p in folder.iterdir() if p.suffix in (".obj", ".off", ".ply"))
@@ -376,6 +376,7 @@ def small_batch() -> dict:
     return jax.tree_util.tree_map(np.asarray, jax.jit(jax.vmap(lambda V: curvatures(SMALL.with_vertices(V))))(SMALL_BATCH))
 
 
+@pytest.mark.slow
 def test_degenerate_faces_give_finite_values_and_gradients(small_batch):
     for name, value in small_batch.items():
         assert np.all(np.isfinite(value[3])), name
@@ -397,6 +398,7 @@ def test_jit_and_vmap_equal_eager(small_batch):
     np.testing.assert_allclose(small_batch["H"][2], -small_batch["H"][0], rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.slow
 def test_pointwise_curvatures_divide_by_the_chosen_dual():
     """`dual=` picks the area every pointwise curvature divides by (default "voronoi", the mixed area)."""
 

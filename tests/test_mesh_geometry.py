@@ -322,6 +322,7 @@ def weighted_outputs(V):
 WEIGHTED_OUTPUTS = jax.jit(weighted_outputs)
 
 
+@pytest.mark.slow
 def test_jit_and_vmap_equal_eager():
     batch = jnp.stack([SMALL.vertices, 1.5 * SMALL.vertices, SMALL.vertices + 0.3])
     batched = jax.vmap(lambda V: geometry(SMALL.with_vertices(V)))(batch)
@@ -349,6 +350,7 @@ def test_gradients_match_finite_differences():
     check_grads(WEIGHTED_OUTPUTS, (SMALL.vertices,), order=1, modes=("rev",), eps=1e-6, atol=1e-6, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_degenerate_faces_give_finite_values_and_gradients():
     values = geometry(SMALL.with_vertices(DEGENERATE_VERTICES))
     assert float(values["face_areas"][0]) == 0.0 and float(values["face_areas"][4]) == 0.0

@@ -97,6 +97,7 @@ def test_willmore_leaves_out_boundary_vertices():
 # --- regularisers --------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_regularisers_closed_form():
     octahedron, tetrahedron = _octahedron(), _tetrahedron()
     assert float(edge_length_loss(octahedron)) == pytest.approx(2.0, rel=1e-14)  # every edge has length sqrt 2
@@ -117,6 +118,7 @@ def test_laplacian_smoothing_cotan_matches_libigl_weights():
     assert float(laplacian_smoothing_loss(mesh, weights="cotan")) == pytest.approx(expected, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_objective_gradients_against_finite_differences():
     mesh = _bumpy(icosphere(1))
     for objective in (
@@ -129,6 +131,7 @@ def test_objective_gradients_against_finite_differences():
         check_grads(jax.jit(lambda V, f=objective: f(mesh.with_vertices(V))), (mesh.vertices,), order=1, modes=("rev",))
 
 
+@pytest.mark.slow
 def test_laplacian_smoothing_cotan_gradient_holds_the_weights_fixed():
     # PyTorch3D's convention: the cotan weights are constants, so the gradient is that of the same
     # formula with libigl's matrix of the current mesh frozen.
@@ -143,6 +146,7 @@ def test_laplacian_smoothing_cotan_gradient_holds_the_weights_fixed():
 # --- Chamfer distance and sampling ---------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_chamfer_against_brute_force_and_chunking():
     a = np.random.default_rng(0).normal(size=(301, 3))
     b = np.random.default_rng(1).normal(size=(157, 3))
@@ -158,6 +162,7 @@ def test_chamfer_against_brute_force_and_chunking():
     assert float(chamfer_distance(a, a)) == 0.0
 
 
+@pytest.mark.slow
 def test_chamfer_gradient():
     a = jnp.asarray(np.random.default_rng(2).normal(size=(40, 3)))
     b = jnp.asarray(np.random.default_rng(3).normal(size=(30, 3)))
@@ -304,6 +309,7 @@ def test_mesh_fitting_chamfer_pytorch3d_style():
     assert result.loss_history.shape == (151,) and bool(result.result == RESULTS.successful)
 
 
+@pytest.mark.slow
 def test_minimize_shape_vertices_parametrisation_and_chunks():
     mesh, rings = _cylinder(16, 4, 0.5)
     settings = {
@@ -332,6 +338,7 @@ def test_minimize_shape_vertices_parametrisation_and_chunks():
 
 
 @pytest.mark.parametrize("parametrization", ["vertices", "large_steps"])
+@pytest.mark.slow
 def test_bounds_keep_an_inflating_sphere_in_the_box(parametrization):
     """Maximising the enclosed volume of a sphere of radius 0.8 inside the box [-1.1, 1.1]^2 x [-1.1, 0.9]:
     every iterate is clipped into it, so the sphere presses against the lid."""

@@ -77,6 +77,7 @@ def test_harmonic_map_equals_igl_harmonic_up_to_a_similarity(hemisphere):
     assert _similarity_error(np.asarray(tutte_embedding(hemisphere, weights="cotan")), expected) < 1e-10
 
 
+@pytest.mark.slow
 def test_the_cotan_harmonic_map_can_flip_where_tutte_does_not():
     """A jittered disk with a tall bump: obtuse angles give negative cotan weights, and the harmonic map
     flips faces (libigl's harmonic map flips the same ones); uniform Tutte, with positive weights, flips
@@ -96,6 +97,7 @@ def test_the_cotan_harmonic_map_can_flip_where_tutte_does_not():
     assert int(map_distortion(mesh, tutte_embedding(mesh)).n_flipped) == 0
 
 
+@pytest.mark.slow
 def test_lscm_equals_igl_lscm_and_its_energy_matrix(hemisphere):
     """Same pins, same positions: the same map (libigl solves the same quadratic form, `Q` below); the sum of
     the per-face conformal energies is `1/2 x^T Q x`."""
@@ -290,6 +292,7 @@ def test_spectral_map_gradient_matches_finite_differences():
     check_grads(jax.jit(energy), (mesh.vertices,), order=1, modes=("rev",), eps=1e-5, atol=1e-7, rtol=1e-7)
 
 
+@pytest.mark.slow
 def test_jit_and_eager_agree(hemisphere):
     for flatten in (lscm, boundary_first_flattening, tutte_embedding):
         eager = flatten(hemisphere)

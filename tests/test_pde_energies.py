@@ -114,6 +114,7 @@ def test_poisson_energy_gradient_is_L_phi_plus_M_rho(case, mass):
 
 
 @pytest.mark.parametrize("mass", list(MASS_TYPES))
+@pytest.mark.slow
 def test_screened_energy_gradient_is_L_plus_s_M_phi(case, mass):
     L, M, phi, s = case.L, case.M[mass], case.phi, 2.5
     value, (grad_phi, grad_s) = _screened(case.mesh, phi, s, mass=mass)
@@ -278,6 +279,7 @@ def test_hessian_vector_products_in_the_unknowns(case):
         _close(hvp, matrix @ np.asarray(direction))
 
 
+@pytest.mark.slow
 def test_jit_and_vmap_equal_eager():
     case = Case(icosphere(1))
     mesh = case.mesh
@@ -315,6 +317,7 @@ def test_jit_and_vmap_equal_eager():
             np.testing.assert_allclose(ours[..., k], expected[..., k], rtol=1e-13, err_msg=name)
 
 
+@pytest.mark.slow
 def test_degenerate_faces_give_finite_values_and_gradients():
     V = jnp.asarray([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [1, 1, 0], [1, 0, 0.5]], dtype=float)
     mesh = Mesh.from_arrays(V, [[0, 1, 2], [1, 4, 2], [0, 3, 1], [1, 3, 4], [1, 5, 4]])  # face 2 has zero area

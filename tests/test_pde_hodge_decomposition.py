@@ -123,6 +123,7 @@ def test_cocycle_basis_is_closed_and_counts_the_first_betti_number(union, refere
     assert closed_cocycle_basis(ref_mesh.topology).shape == (ref_mesh.n_edges, 4)
 
 
+@pytest.mark.slow
 def test_harmonic_space_has_the_dimension_of_the_first_cohomology(union):
     """Harmonic parts of random forms span 2 g + b - 1 dimensions per component: 2, 0, 1, 2."""
     mesh = union.mesh
@@ -182,6 +183,7 @@ def _small_torus() -> Mesh:
     return mesh.with_vertices(mesh.vertices + 0.02 * np.random.default_rng(8).standard_normal(mesh.vertices.shape))
 
 
+@pytest.mark.slow
 def test_gradients_with_respect_to_omega_and_vertices():
     mesh = _small_torus()
     rng = np.random.default_rng(4)

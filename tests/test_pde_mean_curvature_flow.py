@@ -17,6 +17,7 @@ from conftest import read_ddg_reference
 
 
 @pytest.mark.parametrize("modified, tag", [(False, "mcf"), (True, "mmcf")])
+@pytest.mark.slow
 def test_matches_the_ddg_exercises_reference(modified, tag):
     """test-flow-soln.txt: `steps` steps of (M + tau (L + 1e-8 I)) f' = M f (their `h` is our `tau`), M
     barycentric (the DDG exercises' massMatrix), M and L rebuilt each step (mcf) or L frozen at the start and M rebuilt
@@ -65,6 +66,7 @@ def test_sphere_shrinks_at_the_discrete_and_the_smooth_rate():
     np.testing.assert_allclose(np.linalg.norm(np.asarray(modified.vertices), axis=-1), radii, rtol=0, atol=5e-5)
 
 
+@pytest.mark.slow
 def test_volume_and_area_decrease():
     mesh = torus(major_radius=1.0, minor_radius=0.4, n_major=24, n_minor=12)
     V = np.asarray(mesh.vertices)
@@ -79,6 +81,7 @@ def test_volume_and_area_decrease():
         assert float(result.volume[0]) == pytest.approx(float(enclosed_volume(bumpy)), rel=1e-15)
 
 
+@pytest.mark.slow
 def test_saved_states_continue_each_other_and_jit_equals_eager():
     mesh = icosphere(1)
     mesh = mesh.with_vertices(np.asarray(mesh.vertices) * np.array([1.0, 0.8, 1.3]))
@@ -95,6 +98,7 @@ def test_saved_states_continue_each_other_and_jit_equals_eager():
 
 
 @pytest.mark.parametrize("modified", [False, True])
+@pytest.mark.slow
 def test_gradients_with_respect_to_initial_vertices_and_tau(modified):
     mesh = icosphere(1)
     rng = np.random.default_rng(3)
@@ -118,6 +122,7 @@ def test_gradients_with_respect_to_initial_vertices_and_tau(modified):
         np.testing.assert_allclose(jnp.vdot(gradients[k], direction), finite, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_failed_step_is_reported_and_ends_the_flow():
     mesh = icosphere(1)
     # Non-finite input can only arrive traced (`Mesh` refuses it otherwise): state 0 fails, no step runs.
@@ -135,6 +140,7 @@ def test_a_failed_step_is_reported_and_ends_the_flow():
     assert bool(fine.result == RESULTS.successful) and int(fine.first_failure_step) == 5  # one past the last step
 
 
+@pytest.mark.slow
 def test_progress_bar_path_matches_the_pure_path(capsys):
     mesh = icosphere(1)
     for mass in ("voronoi", "galerkin"):

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import jaxopt
 import numpy as np
+import pytest
 import scipy.sparse.linalg as spla
 
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
@@ -51,6 +52,7 @@ def _active_set_solution(L_ff, b):
     raise AssertionError("the active-set method did not settle")
 
 
+@pytest.mark.slow
 def test_obstacle_problem_with_jaxopt_lbfgsb_matches_the_active_set_solution():
     L_ff, b = _system()
     exact = _active_set_solution(L_ff, b)

@@ -99,6 +99,7 @@ def _zero_mean_solve(L: sp.spmatrix, M: sp.spmatrix, rho: np.ndarray) -> np.ndar
     return spla.spsolve(system, np.append(-(M @ rho), 0.0))[: L.shape[0]]
 
 
+@pytest.mark.slow
 def test_each_closed_component_is_made_compatible_and_zero_mean():
     big, small = icosphere(2), icosphere(1, radius=0.5)
     union = disjoint_union(
@@ -129,6 +130,7 @@ def test_dirichlet_problem_matches_libigl_min_quad_with_fixed():
     np.testing.assert_allclose(phi, theirs, rtol=0, atol=1e-9 * np.abs(theirs).max())
 
 
+@pytest.mark.slow
 def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_flat_meshes():
     mesh = load_mesh(data_path("meshes", "camelhead.off"))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -161,6 +163,7 @@ def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_e
     assert weights.min() < 0  # negative cotan weights: the discrete maximum principle is not guaranteed
 
 
+@pytest.mark.slow
 def test_gradients_with_respect_to_rho_values_and_vertices():
     mesh = _jittered_disk(3)
     rim = mesh.topology.boundary_vertices

@@ -93,6 +93,7 @@ def _assert_symmetric_positive_definite(B):
     assert np.linalg.eigvalsh((B + B.T) / 2)[0] > 0
 
 
+@pytest.mark.slow
 def test_amg_cg_reaches_1e_10_on_camelhead_and_matches_spsolve(camelhead):
     A, hierarchy = camelhead
     b = _rhs(A.shape[0])
@@ -119,6 +120,7 @@ def test_v_cycle_is_symmetric_positive_definite(heat):
         _assert_symmetric_positive_definite(_dense_preconditioner(hierarchy))
 
 
+@pytest.mark.slow
 def test_v_cycle_symmetric_and_positive_on_camelhead(camelhead):
     _, hierarchy = camelhead
     u, v = _rhs(hierarchy.shape[0], seed=1), _rhs(hierarchy.shape[0], seed=2)
@@ -127,6 +129,7 @@ def test_v_cycle_symmetric_and_positive_on_camelhead(camelhead):
     assert float(u @ Bu) > 0 and float(v @ Bv) > 0
 
 
+@pytest.mark.slow
 def test_jit_and_vmap_equal_eager(heat):
     _, A, hierarchy = heat
     R = jnp.stack([_rhs(A.shape[0], seed) for seed in range(3)], axis=1)
@@ -212,6 +215,7 @@ def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead):
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 
+@pytest.mark.slow
 def test_float32_hierarchy_keeps_the_dtype(heat):
     _, A, _ = heat
     A32 = from_scipy(A.to_scipy().astype(np.float32), positive_semidefinite=True)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 import scipy.sparse.linalg as spla
 
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
@@ -29,6 +30,7 @@ def test_auto_takes_cholmod_where_installed_else_superlu_then_pyamg_by_size(monk
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 
+@pytest.mark.slow
 def test_auto_on_an_accelerator_is_cg_with_amg_outside_a_trace_and_jacobi_inside(monkeypatch):
     assert linear_solve(A, B, preconditioner="amg").method == "cg"  # a preconditioner asks for CG anywhere
     monkeypatch.setattr(_linear.jax, "default_backend", lambda: "gpu")

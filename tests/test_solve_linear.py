@@ -175,6 +175,7 @@ def test_gradients_in_b_and_values_match_finite_differences(method):
         np.testing.assert_allclose(jnp.vdot(grad_values, direction), expected, rtol=1e-8)
 
 
+@pytest.mark.slow
 def test_gradient_in_the_vertex_positions_matches_finite_differences():
     mesh = icosphere(1)
     b = _rhs(mesh.n_vertices)
@@ -221,6 +222,7 @@ def test_eager_solves_reuse_their_compiled_programs(method):
 
 
 @pytest.mark.parametrize("method", METHODS)
+@pytest.mark.slow
 def test_singular_system_with_incompatible_rhs_is_reported_not_hidden(method):
     options = _options(method, cotan_laplacian(SPHERE))
     # A closed surface's Laplacian is singular (constants); a right-hand side with a nonzero mean has no solution.

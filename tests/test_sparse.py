@@ -219,6 +219,7 @@ def test_gradients_through_values_and_rhs(spd):
     np.testing.assert_allclose(np.asarray(grad)[real], np.asarray(expected)[real], rtol=1e-14)
 
 
+@pytest.mark.slow
 def test_jit_and_vmap_equal_eager(spd):
     matrix, reference = spd
     xs = jnp.asarray(np.random.default_rng(12).random((3, 25)))
@@ -250,6 +251,7 @@ def test_eager_product_is_one_compiled_call_per_structure(spd):
     assert programs() == compiled
 
 
+@pytest.mark.slow
 def test_congruence_matches_scipy_and_refuses_missing_positions():
     rng = np.random.default_rng(13)
     n_rows, n = 30, 12
@@ -317,6 +319,7 @@ def _custom(x):
     return jnp.sum(WEIGHTS * jnp.sin(gather_sum(x, INDEX, TRANSPOSE_INDEX)))
 
 
+@pytest.mark.slow
 def test_gather_sum_all_modes_equal_the_plain_gather():
     x = jnp.linspace(0.5, 2.0, 6)
     v = jnp.cos(jnp.arange(6.0))
@@ -428,6 +431,7 @@ def test_structure_flags_follow_arithmetic(spd):
         SparseMatrix(general.values[:-1], general.pattern)
 
 
+@pytest.mark.slow
 def test_adding_a_diagonal_matches_scipy():
     base = _random((30, 30), 0.15, 16)
     square = from_scipy(base + base.T + sp.eye(30))  # host pattern with the diagonal stored first

@@ -60,6 +60,7 @@ def test_unit_sphere_converges_to_l_l_plus_1_at_second_order():
     assert errors[-1] < 0.06  # measured: 0.05 at 2562 vertices (l = 3)
 
 
+@pytest.mark.slow
 def test_agrees_with_scipy_eigsh_on_camelhead_neumann_and_dirichlet():
     mesh = load_mesh(data_path("meshes", "camelhead.off"))
     L, M = cotan_laplacian(mesh), mass_matrix(mesh)
@@ -84,6 +85,7 @@ def test_agrees_with_scipy_eigsh_on_camelhead_neumann_and_dirichlet():
     # have zero normal derivative.
     [("dirichlet", [2.0, 6.0, 6.0, 12.0, 12.0, 12.0]), ("neumann", [0.0, 2.0, 2.0, 6.0, 6.0, 6.0])],
 )
+@pytest.mark.slow
 def test_hemisphere_spectrum(boundary, expected):
     values, _ = eigenpairs(_hemisphere(16), 6, boundary=boundary)
     np.testing.assert_allclose(values, expected, rtol=0.02, atol=0.02)

@@ -25,6 +25,7 @@ from ._curvature import turning_angles as turning_angles
 from ._curvature import turning_number as turning_number
 from ._curvature import vertex_dual_lengths as vertex_dual_lengths
 from ._curve import Curve as Curve
+from ._curve import require_curve as require_curve
 from ._flow import CurveFlowResult as CurveFlowResult
 from ._flow import curve_shortening_flow as curve_shortening_flow
 from ._invariants import SimplicityAndClearance as SimplicityAndClearance
