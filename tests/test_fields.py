@@ -459,6 +459,7 @@ def test_meshes_without_a_consistent_orientation_are_refused():
         smoothest_field(unreferenced)
 
 
+@pytest.mark.slow
 def test_outcomes_without_throw(monkeypatch):
     """`throw=False` returns a `Solution` holding the same answer and the eigensolver's or the solve's outcome;
     a subspace eigensolve forced out of steps reports `eigensolver_failed` (and raises with `throw=True`)."""

@@ -112,6 +112,7 @@ def test_matches_libigl_and_gpytoolbox(real):
     assert vertex_plan(mesh).pattern.nnz > vertex_plan(mesh).pattern.width * mesh.n_vertices  # the union's tail too
 
 
+@pytest.mark.slow
 def test_the_mesh_operators_are_the_lengths_core_on_the_mesh_plan():
     """`cotan_laplacian(mesh)` and `mass_matrix(mesh)` are the intrinsic core on the mesh's squared edge
     lengths; the plan cached for a mesh (vertex pairs from its topology) is the one a face list gives

@@ -383,6 +383,7 @@ def test_bad_arguments_are_refused(hemisphere, without_type_checker):
         lscm(extra, fixed_vertices=[0, hemisphere.n_vertices], fixed_values=np.eye(2))
 
 
+@pytest.mark.slow
 def test_outcomes_without_throw(hemisphere, monkeypatch):
     """Every map takes `throw=False` and returns a `Solution` with the same map and the solves' outcome and
     stats; a failed eigensolve (ARPACK's non-convergence, forced) is the spectral map's `eigensolver_failed`."""

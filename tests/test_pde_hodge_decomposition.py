@@ -155,6 +155,7 @@ def _face_system_coexact(mesh: Mesh, omega: np.ndarray, star: np.ndarray) -> np.
 
 
 @pytest.mark.parametrize("dual", ["voronoi", "barycentric"])
+@pytest.mark.slow
 def test_coexact_part_matches_an_independent_face_system_solve(union, dual):
     mesh = union.mesh
     omega = np.random.default_rng(1).standard_normal((mesh.n_edges, 3))

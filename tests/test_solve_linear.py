@@ -21,8 +21,9 @@ from ddgjax.solve._amg import amg_hierarchy
 from ddgjax.solve._linear import _real_form
 from ddgjax.sparse import SparseMatrix, from_scipy
 
-# Backends: the methods, and CG with the AMG V-cycle as preconditioner ("cg-amg").
-METHODS = ("cholesky", "superlu", "cg", "cg-amg", "pyamg")
+# Backends: the methods, and CG with the AMG V-cycle as preconditioner ("cg-amg"; in the slow tier,
+# pyproject.toml: its programs, the AMG hierarchy included, take the longest to compile).
+METHODS = ("cholesky", "superlu", "cg", pytest.param("cg-amg", marks=pytest.mark.slow), "pyamg")
 ITERATIVE = ("cg", "cg-amg", "pyamg")
 
 
