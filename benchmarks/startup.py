@@ -116,7 +116,9 @@ def main(argv=None) -> int:
     print(f"# {args.mesh}, {args.rounds} rounds: median (min) wall clock, s")
     for name, values in times.items():
         print(f"  {name:<28s} {median[name]:.2f} ({min(values):.2f})")
-    print(f"  solve once, warm / libigl + SciPy: {median['solve once, ddgjax warm'] / median['solve once, libigl + SciPy']:.2f}x (target 3x)")
+    print(
+        f"  solve once, warm / libigl + SciPy: {median['solve once, ddgjax warm'] / median['solve once, libigl + SciPy']:.2f}x (target 3x)"
+    )
     print(f"  ddgjax info, warm / libigl: {median['ddgjax info, warm'] / median['libigl report']:.2f}x")
     print(f"  import ddgjax beyond JAX: {median['import jax, ddgjax'] - median['import jax']:.3f} s (target 0.35 s)")
     return 0
