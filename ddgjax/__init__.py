@@ -56,6 +56,7 @@ _NAMES = {
     "Solution": "_results",
     "cpu_compiler_options": "_compile",
     "MASS_MATRICES": "_options",
+    "LUMPED_MASS_MATRICES": "_options",
     "DUAL_CELLS": "_options",
     "LAPLACIAN_WEIGHTS": "_options",
     "BOUNDARY_CONDITIONS": "_options",
@@ -83,6 +84,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from ._options import DUAL_CELLS as DUAL_CELLS
     from ._options import LAPLACIAN_WEIGHTS as LAPLACIAN_WEIGHTS
     from ._options import LINEAR_SOLVERS as LINEAR_SOLVERS
+    from ._options import LUMPED_MASS_MATRICES as LUMPED_MASS_MATRICES
     from ._options import MASS_MATRICES as MASS_MATRICES
     from ._results import RESULTS as RESULTS
     from ._results import Solution as Solution
