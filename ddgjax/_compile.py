@@ -12,15 +12,26 @@ transformation on a CPU backend runs the tuned program; under a caller's `jit` /
 the kernel is traced into the caller's program and the caller's settings apply
 (`cpu_compiler_options()` gives a user's own `jit` the same; README, conventions). An option this
 jaxlib does not know is left out (checked once per process), so an upgrade cannot break a kernel.
+
+Memory: every XLA executable holds 1.5-4 MB (its machine code and runtime, whatever its size), and
+`jax.jit` keeps each one for the life of the jitted function (up to thousands per function). A
+stream of meshes of new sizes would add programs forever, so a kernel keeps the programs of its
+`PROGRAMS_PER_KERNEL` most recently used argument signatures, and compiles each from a fresh
+wrapper of the function: JAX's own caches are keyed weakly on the function, so a program dropped
+from this bound is freed (figures: benchmarks/README.md, "Memory over a stream of meshes"). One
+mesh used many times keeps its programs; only a signature unused for that many newer ones pays a
+compilation again.
 """
 
 from __future__ import annotations
 
+import collections
 import functools
 import inspect
 from collections.abc import Callable, Mapping
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.extend.core import find_top_trace
 
@@ -28,6 +39,9 @@ from ._errors import DDGInputError
 
 #: Options for every kernel compiled on CPU (module docstring).
 CPU_OPTIONS: Mapping[str, str] = {"xla_cpu_experimental_ynn_fusion_type": ""}
+
+#: Compiled programs each kernel keeps, one per argument signature, least recently used dropped (module docstring).
+PROGRAMS_PER_KERNEL = 8
 
 
 def at_top_level() -> bool:
@@ -90,10 +104,12 @@ def kernel(
       as arguments. `requires_orientation` (the operation's name for the error) checks each mesh's
       orientation first (`MeshTopology.require_oriented`); a kernel whose body calls an
       orientation-requiring kernel declares it too.
-    - A call outside every transformation on CPU compiles with `CPU_OPTIONS` (module docstring);
-      under a caller's `jit` / `grad` / `vmap` the kernel is traced into the caller's program.
+    - A call outside every transformation runs a program of the kernel's bounded cache: one per
+      argument signature (shapes, dtypes, static values), the `PROGRAMS_PER_KERNEL` most recently
+      used kept (module docstring). On CPU it compiles with `CPU_OPTIONS` (module docstring);
       `extra_cpu_options(*args, **kwargs)`, if given, adds options chosen per call (e.g. from a
-      static shape); each distinct set is its own program.
+      static shape), part of the signature. Under a caller's `jit` / `grad` / `vmap` the kernel is
+      traced into the caller's program and the caller's settings apply.
 
     The wrapper's `_cache_size()` counts its compiled programs, as `jax.jit`'s does.
     """
@@ -105,7 +121,7 @@ def kernel(
             extra_cpu_options=extra_cpu_options,
         )
     plain = jax.jit(function, static_argnames=static_argnames)
-    tuned: dict[tuple, Callable] = {}
+    programs: collections.OrderedDict[tuple, Callable] = collections.OrderedDict()
     parameters = inspect.signature(function).parameters.values()
     first = next(iter(parameters)).name if parameters else None
     positional = sum(parameter.kind in (parameter.POSITIONAL_ONLY, parameter.POSITIONAL_OR_KEYWORD) for parameter in parameters)
@@ -120,17 +136,54 @@ def kernel(
             args = (_REQUIRED[first](first, args[0]), *args[1:])
         args = tuple(_prepare(arg, requires_orientation) for arg in args)
         kwargs = {name: _prepare(arg, requires_orientation) for name, arg in kwargs.items()}
-        if not at_top_level() or jax.default_backend() != "cpu":
+        if not at_top_level():
             return plain(*args, **kwargs)
-        extra = tuple(sorted(extra_cpu_options(*args, **kwargs).items())) if extra_cpu_options else ()
-        version = tuned.get(extra)
-        if version is None:
-            options = cpu_compiler_options(dict(extra))
-            version = tuned[extra] = jax.jit(function, static_argnames=static_argnames, compiler_options=options or None)
-        return version(*args, **kwargs)
+        on_cpu = jax.default_backend() == "cpu"
+        extra = tuple(sorted(extra_cpu_options(*args, **kwargs).items())) if extra_cpu_options and on_cpu else ()
+        key = (_signature(args, kwargs, static_argnames), extra)
+        program = programs.get(key)
+        if program is None:
+            options = cpu_compiler_options(dict(extra)) if on_cpu else {}
+            program = programs[key] = jax.jit(_fresh(function), static_argnames=static_argnames, compiler_options=options or None)
+            if len(programs) > PROGRAMS_PER_KERNEL:
+                programs.popitem(last=False)
+        else:
+            programs.move_to_end(key)
+        return program(*args, **kwargs)
 
-    call._cache_size = lambda: plain._cache_size() + sum(version._cache_size() for version in tuned.values())
+    call._cache_size = lambda: plain._cache_size() + sum(program._cache_size() for program in programs.values())
     return call
+
+
+def device_array(x, dtype=None) -> jax.Array:
+    """`jnp.asarray(x, dtype)` that compiles nothing: a host array is transferred with `jax.device_put`.
+
+    JAX 0.10's `jnp.asarray` of a NumPy array runs a compiled `stage` program, one per shape and
+    dtype, kept for the life of the process (module docstring: memory); JAX arrays and tracers go
+    through `jnp.asarray` unchanged. Host values get JAX's canonical dtype (float32 without x64).
+    """
+    if isinstance(x, (jax.Array, jax.core.Tracer)):
+        return jnp.asarray(x, dtype)
+    host = np.asarray(x, dtype)
+    return jax.device_put(host.astype(jax.dtypes.canonicalize_dtype(host.dtype), copy=False))
+
+
+def _fresh(function: Callable) -> Callable:
+    """A new function object calling `function`: the weak key under which JAX caches one program (module docstring)."""
+
+    @functools.wraps(function)
+    def program(*args, **kwargs):
+        return function(*args, **kwargs)
+
+    return program
+
+
+def _signature(args: tuple, kwargs: dict, static_argnames: tuple[str, ...]) -> tuple:
+    """What selects a compiled program: the argument tree, each leaf's shape and dtype, the static values."""
+    static = tuple((name, kwargs[name]) for name in static_argnames if name in kwargs)
+    dynamic = {name: value for name, value in kwargs.items() if name not in static_argnames}
+    leaves, tree = jax.tree_util.tree_flatten((args, dynamic))
+    return tree, static, tuple((getattr(leaf, "shape", None), getattr(leaf, "dtype", type(leaf))) for leaf in leaves)
 
 
 def _require_mesh(name: str, value):

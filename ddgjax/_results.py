@@ -47,22 +47,31 @@ class RESULTS(eqx.Enumeration):
     singular = (
         "The solution does not solve the system to `residual_tolerance`: the matrix is singular (a "
         "closed surface's Laplacian has constant null vectors: fix a value or use a problem-level "
-        "solver that projects them out) or too ill-conditioned. Pass `throw=False` to inspect it."
+        "solver that projects them out) or too ill-conditioned. In float32 (JAX's default precision) "
+        "round-off alone can leave a well-posed mesh system above the tolerance: enable float64 with "
+        '`jax.config.update("jax_enable_x64", True)` before making arrays. Pass `throw=False` to inspect it.'
     )
     nonfinite = (
-        "The computation produced NaN or inf values (for a flow: non-finite input points, which "
-        "are checked only outside jit, or positions that overflowed). Pass `throw=False` to keep "
-        "the values and inspect `result`."
+        "The computation met or produced NaN or inf values: an input that could only be checked when "
+        "the program ran (values traced inside `jit`: a right-hand side, matrix values, positions), or "
+        "values that overflowed on the way. Pass `throw=False` to keep the values and inspect `result`."
     )
     eigensolver_failed = (
         "The eigensolver did not converge to the requested eigenpairs (the subspace iteration ran out "
-        "of steps, or its basis lost rank): raise `k` by a few (a cluster cut at `k`), or use "
+        "of steps, or its basis lost rank), or its pairs do not solve the problem to round-off (a "
+        "Laplacian with faces of near-zero area is too ill-conditioned for them: `ddgjax.mesh.check_mesh` "
+        "lists those faces, `robust=True` handles them): raise `k` by a few (a cluster cut at `k`), or use "
         '`method="arpack"`. Pass `throw=False` to inspect the result.'
     )
     not_positive_definite = (
-        "A matrix that must be positive definite is not (a factorisation met a non-positive pivot, or "
-        "a mass matrix has a non-positive row sum): the mesh has degenerate or inverted elements, or the "
-        "shift / time step makes the system indefinite. Pass `throw=False` to inspect the result."
+        "A matrix that must be positive definite is not (a factorisation met a non-positive pivot, "
+        "a mass matrix has a non-positive row sum, or a Laplacian flagged positive semidefinite has a "
+        "negative eigenvalue): the mesh has degenerate or inverted elements (`ddgjax.mesh.check_mesh` "
+        "lists zero-area faces; `robust=True` handles them), or the "
+        "shift / time step makes the system indefinite, or the matrix is singular (a closed surface's "
+        "Laplacian). In float32 (JAX's default precision) round-off can tip a nearly singular matrix "
+        'over: enable float64 with `jax.config.update("jax_enable_x64", True)`. Pass `throw=False` to '
+        "inspect the result."
     )
     negative_value = (
         "A value declared non-negative with `ddgjax.sparse.nonnegative(t)` (a time step, a shift, a "

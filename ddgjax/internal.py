@@ -14,6 +14,9 @@ _NAMES = {
     "vertex_plan": "ddgjax.laplacian._plan",
     "dec_plan": "ddgjax.laplacian._plan",
     "resolve_robust": "ddgjax.laplacian._operators",
+    # degenerate geometry: faces of (near-)zero area, found once per Mesh object (ddgjax.mesh)
+    "degenerate_faces": "ddgjax.mesh._check",
+    "require_nondegenerate": "ddgjax.mesh._check",
     # Dirichlet bookkeeping of a Poisson problem: fixed and pinned vertices, components (ddgjax.pde)
     "DirichletData": "ddgjax.pde._poisson",
     # linear algebra (ddgjax.solve)

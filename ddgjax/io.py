@@ -16,17 +16,24 @@ elsewhere (libigl's `read_triangle_mesh`, a texture, a reference solution) lines
   float32 rounding and a renumbering of the vertices.
 
 `save_mesh` writes OBJ and OFF (17 significant digits) and binary float64 PLY itself, so a float64
-round trip is exact, and binary float32 STL through trimesh.
+round trip is exact, and binary float32 STL through trimesh; it refuses non-finite vertices before
+writing anything and replaces the file atomically (a temporary file renamed into place), so a failed
+write never damages an existing file.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import pathlib
+import stat
+import tempfile
+from collections.abc import Callable
 
 import numpy as np
 
-from ._errors import DDGInputError
+from ._errors import DDGInputError, first_indices
 from .mesh import Mesh, require_mesh
 
 # The public API; everything else here (the imports, the readers) is an implementation detail.
@@ -71,18 +78,27 @@ def load_mesh(path: str | os.PathLike, *, dtype=None) -> Mesh:
 
 
 def save_mesh(path: str | os.PathLike, mesh: Mesh) -> None:
-    """Write `mesh` to an OBJ, OFF, PLY or STL file (format from the extension).
+    """Write `mesh` to an OBJ, OFF, PLY or STL file (format from the extension), atomically.
 
     OBJ and OFF keep every vertex (unreferenced ones too) with 17 significant digits and PLY is
     binary float64, so `load_mesh` gives back the same arrays exactly; STL is binary float32 and
     keeps only the triangles (see the module docstring).
+
+    Nothing is lost: the file is written to a temporary file in the target's folder, flushed to
+    disk, then renamed over the target (`os.replace`), so a write that fails midway (a full disk, a
+    file size limit, an error while formatting, an interrupt) leaves an existing file byte for byte
+    as it was, and no temporary file behind. A replaced file keeps its permission bits; a new one
+    gets the usual ones (`0o666` less the umask). A symbolic link is followed: its target is replaced.
 
     Args:
         path: file path; the extension (case-insensitive) selects the format (the path first, as
             `igl.write_triangle_mesh(path, V, F)` and `numpy.save(file, array)` take it).
         mesh: the mesh to write.
 
-    Raises `DDGInputError` for an unknown extension or anything but a `Mesh`.
+    Raises `DDGInputError`, before anything is written, for an unknown extension, anything but a
+    `Mesh`, or vertices with NaN or inf coordinates (whatever made them: `Mesh.from_arrays` refuses
+    them, but `eqx.tree_at`, a `with_vertices` under `jit` or a flow that blew up can carry them);
+    `OSError` when the file cannot be written (the old file is then untouched).
     Equivalent: `igl.write_triangle_mesh(path, V, F)`.
     """
     mesh = require_mesh("mesh", mesh)
@@ -90,34 +106,100 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh) -> None:
     fmt = _format_of(path)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
-    if fmt in ("obj", "off"):
-        vertex_lines = "\n".join(" ".join(f"{x:.17g}" for x in row) for row in vertices.tolist())
-        if fmt == "obj":
-            face_lines = "\n".join(f"f {a} {b} {c}" for a, b, c in (faces + 1).tolist())
-            text = "\n".join(f"v {line}" for line in vertex_lines.split("\n")) + "\n" + face_lines + "\n"
-        else:
-            face_lines = "\n".join(f"3 {a} {b} {c}" for a, b, c in faces.tolist())
-            text = f"OFF\n{vertices.shape[0]} {faces.shape[0]} 0\n{vertex_lines}\n{face_lines}\n"
-        path.write_text(text)
-        return
-    if fmt == "ply":
-        header = (
-            f"ply\nformat binary_little_endian 1.0\nelement vertex {vertices.shape[0]}\n"
-            "property double x\nproperty double y\nproperty double z\n"
-            f"element face {faces.shape[0]}\nproperty list uchar int vertex_indices\nend_header\n"
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise DDGInputError(
+            f"mesh: {int(bad.sum())} of its {vertices.shape[0]} vertices have NaN or inf coordinates (vertices "
+            f"{first_indices(bad)}), so nothing was written to {str(path)!r}; give them finite positions first "
+            "(mesh.with_vertices(V) with finite V; a flow that produced them has diverged: check its result)"
         )
-        records = np.empty(faces.shape[0], dtype=[("count", "u1"), ("corners", "<i4", (3,))])
-        records["count"] = 3
-        records["corners"] = faces
-        with open(path, "wb") as handle:
-            handle.write(header.encode("ascii"))
-            handle.write(vertices.astype("<f8").tobytes())
-            handle.write(records.tobytes())
-        return
+    _write_atomically(pathlib.Path(os.path.realpath(path)), lambda handle: _WRITERS[fmt](handle, vertices, faces))
+
+
+def _write_obj(handle: io.BufferedIOBase, vertices: np.ndarray, faces: np.ndarray) -> None:
+    vertex_lines = "".join(f"v {x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in vertices.tolist())
+    face_lines = "".join(f"f {a} {b} {c}\n" for a, b, c in (faces + 1).tolist())
+    handle.write((vertex_lines + face_lines).encode("ascii"))
+
+
+def _write_off(handle: io.BufferedIOBase, vertices: np.ndarray, faces: np.ndarray) -> None:
+    vertex_lines = "".join(f"{x:.17g} {y:.17g} {z:.17g}\n" for x, y, z in vertices.tolist())
+    face_lines = "".join(f"3 {a} {b} {c}\n" for a, b, c in faces.tolist())
+    handle.write(f"OFF\n{vertices.shape[0]} {faces.shape[0]} 0\n{vertex_lines}{face_lines}".encode("ascii"))
+
+
+def _write_ply(handle: io.BufferedIOBase, vertices: np.ndarray, faces: np.ndarray) -> None:
+    header = (
+        f"ply\nformat binary_little_endian 1.0\nelement vertex {vertices.shape[0]}\n"
+        "property double x\nproperty double y\nproperty double z\n"
+        f"element face {faces.shape[0]}\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    records = np.empty(faces.shape[0], dtype=[("count", "u1"), ("corners", "<i4", (3,))])
+    records["count"] = 3
+    records["corners"] = faces
+    handle.write(header.encode("ascii"))
+    handle.write(vertices.astype("<f8").tobytes())
+    handle.write(records.tobytes())
+
+
+def _write_stl(handle: io.BufferedIOBase, vertices: np.ndarray, faces: np.ndarray) -> None:
     # trimesh is imported where it is used: importing it takes ~1.6 s, which `import ddgjax` should not pay.
     import trimesh
 
-    trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(str(path), file_type=fmt)
+    handle.write(trimesh.Trimesh(vertices=vertices, faces=faces, process=False).export(file_type="stl"))
+
+
+_WRITERS: dict[str, Callable[[io.BufferedIOBase, np.ndarray, np.ndarray], None]] = {
+    "obj": _write_obj,
+    "off": _write_off,
+    "ply": _write_ply,
+    "stl": _write_stl,
+}
+
+
+def _write_atomically(target: pathlib.Path, write: Callable[[io.BufferedIOBase], None]) -> None:
+    """Run `write` on a temporary file beside `target`, flush it to disk and rename it over `target`;
+    on any failure remove the temporary file and leave `target` untouched (`save_mesh`)."""
+    try:
+        mode = stat.S_IMODE(os.stat(target).st_mode)  # a replaced file keeps its permissions
+    except FileNotFoundError:
+        mode = 0o666 & ~_umask()  # what `open(target, "w")` would have given a new file
+    descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.stem}.", suffix=target.suffix)
+    try:
+        with os.fdopen(descriptor, "wb") as handle:
+            write(handle)
+            os.fchmod(handle.fileno(), mode)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temporary, target)
+    except BaseException:  # interrupts too: the temporary file must not outlive the failed write
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise
+    _fsync_folder(target.parent)
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it where the system allows (Linux), since setting it
+    affects every thread."""
+    with contextlib.suppress(OSError, ValueError), open("/proc/self/status", encoding="ascii") as status:
+        for line in status:
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return umask
+
+
+def _fsync_folder(folder: pathlib.Path) -> None:
+    """Make the rename itself durable (POSIX); where a folder cannot be opened or synced, the rename
+    is still atomic, only not yet on disk."""
+    with contextlib.suppress(OSError):
+        descriptor = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
 
 
 def _format_of(path: pathlib.Path) -> str:

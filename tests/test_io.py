@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import io
+import pathlib
+
 import igl
 import numpy as np
 import pytest
@@ -144,3 +147,142 @@ def test_public_api_is_explicit():
     namespace: dict = {}
     exec("from ddgjax.io import *", namespace)
     assert sorted(name for name in namespace if name != "__builtins__") == ["load_mesh", "save_mesh"]
+
+
+FORMATS = [".obj", ".off", ".ply", ".stl"]
+
+
+def _written(tmp_path, suffix: str) -> tuple:
+    """A file of `suffix` holding the tetrahedron, its bytes, and the folder's listing."""
+    path = tmp_path / f"mesh{suffix}"
+    save_mesh(path, load_mesh(data_path("meshes", "tet.obj")))
+    return path, path.read_bytes(), sorted(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("suffix", FORMATS)
+@pytest.mark.parametrize("failure", ["midway", "formatting", "interrupt"])
+def test_failed_write_leaves_the_old_file_intact(tmp_path, monkeypatch, suffix, failure):
+    """A write that fails after half the bytes (a full disk), before any (an error while formatting) or by an
+    interrupt leaves the old file byte for byte and no temporary file; the next write succeeds."""
+    import errno
+
+    import ddgjax.io
+
+    path, old, listing = _written(tmp_path, suffix)
+    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
+    real = ddgjax.io._WRITERS[suffix[1:]]
+
+    def failing(handle, vertices, faces):
+        if failure == "formatting":
+            raise RuntimeError("formatting failed")
+        buffer = io.BytesIO()
+        real(buffer, vertices, faces)
+        handle.write(buffer.getvalue()[: buffer.tell() // 2])
+        handle.flush()  # the half really reaches the temporary file
+        if failure == "interrupt":
+            raise KeyboardInterrupt
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setitem(ddgjax.io._WRITERS, suffix[1:], failing)
+    expected = {"midway": OSError, "formatting": RuntimeError, "interrupt": KeyboardInterrupt}[failure]
+    with pytest.raises(expected):
+        save_mesh(path, mesh)
+    assert path.read_bytes() == old
+    assert sorted(tmp_path.iterdir()) == listing
+    monkeypatch.setitem(ddgjax.io._WRITERS, suffix[1:], real)
+    save_mesh(path, mesh)
+    assert load_mesh(path).n_faces == mesh.n_faces and sorted(tmp_path.iterdir()) == listing
+
+
+_SIZE_LIMITED_SAVES = """
+import resource, signal, sys
+from ddgjax.io import save_mesh
+from ddgjax.mesh import icosphere
+mesh = icosphere(3)
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit then fails with EFBIG, not a signal
+resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+for path in sys.argv[1:]:
+    try:
+        save_mesh(path, mesh)
+    except OSError as error:
+        print(path, error.errno)
+    else:
+        print(path, "written")
+"""
+
+
+@pytest.mark.slow
+def test_file_size_limit_leaves_the_old_files_intact(tmp_path):
+    """A real failure midway: a process limited to 4 KiB files (RLIMIT_FSIZE) cannot write a 642-vertex mesh
+    over the tetrahedron's files (each under 4 KiB); every format keeps the old bytes and no temporary file."""
+    import errno
+    import subprocess
+    import sys
+
+    resource = pytest.importorskip("resource")
+    assert resource.RLIMIT_FSIZE
+    paths, olds = [], []
+    for suffix in FORMATS:
+        path, old, _ = _written(tmp_path, suffix)
+        assert len(old) < 4096
+        paths.append(str(path))
+        olds.append(old)
+    listing = sorted(tmp_path.iterdir())
+    run = subprocess.run([sys.executable, "-c", _SIZE_LIMITED_SAVES, *paths], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == [str(x) for path in paths for x in (path, errno.EFBIG)]
+    assert [pathlib.Path(path).read_bytes() for path in paths] == olds
+    assert sorted(tmp_path.iterdir()) == listing
+
+
+def test_permissions_of_replaced_and_new_files(tmp_path):
+    """A replaced file keeps its mode (not mkstemp's 0o600), a new file gets 0o666 less the umask, and a
+    symbolic link keeps pointing at its (replaced) target."""
+    import os
+    import stat
+
+    mesh = load_mesh(data_path("meshes", "tet.obj"))
+    path, _, _ = _written(tmp_path, ".obj")
+    os.chmod(path, 0o640)
+    save_mesh(path, mesh)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o640
+    umask = os.umask(0o022)
+    os.umask(umask)
+    fresh = tmp_path / "fresh.ply"
+    save_mesh(fresh, mesh)
+    assert stat.S_IMODE(fresh.stat().st_mode) == 0o666 & ~umask
+    link = tmp_path / "link.obj"
+    link.symlink_to(path)
+    save_mesh(link, mesh.with_vertices(mesh.vertices * 2))
+    assert link.is_symlink() and stat.S_IMODE(path.stat().st_mode) == 0o640
+    np.testing.assert_array_equal(np.asarray(load_mesh(path).vertices), np.asarray(mesh.vertices) * 2)
+
+
+def test_non_finite_vertices_are_refused_before_anything_is_written(tmp_path):
+    """Whatever made them (`eqx.tree_at`, `with_vertices` under `jit`, positions computed under `jit`), NaN or inf vertices are
+    refused with the argument, the count, the first vertices and the remedy; the old file stays as it was.
+    `Mesh.from_arrays` and an eager `with_vertices` refuse them already."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    mesh = load_mesh(data_path("meshes", "tet.obj"))
+    broken = mesh.vertices.at[1, 0].set(jnp.nan).at[3, 2].set(jnp.inf)
+    routes = {
+        "tree_at": eqx.tree_at(lambda m: m.vertices, mesh, broken),
+        "jit": jax.jit(lambda m, V: m.with_vertices(V))(mesh, broken),
+        "computed": jax.jit(lambda m: m.with_vertices(m.vertices / jnp.where(jnp.arange(4)[:, None] % 2 == 1, 0.0, 1.0)))(mesh),
+    }
+    for suffix in FORMATS:
+        path, old, listing = _written(tmp_path, suffix)
+        for route, bad in routes.items():
+            with pytest.raises(
+                DDGInputError, match=r"mesh: 2 of its 4 vertices have NaN or inf coordinates \(vertices \[1, 3\]"
+            ) as raised:
+                save_mesh(path, bad)
+            assert "nothing was written" in str(raised.value) and "finite positions" in str(raised.value), route
+            assert path.read_bytes() == old and sorted(tmp_path.iterdir()) == listing
+    with pytest.raises(DDGInputError, match="vertices"):
+        Mesh.from_arrays(np.asarray(broken), np.asarray(mesh.faces))
+    with pytest.raises(DDGInputError, match="vertices"):
+        mesh.with_vertices(broken)

@@ -13,6 +13,7 @@ from ddgjax._errors import DDGInputError, MeshDataError
 from ddgjax.cli import main
 from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, check_mesh, face_areas, icosphere
+from ddgjax.mesh._check import default_area_tol
 
 from conftest import data_path
 
@@ -176,6 +177,17 @@ def test_check_mesh_finds_zero_area_faces_at_current_positions():
     report = check_mesh(sphere.with_vertices(V))
     assert report.zero_area_faces.tolist() == [0, 4, 10]
     assert "zero-area faces (area <= 1e-12 * longest edge^2): [0, 4, 10] (3 in all)" in str(report)
+    edge = np.flatnonzero(np.all(np.sort(np.asarray(sphere.edges), axis=1) == [0, 11], axis=1))
+    assert report.zero_length_edges.tolist() == edge.tolist() and edge.size == 1 and not report.is_clean
+    assert f"zero-length edges (coincident vertices): [{edge[0]}] (1 in all)" in str(report)
+    assert "zero-length edges (coincident vertices): none" in str(check_mesh(sphere))
+    # The tolerance scales with the precision the operators compute in: 16 eps in float32, where a
+    # collinear face's area rounds to ~eps l^2 (scale-invariant: the same faces at 1e-30 and 1e30).
+    assert default_area_tol(np.float64) == 1e-12 and default_area_tol(np.float32) == 16 * np.finfo(np.float32).eps
+    single = check_mesh(sphere.with_vertices(V.astype(np.float32)))
+    assert single.zero_area_faces.tolist() == [0, 4, 10] and single.area_tol == default_area_tol(np.float32)
+    for scale in (1e-30, 1e30):
+        assert check_mesh(sphere.with_vertices(scale * V)).zero_area_faces.tolist() == [0, 4, 10]
     # A needle of aspect 1e-4 is not zero-area at the default tolerance, but is at area_tol=1e-3.
     V[4] += 1e-4 * np.cross(V[9] - V[3], [0.0, 0.0, 1.0])
     assert 10 not in check_mesh(sphere.with_vertices(V)).zero_area_faces

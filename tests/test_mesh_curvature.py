@@ -376,10 +376,36 @@ def small_batch() -> dict:
     return jax.tree_util.tree_map(np.asarray, jax.jit(jax.vmap(lambda V: curvatures(SMALL.with_vertices(V))))(SMALL_BATCH))
 
 
+def test_gauss_bonnet_with_coincident_vertices_is_the_collapsed_mesh():
+    """Two vertices of a sphere moved onto one point: the faces of their edge collapse, and the defects
+    are those of the mesh with that edge collapsed (merged vertex: the two defects' sum; every other
+    vertex: its own). Each collapsed face has no angle at its coincident corners (0 / 0); they share
+    pi, so the sum is 4 pi (it was 3 x 2 pi when those corners counted 0). A face collapsed to a point
+    (three coincident vertices) also keeps 4 pi, with finite gradients."""
+    V, F = np.asarray(SMALL.vertices).copy(), np.asarray(SMALL.faces)
+    V[11] = V[0]
+    degenerate = np.asarray(vertex_angle_defects(SMALL.with_vertices(V)))
+    merged_faces = np.where(F == 11, 0, F)
+    merged_faces = merged_faces[(merged_faces != np.roll(merged_faces, 1, axis=1)).all(axis=1)]
+    assert merged_faces.shape[0] == F.shape[0] - 2  # faces 0 and 4 collapsed
+    merged = np.asarray(vertex_angle_defects(Mesh.from_arrays(V, merged_faces)))  # vertex 11 unreferenced: 0
+    np.testing.assert_allclose(degenerate[0] + degenerate[11], merged[0], rtol=1e-14)
+    keep = np.arange(12) != 11
+    keep[0] = False
+    np.testing.assert_allclose(degenerate[keep], merged[keep], atol=1e-14)
+    np.testing.assert_allclose(degenerate.sum(), 4 * np.pi, rtol=1e-14)
+    point = V.copy()
+    point[F[7]] = point[F[7, 0]]  # face 7 collapsed to a point: pi / 3 at each of its corners
+    np.testing.assert_allclose(np.sum(vertex_angle_defects(SMALL.with_vertices(point))), 4 * np.pi, rtol=1e-14)
+    gradient = jax.grad(lambda W: jnp.sum(vertex_angle_defects(SMALL.with_vertices(W)) ** 2))(jnp.asarray(point))
+    assert np.all(np.isfinite(np.asarray(gradient)))
+
+
 @pytest.mark.slow
 def test_degenerate_faces_give_finite_values_and_gradients(small_batch):
     for name, value in small_batch.items():
         assert np.all(np.isfinite(value[3])), name
+    np.testing.assert_allclose(small_batch["defects"][3].sum(), 4 * np.pi, rtol=1e-14)  # Gauss-Bonnet kept
     # The same reverse pass as check_grads above (compiled once); a NaN in any output's gradient propagates.
     _, pullback = jax.vjp(WEIGHTED_OUTPUTS, DEGENERATE_VERTICES)
     assert np.all(np.isfinite(np.asarray(pullback(jnp.ones(()))[0])))

@@ -283,6 +283,43 @@ def test_robust_eigenpairs_are_those_of_robust_laplacian():
     np.testing.assert_allclose(jitted(mesh.vertices), expected, rtol=1e-9, atol=1e-10)
 
 
+def test_a_degenerate_mesh_is_refused_or_reported_never_a_wrong_spectrum():
+    """One collinear face in an icosphere: its cotan Laplacian is indefinite by rounding (smallest
+    eigenvalue ~-20 where 0 is right). `eigenpairs` refuses it (naming the face and `robust=True`),
+    `robust=True` gives robust_laplacian's (mollified) spectrum, and where the positions cannot be
+    checked first (inside jit) or the matrices are passed in, the outcome is a failure, not the pairs."""
+    import robust_laplacian
+
+    from ddgjax import RESULTS, MeshDataError
+    from ddgjax.spectral import shape_operators
+
+    mesh = icosphere(2)
+    V, F = np.asarray(mesh.vertices).copy(), np.asarray(mesh.faces)
+    V[F[0, 2]] = 0.5 * (V[F[0, 0]] + V[F[0, 1]])
+    degenerate = mesh.with_vertices(V)
+    with pytest.raises(MeshDataError, match=r"faces \[0\] \(1 in all\) have zero or near-zero area.*robust=True"):
+        eigenpairs(degenerate, 5)
+    with pytest.raises(MeshDataError, match="robust=True"):
+        shape_operators(degenerate, 3)
+    L, M = robust_laplacian.mesh_laplacian(V, F.astype(np.int64))  # mollify_factor=1e-5
+    expected = np.sort(spla.eigsh(L.tocsc(), k=5, M=M.tocsc(), sigma=-1e-6, which="LM")[0])
+    values = eigenpairs(degenerate, 5, mass="barycentric", robust=True)[0]
+    np.testing.assert_allclose(values, expected, rtol=1e-9, atol=1e-10)
+    assert values[0] > -1e-12 and values[1] > 1.9  # one component: one zero eigenvalue
+    np.testing.assert_allclose(shape_operators(degenerate, 3, mass="barycentric", robust=True).values, expected[:3], atol=1e-10)
+    # The plain operators, assembled regardless: no method returns their pairs as a success.
+    L, M = cotan_laplacian(degenerate), mass_matrix(degenerate)
+    for method in ("arpack", "subspace"):
+        for k in (1, 5):
+            solution = smallest_eigenpairs(L, M, k, method=method, throw=False)
+            assert solution.result in (RESULTS.not_positive_definite, RESULTS.eigensolver_failed), (method, k)
+            with pytest.raises(Exception, match="positive definite|did not converge"):
+                smallest_eigenpairs(L, M, k, method=method)
+    # Inside jit (positions traced: not checked first) the negative eigenvalue is the outcome.
+    jitted = jax.jit(lambda W: eigenpairs(mesh.with_vertices(W), 5, throw=False))(degenerate.vertices)
+    assert jitted.result == RESULTS.not_positive_definite and float(jitted.value.values[0]) < -1.0
+
+
 def test_hermitian_real_form_solves_the_complex_problem_on_the_host():
     """The real form of a complex Hermitian problem (a connection Laplacian, 162 complex unknowns: ARPACK's
     complex mode) gives the real-form solver's pairs: equal eigenvalues, the same invariant subspaces."""

@@ -75,12 +75,20 @@ def run_geodesic(args: argparse.Namespace) -> int:
         ("mesh", f"{name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces"),
         ("source", f"vertex {args.source}"),
         ("time", f"{elapsed:.3g} s (factorisations, one query, compilation included)"),
-        ("distance", f"max {distance.max():.4g}, mean {distance.mean():.4g}"),
+        ("distance", _distance_summary(distance)),
     ]
     print("\n".join(f"{key:10s} {value}" for key, value in rows))
     if not args.no_plot and not _draw(mesh, [("geodesic distance (heat method)", distance)], name, args, bands=args.bands):
         return 2
     return 0
+
+
+def _distance_summary(distance: np.ndarray) -> str:
+    """Max and mean over the reached vertices; the others (components without the source) are `inf`."""
+    reached = distance[np.isfinite(distance)]
+    unreached = distance.size - reached.size
+    summary = f"max {reached.max():.4g}, mean {reached.mean():.4g}"
+    return summary + (f" over the reached vertices ({unreached} unreachable: inf)" if unreached else "")
 
 
 def run_spectrum(args: argparse.Namespace) -> int:

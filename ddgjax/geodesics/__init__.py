@@ -2,7 +2,9 @@
 
 - `heat_distance(mesh, sources, *, t_coef=1.0, boundary="average", solver="auto", throw=True, ...)`:
   the heat method (Crane, Weischedel & Wardetzky 2013): a short heat flow from the sources, its
-  normalised gradient, a Poisson solve.
+  normalised gradient, a Poisson solve. Works on every triangle mesh (strips, single triangles, obtuse
+  triangles, several components, unreferenced vertices): distances are never negative, and `inf`
+  where no source reaches (another component, a vertex of no face).
 - `heat_distance_solver(mesh, ...)`: the same with the factorisations kept, `solver.distance(sources)`
   per query (`HeatDistanceSolver`; `solver.steps(sources)` gives the intermediate `HeatMethodSteps`).
 """

@@ -9,16 +9,24 @@ Three steps on a triangle mesh, with `L` the PSD cotan Laplacian and `M` a mass 
    distance (0 where `grad u` vanishes, so nothing divides by zero);
 3. the Poisson problem `L phi = -div X` (`div` the integrated divergence, `ddgjax.dec.divergence`:
    the weak form holds the natural Neumann condition, and `div X` sums to zero on each connected
-   component, so the system is compatible), solved with one vertex pinned per component, then
-   shifted so the sources are at 0 (the mean of `phi` over the source points).
+   component, so the system is compatible), solved with one vertex pinned per component;
+4. `phi` is defined up to one constant per connected component: each component that holds a source
+   is shifted so that its smallest value is 0 (so no distance is negative; with one source vertex
+   that is the source), or, when that is lower, so that the sources sit at 0 (the mean over its
+   source points of `phi` at their face's corners less the corners' straight-line distance from the
+   point, as geometry-central shifts); every vertex of a component without a source, and every
+   unreferenced vertex, is at distance `inf` (unreachable).
 
 On a mesh with boundary, step 1 takes the average of the Neumann solution and the Dirichlet one
 (`u = 0` on the boundary), as the paper recommends against distances that bend towards the boundary
-(`boundary="average"`, default; `"neumann"` or `"dirichlet"` for one of the two). The result approximates the
-geodesic distance to first order in `h` (the smoothing by `t ~ h^2` is part of the method).
+(`boundary="average"`, default; `"neumann"` or `"dirichlet"` for one of the two). On a mesh whose
+vertices all lie on the boundary (a strip, a single triangle) the Dirichlet heat is zero, so
+`"average"` is the Neumann flow alone there and `"dirichlet"` is refused. Unreferenced vertices are
+held at `u = 0` and `phi = 0` (they belong to no face). The result approximates the geodesic
+distance to first order in `h` (the smoothing by `t ~ h^2` is part of the method).
 
 `HeatDistanceSolver` keeps the factorisations of `M + t L` (and of its Dirichlet block) and of the
-pinned `L`, so each query is three sparse solves and two sweeps over the faces;
+pinned `L`, and the component of each vertex, so each query is three sparse solves and two sweeps over the faces;
 `heat_distance(mesh, sources)` builds one and queries it, differentiably in the vertex positions
 (every step is a JAX function of them and the solves differentiate implicitly), in one compiled
 program. Each solve reports its outcome (`ddgjax.RESULTS`); a query's `result` is the first failing
@@ -39,10 +47,10 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
 from .._compile import kernel
-from .._errors import DDGInputError, check_choice
+from .._errors import DDGInputError, check_choice, first_indices
 from .._numerics import safe_norm
 from .._options import BOUNDARY_CONDITIONS, check_mass, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
@@ -65,7 +73,8 @@ class HeatMethodSteps(eqx.Module):
         field: `(nf, 3)` `X = -grad u / |grad u|` per face.
         divergence: `(nv,)` the integrated divergence of `X` (`ddgjax.dec.divergence`; the DDG
             exercises' `div` is its negative).
-        distance: `(nv,)` `phi`, shifted to 0 at the sources.
+        distance: `(nv,)` `phi` shifted per connected component (module docstring, step 4): `>= 0`,
+            `inf` where no source reaches.
     """
 
     heat: Float[Array, " nv"]
@@ -83,21 +92,29 @@ class HeatDistanceSolver(eqx.Module):
     Attributes:
         mesh: the mesh.
         t: the heat flow's time `t_coef * h^2`.
-        heat: factorisation of `M + t L` (`None` with `boundary="dirichlet"` on a mesh with boundary).
-        heat_dirichlet: factorisation of its free-free block with the boundary held at 0
-            (`boundary="average"` or `"dirichlet"` on a mesh with boundary), else `None`.
-        heat_plan: the boundary's `DirichletPlan` for it, else `None`.
+        heat: factorisation of `M + t L` for the Neumann heat flow (of its free-free block, with the
+            unreferenced vertices held at 0, when there are any); `None` with `boundary="dirichlet"`
+            on a mesh with boundary.
+        heat_plan: the unreferenced vertices' `DirichletPlan` for `heat`, else `None`.
+        heat_dirichlet: factorisation of the free-free block of `M + t L` with the boundary (and
+            unreferenced) vertices held at 0 (`boundary="average"` or `"dirichlet"` on a mesh with
+            boundary and at least one interior vertex), else `None`.
+        heat_dirichlet_plan: its `DirichletPlan`, else `None`.
         poisson: factorisation of `L` with one vertex per component pinned (its free-free block).
         poisson_plan: the pins' `DirichletPlan`.
+        components: `(nv,)` the connected component of each vertex (the unreferenced vertices share
+            one label past those of the faces' components).
     """
 
     mesh: Mesh
     t: Float[Array, ""]
     heat: Factorization | None
-    heat_dirichlet: Factorization | None
     heat_plan: DirichletPlan | None
+    heat_dirichlet: Factorization | None
+    heat_dirichlet_plan: DirichletPlan | None
     poisson: Factorization
     poisson_plan: DirichletPlan
+    components: Int[Array, " nv"]
 
     @property
     def n_pinned(self) -> int:
@@ -105,7 +122,7 @@ class HeatDistanceSolver(eqx.Module):
         return self.poisson_plan.fixed.shape[0]
 
     def distance(self, sources, *, throw: bool = True) -> Float[Array, " nv"] | Solution:
-        """Geodesic distance from the sources to every vertex, `(nv,)`, 0 at the sources.
+        """Geodesic distance from the sources to every vertex, `(nv,)`: `>= 0`, `inf` where no source reaches.
 
         Args:
             sources: vertex indices, `(m,)` integers (or one integer); or points inside faces, a pair
@@ -113,35 +130,49 @@ class HeatDistanceSolver(eqx.Module):
                 face, in the face's vertex order, summing to 1).
             throw: raise when a solve fails (default), or return a `ddgjax.Solution` (module docstring).
         """
-        steps, result, stats = _query(self.mesh, self._factors(), *_sources(self.mesh, sources))
-        return outcome(steps.distance, result, throw, stats)
+        return self._run(sources, throw, lambda steps: steps.distance)
 
     def steps(self, sources, *, throw: bool = True) -> HeatMethodSteps | Solution:
         """The distance and the intermediate quantities that lead to it (`HeatMethodSteps`); arguments as `distance`."""
-        steps, result, stats = _query(self.mesh, self._factors(), *_sources(self.mesh, sources))
-        return outcome(steps, result, throw, stats)
+        return self._run(sources, throw, lambda steps: steps)
 
-    def _factors(self) -> "_Factors":
-        return _Factors(self.heat, self.heat_dirichlet, self.heat_plan, self.poisson, self.poisson_plan)
+    def _run(self, sources, throw: bool, pick):
+        # Only the Dirichlet heat flow is kept exactly when `boundary="dirichlet"` on a mesh with boundary.
+        corners, weights = _sources(self.mesh, sources, dirichlet=self.heat is None)
+        factors = _Factors(
+            self.heat,
+            self.heat_plan,
+            self.heat_dirichlet,
+            self.heat_dirichlet_plan,
+            self.poisson,
+            self.poisson_plan,
+            self.components,
+        )
+        steps, result, stats = _query(self.mesh, factors, corners, weights)
+        return outcome(pick(steps), result, throw, stats)
 
 
 class _Factors(eqx.Module):
     """What a query needs besides the mesh (the solver without its mesh, which a kernel takes apart)."""
 
     heat: Factorization | None
-    heat_dirichlet: Factorization | None
     heat_plan: DirichletPlan | None
+    heat_dirichlet: Factorization | None
+    heat_dirichlet_plan: DirichletPlan | None
     poisson: Factorization
     poisson_plan: DirichletPlan
+    components: Int[Array, " nv"]
 
 
 class _Plans(eqx.Module):
-    """The host data of the heat method for one triangulation: the Dirichlet plan of the heat flow's
-    boundary (`None` without one, or with Neumann conditions), whether the Neumann heat flow is
-    needed, and the Poisson solve's pins."""
+    """The host data of the heat method for one triangulation: the held vertices of the Neumann heat
+    flow (the unreferenced ones; `None` without any) and of the Dirichlet one (`None` when it is not
+    run), whether the Neumann flow is run, the Poisson solve's pins and the vertices' components."""
 
     heat: DirichletPlan | None
+    heat_dirichlet: DirichletPlan | None
     poisson: DirichletPlan
+    components: Int[Array, " nv"]
     neumann: bool = eqx.field(static=True)
 
 
@@ -160,13 +191,28 @@ def _plans(mesh: Mesh, boundary: str, pattern: SparsityPattern, cached: bool) ->
 
 
 def _build_plans(mesh: Mesh, boundary: str, pattern: SparsityPattern) -> _Plans:
-    boundary_vertices = mesh.topology.boundary_vertices
-    held = boundary != "neumann" and boundary_vertices.size > 0
+    topology = mesh.topology
+    unreferenced = topology.unreferenced_vertices
+    # The Dirichlet heat flow holds u = 0 on the boundary and on the vertices of no face.
+    held = np.union1d(topology.boundary_vertices, unreferenced)
+    dirichlet = boundary != "neumann" and topology.boundary_vertices.size > 0
+    if dirichlet and held.size == mesh.n_vertices:
+        if boundary == "dirichlet":
+            raise DDGInputError(
+                f'boundary: "dirichlet" holds the heat at 0 on the boundary, and all {mesh.n_vertices} vertices of '
+                "this mesh lie on its boundary (or in no face: a strip, a single triangle), so the heat would be 0 "
+                'everywhere; use boundary="average" (the default) or "neumann"'
+            )
+        dirichlet = False  # "average": the Dirichlet heat is 0, so the Neumann flow alone gives the same field
     with jax.ensure_compile_time_eval():  # host data even when a caller's jit traces this call (it is cached)
-        heat = dirichlet_plan(pattern, boundary_vertices) if held else None
         pins = DirichletData(mesh, None, None, (), pattern)  # one pinned vertex per component (and unreferenced ones)
-        poisson = dirichlet_plan(pattern, pins.fixed)
-    return _Plans(heat=heat, poisson=poisson, neumann=not (held and boundary == "dirichlet"))
+        return _Plans(
+            heat=dirichlet_plan(pattern, unreferenced) if unreferenced.size else None,
+            heat_dirichlet=dirichlet_plan(pattern, held) if dirichlet else None,
+            poisson=dirichlet_plan(pattern, pins.fixed),
+            components=pins.labels,
+            neumann=not (dirichlet and boundary == "dirichlet"),
+        )
 
 
 def _operators(mesh: Mesh, t_coef, mass: str, boundary: str, robust, solver: str):
@@ -194,11 +240,12 @@ def heat_distance_solver(
     """Factor the heat method's systems for `mesh` once (module docstring); query with `.distance(sources)`.
 
     Args:
-        mesh: a triangle mesh (several components, boundaries, any genus).
+        mesh: a triangle mesh (several components, boundaries, any genus, unreferenced vertices).
         t_coef: the heat flow's time in units of the squared mean edge length (1 in the paper).
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         boundary: the heat flow's boundary condition on a mesh with boundary: `"average"` (default:
-            the mean of the Neumann and Dirichlet heat flows), `"neumann"` or `"dirichlet"`.
+            the mean of the Neumann and Dirichlet heat flows), `"neumann"` or `"dirichlet"` (refused
+            on a mesh with no interior vertex, and its queries refuse sources on the boundary).
         robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
             `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`): accurate on
             meshes with obtuse triangles, as potpourri3d's default `use_robust=True`.
@@ -217,10 +264,12 @@ def heat_distance_solver(
         mesh=mesh,
         t=t,
         heat=factors.heat,
-        heat_dirichlet=factors.heat_dirichlet,
         heat_plan=factors.heat_plan,
+        heat_dirichlet=factors.heat_dirichlet,
+        heat_dirichlet_plan=factors.heat_dirichlet_plan,
         poisson=factors.poisson,
         poisson_plan=factors.poisson_plan,
+        components=factors.components,
     )
 
 
@@ -242,16 +291,24 @@ def heat_distance(
     1. `(M + t L) u = delta`, `t = t_coef * h^2`: one backward-Euler step of the heat flow from the
        sources (`delta`: the sources' hat-function weights);
     2. `X = -grad u / |grad u|` on each face (0 where `grad u = 0`);
-    3. `L phi = -div X` (integrated divergence; one vertex pinned per connected component), then
-       `phi` shifted so that its mean over the sources is 0.
+    3. `L phi = -div X` (integrated divergence; one vertex pinned per connected component);
+    4. on each connected component that holds a source, `phi` shifted so that its minimum is 0, or
+       so that the sources sit at 0 when that is lower (the mean over the component's source points
+       of `phi` at their face's corners less each corner's straight-line distance from the point);
+       `inf` on every other component.
 
-    Convention: distances are non-negative away from the sources and 0 at them (a source inside a
-    face: its interpolated value is 0); first-order accurate in `h` (the smoothing by `t ~ h^2`
-    belongs to the method: a larger `t_coef` gives smoother, less accurate distances). With
-    `boundary="average"` (default) the heat flow on a mesh with boundary is the mean of its Neumann and
-    Dirichlet (`u = 0` on the boundary) solutions, the paper's remedy against distances bent towards
-    the boundary; `"neumann"` and `"dirichlet"` use one of them. Several components, boundaries and
-    any genus are fine. Differentiable in the vertex positions (every step is a JAX function of them,
+    Convention: distances are never negative; each component holding a source has minimum 0 (with
+    one source vertex, at the source), and every vertex no source reaches (another connected
+    component, or an unreferenced vertex) is at distance `inf`, so mask them with `jnp.isfinite`
+    before summing. A source inside a face gives its corners about their straight-line distance
+    from it. First-order accurate in `h` (the smoothing by `t ~ h^2` belongs to the method: a larger
+    `t_coef` gives smoother, less accurate distances). With `boundary="average"` (default) the heat
+    flow on a mesh with boundary is the mean of its Neumann and Dirichlet (`u = 0` on the boundary)
+    solutions, the paper's remedy against distances bent towards the boundary; on a mesh with no
+    interior vertex (a strip, a single triangle) the Dirichlet heat is 0 and the Neumann flow alone
+    is used; `"neumann"` and `"dirichlet"` use one of them (`"dirichlet"` refuses sources on the
+    boundary, which would emit no heat, and meshes with no interior vertex). Several components,
+    boundaries, unreferenced vertices, obtuse triangles and any genus are fine. Differentiable in the vertex positions (every step is a JAX function of them,
     the solves by implicit differentiation), under `jit`, `grad` and `vmap`; an eager call runs one
     compiled program after the Laplacian's. For many queries on one mesh keep the factorisations:
     `heat_distance_solver(mesh, ...).distance(sources)`.
@@ -271,11 +328,12 @@ def heat_distance(
             and `"num_steps"`, their CG iterations).
 
     Returns:
-        `(nv,)` distances (in a `ddgjax.Solution` with `throw=False`).
+        `(nv,)` distances, `>= 0`, `inf` where no source reaches (in a `ddgjax.Solution` with `throw=False`).
 
     Equivalents and their defaults: libigl `igl.heat_geodesics_precompute(V, F, data)` /
     `igl.heat_geodesics_solve(data, gamma)` has the same defaults (`t = h^2`, Voronoi mass, the average of
-    the Neumann and Dirichlet heat flows, the mean over the sources shifted to 0). potpourri3d
+    the Neumann and Dirichlet heat flows) but shifts every component by one constant, the mean over the
+    sources, so several sources give negative distances and other components finite ones. potpourri3d
     `MeshHeatMethodDistanceSolver(V, F, t_coef=1.0, use_robust=True).compute_distance(v)` (geometry-central)
     differs in three defaults: it uses the intrinsic Delaunay Laplacian of a mollified tufted cover
     (`use_robust=True`; here `robust=False`, and `robust=True` is the intrinsic Delaunay Laplacian
@@ -284,14 +342,16 @@ def heat_distance(
     pass `boundary="neumann"`); `t_coef` means the same (`t = t_coef h^2`, `h` the mean edge length).
     With `mass="barycentric", boundary="neumann", robust=False` and potpourri3d's `use_robust=False`
     the two agree to a few 1e-4 of the largest distance (a slightly different time or regularisation in
-    geometry-central; tests).
+    geometry-central; tests). potpourri3d too shifts by one constant, the sources' mean (its distances
+    can be negative with several sources, and are a finite constant on components without a source).
 
     Reference: K. Crane, C. Weischedel, M. Wardetzky, "Geodesics in heat" (2013), sections 3.1-3.2 and
     (boundary conditions) 3.4; "The heat method for distance computation" (2017).
     """
     mesh = require_mesh("mesh", mesh)
-    corners, weights = _sources(mesh, sources)
+    _source_points(mesh, sources)  # refuse malformed sources before building the Laplacian
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
+    corners, weights = _sources(mesh, sources, dirichlet=not plans.neumann)
     distance, result, stats = _build_and_query(mesh, L, M, plans, t_coef, corners, weights, solver=solver)
     return outcome(distance, result, throw, stats)
 
@@ -300,45 +360,66 @@ def _factorizations(mesh: Mesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans,
     """`(t, _Factors)`: the factorisations of `M + t L`, its Dirichlet block and the pinned `L` (module docstring)."""
     t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
     heat_matrix = M + t * L
-    heat_dirichlet = None
-    if plans.heat is not None:
-        heat_dirichlet = factorize(dirichlet_blocks(heat_matrix, plans.heat)[0], method=solver)
     return t, _Factors(
-        heat=factorize(heat_matrix, method=solver) if plans.neumann else None,
-        heat_dirichlet=heat_dirichlet,
-        heat_plan=plans.heat,
-        poisson=factorize(dirichlet_blocks(L, plans.poisson)[0], method=solver),
+        heat=_factor_held(heat_matrix, plans.heat, solver) if plans.neumann else None,
+        heat_plan=plans.heat if plans.neumann else None,
+        heat_dirichlet=None if plans.heat_dirichlet is None else _factor_held(heat_matrix, plans.heat_dirichlet, solver),
+        heat_dirichlet_plan=plans.heat_dirichlet,
+        poisson=_factor_held(L, plans.poisson, solver),
         poisson_plan=plans.poisson,
+        components=plans.components,
     )
 
 
+def _factor_held(matrix: SparseMatrix, plan: DirichletPlan | None, solver: str) -> Factorization:
+    """The factorisation of `matrix`, or of its free-free block when `plan` holds some indices at 0."""
+    return factorize(matrix if plan is None else dirichlet_blocks(matrix, plan)[0], method=solver)
+
+
+def _solve_held(factor: Factorization, plan: DirichletPlan | None, rhs) -> tuple[LinearSolution, Float[Array, " nv"]]:
+    """`(solution, x)`: `A x = rhs` on the free indices, `x = 0` on those `plan` holds (`_factor_held`'s)."""
+    if plan is None:
+        solution = factor.solve(rhs, throw=False)
+        return solution, solution.value
+    solution = factor.solve(rhs[plan.free], throw=False)
+    return solution, plan.join(solution.value, jnp.zeros(plan.fixed.shape[0], rhs.dtype))
+
+
 def _heat_method(mesh: Mesh, factors: _Factors, corners, weights) -> tuple[HeatMethodSteps, RESULTS, dict]:
-    """The three steps (module docstring) with kept factorisations: `(steps, result, stats)`."""
+    """The four steps (module docstring) with kept factorisations: `(steps, result, stats)`."""
     delta = jnp.zeros(mesh.n_vertices, weights.dtype).at[corners.ravel()].add(weights.ravel())
-    solutions: list[LinearSolution] = []
-    heats = []  # the Neumann and / or the Dirichlet heat flow; their mean
-    if factors.heat is not None:
-        solutions.append(factors.heat.solve(delta, throw=False))
-        heats.append(solutions[-1].value)
-    if factors.heat_dirichlet is not None:
-        plan = factors.heat_plan
-        solutions.append(factors.heat_dirichlet.solve(delta[plan.free], throw=False))
-        heats.append(plan.join(solutions[-1].value, jnp.zeros(plan.fixed.shape[0], delta.dtype)))
-    u = sum(heats) / len(heats)
+    flows = ((factors.heat, factors.heat_plan), (factors.heat_dirichlet, factors.heat_dirichlet_plan))
+    heats = [_solve_held(factor, plan, delta) for factor, plan in flows if factor is not None]
+    u = sum(heat for _, heat in heats) / len(heats)  # the Neumann and / or the Dirichlet heat flow; their mean
     g = gradient(mesh, u)
     norm = safe_norm(g, keepdims=True)
     field = jnp.where(norm > 0, -g / jnp.where(norm > 0, norm, 1.0), 0.0)
     div = divergence(mesh, field)
-    plan = factors.poisson_plan
-    solutions.append(factors.poisson.solve(-div[plan.free], throw=False))
-    phi = plan.join(solutions[-1].value, jnp.zeros(plan.fixed.shape[0], div.dtype))
-    at_sources = jnp.mean(jnp.sum(phi[corners] * weights, axis=1))
-    steps = HeatMethodSteps(heat=u, field=field, divergence=div, distance=phi - at_sources)
+    poisson, phi = _solve_held(factors.poisson, factors.poisson_plan, -div)
+    steps = HeatMethodSteps(heat=u, field=field, divergence=div, distance=_shift(mesh, phi, factors.components, corners, weights))
+    solutions = [solution for solution, _ in heats] + [poisson]
     stats = {
         "residual": jnp.max(jnp.stack([solution.residual for solution in solutions])),
         "num_steps": sum(solution.num_steps for solution in solutions),
     }
     return steps, first_failure(*(solution.result for solution in solutions)), stats
+
+
+def _shift(mesh: Mesh, phi, components, corners, weights) -> Float[Array, " nv"]:
+    """Step 4 (module docstring): each component holding a source shifted down to its minimum or to its
+    sources' level, whichever is lower (so never below 0), and `inf` on every other component."""
+    n = phi.shape[0]
+    source_components = components[corners[:, 0]]  # a face's three corners share its component
+    positions = mesh.vertices[corners]
+    points = jnp.sum(weights[:, :, None] * positions, axis=1)
+    # The straight-line distance in the face from each source point to its corners (0 for a source vertex).
+    offsets = safe_norm(points[:, None, :] - positions)
+    level = jax.ops.segment_sum(jnp.sum(weights * (phi[corners] - offsets), axis=1), source_components, n)
+    total = jax.ops.segment_sum(jnp.sum(weights, axis=1), source_components, n)
+    level = jnp.where(total != 0, level / jnp.where(total != 0, total, 1.0), jnp.inf)
+    shift = jnp.minimum(jax.ops.segment_min(phi, components, n), level)
+    reached = jnp.zeros(n, bool).at[source_components].set(True)
+    return jnp.where(reached[components], phi - shift[components], jnp.inf)
 
 
 @kernel(static_argnames=("solver",))
@@ -359,9 +440,32 @@ def _build_and_query(mesh: Mesh, L, M, plans: _Plans, t_coef, corners, weights, 
     return steps.distance, result, stats
 
 
-def _sources(mesh: Mesh, sources) -> tuple[np.ndarray, Float[Array, "m 3"]]:
+def _sources(mesh: Mesh, sources, *, dirichlet: bool) -> tuple[np.ndarray, Float[Array, "m 3"]]:
     """`(corners (m, 3), weights (m, 3))`: each source point as hat-function weights on a face's corners
-    (a source vertex `v` is the corners `(v, v, v)` with weights `(1, 0, 0)`)."""
+    (a source vertex `v` is the corners `(v, v, v)` with weights `(1, 0, 0)`), after refusing sources
+    that cannot emit heat: unreferenced vertices, and (`dirichlet`: only the Dirichlet heat flow is
+    run) points on the boundary."""
+    corners, weights = _source_points(mesh, sources)
+    topology = mesh.topology
+    unreferenced = np.isin(corners[:, 0], topology.unreferenced_vertices)
+    if unreferenced.any():
+        raise DDGInputError(
+            f"sources: vertices {np.unique(corners[unreferenced, 0])[:5].tolist()} belong to no face (unreferenced), "
+            "so no distance spreads from them; pass vertices of the mesh's faces"
+        )
+    if dirichlet:
+        silent = np.isin(corners, topology.boundary_vertices).all(axis=1)
+        if silent.any():
+            raise DDGInputError(
+                f"sources: the sources at positions {first_indices(silent)} lie on the boundary (a boundary vertex, "
+                'or a point in a face whose corners are all boundary vertices), where boundary="dirichlet" holds the '
+                'heat at 0, so they emit none; use boundary="average" (the default) or "neumann", or sources off the boundary'
+            )
+    return corners, weights
+
+
+def _source_points(mesh: Mesh, sources) -> tuple[np.ndarray, Float[Array, "m 3"]]:
+    """`_sources` before the checks of what the sources emit."""
     n = mesh.n_vertices
     if isinstance(sources, tuple):
         if len(sources) != 2:

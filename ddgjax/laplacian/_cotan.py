@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows
 from .._numerics import safe_reciprocal, safe_sqrt
@@ -111,7 +111,7 @@ def _vertex_values(mesh: Mesh, u) -> Float[Array, "nv *k"]:
     n = require_mesh("mesh", mesh).n_vertices
     if np.ndim(u) not in (1, 2) or np.shape(u)[0] != n:
         raise DDGInputError(f"u: expected shape ({n},) or ({n}, k), got {np.shape(u)}")
-    return u if isinstance(u, jax.Array) else jnp.asarray(u)
+    return u if isinstance(u, jax.Array) else device_array(u)
 
 
 def _apply_laplacian(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:

@@ -11,6 +11,19 @@ Delaunay). On the result every interior edge has `w_ij >= 0`, so the Laplacian o
 satisfies the maximum principle wherever boundary edges do not spoil it (a boundary edge opposite
 an obtuse angle keeps its negative weight, as in libigl).
 
+Intrinsic mollification (Sharp & Crane 2020, section 4.5): before any flip, every edge length is
+raised by the one smallest amount `delta >= 0` that gives every triangle the strict triangle
+inequality with a margin `eps = mollify_factor * (mean edge length)`,
+
+    delta = max(0, max over faces and corners of (l_C - l_A - l_B + eps)),   l_e <- l_e + delta,
+
+so a face of zero area (collinear or coincident corners) gets a small positive one, and its
+cotangents are finite and well conditioned. The flips then work on a surface whose every triangle
+is non-degenerate, and the Laplacian is positive semidefinite on every mesh (the cotan Laplacian
+of a degenerate mesh is not, in floating point: `ddgjax.mesh._check`). On a mesh without
+near-degenerate faces `delta = 0` and nothing changes. `mollify_factor=1e-5` is robust_laplacian's
+default; `0` turns mollification off.
+
 Two phases (DESIGN.md):
 
 1. `intrinsic_delaunay(mesh)` flips on the host (NumPy, from the concrete vertex positions) in
@@ -19,7 +32,7 @@ Two phases (DESIGN.md):
    those touching its two faces), and flips them all at once. The result, an `IntrinsicTriangulation`,
    records the flipped faces, their vertex-pattern plan and the flips round by round.
 2. `IntrinsicTriangulation.face_lengths_sq(mesh)` replays the flips in JAX: the lengths of the mesh
-   edges `|p_i - p_j|^2`, then a `lax.scan` over steps of a fixed number of flips from one round,
+   edges `|p_i - p_j|^2`, mollified (`delta` recomputed from the positions), then a `lax.scan` over steps of a fixed number of flips from one round,
    each computing its new diagonals from the five lengths of their quads in one vectorised step.
    So the intrinsic edge lengths, and the Laplacian and mass matrix built from them
    (`ddgjax.laplacian._lengths`), are jit-compiled, differentiable functions of the vertex
@@ -42,7 +55,8 @@ that repeats a vertex (an intrinsic triangulation is a Delta-complex); the opera
 References: A. I. Bobenko, B. A. Springborn, "A discrete Laplace-Beltrami operator for simplicial
 surfaces" (2007); M. Fisher, B. Springborn, P. Schroeder, A. I. Bobenko, "An algorithm for the
 construction of intrinsic Delaunay triangulations with applications to digital geometry processing"
-(2007); N. Sharp, Y. Soliman, K. Crane, "Navigating intrinsic triangulations" (2019). libigl
+(2007); N. Sharp, Y. Soliman, K. Crane, "Navigating intrinsic triangulations" (2019); N. Sharp, K.
+Crane, "A Laplacian for nonmanifold triangle meshes" (2020) (mollification). libigl
 `intrinsic_delaunay_triangulation`, `intrinsic_delaunay_cotmatrix`; robust_laplacian (whose tufted
 cover also flips boundary edges: the same operator on closed meshes).
 """
@@ -55,10 +69,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, is_traced
 from .._indexing import take_rows
-from .._numerics import safe_div
+from .._numerics import safe_div, safe_sqrt
 from .._options import check_mass
 from ..mesh import Mesh, MeshTopology, face_areas_from_lengths_sq, require_mesh
 from ..sparse import SparseMatrix
@@ -89,6 +103,8 @@ class IntrinsicTriangulation(eqx.Module):
         topology: the mesh's topology (static): the triangulation fits meshes with this connectivity.
         n_flips: total number of flips (static).
         n_rounds: number of rounds of independent flips on the host (static).
+        mollify_factor: the mollification margin relative to the mean edge length (static; module
+            docstring), applied to the mesh's lengths before the flips, on the host and in the replay.
     """
 
     plan: TriangulationPlan
@@ -97,6 +113,7 @@ class IntrinsicTriangulation(eqx.Module):
     topology: MeshTopology = eqx.field(static=True)
     n_flips: int = eqx.field(static=True)
     n_rounds: int = eqx.field(static=True)
+    mollify_factor: float = eqx.field(static=True)
 
     @property
     def faces(self) -> Int[Array, "nf 3"]:
@@ -106,15 +123,28 @@ class IntrinsicTriangulation(eqx.Module):
     def face_lengths_sq(self, mesh: Mesh) -> Float[Array, "nf 3"]:
         """`(nf, 3)` squared intrinsic length of the edge opposite each corner of `self.faces`, for `mesh`'s vertices.
 
-        The flips replayed in JAX (module docstring): differentiable in `mesh.vertices`, under jit,
-        grad and vmap. libigl: the `l_intrinsic` of `intrinsic_delaunay_cotmatrix`, squared.
+        The mesh's lengths mollified, then the flips replayed in JAX (module docstring):
+        differentiable in `mesh.vertices`, under jit, grad and vmap (the mollification's `delta`,
+        a maximum over faces, is differentiated where it is attained). libigl: the `l_intrinsic` of
+        `intrinsic_delaunay_cotmatrix`, squared (which does not mollify).
         """
         mesh = _check_fits(self, mesh)
-        return _replayed_lengths_sq(mesh.vertices, mesh.edges, self.flip_slots, self.face_length_slots)
+        return _replayed_lengths_sq(
+            mesh.vertices,
+            mesh.edges,
+            mesh.face_edges,
+            self.flip_slots,
+            self.face_length_slots,
+            mollify_factor=self.mollify_factor,
+        )
 
 
-def intrinsic_delaunay(mesh: Mesh) -> IntrinsicTriangulation:
-    """Flip the edges of `mesh`'s intrinsic triangulation until every interior edge is Delaunay (host, NumPy).
+def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> IntrinsicTriangulation:
+    """Mollify `mesh`'s intrinsic metric, then flip its edges until every interior edge is Delaunay (host, NumPy).
+
+    First the edge lengths are mollified (module docstring): each raised by the smallest `delta >= 0`
+    that gives every triangle a strict triangle inequality with margin `mollify_factor` times the
+    mean edge length (`0` turns it off; nothing changes on a mesh without near-degenerate faces).
 
     An interior edge `ab` with triangles `(i, a, b)` and `(j, b, a)` is Delaunay when its opposite
     angles satisfy `a_i + a_j <= pi`, i.e. `cot a_i + cot a_j >= 0` (up to rounding,
@@ -131,17 +161,27 @@ def intrinsic_delaunay(mesh: Mesh) -> IntrinsicTriangulation:
 
     Args:
         mesh: an edge-manifold, consistently oriented mesh with concrete (not traced) vertices.
+        mollify_factor: the mollification margin relative to the mean edge length, `>= 0`
+            (keyword-only; robust_laplacian's `mollify_factor`, default `1e-5` as there).
 
     Returns:
         `IntrinsicTriangulation`.
 
-    Raises `DDGInputError` for traced vertices or a non-mesh, `MeshDataError` for non-manifold edges
-    or inconsistent orientation.
+    Raises `DDGInputError` for traced vertices, a non-mesh or a bad `mollify_factor`,
+    `MeshDataError` for non-manifold edges or inconsistent orientation.
 
-    References: Bobenko & Springborn (2007); Fisher et al. (2007). libigl
-    `intrinsic_delaunay_triangulation` (one flip at a time from a queue).
+    References: Bobenko & Springborn (2007); Fisher et al. (2007); Sharp & Crane (2020). libigl
+    `intrinsic_delaunay_triangulation` (one flip at a time from a queue, no mollification);
+    geometry-central `mollifyIntrinsic` then `flipToDelaunay`.
     """
     mesh = require_mesh("mesh", mesh)
+    if not (
+        np.isscalar(mollify_factor) and np.isreal(mollify_factor) and np.isfinite(mollify_factor) and mollify_factor >= 0
+    ) or isinstance(mollify_factor, (bool, np.bool_)):
+        raise DDGInputError(
+            f"mollify_factor: expected a finite number >= 0 (robust_laplacian's default 1e-5), got {mollify_factor!r}"
+        )
+    mollify_factor = float(mollify_factor)
     if is_traced(mesh.vertices):
         raise DDGInputError(
             "mesh: intrinsic_delaunay flips edges on the host and needs concrete vertex positions, got traced ones; "
@@ -154,17 +194,19 @@ def intrinsic_delaunay(mesh: Mesh) -> IntrinsicTriangulation:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     edges = topology.edges
     lengths_sq = np.sum((vertices[edges[:, 1]] - vertices[edges[:, 0]]) ** 2, axis=1)
+    lengths_sq = _mollified(lengths_sq, topology.face_edges, mollify_factor, np, np.sqrt, np.take)
     faces, face_edges, rounds = _flip_to_delaunay(topology, lengths_sq)
     # Without flips the triangulation is the mesh's: share the cached plan (and pattern) of `cotan_laplacian(mesh)`.
     plan = triangulation_plan(faces, topology.n_vertices) if rounds else vertex_plan(mesh)
     flip_slots, face_length_slots = _replay_layout(rounds, face_edges, topology.n_edges)
     return IntrinsicTriangulation(
         plan=plan,
-        face_length_slots=jnp.asarray(face_length_slots),
-        flip_slots=jnp.asarray(flip_slots),
+        face_length_slots=device_array(face_length_slots),
+        flip_slots=device_array(flip_slots),
         topology=topology,
         n_flips=sum(quads.shape[0] for quads in rounds),
         n_rounds=len(rounds),
+        mollify_factor=mollify_factor,
     )
 
 
@@ -256,6 +298,22 @@ def _check_fits(triangulation: IntrinsicTriangulation, mesh) -> Mesh:
     return mesh
 
 
+def _mollified(lengths_sq, face_edges, mollify_factor: float, xp, sqrt, take):
+    """Squared edge lengths after intrinsic mollification (module docstring), in NumPy (`xp=np`) or JAX.
+
+    `lengths_sq` per mesh edge, `face_edges` `(nf, 3)` the edges of each face; `sqrt` and `take` are
+    the array library's (NaN-safe ones in JAX). `l_C - l_A - l_B` is largest at a face's longest
+    edge, where it is `2 l_max - (l_A + l_B + l_C)`. Unchanged (exactly) where `delta = 0`.
+    """
+    if mollify_factor == 0:
+        return lengths_sq
+    lengths = sqrt(lengths_sq)
+    face_lengths = take(lengths, face_edges)
+    slack = xp.max(2.0 * xp.max(face_lengths, axis=1) - xp.sum(face_lengths, axis=1))
+    delta = xp.maximum(slack + mollify_factor * xp.mean(lengths), 0.0)
+    return xp.where(delta > 0, (lengths + delta) ** 2, lengths_sq)
+
+
 def _diagonal_after_flip(quad_lengths_sq, face_areas, divide, stack):
     """Squared length of the other diagonal `ij` of the quad `(i, a, j, b)` laid flat (formula in `intrinsic_delaunay`).
 
@@ -269,17 +327,21 @@ def _diagonal_after_flip(quad_lengths_sq, face_areas, divide, stack):
     return divide((ia - ib - ja + jb) ** 2 + 16.0 * areas**2, 4.0 * ab)
 
 
-@kernel
+@kernel(static_argnames=("mollify_factor",))
 def _replayed_lengths_sq(
     vertices: Float[Array, "nv 3"],
     edges: Int[Array, "ne 2"],
+    face_edges: Int[Array, "nf 3"],
     flip_slots: Int[Array, "n_steps 5 width"],
     face_length_slots: Int[Array, "nf 3"],
+    *,
+    mollify_factor: float,
 ) -> Float[Array, "nf 3"]:
-    """The mesh's squared edge lengths, then one scan step per block of flips (`IntrinsicTriangulation`)."""
+    """The mesh's squared edge lengths, mollified, then one scan step per block of flips (`IntrinsicTriangulation`)."""
     vectors = take_rows(vertices, edges[:, 1]) - take_rows(vertices, edges[:, 0])
+    mesh_lengths_sq = _mollified(jnp.sum(vectors * vectors, axis=-1), face_edges, mollify_factor, jnp, safe_sqrt, take_rows)
     n_steps, _, width = flip_slots.shape
-    lengths_sq = jnp.concatenate([jnp.sum(vectors * vectors, axis=-1), jnp.zeros(n_steps * width, vertices.dtype)])
+    lengths_sq = jnp.concatenate([mesh_lengths_sq, jnp.zeros(n_steps * width, vertices.dtype)])
 
     def step(lengths_sq, quads_and_start):
         quads, start = quads_and_start

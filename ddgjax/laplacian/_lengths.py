@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._options import check_mass
 from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq, face_areas_from_lengths_sq
@@ -49,7 +49,7 @@ def _check_lengths_sq(lengths_sq, plan: TriangulationPlan):
         raise DDGInputError(
             f"lengths_sq: expected shape {expected} (squared length opposite each face corner), got {np.shape(lengths_sq)}"
         )
-    lengths_sq = jnp.asarray(lengths_sq)
+    lengths_sq = device_array(lengths_sq)
     if not jnp.issubdtype(lengths_sq.dtype, jnp.floating):
         raise DDGInputError(f"lengths_sq: expected a floating-point array, got dtype {lengths_sq.dtype}")
     return lengths_sq

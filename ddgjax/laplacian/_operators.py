@@ -6,6 +6,15 @@ Laplacian and mass matrix, whose interior weights are non-negative: the maximum 
 obtuse triangles no longer spoil the solve; Sharp & Crane 2020 call this the "robust" Laplacian), or
 an `IntrinsicTriangulation` from `intrinsic_delaunay(mesh)`, made once on the host, which is what
 works inside `jit` / `grad` (the flips are host combinatorics).
+
+Degenerate geometry (`ddgjax.mesh._check`, the policy): a face of zero or near-zero area has
+infinite or undefined cotangents, and rounding then makes the plain cotan Laplacian indefinite
+(eigenvalues of -20 where 0 is right). `robust=False` on concrete positions with such faces raises
+`MeshDataError` naming them and the remedies. `robust=True` handles every mesh: the intrinsic
+triangulation first mollifies the metric (every edge lengthened by the smallest amount that gives
+each triangle a strict triangle inequality with margin `1e-5` of the mean edge length, Sharp & Crane
+2020), so every triangle has a positive area, then flips to Delaunay: a positive semidefinite
+Laplacian, `robust_laplacian.mesh_laplacian(V, F, mollify_factor=1e-5)` on closed meshes.
 """
 
 from __future__ import annotations
@@ -14,6 +23,7 @@ from typing import NamedTuple
 
 from .._errors import DDGInputError
 from .._options import check_mass
+from ..internal import require_nondegenerate
 from ..mesh import Mesh
 from ..sparse import SparseMatrix
 from ._cotan import cotan_laplacian
@@ -36,9 +46,11 @@ class LaplacianAndMass(NamedTuple):
 def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False) -> LaplacianAndMass:
     """`(L, M)`: the cotan Laplacian and the mass matrix of `mesh`, or of its intrinsic Delaunay triangulation.
 
-    `robust=False`: `cotan_laplacian(mesh)` and `mass_matrix(mesh, mass=mass)`; otherwise
-    `intrinsic_delaunay_laplacian` and `intrinsic_delaunay_mass_matrix` of one triangulation (module
-    docstring). `-M^{-1} L` is the pointwise Laplace-Beltrami operator.
+    `robust=False`: `cotan_laplacian(mesh)` and `mass_matrix(mesh, mass=mass)`, refused
+    (`MeshDataError`) on concrete positions with faces of zero or near-zero area; otherwise
+    `intrinsic_delaunay_laplacian` and `intrinsic_delaunay_mass_matrix` of one (mollified)
+    triangulation, which work on every mesh (module docstring). `-M^{-1} L` is the pointwise
+    Laplace-Beltrami operator.
 
     Args:
         mesh: the mesh.
@@ -47,6 +59,9 @@ def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | Intr
 
     Returns:
         `LaplacianAndMass(laplacian, mass)`, two `(nv, nv)` `SparseMatrix`es.
+
+    Raises `MeshDataError` for degenerate faces with `robust=False` (above), and as
+    `intrinsic_delaunay` does with `robust=True`.
 
     Reference: Sharp & Crane, "A Laplacian for nonmanifold triangle meshes" (2020). libigl:
     `-igl.cotmatrix(V, F)`, `igl.massmatrix(V, F, type)`; robust_laplacian: `mesh_laplacian(V, F)`.
@@ -61,10 +76,12 @@ def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | Intr
 
 
 def resolve_robust(mesh: Mesh, robust: bool | IntrinsicTriangulation, *, mass: str = "voronoi") -> IntrinsicTriangulation | None:
-    """The triangulation a `robust=` argument asks for: `None` (the mesh's own), or the intrinsic Delaunay
-    one (`True`: flipped here, on the host), after checking `mass`; `DDGInputError` otherwise."""
+    """The triangulation a `robust=` argument asks for: `None` (the mesh's own, after refusing degenerate
+    faces on concrete positions: `MeshDataError`, module docstring), or the intrinsic Delaunay one
+    (`True`: flipped here, on the host), after checking `mass`; `DDGInputError` otherwise."""
     check_mass(mass)
     if robust is False:
+        require_nondegenerate(mesh)
         return None
     if robust is True:
         robust = intrinsic_delaunay(mesh)

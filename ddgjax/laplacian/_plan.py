@@ -26,10 +26,10 @@ import weakref
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Int
 
+from .._compile import device_array
 from .._errors import DDGInputError, check_count, first_indices, is_traced
 from ..internal import stable_order
 from ..mesh import Mesh, MeshTopology, require_mesh
@@ -212,4 +212,4 @@ def _build(
             "loop_vertices": loop_vertices,
         }
     )
-    return TriangulationPlan(faces=jnp.asarray(faces, dtype=jnp.int32), pattern=pattern, **arrays)
+    return TriangulationPlan(faces=device_array(faces, np.int32), pattern=pattern, **arrays)

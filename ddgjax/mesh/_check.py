@@ -1,4 +1,21 @@
-"""Mesh checks: one report of the topology and the data problems of a mesh (DESIGN.md, Errors)."""
+"""Mesh checks: one report of the topology and the data problems of a mesh (DESIGN.md, Errors).
+
+Degenerate geometry (the policy, as geometry-central's): a face whose area is zero or within
+rounding of zero (`A <= area_tol * l_max^2`, `default_area_tol`) has infinite or undefined
+cotangents, so no cotan operator is meaningful on it. Building a mesh never refuses positions
+(they change under optimisation, inside `jit`); instead
+
+- `check_mesh` reports such faces and the zero-length edges (coincident vertices) among them;
+- `require_nondegenerate` (used where a problem chooses between the mesh's own cotan Laplacian and
+  the intrinsic one: `ddgjax.laplacian.laplacian_and_mass`, `eigenpairs`, `solve_poisson`,
+  `heat_distance`, ...) refuses them with `MeshDataError` when the positions are concrete, naming
+  the faces and the remedies: `robust=True` (intrinsic Delaunay on the mollified metric, positive
+  semidefinite on every mesh) or a repair. The faces are found once per `Mesh` object, on the host
+  (`degenerate_faces`), and remembered with it;
+- under `jit` / `grad` / `vmap` positions cannot be inspected: the operators run, and what the
+  rounding of infinite cotangents breaks is reported by the solvers' outcomes (`ddgjax.RESULTS`:
+  a factorisation's `not_positive_definite`, `eigenpairs`' negative eigenvalues).
+"""
 
 from __future__ import annotations
 
@@ -6,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from .._errors import DDGInputError, first_indices
+from .._errors import DDGInputError, MeshDataError, first_indices, is_traced
 from ._mesh import Mesh, require_mesh
 from ._topology import index_mask
 
@@ -28,7 +45,10 @@ class MeshReport:
         unreferenced_vertices: vertices used by no face.
         duplicate_faces: faces with the same three vertices as an earlier face, in any order or
             orientation (each later copy; the first stays unlisted).
-        zero_area_faces: faces with `area <= area_tol * (longest edge)^2` at the current positions.
+        zero_area_faces: faces with `area <= area_tol * (longest edge)^2` at the current positions
+            (collinear or coincident corners, or within rounding of that; module docstring).
+        zero_length_edges: edges whose two ends coincide at the current positions (their faces are
+            among `zero_area_faces`).
         area_tol: the relative tolerance used.
     """
 
@@ -45,6 +65,7 @@ class MeshReport:
     unreferenced_vertices: np.ndarray
     duplicate_faces: np.ndarray
     zero_area_faces: np.ndarray
+    zero_length_edges: np.ndarray
     area_tol: float
 
     @property
@@ -65,13 +86,14 @@ class MeshReport:
 
     @property
     def is_clean(self) -> bool:
-        """True when no data problem was found (manifold, oriented; no unreferenced vertices, duplicate or zero-area faces)."""
+        """True when no data problem was found (manifold, oriented; no unreferenced vertices, duplicate or zero-area faces, zero-length edges)."""
         return (
             self.is_manifold
             and self.is_oriented
             and self.unreferenced_vertices.size == 0
             and self.duplicate_faces.size == 0
             and self.zero_area_faces.size == 0
+            and self.zero_length_edges.size == 0
         )
 
     def __str__(self) -> str:
@@ -95,13 +117,14 @@ class MeshReport:
             ("unreferenced vertices", self.unreferenced_vertices, self.n_vertices),
             ("duplicate faces (same three vertices as an earlier face)", self.duplicate_faces, self.n_faces),
             (f"zero-area faces (area <= {self.area_tol:g} * longest edge^2)", self.zero_area_faces, self.n_faces),
+            ("zero-length edges (coincident vertices)", self.zero_length_edges, self.n_edges),
         ]
         for label, indices, size in problems:
             lines.append(f"{label}: " + (first_indices(index_mask(indices, size)) if indices.size else "none"))
         return "\n".join(lines)
 
 
-def check_mesh(mesh: Mesh, *, area_tol: float = 1e-12) -> MeshReport:
+def check_mesh(mesh: Mesh, *, area_tol: float | None = None) -> MeshReport:
     """Topology and data checks of a mesh, with counts and the offending indices.
 
     Topology comes from `mesh.topology` (built once). Duplicate faces are found on the host in NumPy
@@ -109,18 +132,27 @@ def check_mesh(mesh: Mesh, *, area_tol: float = 1e-12) -> MeshReport:
     orientation counts too (a face and its reversed copy form a closed, oriented two-face "pillow"
     that no edge check flags). Zero-area faces are measured at the current vertex positions: a face
     is flagged when `A_f <= area_tol * l_max^2` (`l_max` its longest edge), a scale-invariant test
-    that also catches collinear corners. This is a host-side function (not for use under jit).
+    that also catches collinear corners; `area_tol=None` (default) is `default_area_tol` of the
+    vertices' dtype (`1e-12` in float64), the tolerance below which the operators refuse a face
+    (module docstring). Zero-length edges join two coincident vertices. This is a host-side
+    function (not for use under jit).
 
     Equivalents: libigl `is_edge_manifold`, `is_vertex_manifold`, `euler_characteristic`,
-    `boundary_loop`, `unique_simplices`; trimesh `Trimesh.is_watertight` / `is_winding_consistent`.
+    `boundary_loop`, `unique_simplices`; trimesh `Trimesh.is_watertight` / `is_winding_consistent`;
+    geometry-central's `EdgeLengthGeometry` has no check (its cotangents are inf / NaN there).
     """
+    topology = require_mesh("mesh", mesh).topology
+    default = default_area_tol(mesh.vertices.dtype)
+    if area_tol is None:
+        area_tol = default
     if not (np.isscalar(area_tol) and np.isfinite(area_tol) and area_tol >= 0):
         raise DDGInputError(f"area_tol: expected a nonnegative finite number, got {area_tol!r}")
-    topology = require_mesh("mesh", mesh).topology
-    corners = np.asarray(mesh.vertices, dtype=np.float64)[topology.faces]
-    doubled_areas = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
-    longest_sq = np.max(np.sum((np.roll(corners, -1, axis=1) - corners) ** 2, axis=-1), axis=1)
-    zero_area = np.flatnonzero(0.5 * doubled_areas <= area_tol * longest_sq)
+    if is_traced(mesh.vertices):
+        raise DDGInputError("mesh: check_mesh measures the positions on the host and needs concrete vertices, got traced ones")
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    zero_area = degenerate_faces(mesh) if area_tol == default else _zero_area_faces(vertices, topology.faces, area_tol)
+    edges = topology.edges
+    zero_length = np.flatnonzero(np.all(vertices[edges[:, 0]] == vertices[edges[:, 1]], axis=1))
     return MeshReport(
         n_vertices=topology.n_vertices,
         n_faces=topology.n_faces,
@@ -135,8 +167,74 @@ def check_mesh(mesh: Mesh, *, area_tol: float = 1e-12) -> MeshReport:
         unreferenced_vertices=topology.unreferenced_vertices,
         duplicate_faces=_duplicate_faces(topology.faces),
         zero_area_faces=zero_area,
+        zero_length_edges=zero_length,
         area_tol=float(area_tol),
     )
+
+
+def default_area_tol(dtype) -> float:
+    """The relative area `A / l_max^2` at or below which a face counts as degenerate: `max(1e-12, 16 eps)`.
+
+    The cotangents of a face of relative area `r` carry a rounding error of about `eps / r` (their
+    law-of-cosines numerators cancel to `~eps l_max^2`, then are divided by `4 A`), and so does the
+    Laplacian built from them. In float64, `1e-12` keeps that below ~1e-4 of an entry: measured on an
+    icosphere, one face of relative area 1e-12 moves the zero eigenvalue of `L phi = lambda M phi` by
+    5e-9, one of 1e-14 by 8e-4, and a collinear one (computed area ~1e-17) to -170. In float32 a
+    collinear face's computed area is ~eps l^2 itself, which `16 eps` (1.9e-6) catches.
+    """
+    return max(1e-12, 16.0 * float(np.finfo(np.dtype(dtype)).eps))
+
+
+def degenerate_faces(mesh: Mesh) -> np.ndarray | None:
+    """Faces of zero or near-zero area at the mesh's positions (`check_mesh`'s `zero_area_faces`), or `None` if traced.
+
+    `A_f <= default_area_tol(dtype) * l_max^2`, measured on the host in float64 once per `Mesh` object
+    and remembered with it (a mesh's arrays never change; `with_vertices` makes a new object). Under
+    `jit` / `grad` / `vmap` the positions are tracers and cannot be measured: `None`.
+    """
+    mesh = require_mesh("mesh", mesh)
+    if is_traced(mesh.vertices):
+        return None
+    found = mesh.__dict__.get(_DEGENERATE_FACES)
+    if found is None:
+        faces = mesh.topology.faces if mesh.topology is not None else np.asarray(mesh.faces)
+        found = _zero_area_faces(np.asarray(mesh.vertices, dtype=np.float64), faces, default_area_tol(mesh.vertices.dtype))
+        object.__setattr__(mesh, _DEGENERATE_FACES, found)  # a cache beside the pytree's fields, not one of them
+    return found
+
+
+def require_nondegenerate(mesh: Mesh) -> None:
+    """`MeshDataError` naming the degenerate faces (`degenerate_faces`) and the remedies, if there are any.
+
+    For the plain cotan route of a problem that also offers `robust=` (module docstring); nothing
+    is checked under `jit` (traced positions).
+    """
+    faces = degenerate_faces(mesh)
+    if faces is not None and faces.size:
+        tol = default_area_tol(mesh.vertices.dtype)
+        raise MeshDataError(
+            f"mesh: faces {first_indices(index_mask(faces, mesh.n_faces))} have zero or near-zero area "
+            f"(area <= {tol:g} * longest edge^2: collinear or coincident corners), where the cotan Laplacian's "
+            "cotangents are infinite or undefined and its rounding makes it indefinite. Pass robust=True (the "
+            "intrinsic Delaunay Laplacian of the mollified metric, positive semidefinite on every mesh; Sharp & "
+            "Crane 2020), or repair the mesh (merge coincident vertices, drop or flip those faces; "
+            "ddgjax.mesh.check_mesh(mesh) reports them)"
+        )
+
+
+# The attribute a `Mesh` object keeps `degenerate_faces` in (not a pytree field: lost when JAX rebuilds it).
+_DEGENERATE_FACES = "_degenerate_faces"
+
+
+def _zero_area_faces(vertices: np.ndarray, faces: np.ndarray, area_tol: float) -> np.ndarray:
+    """Indices of the faces with `A <= area_tol * l_max^2` (float64 host arrays)."""
+    scale = np.max(np.abs(vertices), initial=0.0)
+    # Scaled to unit size first: `|e_1 x e_2|` and `l^2` are fourth and second powers of the coordinates.
+    corners = (vertices / scale if scale > 0 else vertices)[faces]
+    edges = [corners[:, (k + 2) % 3] - corners[:, (k + 1) % 3] for k in range(3)]
+    longest_sq = np.max([np.einsum("ij,ij->i", edge, edge) for edge in edges], axis=0)
+    doubled_areas = np.linalg.norm(np.cross(edges[1], edges[2]), axis=1)
+    return np.flatnonzero(0.5 * doubled_areas <= area_tol * longest_sq)
 
 
 def _duplicate_faces(faces: np.ndarray) -> np.ndarray:

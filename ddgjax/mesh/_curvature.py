@@ -39,6 +39,7 @@ from ._geometry import (
     corner_angles,
     edge_dihedral_angles,
     edge_lengths,
+    face_edge_lengths_sq,
     face_edge_vectors,
     face_normals,
     scatter_corners_to_vertices,
@@ -62,13 +63,18 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     an identity on **every** triangle mesh, non-manifold included. Unreferenced vertices get 0.
     Since the total is topological, its gradient with respect to the vertices is 0.
 
+    Degenerate faces keep the identity: the angles of every face sum to `pi`. A collinear face has
+    angles `0, 0, pi`; a corner at a zero-length edge (coincident vertices) has no angle, and the
+    corners without one share what the others leave of `pi` (`_face_corner_angles`), so merging two
+    vertices of a sphere still sums to `4 pi`.
+
     Converters: `igl.gaussian_curvature(V, F)` is `2 pi - sum theta` everywhere, so it equals this on
     interior vertices and this minus `pi` on boundary vertices; `gpytoolbox.angle_defect(V, F)` is
     this on interior vertices and 0 on boundary vertices
     (`jnp.where(boundary, 0, vertex_angle_defects(mesh))`). Pointwise:
     `vertex_pointwise_gaussian_curvatures`.
     """
-    angle_sums = scatter_corners_to_vertices(mesh, corner_angles(mesh))
+    angle_sums = scatter_corners_to_vertices(mesh, _face_corner_angles(mesh))
     dtype = angle_sums.dtype
     face_counts = jnp.sum(mesh.edge_faces >= 0, axis=-1).astype(dtype)
     ends = mesh.edges.reshape(-1)
@@ -77,6 +83,28 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     corrections = jax.ops.segment_sum(edge_terms, ends, num_segments=mesh.n_vertices)
     referenced = jax.ops.segment_sum(jnp.ones(mesh.faces.size, dtype), mesh.faces.reshape(-1), num_segments=mesh.n_vertices) > 0
     return jnp.where(referenced, 2.0 * jnp.pi - angle_sums - corrections, 0.0)
+
+
+def _face_corner_angles(mesh: Mesh) -> Float[Array, "nf 3"]:
+    """Corner angles `(nf, 3)` that sum to `pi` in every face, faces with coincident vertices included.
+
+    `corner_angles` is exact wherever both edges leaving a corner have positive length. A corner at a
+    zero-length edge has no angle (`atan2(0, 0)`), and `corner_angles` gives it 0: a face with two
+    coincident vertices then sums to 0 and each loses `pi` of Gauss-Bonnet (a sphere with one edge
+    collapsed summed to `3 x 2 pi`). Those corners share equally what the face's defined angles
+    leave of `pi`: `pi/2` each at the ends of one zero-length edge (the third corner's angle is 0),
+    `pi/3` each in a face collapsed to a point. Every split that sums to `pi` is a limit of the
+    angles as the two vertices move apart (which one depends on the direction they move in); the
+    sum at the merged point, which Gauss-Bonnet needs, is the same for all. Values and gradients
+    stay finite.
+    """
+    angles = corner_angles(mesh)
+    # Corner k lies on the edges opposite corners k+1 and k+2 (libigl order).
+    zero = face_edge_lengths_sq(mesh) == 0
+    undefined = jnp.roll(zero, -1, axis=1) | jnp.roll(zero, -2, axis=1)
+    remainder = jnp.pi - jnp.sum(jnp.where(undefined, 0.0, angles), axis=1, keepdims=True)
+    shares = jnp.maximum(jnp.sum(undefined, axis=1, keepdims=True), 1).astype(angles.dtype)
+    return jnp.where(undefined, remainder / shares, angles)
 
 
 @kernel(static_argnames=("dual",))

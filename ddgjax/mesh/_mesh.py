@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import device_array
 from .._errors import DDGInputError, check_float_array, check_float_shape, is_traced
 from ._topology import MeshTopology, build_topology, validate_faces
 
@@ -59,9 +60,12 @@ class Mesh(eqx.Module):
 
         Raises `DDGInputError` on bad shapes or dtypes, NaN/inf coordinates, an empty mesh, face
         indices out of range and faces repeating a vertex. Data problems (non-manifold, inconsistent
-        orientation, unreferenced vertices, zero-area faces, duplicate faces) are accepted and
-        reported by `ddgjax.mesh.check_mesh`; operators that cannot handle them refuse with
-        `MeshDataError`.
+        orientation, unreferenced vertices, zero-area faces, zero-length edges, duplicate faces) are
+        accepted and reported by `ddgjax.mesh.check_mesh`; operators that cannot handle them refuse
+        with `MeshDataError`. Positions are never refused for their geometry alone (they move under
+        optimisation, inside `jit`): faces of zero or near-zero area are found, once per mesh object,
+        the first time a problem that needs them non-degenerate runs on concrete positions, and it
+        then refuses them naming the faces and `robust=True` (`ddgjax.mesh._check`, module docstring).
         """
         if is_traced(vertices):
             raise DDGInputError(
@@ -153,7 +157,9 @@ def require_mesh(name: str, value) -> Mesh:
 
 
 def _as_float_array(vertices) -> Float[Array, "nv 3"]:
-    array = jnp.asarray(vertices)
+    if not isinstance(vertices, jax.Array) and not np.issubdtype(np.asarray(vertices).dtype, np.floating):
+        vertices = np.asarray(vertices, dtype=float)  # converted on the host: nothing compiled per size
+    array = device_array(vertices)
     if not jnp.issubdtype(array.dtype, jnp.floating):
         array = array.astype(jnp.result_type(float))
     return array

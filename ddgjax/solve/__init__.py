@@ -6,7 +6,8 @@
   algebraic-multigrid V-cycle, or pyamg's CG on the host (`method` one of `ddgjax.LINEAR_SOLVERS`);
   all usable inside `jit` / `scan` / `vmap`, differentiable in `b` and in the matrix values by
   implicit differentiation; the answer is a `LinearSolution` with `value`, `result` (an item of
-  `ddgjax.RESULTS`), `residual` and `num_steps` (`throw=`).
+  `ddgjax.RESULTS`), `residual` and `num_steps` (`throw=`). Every failure is a result, on every backend;
+  a float32 system warns once per process (`PrecisionWarning`).
 - `amg_hierarchy`, `amg_refresh`, `amg_v_cycle`, `amg_preconditioner`: a smoothed-aggregation
   multigrid hierarchy built by pyamg on the host, applied in pure JAX (any device).
 - `SparseCholesky(pattern)`: the same solves as a lineax solver (the matrix recovered from operator
@@ -23,6 +24,7 @@ from ._amg import amg_refresh as amg_refresh
 from ._amg import amg_v_cycle as amg_v_cycle
 from ._linear import Factorization as Factorization
 from ._linear import LinearSolution as LinearSolution
+from ._linear import PrecisionWarning as PrecisionWarning
 from ._linear import factorize as factorize
 from ._linear import linear_solve as linear_solve
 from ._lineax import SparseCholesky as SparseCholesky

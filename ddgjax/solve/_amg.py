@@ -452,6 +452,8 @@ def _host_matrix(A) -> sp.csr_matrix:
         raise DDGInputError(f"A: expected a square matrix, got shape {matrix.shape}")
     if not np.issubdtype(matrix.dtype, np.floating):
         raise DDGInputError(f"A: expected real floating-point values, got dtype {matrix.dtype}")
+    if not np.all(np.isfinite(matrix.data)):
+        raise DDGInputError("A: expected finite values, got NaN or inf (pyamg builds no hierarchy from them)")
     if matrix.nnz and abs(matrix - matrix.T).max() > 1e-12 * abs(matrix).max():
         raise DDGInputError("A: expected a symmetric matrix (AMG here preconditions symmetric positive definite systems)")
     return matrix

@@ -81,7 +81,8 @@ _CACHE = _FactorCache(_CAPACITY)
 def host_factor(method: str, pattern: SparsityPattern, values) -> Int[Array, ""]:
     """Factor the symmetric positive definite matrix `values` on `pattern` on the host; its token (`int32`).
 
-    A matrix SuperLU finds exactly singular gets token `-1` (its solves return NaN and the solve
+    `values` are finite (the caller replaces NaN / inf first: neither SciPy nor pyamg accepts them). A
+    matrix SuperLU finds exactly singular gets token `-1` (its solves return NaN and the factorisation
     reports `RESULTS.singular`).
     """
 
@@ -103,6 +104,8 @@ def host_solve(method: str, pattern: SparsityPattern, values, token, rhs, rtol: 
     """
 
     def solve(rows, cols, values, token, rhs):
+        if not np.all(np.isfinite(rhs)):  # reported as `nonfinite` by the caller; pyamg's CG would not stop early
+            return np.full(rhs.shape, np.nan, rhs.dtype), np.int32(0), np.bool_(True), np.bool_(True)
         made = None if token < 0 else _CACHE.get(int(token), lambda: _make(method, rows, cols, values, pattern.shape[0]))
         if made is None:
             return np.full(rhs.shape, np.nan, rhs.dtype), np.int32(0), np.bool_(False), np.bool_(False)
@@ -156,5 +159,6 @@ def _amg_cg(solver, b, rtol: float, max_steps: int):
         count[0] += 1
 
     preconditioner = solver.aspreconditioner(cycle="V")
-    x, info = spla.cg(solver.levels[0].A, b, rtol=rtol, atol=0.0, maxiter=max_steps, M=preconditioner, callback=counter)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a breakdown (a singular A) is reported by the outcome
+        x, info = spla.cg(solver.levels[0].A, b, rtol=rtol, atol=0.0, maxiter=max_steps, M=preconditioner, callback=counter)
     return x, count[0], info == 0

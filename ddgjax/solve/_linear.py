@@ -44,13 +44,25 @@ symmetric system of twice the size,
 positive definite exactly when `A` is, so every backend and its derivatives serve them unchanged.
 A complex `b` with a real `A` is solved as two real columns.
 
-Failures that depend on the values follow the results convention (`ddgjax.RESULTS`): a CG that
-did not reach its tolerance in `max_steps` (`max_steps_reached`), a factorisation that failed or a
+Failures that depend on the values follow the results convention (`ddgjax.RESULTS`) on every
+backend, and nothing else raises: NaN or inf in `A` or `b` (`nonfinite`; a factorisation never sees
+them), a matrix CHOLMOD finds not positive definite (`not_positive_definite`: indefinite, or
+singular to working precision; a host check made just before the factorisation, which the
+factorisation then reuses from `sparsax`'s cache), a matrix SuperLU finds exactly singular, or a
 solution whose relative residual `|A x - b| / |b|` exceeds `residual_tolerance` (`singular`: the
-matrix is singular or too ill-conditioned for the backend), or non-finite values (`nonfinite`).
-With `throw=True` (default) they raise through `equinox.error_if`; with `throw=False` the caller
-inspects `result`. A matrix that is not positive definite fails CHOLMOD's factorisation, which
-raises from the XLA runtime whatever `throw` is (CHOLMOD reports the failing column).
+matrix is singular or too ill-conditioned for the backend), a CG that did not reach its tolerance
+in `max_steps` (`max_steps_reached`). A failed factorisation's solves are NaN. With `throw=True`
+(default) a failure raises through `equinox.error_if` with the item's message, as everywhere in
+ddgjax: `equinox.EquinoxRuntimeError` eagerly and under `equinox.filter_jit`, a
+`jax.errors.JaxRuntimeError` with the same message under a plain `jax.jit` (both `RuntimeError`s);
+with `throw=False` the caller inspects `result`. The backends that do not need definiteness
+(SuperLU, CG, pyamg) solve a nonsingular indefinite system and report success.
+
+Precision: a float32 system (JAX's default while `jax_enable_x64` is off) carries round-off of
+~1e-7 relative, enough for a well-posed mesh system to miss `residual_tolerance` or to look
+indefinite; the first float32 matrix to reach `factorize` (so `linear_solve`) warns once per
+process (`PrecisionWarning`), and the failure messages say so. Mixed dtypes are promoted
+(`jnp.result_type(A, b)`) on every backend.
 
 References: M. B. Giles, "Collected matrix derivative results for forward and reverse mode
 algorithmic differentiation" (2008), for `A_bar = -lambda x^T`; lineax (P. Kidger et al.) for the
@@ -63,17 +75,18 @@ Dirichlet blocks.
 from __future__ import annotations
 
 import functools
+import warnings
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Inexact, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Inexact, Int
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._options import LINEAR_SOLVERS
-from .._results import RESULTS, raise_if_failed
+from .._results import RESULTS, first_failure, is_failure, raise_if_failed
 from ..sparse import SparseMatrix, SparsityPattern
 from ._amg import AMGHierarchy, amg_hierarchy, amg_v_cycle
 from ._host import HOST_METHODS, host_factor, host_solve
@@ -83,6 +96,24 @@ PRECONDITIONERS = ("jacobi", "amg")
 # Above this many unknowns `"auto"` without CHOLMOD prefers pyamg's CG to SuperLU: on mesh Laplacians
 # SuperLU's factor + solve takes ~1 s at 41k and ~8 s at 164k, pyamg's setup + CG 0.4 s and 0.9 s.
 SUPERLU_LIMIT = 50_000
+
+
+class PrecisionWarning(UserWarning):
+    """A solve runs in float32 (module docstring, "Precision"): shown once per process."""
+
+
+@functools.cache
+def _warn_low_precision() -> None:
+    """Warn, once per process, that a float32 system reached a solver (module docstring, "Precision")."""
+    warnings.warn(
+        "ddgjax.solve: solving a float32 system (JAX's default precision while `jax_enable_x64` is off). "
+        "Mesh matrices in float32 carry round-off of ~1e-7 relative, so a well-posed solve can be reported "
+        "`singular` (its residual above `residual_tolerance`) or `not_positive_definite`, and its answer "
+        'holds a few digits; ddgjax\'s geometry wants float64: `jax.config.update("jax_enable_x64", True)` '
+        "at start-up, before arrays are made. Shown once per process.",
+        PrecisionWarning,
+        stacklevel=3,
+    )
 
 
 class LinearSolution(eqx.Module):
@@ -130,10 +161,11 @@ def linear_solve(
         rtol: relative tolerance of the CG methods (`|r| <= rtol |b|`); the direct solves ignore it.
         max_steps: CG iteration limit (default `10 n`).
         residual_tolerance: a solution with a larger relative residual is reported as `singular`.
-        throw: raise on failure (default) or return the `LinearSolution` to inspect.
+        throw: raise on failure (default) or return the `LinearSolution` to inspect (module
+            docstring: what fails, and how it raises).
 
     Returns:
-        `LinearSolution` with `value` the shape of `b`.
+        `LinearSolution` with `value` the shape of `b`, of dtype `jnp.result_type(A, b)`.
 
     Differentiable in `b` and `A.values` (module docstring), under `jit`, `grad`, `vmap` and inside
     `lax.scan`. Equal to `factorize(A, ...).solve(b)`. SciPy: `scipy.sparse.linalg.spsolve(A.to_scipy(), b)`.
@@ -168,6 +200,9 @@ class Factorization(eqx.Module):
             (module docstring).
         token: the host factor's reference (`"cholesky"`, `"superlu"`, `"pyamg"`), else `None`.
         hierarchy: the AMG hierarchy of `system` (`"cg"` with an AMG preconditioner), else `None`.
+        result: the factorisation's outcome, an item of `ddgjax.RESULTS`: `nonfinite` (NaN or inf in
+            `A`), `not_positive_definite` (CHOLMOD), `singular` (SuperLU: exactly singular), else
+            `successful`. Every solve with a failed factorisation reports it and returns NaN.
         method, complex_dtype (`A`'s dtype when complex, else `None`), rtol, max_steps,
         residual_tolerance: static.
     """
@@ -175,6 +210,7 @@ class Factorization(eqx.Module):
     system: SparseMatrix
     token: Int[Array, "..."] | None
     hierarchy: AMGHierarchy | None
+    result: RESULTS
     method: str = eqx.field(static=True)
     complex_dtype: np.dtype | None = eqx.field(static=True)
     rtol: float = eqx.field(static=True)
@@ -197,16 +233,25 @@ class Factorization(eqx.Module):
 def _solve(factorization: Factorization, b: Inexact[Array, "n *k"]) -> LinearSolution:
     """`Factorization.solve`'s `LinearSolution` of `A x = b`: the real system, its solve, its outcome."""
     n = factorization.system.shape[0] // (1 if factorization.complex_dtype is None else 2)
+    # Mixed dtypes are promoted, as `A @ b` would be (a float32 b with a float64 A is solved in float64).
+    dtype = factorization.system.values.dtype if factorization.complex_dtype is None else factorization.complex_dtype
+    b = b.astype(jnp.result_type(b.dtype, dtype))
     if factorization.complex_dtype is not None:
-        b = b.astype(jnp.result_type(b.dtype, factorization.complex_dtype))
         rhs = jnp.concatenate([b.real, b.imag])
     elif jnp.iscomplexobj(b):  # a real A: the real and imaginary parts are two real columns
         rhs = jnp.stack([b.real, b.imag], axis=-1).reshape(n, -1)
     else:
-        rhs = b if jnp.issubdtype(b.dtype, jnp.floating) else b.astype(factorization.system.values.dtype)
+        rhs = b
     value, stats = _solve_factored(factorization, rhs)
+    value = jnp.where(is_failure(factorization.result), jnp.nan, value)  # a failed factor answers nothing
     solution = linear_solution(
-        factorization.system.__matmul__, rhs, value, stats, factorization.method, factorization.residual_tolerance
+        factorization.system.__matmul__,
+        rhs,
+        value,
+        stats,
+        factorization.method,
+        factorization.residual_tolerance,
+        factorization_result=factorization.result,
     )
     if factorization.complex_dtype is not None:
         value = jax.lax.complex(value[:n], value[n:])
@@ -229,8 +274,9 @@ def factorize(
 
     Options as in `linear_solve`. Works inside `jit` (the factor is made when the program runs; an
     AMG preconditioner needs concrete values, or a hierarchy passed in) and differentiably (through
-    `Factorization.solve`). A matrix that is not positive definite fails CHOLMOD's factorisation,
-    which raises from the XLA runtime.
+    `Factorization.solve`). Never raises on the values: a factorisation that fails (NaN in `A`, a
+    matrix CHOLMOD finds not positive definite, one SuperLU finds singular) is kept in the
+    `Factorization`'s `result`, and its solves report it (raising with `throw=True`).
     SciPy: `scipy.sparse.linalg.splu(A).solve`; cholespy: `CholeskySolverD(...).solve`.
     """
     _check_matrix(A)
@@ -241,23 +287,28 @@ def factorize(
         max_steps = 10 * A.shape[0]
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise DDGInputError(f"max_steps: expected an integer >= 1, got {max_steps!r}")
+    if jnp.finfo(system.values.dtype).bits < 64:
+        _warn_low_precision()
     values = jax.lax.stop_gradient(system.values)
     token, hierarchy = None, None
     if method == "cholesky" or method in HOST_METHODS:
-        token = _factor(system.pattern, values, method=method)
-    elif isinstance(preconditioner, AMGHierarchy):
+        token, result = _factor(system.pattern, values, method=method)
+    else:
+        result = RESULTS.where(jnp.all(jnp.isfinite(values)), RESULTS.successful, RESULTS.nonfinite)
+    if isinstance(preconditioner, AMGHierarchy):
         if preconditioner.shape != system.shape:
             raise DDGInputError(
                 f"preconditioner: an AMGHierarchy of shape {preconditioner.shape} for a system of shape {system.shape}"
                 + (" (a complex A is solved in its real form of twice the size)" if complex_dtype is not None else "")
             )
         hierarchy = preconditioner
-    elif preconditioner == "amg":
+    elif preconditioner == "amg" and not is_failure(result):  # values are concrete here (`_choose`)
         hierarchy = amg_hierarchy(SparseMatrix(values, system.pattern, symmetric=True))
     return Factorization(
         system=system,
         token=token,
         hierarchy=hierarchy,
+        result=result,
         method=method,
         complex_dtype=complex_dtype,
         rtol=float(rtol),
@@ -349,17 +400,29 @@ def _real_form(A: SparseMatrix) -> SparseMatrix:
     return SparseMatrix(values, real_pattern, symmetric=True, positive_semidefinite=A.positive_semidefinite)
 
 
-def linear_solution(apply, b, value, stats, method: str, residual_tolerance: float) -> LinearSolution:
+def linear_solution(
+    apply,
+    b,
+    value,
+    stats,
+    method: str,
+    residual_tolerance: float,
+    *,
+    factorization_result: RESULTS = RESULTS.successful,
+) -> LinearSolution:
     """The `LinearSolution` of a computed `value` of `A x = b` (`apply(x) = A x`): its residual and outcome
-    (`RESULTS`); `stats = (num_steps, converged, factored)`. Shared with the sharded CG (`ddgjax.sharding`)."""
+    (`RESULTS`); `stats = (num_steps, converged, factored)`, the factorisation's own outcome first.
+    Shared with the sharded CG (`ddgjax.sharding`)."""
     b_norm = jnp.linalg.norm(b)
     residual = jnp.where(b_norm > 0, jnp.linalg.norm(apply(value) - b) / jnp.where(b_norm > 0, b_norm, 1.0), 0.0)
     num_steps, converged, factored = (jnp.asarray(stat) for stat in stats)
-    result = RESULTS.where(
+    # A NaN in b stops CG at once (no comparison with NaN holds), so b is checked, not only x.
+    finite = jnp.all(jnp.isfinite(value)) & jnp.all(jnp.isfinite(b))
+    solve_result = RESULTS.where(
         ~factored,
         RESULTS.singular,
         RESULTS.where(
-            ~jnp.all(jnp.isfinite(value)),
+            ~finite,
             RESULTS.nonfinite,
             RESULTS.where(
                 ~converged,
@@ -368,20 +431,88 @@ def linear_solution(apply, b, value, stats, method: str, residual_tolerance: flo
             ),
         ),
     )
+    result = first_failure(factorization_result, solve_result)
     return LinearSolution(value=value, result=result, residual=residual, num_steps=num_steps, method=method)
 
 
 @kernel(static_argnames=("method",))
-def _factor(pattern: SparsityPattern, values: Float[Array, " nnz"], *, method: str) -> Int[Array, "..."]:
-    """The host factor's token of the matrix with `values` on `pattern`: CHOLMOD's (`sparsax.factor`, in
-    float64) for `"cholesky"`, else SuperLU's or pyamg's (`host_factor`); one compiled program per pattern."""
+def _factor(pattern: SparsityPattern, values: Float[Array, " nnz"], *, method: str) -> tuple[Int[Array, "..."], RESULTS]:
+    """The host factor's token of the matrix with `values` on `pattern` and the factorisation's outcome:
+    CHOLMOD's (`sparsax.factor`, in float64) for `"cholesky"`, else SuperLU's or pyamg's (`host_factor`);
+    one compiled program per pattern.
+
+    What cannot be factored never reaches the factorisation, which would raise from the XLA runtime
+    (CHOLMOD) or the host (pyamg): the identity on the pattern's diagonal slots stands in for a matrix
+    with NaN or inf values, and for one that CHOLMOD's check finds not positive definite
+    (`_cholmod_definite`); the outcome says which (`Factorization.result`).
+    """
+    finite = jnp.all(jnp.isfinite(values))
+    identity = (pattern.rows == pattern.cols).astype(values.dtype)
+    values = jnp.where(finite, values, identity)
     if method != "cholesky":
-        return host_factor(method, pattern, values)
+        token = host_factor(method, pattern, values)
+        factored = RESULTS.where(token >= 0, RESULTS.successful, RESULTS.singular)
+    else:
+        import sparsax
+
+        values, identity = values.astype(jnp.float64), identity.astype(jnp.float64)
+        definite = _cholmod_definite(pattern, values)
+        # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,
+        # so the storage slots go in as they are (ELL padding adds zeros).
+        token = sparsax.factor(pattern.rows, pattern.cols, jnp.where(definite, values, identity), pattern.shape[0])
+        factored = RESULTS.where(definite, RESULTS.successful, RESULTS.not_positive_definite)
+    return token, RESULTS.where(finite, factored, RESULTS.nonfinite)
+
+
+def _cholmod_definite(pattern: SparsityPattern, values: Float[Array, " nnz"]) -> Bool[Array, ""]:
+    """Whether CHOLMOD factors the float64 matrix `values` on `pattern` (a host call that catches its failure).
+
+    The numeric factor it makes stays in `sparsax`'s value-keyed cache, which the `sparsax.factor` call
+    that follows hits: one factorisation in all. `sparsax_cpp.logdet_np` is the NumPy entry point
+    `sparsax` itself uses for its PyTensor ops.
+    """
+    import sparsax_cpp
+
+    n = pattern.shape[0]
+
+    def definite(rows, cols, values):
+        try:
+            sparsax_cpp.logdet_np(
+                np.ascontiguousarray(rows, np.int32), np.ascontiguousarray(cols, np.int32), np.ascontiguousarray(values), n
+            )
+        except RuntimeError as error:  # "sparsax: matrix is not positive definite (failure at column j)"
+            if "not positive definite" not in str(error):
+                raise
+            return np.bool_(False)
+        return np.bool_(True)
+
+    shape = jax.ShapeDtypeStruct((), jnp.bool_)
+    return jax.pure_callback(definite, shape, pattern.rows, pattern.cols, values, vmap_method="sequential")
+
+
+def _cholmod_solve(token: Int[Array, "2"], rhs: Float[Array, "n *k"]) -> Float[Array, "n *k"]:
+    """`sparsax.solve_factor(token, rhs)` (float64), under any `vmap` (`_cholmod_solve_stacked`)."""
+    return _cholmod_solve_stacked(token[None], rhs[None])[0]
+
+
+@jax.custom_batching.custom_vmap
+def _cholmod_solve_stacked(tokens: Int[Array, "m 2"], rhs: Float[Array, "m n *k"]) -> Float[Array, "m n *k"]:
+    """`sparsax.solve_factor(tokens[i], rhs[i])` for every `i`, in one batched CHOLMOD call.
+
+    `sparsax`'s own batching rule needs a batched right-hand side (under `vmap` over the matrix
+    values only, the tokens are batched and `rhs` is not) and supports one level of `vmap`; this rule
+    broadcasts what is not batched and folds every level into the one leading axis.
+    """
     import sparsax
 
-    # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,
-    # so the storage slots go in as they are (ELL padding adds zeros).
-    return sparsax.factor(pattern.rows, pattern.cols, values.astype(jnp.float64), pattern.shape[0])
+    return jax.vmap(sparsax.solve_factor)(tokens, rhs)
+
+
+@_cholmod_solve_stacked.def_vmap
+def _cholmod_solve_stacked_batched(axis_size: int, in_batched, tokens, rhs):
+    tokens, rhs = (x if batched else jnp.broadcast_to(x, (axis_size, *x.shape)) for x, batched in zip((tokens, rhs), in_batched))
+    flat = _cholmod_solve_stacked(tokens.reshape(-1, *tokens.shape[2:]), rhs.reshape(-1, *rhs.shape[2:]))
+    return flat.reshape(rhs.shape), True
 
 
 @functools.cache
@@ -406,11 +537,9 @@ def _solve_factored(factorization: Factorization, b):
     values = jax.lax.stop_gradient(A.values)
     succeeded = (jnp.zeros((), jnp.int32), jnp.ones((), bool), jnp.ones((), bool))
     if method == "cholesky":
-        import sparsax
-
+        # CHOLMOD works in float64; a float32 system is solved in float64 and rounded back.
         def backend(_, rhs):
-            # CHOLMOD works in float64; a float32 system is solved in float64 and rounded back.
-            return sparsax.solve_factor(token, rhs.astype(jnp.float64)).astype(rhs.dtype), succeeded
+            return _cholmod_solve(token, rhs.astype(jnp.float64)).astype(rhs.dtype), succeeded
 
     elif method in HOST_METHODS:
 

@@ -38,10 +38,12 @@ from .._results import RESULTS
 from ..sparse import SparseMatrix, SparsityPattern
 from ._linear import Factorization, factorize
 
-# ddgjax's outcome of a solve -> lineax's (pairs: enumeration items are not hashable).
+# ddgjax's outcome of a solve -> lineax's (pairs: enumeration items are not hashable). lineax has no
+# item for a failed Cholesky factorisation; its own `lx.Cholesky` reports one as `singular` too.
 _LINEAX_RESULTS = (
     (RESULTS.max_steps_reached, lx.RESULTS.max_steps_reached),
     (RESULTS.singular, lx.RESULTS.singular),
+    (RESULTS.not_positive_definite, lx.RESULTS.singular),
     (RESULTS.nonfinite, lx.RESULTS.nonfinite_input),
 )
 
@@ -103,8 +105,9 @@ class SparseCholesky(lx.AbstractLinearSolver):
     For energies of per-face terms in vertex values, the pattern is the Laplacian's
     (`ddgjax.laplacian.cotan_laplacian(mesh).pattern`). The operator's input must be a single
     `(n,)` array. Make the solver outside `jit` (the colouring is host work on the pattern) and reuse
-    it. Failures come back as lineax results (`singular`, `max_steps_reached`,
-    `nonfinite_input`), which lineax and optimistix raise or report with their own `throw`.
+    it. Failures come back as lineax results (`singular`, for a matrix CHOLMOD finds not positive
+    definite too; `max_steps_reached`, `nonfinite_input`), which lineax and optimistix raise or report
+    with their own `throw`.
 
     Attributes:
         pattern: the square, symmetric `SparsityPattern` of the operator's matrix.

@@ -12,7 +12,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Inexact, Int
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_count, is_traced
 from .._indexing import take_rows, take_rows_or_zero
 from .._results import RESULTS, raise_if_failed
@@ -75,7 +75,7 @@ class SparseMatrix(eqx.Module):
         hermitian: `A == conj(A).T` (static); for real values the same as `symmetric` (`self_adjoint`).
     """
 
-    values: Inexact[Array, " nnz"] = eqx.field(converter=jnp.asarray)
+    values: Inexact[Array, " nnz"] = eqx.field(converter=device_array)
     pattern: SparsityPattern
     symmetric: bool = eqx.field(static=True, default=False)
     positive_semidefinite: bool = eqx.field(static=True, default=False)
@@ -146,7 +146,7 @@ class SparseMatrix(eqx.Module):
             )
         if np.ndim(x) not in (1, 2) or np.shape(x)[0] != n_cols:  # shapes are known under jit too
             raise DDGInputError(f"x: expected shape ({n_cols},) or ({n_cols}, k), got {np.shape(x)}")
-        x = jnp.asarray(x)
+        x = device_array(x)
         if is_traced(x) or is_traced(self.values) or is_traced(self.pattern.cols):
             return self._product(x)
         # Eager: one compiled program (cached per shape and pattern layout) instead of a dozen dispatches.
@@ -230,16 +230,16 @@ class SparseMatrix(eqx.Module):
         return _add(self, other, -1.0)
 
     def __neg__(self) -> "SparseMatrix":
-        return _scaled(self, -self.values, -1.0)
+        return _scaled(self, _times(self.values, -1.0), -1.0)
 
     def __mul__(self, scalar) -> "SparseMatrix":
         if isinstance(scalar, NonNegative):
-            return _scaled(self, self.values * scalar.value, scalar)
+            return _scaled(self, _times(self.values, scalar.value), scalar)
         if isinstance(scalar, SparseMatrix) or np.ndim(scalar) != 0:
             raise DDGInputError(
                 f"scalar: SparseMatrix * c needs a scalar c (use A @ x for products), got shape {np.shape(scalar)}"
             )
-        return _scaled(self, self.values * scalar, scalar)
+        return _scaled(self, _times(self.values, scalar), scalar)
 
     __rmul__ = __mul__
 
@@ -275,8 +275,7 @@ class SparseMatrix(eqx.Module):
         values = self.values
         if np.iscomplexobj(value) and not _is_complex(values):  # a complex shift makes the matrix complex
             values = values.astype(jnp.result_type(values, value))
-        diagonal = jnp.broadcast_to(jnp.asarray(value, values.dtype), (n_rows,))
-        values = _add_to_diagonal(values, self.pattern, diagonal, "A.shifted(s)")
+        values = _add_to_diagonal(values, self.pattern, jnp.asarray(value, values.dtype), "A.shifted(s)")
         at_least_zero, at_most_zero = _sign_bounds(shift)
         real = _is_real_scalar(shift)
         return SparseMatrix(
@@ -391,7 +390,7 @@ def diagonal_matrix(values: Float[ArrayLike, " n"], *, positive_semidefinite: bo
     Flagged symmetric; `positive_semidefinite=True` is the caller's promise that `values >= 0`.
     SciPy: `scipy.sparse.diags(values)`.
     """
-    values = jnp.asarray(values)
+    values = device_array(values)
     if values.ndim != 1:
         raise DDGInputError(f"values: expected shape (n,), got {values.shape}")
     return SparseMatrix(
@@ -434,7 +433,7 @@ def from_scipy(matrix: sp.spmatrix, *, positive_semidefinite: bool = False) -> S
     if positive_semidefinite and not symmetric and not complex_values:
         raise DDGInputError("positive_semidefinite: the matrix is not symmetric, so it cannot be flagged semidefinite")
     return SparseMatrix(
-        jnp.asarray(values),
+        device_array(values),
         pattern,
         symmetric=symmetric,
         positive_semidefinite=positive_semidefinite,
@@ -518,11 +517,11 @@ def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
         dtype = jnp.result_type(a_values, b_values)  # write into one operand's array, which must hold the sum)
         a_values, b_values = a_values.astype(dtype), b_values.astype(dtype)
     if _same_positions(a.pattern, b.pattern, op):
-        values, pattern = a_values + sign * b_values, a.pattern
+        values, pattern = _plus(a_values, sign, b_values), a.pattern
     elif b.pattern.is_diagonal:
-        values, pattern = _add_to_diagonal(a_values, a.pattern, sign * b_values, f"A {op} D"), a.pattern
+        values, pattern = _add_to_diagonal(a_values, a.pattern, _times(b_values, sign), f"A {op} D"), a.pattern
     elif a.pattern.is_diagonal:
-        values, pattern = _add_to_diagonal(sign * b_values, b.pattern, a_values, f"D {op} A"), b.pattern
+        values, pattern = _add_to_diagonal(_times(b_values, sign), b.pattern, a_values, f"D {op} A"), b.pattern
     else:
         raise DDGInputError(
             f"A {op} B needs matching sparsity patterns (or one diagonal); got shape/layout/width/nnz "
@@ -546,13 +545,14 @@ def _add(a: SparseMatrix, b: SparseMatrix, sign: float) -> SparseMatrix:
 
 
 def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, what: str):
-    """`values` of a square matrix on `pattern` plus `diagonal` on its main diagonal (no search, no scatter).
+    """`values` of a square matrix on `pattern` plus `diagonal` (`(n,)`, or a scalar) on its main diagonal (no search, no scatter).
 
     `what` names the operation in error messages (`"A + D"`, `"A.shifted(s)"`).
     """
     n = pattern.shape[0]
+    diagonal = device_array(diagonal)
     if pattern.diagonal_first:
-        return values.at[:n].add(diagonal)  # slots 0..n-1 are the diagonal
+        return _plus_on_diagonal(values, diagonal, n=n)  # slots 0..n-1 are the diagonal
     if pattern.layout == "csr":  # distinct entries: exactly one slot per diagonal position
         on_diagonal = pattern.rows == pattern.cols
         if not (is_traced(pattern.rows) or is_traced(pattern.cols)):
@@ -565,7 +565,7 @@ def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, what: str):
         else:  # a pattern passed into jit: counted when the program runs
             result = RESULTS.where(jnp.sum(on_diagonal) == n, RESULTS.successful, RESULTS.missing_diagonal)
             values = raise_if_failed(values, result, throw=True)
-        return values + jnp.where(on_diagonal, diagonal[pattern.rows], 0)
+        return values + jnp.where(on_diagonal, jnp.broadcast_to(diagonal, (n,))[pattern.rows], 0)
     raise DDGInputError(
         f"{what}: adding a diagonal needs a pattern that stores the whole diagonal (a host-built "
         f"square pattern with every diagonal entry, or a CSR pattern); got layout {pattern.layout!r} with "
@@ -575,6 +575,24 @@ def _add_to_diagonal(values, pattern: SparsityPattern, diagonal, what: str):
 
 # Eager products run as one compiled program per pattern layout and shape (`SparseMatrix.__matmul__`).
 _compiled_product = kernel(SparseMatrix._product)
+
+
+# The arithmetic on values runs as kernels too: an eager `jnp` operation would compile a program per
+# size that JAX keeps, where a kernel's programs are bounded (`ddgjax._compile`).
+@kernel
+def _times(values: Inexact[Array, " nnz"], scalar) -> Inexact[Array, " nnz"]:
+    return values * scalar
+
+
+@kernel
+def _plus(a: Inexact[Array, " nnz"], sign, b: Inexact[Array, " nnz"]) -> Inexact[Array, " nnz"]:
+    return a + sign * b
+
+
+@kernel(static_argnames=("n",))
+def _plus_on_diagonal(values: Inexact[Array, " nnz"], diagonal: Inexact[Array, "*n"], *, n: int) -> Inexact[Array, " nnz"]:
+    """`values` of a diagonal-first pattern with `diagonal` (`(n,)` or a scalar) added to its first `n` slots."""
+    return values.at[:n].add(diagonal)
 
 
 def _stored(x: Inexact[Array, "n *batch"]) -> Inexact[Array, "n *batch"]:

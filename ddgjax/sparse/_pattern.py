@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
+from .._compile import at_top_level, device_array
 from .._errors import DDGInputError, is_traced
 
 # Cost of one COO-tail entry relative to one ELL slot (scatter vs contiguous multiply-add).
@@ -274,11 +275,14 @@ class SparsityPattern(eqx.Module):
     @classmethod
     def diagonal(cls, n: int) -> "SparsityPattern":
         """The `(n, n)` diagonal pattern (values are the diagonal; `A @ x` is `values * x`)."""
-        index = jnp.arange(n, dtype=jnp.int32)
+        if at_top_level():  # transferred from the host: an eager `jnp.arange` compiles a program per size
+            index, indptr = (device_array(np.arange(size, dtype=np.int32)) for size in (n, n + 1))
+        else:  # inside a trace an iota, rather than a constant embedded in the program
+            index, indptr = (jnp.arange(size, dtype=jnp.int32) for size in (n, n + 1))
         return cls(
             rows=index,
             cols=index,
-            indptr=jnp.arange(n + 1, dtype=jnp.int32),
+            indptr=indptr,
             shape=(n, n),
             layout="ell",
             width=1,
@@ -367,17 +371,17 @@ def _ell_pattern(
         transpose_slot = np.full(transposed.nnz, n_storage, dtype=np.int64)
         transpose_slot[t_storage_of_t_csr] = storage_of_csr[by_col]
     pattern = SparsityPattern(
-        rows=jnp.asarray(storage_rows),
-        cols=jnp.asarray(storage_cols),
-        indptr=jnp.asarray(indptr.astype(np.int32)),
+        rows=device_array(storage_rows),
+        cols=device_array(storage_cols),
+        indptr=device_array(indptr.astype(np.int32)),
         shape=(n_rows, n_cols),
         layout="ell",
         width=width,
         diagonal_first=diagonal_first,
         symmetric=csr_transpose is not None,
-        transpose_slot=None if transpose_slot is None else jnp.asarray(transpose_slot.astype(np.int32)),
+        transpose_slot=None if transpose_slot is None else device_array(transpose_slot.astype(np.int32)),
         transpose_pattern=transposed,
-        row_cols=jnp.asarray(_row_major(storage_cols, n_rows, width, first=int(diagonal_first))),
+        row_cols=device_array(_row_major(storage_cols, n_rows, width, first=int(diagonal_first))),
         n_entries=nnz,
     )
     return pattern, storage_of_csr.astype(np.int64)

@@ -58,13 +58,17 @@ def eigenpairs(
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         boundary: `"neumann"` (default) or `"dirichlet"` (zero on the boundary; needs a boundary).
         robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
-            `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`).
+            `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`): mollified,
+            they work on meshes with faces of zero or near-zero area, which `robust=False` refuses
+            (`MeshDataError`) on concrete positions.
         method, solver, preconditioner: the eigensolver (`"arpack"` on the host, `"subspace"` in JAX,
             `"auto"`), the backend of its solves and their CG preconditioner
             (`ddgjax.spectral.smallest_eigenpairs`; with Dirichlet conditions a hierarchy is of the
             free-free block).
         throw: raise when the eigensolver fails (default), or return a `ddgjax.Solution` with the
-            pairs, `result` and `stats` (`smallest_eigenpairs`).
+            pairs, `result` and `stats` (`smallest_eigenpairs`). A failure includes pairs that do not
+            solve the problem to round-off and negative eigenvalues beyond it (what a degenerate mesh
+            gives under `jit`, where its faces cannot be checked first): `smallest_eigenpairs`.
 
     Returns:
         `Eigenpairs(values (k,), vectors (nv, k))` (unpacks as `values, vectors = ...`), ascending,
@@ -84,6 +88,11 @@ def eigenpairs(
     fixed = mesh.topology.boundary_vertices
     if fixed.size == 0:
         raise DDGInputError("boundary: 'dirichlet' needs a mesh with a boundary; this mesh is closed (use 'neumann')")
+    if fixed.size == mesh.n_vertices:
+        raise DDGInputError(
+            f"boundary: 'dirichlet' holds the boundary at 0, and all {fixed.size} vertices of this mesh lie on its "
+            "boundary (a strip, a single triangle), so no eigenfunction is left (use 'neumann')"
+        )
     plan = dirichlet_plan(L, fixed)
     L_ff, _ = dirichlet_blocks(L, plan)
     if M.pattern.is_diagonal:  # a lumped mass: its block is the free part of the diagonal

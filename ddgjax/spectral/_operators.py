@@ -22,7 +22,7 @@ from jaxtyping import Array, Float
 
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import Solution, outcome
-from ..laplacian import laplacian_and_mass
+from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, face_hat_gradients, require_mesh
 from ..sparse import SparseMatrix, SparsityPattern
 from ._generalized import smallest_eigenpairs
@@ -48,18 +48,23 @@ class ShapeOperators(eqx.Module):
     gradient: SparseMatrix
 
 
-def shape_operators(mesh: Mesh, k: int, *, mass: str = "voronoi", throw: bool = True) -> ShapeOperators | Solution:
+def shape_operators(
+    mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False, throw: bool = True
+) -> ShapeOperators | Solution:
     """`ShapeOperators` of one mesh: the lumped mass, `k` eigenpairs of `L phi = lambda M phi`, `L`, `G`.
 
     `mass`: `"voronoi"` (default) or `"barycentric"`; `"galerkin"` is refused (`DDGInputError`): the
     operators are stored for pipelines that divide by the vertex areas, which a full mass matrix does
-    not have. `throw`: as `ddgjax.spectral.eigenpairs` (a failed eigensolve raises, or with
-    `throw=False` the `ShapeOperators` come in a `ddgjax.Solution`). libigl / gpytoolbox: none in one
-    call (DiffusionNet's `get_operators` computes the same set).
+    not have. `robust`: the intrinsic Delaunay `L` and `M` (mollified: they work on meshes with
+    degenerate faces, which `robust=False` refuses with `MeshDataError`;
+    `ddgjax.laplacian.laplacian_and_mass`); `G` stays the mesh's own. `throw`: as
+    `ddgjax.spectral.eigenpairs` (a failed eigensolve raises, or with `throw=False` the
+    `ShapeOperators` come in a `ddgjax.Solution`). libigl / gpytoolbox: none in one call
+    (DiffusionNet's `get_operators` computes the same set, with robust_laplacian's operators).
     """
     mesh = require_mesh("mesh", mesh)
     check_mass(mass, LUMPED_MASS_MATRICES)
-    L, M = laplacian_and_mass(mesh, mass=mass)
+    L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     solution = smallest_eigenpairs(L, M, k, throw=False)
     values, vectors = solution.value
     operators = ShapeOperators(mass=M.diagonal(), values=values, vectors=vectors, laplacian=L, gradient=gradient_operator(mesh))
@@ -80,15 +85,19 @@ def gradient_operator(mesh: Mesh) -> SparseMatrix:
 
 
 def shape_operators_of_meshes(
-    meshes: Iterable[Mesh], k: int, *, mass: str = "voronoi", progress: bool = True, throw: bool = True
+    meshes: Iterable[Mesh], k: int, *, mass: str = "voronoi", robust: bool = False, progress: bool = True, throw: bool = True
 ) -> list[ShapeOperators | Solution]:
     """`shape_operators` of every mesh of a dataset, with a `tqdm` progress bar (`progress=False` silences it).
 
     A folder of files: `shape_operators_of_meshes(map(ddgjax.io.load_mesh, sorted(folder.glob("*.obj"))), k)`.
     A host loop; each shape compiles once per connectivity size. Stack same-size results with
     `jax.tree.map(jnp.stack, *operators)` to batch them. With `throw=False` each entry is a
-    `ddgjax.Solution` (`shape_operators`).
+    `ddgjax.Solution` (`shape_operators`). `robust=True` builds every shape's intrinsic Delaunay
+    operators (for datasets with degenerate faces, which `robust=False` refuses).
     """
     from tqdm.auto import tqdm
 
-    return [shape_operators(mesh, k, mass=mass, throw=throw) for mesh in tqdm(meshes, disable=not progress, desc="shapes")]
+    return [
+        shape_operators(mesh, k, mass=mass, robust=robust, throw=throw)
+        for mesh in tqdm(meshes, disable=not progress, desc="shapes")
+    ]
