@@ -126,6 +126,9 @@ def kernel(
     first = next(iter(parameters)).name if parameters else None
     positional = sum(parameter.kind in (parameter.POSITIONAL_ONLY, parameter.POSITIONAL_OR_KEYWORD) for parameter in parameters)
     keywords = ", ".join(f"{parameter.name}=..." for parameter in parameters if parameter.kind == parameter.KEYWORD_ONLY)
+    # Where each static argument sits when passed by position (None: keyword-only).
+    index = {parameter.name: i for i, parameter in enumerate(parameters) if parameter.kind != parameter.KEYWORD_ONLY}
+    static_positions = {name: index.get(name) for name in static_argnames}
 
     @functools.wraps(function)
     def call(*args, **kwargs):
@@ -140,7 +143,7 @@ def kernel(
             return plain(*args, **kwargs)
         on_cpu = jax.default_backend() == "cpu"
         extra = tuple(sorted(extra_cpu_options(*args, **kwargs).items())) if extra_cpu_options and on_cpu else ()
-        key = (_signature(args, kwargs, static_argnames), extra)
+        key = (_signature(args, kwargs, static_positions), extra)
         program = programs.get(key)
         if program is None:
             options = cpu_compiler_options(dict(extra)) if on_cpu else {}
@@ -178,11 +181,19 @@ def _fresh(function: Callable) -> Callable:
     return program
 
 
-def _signature(args: tuple, kwargs: dict, static_argnames: tuple[str, ...]) -> tuple:
+def _signature(args: tuple, kwargs: dict, static_positions: dict[str, int | None]) -> tuple:
     """What selects a compiled program: the argument tree, each leaf's shape and dtype, the static values."""
-    static = tuple((name, kwargs[name]) for name in static_argnames if name in kwargs)
-    dynamic = {name: value for name, value in kwargs.items() if name not in static_argnames}
-    leaves, tree = jax.tree_util.tree_flatten((args, dynamic))
+    static = tuple(
+        (name, kwargs[name] if name in kwargs else args[position])
+        for name, position in static_positions.items()
+        if name in kwargs or (position is not None and position < len(args))
+    )
+    positions = {position for position in static_positions.values() if position is not None}
+    dynamic = (
+        tuple(arg for position, arg in enumerate(args) if position not in positions),
+        {name: value for name, value in kwargs.items() if name not in static_positions},
+    )
+    leaves, tree = jax.tree_util.tree_flatten(dynamic)
     return tree, static, tuple((getattr(leaf, "shape", None), getattr(leaf, "dtype", type(leaf))) for leaf in leaves)
 
 

@@ -177,7 +177,7 @@ def test_a_failed_solve_is_reported():
         status, out, err = _run(["poisson", "--resolution", "2", "--no-plot"])
     assert status == 1 and out == ""
     assert "the solve failed: The solution does not solve the system" in err and "try --solver" in err
-    # A failure raised from the XLA runtime (CHOLMOD's factorisation): its first line, no traceback.
+    # A failure raised inside the solve (equinox's runtime error): its first line, no traceback.
     failure = RuntimeError("INTERNAL: CpuCallback error\n  ...\n_EquinoxRuntimeError: The solution does not solve the system.\n")
     with mock.patch("ddgjax._cli.poisson._solve", side_effect=failure):
         status, out, err = _run(["poisson", "--resolution", "2", "--no-plot"])

@@ -149,3 +149,37 @@ def test_cpu_options_are_chosen_at_top_level_only():
 def test_malformed_extra_options_are_refused(extra):
     with pytest.raises(ddgjax.DDGInputError, match="extra"):
         ddgjax.cpu_compiler_options(extra)
+
+
+def test_a_kernel_keeps_a_bounded_number_of_programs_and_frees_the_others(monkeypatch):
+    """One program per argument signature, the `PROGRAMS_PER_KERNEL` most recent kept: a stream of new
+    sizes does not add programs forever (issue 22), and a dropped program is released by JAX's caches
+    (they are keyed weakly on the function each program was compiled from)."""
+    import gc
+    import weakref
+
+    from ddgjax import _compile
+
+    monkeypatch.setattr(_compile, "PROGRAMS_PER_KERNEL", 3)
+    compiled_from = []
+    fresh = _compile._fresh
+    monkeypatch.setattr(_compile, "_fresh", lambda function: compiled_from.append(fresh(function)) or compiled_from[-1])
+    double = kernel(lambda x: 2.0 * x)
+    for n in range(10, 16):
+        np.testing.assert_array_equal(double(np.ones(n)), 2.0 * np.ones(n))
+    assert double._cache_size() == 3 and len(compiled_from) == 6
+    dropped = [weakref.ref(function) for function in compiled_from[:3]]
+    compiled_from.clear()
+    gc.collect()
+    assert all(reference() is None for reference in dropped)  # nothing in JAX holds the evicted programs
+    np.testing.assert_array_equal(double(np.ones(15)), 2.0 * np.ones(15))  # the most recent: no new program
+    assert double._cache_size() == 3 and not compiled_from
+
+
+def test_static_arguments_passed_by_position_select_programs_by_value():
+    power_of = kernel(lambda x, power: x**power, static_argnames=("power",))
+    x = np.arange(4.0)
+    np.testing.assert_array_equal(power_of(x, 2), x**2)
+    np.testing.assert_array_equal(power_of(x, 3), x**3)
+    np.testing.assert_array_equal(power_of(x, 2), x**2)
+    assert power_of._cache_size() == 2

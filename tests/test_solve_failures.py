@@ -18,13 +18,14 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddgjax import RESULTS, DDGInputError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import icosphere
 from ddgjax.solve import PrecisionWarning, SparseCholesky, _linear, amg_hierarchy, factorize, linear_solve
-from ddgjax.sparse import SparseMatrix
+from ddgjax.sparse import SparseMatrix, SparsityPattern, from_scipy
 
 METHODS = ("cholesky", "superlu", "cg", "pyamg")
 MESH = icosphere(1)
@@ -152,6 +153,19 @@ def test_mixed_dtypes_are_promoted(method):
     np.testing.assert_allclose(solution.value, reference, rtol=0, atol=1e-8 * np.abs(reference).max())
     complex_b = B.astype(jnp.complex64) * (1 + 2j)
     assert linear_solve(A, complex_b, method=method).value.dtype == jnp.complex128
+
+
+def test_a_pattern_without_its_whole_diagonal_is_reported_or_refused():
+    # The (1, 1) entry is not stored: CHOLMOD's stand-in factor cannot be the identity on the pattern's slots.
+    gapped = from_scipy(sp.csr_matrix(np.array([[2.0, 1.0, 0.0], [1.0, 0.0, 1.0], [0.0, 1.0, 2.0]])))
+    assert linear_solve(gapped, jnp.ones(3), method="cholesky", throw=False).result == RESULTS.not_positive_definite
+    np.testing.assert_allclose(linear_solve(gapped, jnp.ones(3), method="superlu").value, [0.5, 0.0, 0.5], atol=1e-15)
+    # Fewer stored entries than rows: an empty row, singular whatever the values.
+    sparse = SparsityPattern(
+        rows=jnp.array([0, 1]), cols=jnp.array([1, 0]), indptr=None, shape=(3, 3), layout="coo", symmetric=True
+    )
+    with pytest.raises(DDGInputError, match="A: stores 2 entries for 3 rows"):
+        linear_solve(SparseMatrix(jnp.ones(2), sparse, symmetric=True), jnp.ones(3), method="cholesky")
 
 
 def test_nonfinite_messages_speak_of_the_solve_not_of_flows():

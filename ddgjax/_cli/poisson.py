@@ -401,7 +401,7 @@ def run_poisson(args: argparse.Namespace) -> int:
     except (DDGInputError, MeshDataError) as error:
         print(f"ddgjax poisson: error: {error}", file=sys.stderr)
         return 2
-    except RuntimeError as error:  # CHOLMOD's failed factorisation raises from the XLA runtime whatever `throw` is
+    except RuntimeError as error:  # a failure raised inside the solve (equinox's runtime error): reported as a result is
         return _failed(_first_reason(error), problem, args)
     if solution.result != RESULTS.successful:
         return _failed(RESULTS[solution.result], problem, args)

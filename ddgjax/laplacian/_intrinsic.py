@@ -70,7 +70,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._compile import device_array, kernel
-from .._errors import DDGInputError, is_traced
+from .._errors import DDGInputError, MeshDataError, is_traced
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_sqrt
 from .._options import check_mass
@@ -168,7 +168,8 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
         `IntrinsicTriangulation`.
 
     Raises `DDGInputError` for traced vertices, a non-mesh or a bad `mollify_factor`,
-    `MeshDataError` for non-manifold edges or inconsistent orientation.
+    `MeshDataError` for non-manifold edges, inconsistent orientation, or every vertex at one point
+    (no length to mollify with).
 
     References: Bobenko & Springborn (2007); Fisher et al. (2007); Sharp & Crane (2020). libigl
     `intrinsic_delaunay_triangulation` (one flip at a time from a queue, no mollification);
@@ -194,6 +195,11 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     edges = topology.edges
     lengths_sq = np.sum((vertices[edges[:, 1]] - vertices[edges[:, 0]]) ** 2, axis=1)
+    if not np.any(lengths_sq > 0):
+        raise MeshDataError(
+            "mesh: every vertex lies at one point (all edges have zero length): there is no metric to mollify "
+            "or to build operators from"
+        )
     lengths_sq = _mollified(lengths_sq, topology.face_edges, mollify_factor, np, np.sqrt, np.take)
     faces, face_edges, rounds = _flip_to_delaunay(topology, lengths_sq)
     # Without flips the triangulation is the mesh's: share the cached plan (and pattern) of `cotan_laplacian(mesh)`.

@@ -245,8 +245,8 @@ def _advance(
         return (solution.value, record(failure, k, first_failure(finite_outcome(solution.value), solution.result))), None
 
     def step_or_stop(carry, k):
-        # After a failure the flow stops: a failed state (NaN, or an indefinite matrix) would make
-        # the next factorisation raise from the runtime whatever `throw` says.
+        # After a failure the flow stops: steps from a failed state (NaN, or an indefinite matrix)
+        # would only repeat the failure, and the recorded first failing step must stay the first.
         return jax.lax.cond(failed_before(carry[1], k), lambda carry, _: (carry, None), step, carry, k)
 
     carry, _ = scan_steps(step_or_stop, (vertices, failure), start, count)

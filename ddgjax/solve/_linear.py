@@ -331,6 +331,11 @@ def _check_matrix(A) -> None:
             "A: expected a symmetric matrix (flagged `symmetric`, as the Laplacian and mass matrices are), or a complex "
             "one flagged `hermitian`; linear_solve solves symmetric (Hermitian) positive definite systems"
         )
+    if A.pattern.nnz < n_rows:
+        raise DDGInputError(
+            f"A: stores {A.pattern.nnz} entries for {n_rows} rows, so some row is empty and A is singular; "
+            "a positive definite matrix stores its whole diagonal"
+        )
 
 
 def _check_rhs(A: SparseMatrix, b) -> None:
@@ -442,24 +447,28 @@ def _factor(pattern: SparsityPattern, values: Float[Array, " nnz"], *, method: s
     one compiled program per pattern.
 
     What cannot be factored never reaches the factorisation, which would raise from the XLA runtime
-    (CHOLMOD) or the host (pyamg): the identity on the pattern's diagonal slots stands in for a matrix
-    with NaN or inf values, and for one that CHOLMOD's check finds not positive definite
-    (`_cholmod_definite`); the outcome says which (`Factorization.result`).
+    (CHOLMOD) or the host (pyamg): the identity stands in for a matrix with NaN or inf values, and
+    for one that CHOLMOD's check finds not positive definite (`_cholmod_definite`); the outcome says
+    which (`Factorization.result`).
     """
     finite = jnp.all(jnp.isfinite(values))
-    identity = (pattern.rows == pattern.cols).astype(values.dtype)
-    values = jnp.where(finite, values, identity)
+    values = jnp.where(finite, values, (pattern.rows == pattern.cols).astype(values.dtype))
     if method != "cholesky":
         token = host_factor(method, pattern, values)
         factored = RESULTS.where(token >= 0, RESULTS.successful, RESULTS.singular)
     else:
         import sparsax
 
-        values, identity = values.astype(jnp.float64), identity.astype(jnp.float64)
+        n, values = pattern.shape[0], values.astype(jnp.float64)
         definite = _cholmod_definite(pattern, values)
+        # CHOLMOD's stand-in is the identity on slots `(k mod n, k mod n)` (repeats are summed), which
+        # does not need the pattern to store its diagonal; a pattern with fewer slots than rows holds no
+        # positive definite matrix (it is refused by `factorize`).
+        diagonal = jnp.arange(pattern.nnz, dtype=pattern.rows.dtype) % n
+        rows, cols = (jnp.where(definite, index, diagonal) for index in (pattern.rows, pattern.cols))
         # CHOLMOD reads the upper triangle of the COO list (rows <= cols) and sums repeated positions,
         # so the storage slots go in as they are (ELL padding adds zeros).
-        token = sparsax.factor(pattern.rows, pattern.cols, jnp.where(definite, values, identity), pattern.shape[0])
+        token = sparsax.factor(rows, cols, jnp.where(definite, values, 1.0), n)
         factored = RESULTS.where(definite, RESULTS.successful, RESULTS.not_positive_definite)
     return token, RESULTS.where(finite, factored, RESULTS.nonfinite)
 
