@@ -5,7 +5,7 @@ process. Every compiled XLA program costs 1.5-4 MB however small its input, so a
 one program per size forever grows without bound. This script builds, for each of `--meshes`
 random convex-hull spheres of 500-5,000 vertices (seeded), the cotan Laplacian and the Voronoi and
 Galerkin mass matrices (`--path lm`), and optionally one solve of `(M + 0.01 L) x = M 1`
-(`--path solve`), and prints the resident set size every `--every` meshes and the growth per new
+(`--path solve`, `--solver` any of `ddgjax.LINEAR_SOLVERS`), and prints the resident set size every `--every` meshes and the growth per new
 mesh fitted over the second half of the stream (after the program caches have filled), with the
 seconds per mesh. A reference run with `jax.clear_caches()` after every mesh (`--clear`) shows the
 floor: what remains is not compiled programs.
@@ -44,11 +44,11 @@ def sphere(n_points: int, rng: np.random.Generator) -> ddgjax.Mesh:
     return ddgjax.Mesh.from_arrays(points, faces)
 
 
-def process(mesh: ddgjax.Mesh, path: str) -> None:
+def process(mesh: ddgjax.Mesh, path: str, solver: str) -> None:
     L, M, G = cotan_laplacian(mesh), mass_matrix(mesh), mass_matrix(mesh, mass="galerkin")
     jax.block_until_ready((L.values, M.values, G.values))
     if path == "solve":
-        x = linear_solve(M + 0.01 * L, M @ np.ones(mesh.n_vertices))
+        x = linear_solve(M + 0.01 * L, M @ np.ones(mesh.n_vertices), method=solver)
         jax.block_until_ready(x.value)
 
 
@@ -56,17 +56,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--meshes", type=int, default=150)
     parser.add_argument("--path", choices=("lm", "solve"), default="lm")
+    parser.add_argument("--solver", choices=ddgjax.LINEAR_SOLVERS, default="auto", help="linear_solve's method (--path solve)")
     parser.add_argument("--every", type=int, default=10)
     parser.add_argument("--clear", action="store_true", help="jax.clear_caches() after every mesh (the floor)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     process_info = psutil.Process()
     rss, start = [], time.perf_counter()
-    print(f"ddgjax {ddgjax.__version__}, jax {jax.__version__}; path {args.path}, {args.meshes} meshes of 500-5,000 vertices")
+    solver = f" ({args.solver})" if args.path == "solve" else ""
+    print(f"ddgjax {ddgjax.__version__}, jax {jax.__version__}; path {args.path}{solver}, {args.meshes} meshes of 500-5,000 vertices")
     print("mesh  vertices  RSS (MB)  seconds")
     for i in range(args.meshes):
         mesh = sphere(int(rng.integers(500, 5000)), rng)
-        process(mesh, args.path)
+        process(mesh, args.path, args.solver)
         n_vertices = mesh.n_vertices
         del mesh
         if args.clear:

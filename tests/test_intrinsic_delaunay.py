@@ -14,6 +14,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax.internal import degenerate_faces
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import (
     IntrinsicTriangulation,
@@ -27,7 +28,6 @@ from ddgjax.laplacian import (
     mass_matrix_from_lengths_sq,
     triangulation_plan,
 )
-from ddgjax.internal import degenerate_faces
 from ddgjax.mesh import Mesh, check_mesh, icosphere
 from ddgjax.pde import harmonic_interpolation, solve_poisson
 from ddgjax.sparse import dirichlet_blocks

@@ -46,7 +46,9 @@ def _base(name: str) -> Mesh:
     if name == "components":
         strip = grid(3, 1)
         parts = [icosphere(0), strip.with_vertices(np.asarray(strip.vertices) + [3.0, 0.0, 0.0])]
-        return disjoint_union([(np.asarray(m.vertices), np.asarray(m.faces)) for m in parts] + [(triangle[0] - 3.0, triangle[1])]).mesh
+        return disjoint_union(
+            [(np.asarray(m.vertices), np.asarray(m.faces)) for m in parts] + [(triangle[0] - 3.0, triangle[1])]
+        ).mesh
     shapes = {
         "icosahedron": lambda: icosphere(0),
         "torus": lambda: torus(n_major=6, n_minor=4),
@@ -56,9 +58,17 @@ def _base(name: str) -> Mesh:
     return shapes[name]()
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _built_bases():
+    """The connectivities, built before hypothesis draws: building the first meshes of a process (lazy imports)
+    can move `random`'s global state, which hypothesis forbids inside a strategy."""
+    for name in BASES:
+        _base(name)
+
+
 @st.composite
-def meshes(draw) -> tuple[Mesh, bool]:
-    """`(mesh, modified)`: a base connectivity with random positions; `modified` when a degeneracy was made."""
+def meshes(draw) -> tuple[Mesh, np.ndarray, bool]:
+    """`(mesh, vertices, modified)`: a base connectivity, random positions for it, and whether a degeneracy was made."""
     mesh = _base(draw(st.sampled_from(BASES)))
     V, F, edges = np.array(mesh.vertices), np.asarray(mesh.faces), np.asarray(mesh.edges)
     scale = np.mean(np.linalg.norm(V[edges[:, 1]] - V[edges[:, 0]], axis=1))
@@ -74,7 +84,13 @@ def meshes(draw) -> tuple[Mesh, bool]:
             V[a] = 0.5 * (V[b] + V[c]) if kind == "collinear" else V[b]
             if kind == "point":
                 V[c] = V[b]
-    return mesh.with_vertices(draw(st.sampled_from([1e-3, 1.0, 1e3])) * V), bool(kinds)
+    return mesh, draw(st.sampled_from([1e-3, 1.0, 1e3])) * V, bool(kinds)
+
+
+def _mesh(drawn) -> tuple[Mesh, bool]:
+    """The drawn positions on their connectivity (built outside the strategy, which only draws numbers)."""
+    mesh, vertices, modified = drawn
+    return mesh.with_vertices(vertices), modified
 
 
 def _components(mesh: Mesh) -> tuple[int, np.ndarray]:
@@ -113,7 +129,7 @@ def _check_psd_laplacian(L, what: str):
 def test_cotan_laplacian_and_mass_matrices(drawn):
     """Plain route: refused on degenerate faces; elsewhere a PSD Laplacian. The mass matrices work on every
     mesh: lumped ones non-negative, every one symmetric and summing to the area."""
-    mesh, _ = drawn
+    mesh, _ = _mesh(drawn)
     refusal = _refusal(mesh, robust=False)
     if refusal:
         with pytest.raises(MeshDataError, match=refusal):
@@ -137,7 +153,7 @@ def test_cotan_laplacian_and_mass_matrices(drawn):
 def test_robust_laplacian_is_psd_on_every_mesh(drawn):
     """`robust=True` (mollified intrinsic Delaunay) never refuses an oriented manifold mesh: L PSD, M positive
     on every vertex and at least the area (mollification only lengthens edges; exactly the area without it)."""
-    mesh, _ = drawn
+    mesh, _ = _mesh(drawn)
     refusal = _refusal(mesh, robust=True)
     if refusal:
         with pytest.raises(MeshDataError, match=refusal):
@@ -157,7 +173,7 @@ def test_robust_laplacian_is_psd_on_every_mesh(drawn):
 @SETTINGS
 @given(meshes())
 def test_angle_defects_keep_gauss_bonnet(drawn):
-    mesh, _ = drawn
+    mesh, _ = _mesh(drawn)
     defects = np.asarray(vertex_angle_defects(mesh))
     assert np.all(np.isfinite(defects))
     # Each defect is 2 pi less a sum of angles: a few ulps of 2 pi each.
@@ -167,7 +183,7 @@ def test_angle_defects_keep_gauss_bonnet(drawn):
 @SETTINGS
 @given(meshes(), st.booleans())
 def test_eigenpairs_are_non_negative_with_one_zero_per_component(drawn, robust):
-    mesh, modified = drawn
+    mesh, modified = _mesh(drawn)
     k = min(6, mesh.n_vertices - 1)
     refusal = _refusal(mesh, robust)
     if refusal:
@@ -180,19 +196,23 @@ def test_eigenpairs_are_non_negative_with_one_zero_per_component(drawn, robust):
         return
     values = np.asarray(solution.value.values)
     n_components, _ = _components(mesh)
-    scale = max(abs(values[-1]), 1.0 / float(np.sum(face_areas(mesh))))
-    assert np.all(np.isfinite(values)) and np.all(np.diff(values) >= -1e-10 * scale)
-    assert values[0] >= -1e-8 * scale
+    # Rounding of the eigenvalues: eps times the largest one, bounded by max L_ii / M_ii (Gershgorin). A
+    # mollified point has a mass of ~1e-10 of its neighbours' and makes that 1e11 times the smallest
+    # nonzero eigenvalue (measured: the zero eigenvalue at 2.6e-6 of the next one).
+    L, M = laplacian_and_mass(mesh, robust=robust)
+    rounding = 100 * np.finfo(float).eps * float(np.max(np.asarray(L.diagonal()) / np.asarray(M.diagonal())))
+    tolerance = rounding + 1e-10 * abs(values[-1])
+    assert np.all(np.isfinite(values)) and np.all(np.diff(values) >= -tolerance)
     zeros = min(k, n_components)
-    assert np.all(np.abs(values[:zeros]) <= 1e-8 * scale), values
+    assert np.all(np.abs(values[:zeros]) <= tolerance), values
     if k > n_components:
-        assert values[n_components] > 1e-6 * scale, values
+        assert values[n_components] > tolerance, values
 
 
 @SETTINGS
 @given(meshes(), st.booleans(), st.data())
 def test_heat_distance_is_non_negative_and_infinite_off_the_source_component(drawn, robust, data):
-    mesh, modified = drawn
+    mesh, modified = _mesh(drawn)
     source = data.draw(st.integers(0, mesh.n_vertices - 1))
     refusal = _refusal(mesh, robust)
     if refusal:
@@ -208,14 +228,16 @@ def test_heat_distance_is_non_negative_and_infinite_off_the_source_component(dra
     reached = labels == labels[source]
     assert not np.any(np.isnan(distance))
     assert np.all(np.isfinite(distance[reached])) and np.all(np.isinf(distance[~reached]))
-    assert np.all(distance[reached] >= 0) and distance[source] == distance[reached].min() == 0
+    # The shift makes each reached component's minimum 0; on coarse jittered meshes (a 6 x 4 torus) the
+    # heat method's minimum need not sit at the source vertex itself.
+    assert np.all(distance[reached] >= 0) and distance[reached].min() == 0
 
 
 @SETTINGS
 @given(meshes(), st.booleans(), st.integers(0, 2**32 - 1))
 def test_poisson_solution_solves_the_compatible_problem(drawn, robust, seed):
     """No fixed vertices: per component a compatible right-hand side and a zero-mean solution, `L phi = -M rho_c`."""
-    mesh, modified = drawn
+    mesh, modified = _mesh(drawn)
     rho = np.random.default_rng(seed).standard_normal(mesh.n_vertices)
     refusal = _refusal(mesh, robust)
     if refusal:
@@ -240,11 +262,6 @@ def test_poisson_solution_solves_the_compatible_problem(drawn, robust, seed):
     assert np.abs(residual).max() <= 1e-8 * (abs(L).max() * np.abs(phi).max() + np.abs(masses * rho).max())
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="cotan_laplacian(mesh) is still flagged positive semidefinite on concrete positions with zero-area "
-    "faces (ddgjax/laplacian/_cotan.py: the flag should follow ddgjax.internal.degenerate_faces)",
-)
 def test_cotan_laplacian_of_a_degenerate_mesh_is_not_flagged_psd():
     """The plain cotan Laplacian, assembled regardless of a face of relative area 1e-16: indefinite by rounding
     (smallest eigenvalue far below its typical scale), so it must not carry the PSD flag."""

@@ -283,6 +283,7 @@ def test_robust_eigenpairs_are_those_of_robust_laplacian():
     np.testing.assert_allclose(jitted(mesh.vertices), expected, rtol=1e-9, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_a_degenerate_mesh_is_refused_or_reported_never_a_wrong_spectrum():
     """A face of relative area 1e-16 in an icosphere (a corner 1e-16 edge lengths off the midpoint of the
     opposite edge): its cotangents are ~1e16 and rounding leaves the plain problem's small eigenpairs

@@ -298,7 +298,7 @@ def heat_distance(
        `inf` on every other component.
 
     Convention: distances are never negative; each component holding a source has minimum 0 (with
-    one source vertex, at the source), and every vertex no source reaches (another connected
+    one source vertex, at or next to the source: the heat method's field is smooth, not exact), and every vertex no source reaches (another connected
     component, or an unreferenced vertex) is at distance `inf`, so mask them with `jnp.isfinite`
     before summing. A source inside a face gives its corners about their straight-line distance
     from it. First-order accurate in `h` (the smoothing by `t ~ h^2` belongs to the method: a larger
@@ -336,8 +336,8 @@ def heat_distance(
     sources, so several sources give negative distances and other components finite ones. potpourri3d
     `MeshHeatMethodDistanceSolver(V, F, t_coef=1.0, use_robust=True).compute_distance(v)` (geometry-central)
     differs in three defaults: it uses the intrinsic Delaunay Laplacian of a mollified tufted cover
-    (`use_robust=True`; here `robust=False`, and `robust=True` is the intrinsic Delaunay Laplacian
-    without the mollification and the tufted cover), the lumped barycentric mass (here `"voronoi"`:
+    (`use_robust=True`; here `robust=False`, and `robust=True` is the mollified intrinsic Delaunay Laplacian
+    without the tufted cover), the lumped barycentric mass (here `"voronoi"`:
     pass `mass="barycentric"`), and the Neumann heat flow only (here `"average"` on meshes with boundary:
     pass `boundary="neumann"`); `t_coef` means the same (`t = t_coef h^2`, `h` the mean edge length).
     With `mass="barycentric", boundary="neumann", robust=False` and potpourri3d's `use_robust=False`

@@ -33,6 +33,7 @@ from .._errors import DDGInputError
 from .._indexing import take_rows
 from .._numerics import safe_reciprocal, safe_sqrt
 from ..mesh import Mesh, face_areas, face_edge_lengths_sq, face_vertex_positions, require_mesh
+from ..internal import degenerate_faces
 from ..sparse import SparseMatrix
 from ._lengths import laplacian_values, off_diagonal_entries, psd_matrix
 from ._plan import TriangulationPlan, vertex_plan
@@ -53,9 +54,13 @@ def cotan_laplacian(mesh: Mesh) -> SparseMatrix:
     `L 1 = 0` exactly.
 
     The result is flagged symmetric positive semidefinite (a Gram matrix of hat gradients, whatever
-    the angles), so `cotan_laplacian(m).as_lineax_operator()` is tagged for `lineax.CG`. Works under
-    jit / grad / jvp / vmap over the vertex positions; see the module docstring for non-manifold,
-    boundary and degenerate input.
+    the angles), so `cotan_laplacian(m).as_lineax_operator()` is tagged for `lineax.CG`, except on
+    concrete positions with zero or near-zero area faces (`ddgjax.mesh.check_mesh`'s
+    `zero_area_faces`, found once per mesh object): there the cotangents' rounding makes the matrix
+    indefinite, so it is not flagged, and the problem-level functions refuse it and point to
+    `robust=True` (the mollified intrinsic Delaunay Laplacian, PSD on every mesh). Under jit the
+    positions cannot be inspected and the flag is kept. Works under jit / grad / jvp / vmap over the
+    vertex positions; see the module docstring for non-manifold, boundary and degenerate input.
 
     Args:
         mesh: any triangle mesh.
@@ -68,7 +73,11 @@ def cotan_laplacian(mesh: Mesh) -> SparseMatrix:
     libigl `cotmatrix` (negated); gpytoolbox `cotangent_laplacian`.
     """
     plan = vertex_plan(mesh)
-    return psd_matrix(_values(mesh, plan), plan)
+    degenerate = degenerate_faces(mesh)  # None under jit
+    values = _values(mesh, plan)
+    if degenerate is not None and degenerate.size:
+        return SparseMatrix(values, plan.pattern, symmetric=True)
+    return psd_matrix(values, plan)
 
 
 @kernel

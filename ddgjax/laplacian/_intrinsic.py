@@ -155,7 +155,7 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
 
         l_ij^2 = ((n_i - n_j)^2 + 16 (A_i + A_j)^2) / (4 l_ab^2).
 
-    The vertices, the surface and its metric do not change; only the edges do. Flips run in rounds
+    The flips change neither the vertices nor the (mollified) metric; only the edges. Flips run in rounds
     of independent flips (module docstring), recorded for the JAX replay. Once per vertex positions:
     pass the result as `triangulation=` to the operators to reuse it (inside jit too).
 
@@ -226,7 +226,9 @@ def intrinsic_delaunay_laplacian(mesh: Mesh, *, triangulation: IntrinsicTriangul
     rounding-sized tolerance, `_DELAUNAY_TOLERANCE`), so harmonic functions obey the maximum
     principle (boundary edges: module docstring). Equals
     `cotan_laplacian(mesh)` (to rounding, on the same pattern) on a mesh that is already intrinsically
-    Delaunay. Flagged symmetric positive semidefinite.
+    Delaunay and has no near-degenerate face. Flagged symmetric positive semidefinite, and it is on
+    every mesh: the mollified triangles all have positive areas (module docstring), where the cotan
+    Laplacian of a mesh with zero-area faces is indefinite by rounding.
 
     Differentiable in `mesh.vertices`, under jit / grad / vmap, when `triangulation` is given: the
     derivative of the fixed flipped triangulation, exact away from Delaunay-critical positions
@@ -240,9 +242,10 @@ def intrinsic_delaunay_laplacian(mesh: Mesh, *, triangulation: IntrinsicTriangul
     Returns:
         `(nv, nv)` `SparseMatrix` on `triangulation.plan.pattern`.
 
-    References: Bobenko & Springborn (2007); Fisher et al. (2007). libigl
-    `intrinsic_delaunay_cotmatrix` (negated); `robust_laplacian.mesh_laplacian(V, F, mollify_factor=0)`
-    on closed meshes.
+    References: Bobenko & Springborn (2007); Fisher et al. (2007); Sharp & Crane (2020). libigl
+    `intrinsic_delaunay_cotmatrix` (negated; no mollification, so equal where `delta = 0`);
+    `robust_laplacian.mesh_laplacian(V, F, mollify_factor=...)` with the triangulation's
+    `mollify_factor` (default `1e-5` in both) on closed meshes.
     """
     triangulation = _triangulation_for(mesh, triangulation)
     return cotan_laplacian_from_lengths_sq(triangulation.face_lengths_sq(mesh), triangulation.plan)
@@ -260,7 +263,8 @@ def intrinsic_delaunay_mass_matrix(
     on the intrinsic triangulation; `"barycentric"` a third of each triangle, the mass matrix of
     `robust_laplacian.mesh_laplacian`; `"galerkin"` the consistent FEM mass matrix of the intrinsic
     hat functions (on the intrinsic Laplacian's pattern). The total is the surface area (flips keep
-    the metric). Pairs with `intrinsic_delaunay_laplacian` (pass the same `triangulation`):
+    the metric), or slightly more where mollification lengthened the edges of near-degenerate faces
+    (module docstring). Pairs with `intrinsic_delaunay_laplacian` (pass the same `triangulation`):
     `-M^{-1} L` is the pointwise Laplace-Beltrami operator. Differentiable in `mesh.vertices` as the
     Laplacian is.
 

@@ -7,7 +7,9 @@
   normal from `L V`), Gauss curvature normals, total mean curvature; pointwise Gaussian / mean
   curvature and mean curvature normals (`vertex_pointwise_*`), principal curvatures.
 - Built-in shapes: `icosphere`, `uv_sphere`, `torus`, `cylinder`, `disk`, `grid`.
-- Checks: `check_mesh` -> `MeshReport`.
+- Checks: `check_mesh` -> `MeshReport` (zero-area faces and zero-length edges among them; the policy
+  for degenerate geometry, refused by the plain cotan route and handled by `robust=True`, is in
+  `ddgjax.mesh._check`).
 """
 
 from ._check import MeshReport as MeshReport

@@ -85,9 +85,12 @@ def host_factor(method: str, pattern: SparsityPattern, values) -> Int[Array, ""]
     matrix SuperLU finds exactly singular gets token `-1` (its solves return NaN and the factorisation
     reports `RESULTS.singular`).
     """
+    # The callbacks close over plain values only: a tracer (`pattern`'s arrays) held by one would keep
+    # the whole traced program, and its compiled code, alive in JAX's caches (`ddgjax._compile`).
+    n = pattern.shape[0]
 
     def factor(rows, cols, values):
-        made = _make(method, rows, cols, values, pattern.shape[0])
+        made = _make(method, rows, cols, values, n)
         return np.int32(-1 if made is None else _CACHE.add(made))
 
     return jax.pure_callback(
@@ -102,11 +105,12 @@ def host_solve(method: str, pattern: SparsityPattern, values, token, rhs, rtol: 
     `num_steps` counts CG iterations (the largest over the columns; 0 for SuperLU), `converged` is
     whether every column reached `rtol` in `max_steps`, `factored` whether the factorisation succeeded.
     """
+    n = pattern.shape[0]  # not `pattern` itself (`host_factor`)
 
     def solve(rows, cols, values, token, rhs):
         if not np.all(np.isfinite(rhs)):  # reported as `nonfinite` by the caller; pyamg's CG would not stop early
             return np.full(rhs.shape, np.nan, rhs.dtype), np.int32(0), np.bool_(True), np.bool_(True)
-        made = None if token < 0 else _CACHE.get(int(token), lambda: _make(method, rows, cols, values, pattern.shape[0]))
+        made = None if token < 0 else _CACHE.get(int(token), lambda: _make(method, rows, cols, values, n))
         if made is None:
             return np.full(rhs.shape, np.nan, rhs.dtype), np.int32(0), np.bool_(False), np.bool_(False)
         rhs64 = np.asarray(rhs, np.float64)

@@ -15,8 +15,8 @@ an `L` flagged positive semidefinite with `lambda_1` below `-sqrt(eps)` times th
 (the larger of `|lambda_k|` and the median of `L_ii / M_ii`) is `RESULTS.not_positive_definite`, a
 pair whose residual exceeds `eps^(1/4)` times that scale `RESULTS.eigensolver_failed`:
 what rounding makes of a cotan Laplacian with faces of near-zero area, never a right answer
-(`ddgjax.mesh.check_mesh` finds those faces; `robust=True` handles them). `throw=True` (default) raises with the item's message;
-`throw=False` returns a `ddgjax.Solution` whose `stats["residual"]` is the largest relative
+(`ddgjax.mesh.check_mesh` finds those faces; `robust=True` handles them). `throw=True` (default)
+raises with the item's message; `throw=False` returns a `ddgjax.Solution` whose `stats["residual"]` is the largest relative
 eigen-residual `|L phi_i - lambda_i M phi_i| / (lambda_k |M phi_i|)` of the `k` pairs.
 
 **Forward**, `method="arpack"` (host, the default on CPU): ARPACK's shift-invert Lanczos (`scipy.sparse.linalg.eigsh(L, k, M, sigma)`,
