@@ -55,7 +55,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from ..sparse import SparseMatrix, SparsityPattern, from_scipy
 
@@ -279,7 +279,7 @@ def amg_v_cycle(hierarchy: AMGHierarchy, r: Float[ArrayLike, " n *k"]) -> Float[
     n = hierarchy.shape[0]
     if np.ndim(r) not in (1, 2) or np.shape(r)[0] != n:
         raise DDGInputError(f"r: expected shape ({n},) or ({n}, k), got {np.shape(r)}")
-    return _cycle(hierarchy.levels, hierarchy.coarse_inverse, jnp.asarray(r))
+    return _cycle(hierarchy.levels, hierarchy.coarse_inverse, device_array(r))
 
 
 def amg_preconditioner(hierarchy: AMGHierarchy) -> lx.FunctionLinearOperator:
@@ -330,7 +330,7 @@ def _assemble(operators, prolongators, galerkins, *, smoother: str, steps: int) 
             lower, upper = 1.0 / _CHEBYSHEV_LOWER, _CHEBYSHEV_UPPER
             angles = np.pi * (2 * np.arange(steps) + 1) / (2 * steps)
             roots = (upper + lower) / 2 + (upper - lower) / 2 * np.cos(angles)  # in units of rho
-            weights = jnp.asarray(1.0 / roots, A.dtype) / rho
+            weights = device_array(1.0 / roots, A.dtype) / rho
         levels.append(AMGLevel(A=A, P=P, R=R, inverse_diagonal=inverse_diagonal, weights=weights, galerkin=galerkin))
     coarse = operators[-1]
     return AMGHierarchy(levels=tuple(levels), coarse=coarse, coarse_inverse=_pseudo_inverse(coarse), smoother=smoother)

@@ -76,6 +76,7 @@ from __future__ import annotations
 
 import functools
 import warnings
+import weakref
 
 import equinox as eqx
 import jax
@@ -83,7 +84,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Inexact, Int
 
-from .._compile import kernel
+from .._compile import at_top_level, device_array, kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._options import LINEAR_SOLVERS
 from .._results import RESULTS, first_failure, is_failure, raise_if_failed
@@ -291,8 +292,15 @@ def factorize(
         _warn_low_precision()
     values = jax.lax.stop_gradient(system.values)
     token, hierarchy = None, None
-    if method == "cholesky" or method in HOST_METHODS:
-        token, result = _factor(system.pattern, values, method=method)
+    eager = at_top_level() and not is_traced(values)
+    if method == "cholesky" and eager:
+        _release_cholmod_patterns()
+        # Checked here rather than by a callback inside the program: JAX never frees a compiled
+        # program that holds a host callback (benchmarks/README.md, "Memory over a stream of meshes").
+        definite = _cholmod_definite_now(system.pattern, values)
+        token, result = _factor(system.pattern, values, definite, method=method)
+    elif method == "cholesky" or method in HOST_METHODS:
+        token, result = _factor(system.pattern, values, None, method=method)
     else:
         result = RESULTS.where(jnp.all(jnp.isfinite(values)), RESULTS.successful, RESULTS.nonfinite)
     if isinstance(preconditioner, AMGHierarchy):
@@ -304,7 +312,7 @@ def factorize(
         hierarchy = preconditioner
     elif preconditioner == "amg" and not is_failure(result):  # values are concrete here (`_choose`)
         hierarchy = amg_hierarchy(SparseMatrix(values, system.pattern, symmetric=True))
-    return Factorization(
+    factorization = Factorization(
         system=system,
         token=token,
         hierarchy=hierarchy,
@@ -315,6 +323,9 @@ def factorize(
         max_steps=int(max_steps),
         residual_tolerance=float(residual_tolerance),
     )
+    if method == "cholesky" and eager:
+        _track_cholmod(factorization)
+    return factorization
 
 
 def _check_matrix(A) -> None:
@@ -345,7 +356,7 @@ def _check_rhs(A: SparseMatrix, b) -> None:
 def _check_rhs_shape(n: int, b) -> Inexact[Array, "n *k"]:
     if np.ndim(b) not in (1, 2) or np.shape(b)[0] != n:
         raise DDGInputError(f"b: expected shape ({n},) or ({n}, k), got {np.shape(b)}")
-    return jnp.asarray(b)
+    return device_array(b)
 
 
 def _choose(method, preconditioner, system: SparseMatrix) -> tuple[str, str | AMGHierarchy | None]:
@@ -420,7 +431,7 @@ def linear_solution(
     Shared with the sharded CG (`ddgjax.sharding`)."""
     b_norm = jnp.linalg.norm(b)
     residual = jnp.where(b_norm > 0, jnp.linalg.norm(apply(value) - b) / jnp.where(b_norm > 0, b_norm, 1.0), 0.0)
-    num_steps, converged, factored = (jnp.asarray(stat) for stat in stats)
+    num_steps, converged, factored = (device_array(stat) for stat in stats)
     # A NaN in b stops CG at once (no comparison with NaN holds), so b is checked, not only x.
     finite = jnp.all(jnp.isfinite(value)) & jnp.all(jnp.isfinite(b))
     solve_result = RESULTS.where(
@@ -441,7 +452,9 @@ def linear_solution(
 
 
 @kernel(static_argnames=("method",))
-def _factor(pattern: SparsityPattern, values: Float[Array, " nnz"], *, method: str) -> tuple[Int[Array, "..."], RESULTS]:
+def _factor(
+    pattern: SparsityPattern, values: Float[Array, " nnz"], definite: Bool[ArrayLike, ""] | None, *, method: str
+) -> tuple[Int[Array, "..."], RESULTS]:
     """The host factor's token of the matrix with `values` on `pattern` and the factorisation's outcome:
     CHOLMOD's (`sparsax.factor`, in float64) for `"cholesky"`, else SuperLU's or pyamg's (`host_factor`);
     one compiled program per pattern.
@@ -460,7 +473,8 @@ def _factor(pattern: SparsityPattern, values: Float[Array, " nnz"], *, method: s
         import sparsax
 
         n, values = pattern.shape[0], values.astype(jnp.float64)
-        definite = _cholmod_definite(pattern, values)
+        if definite is None:  # values traced: checked by a host callback when the program runs
+            definite = _cholmod_definite(pattern, values)
         # CHOLMOD's stand-in is the identity on slots `(k mod n, k mod n)` (repeats are summed), which
         # does not need the pattern to store its diagonal; a pattern with fewer slots than rows holds no
         # positive definite matrix (it is refused by `factorize`).
@@ -473,6 +487,62 @@ def _factor(pattern: SparsityPattern, values: Float[Array, " nnz"], *, method: s
     return token, RESULTS.where(finite, factored, RESULTS.nonfinite)
 
 
+#: Sparsity patterns `sparsax` may hold (each its symbolic analysis and factors, ~3 MB at a few thousand
+#: vertices; it has no per-pattern eviction) before ddgjax releases them all, which it does only while
+#: no factorisation made outside `jit` is alive, so no kept token goes stale.
+CHOLMOD_PATTERNS = 8
+_live_cholmod_factorizations = 0
+
+
+def _track_cholmod(factorization: Factorization) -> None:
+    """Count a CHOLMOD factorisation made outside `jit` while it is alive (`_release_cholmod_patterns`)."""
+    global _live_cholmod_factorizations
+    _live_cholmod_factorizations += 1
+    weakref.finalize(factorization, _forget_cholmod)
+
+
+def _forget_cholmod() -> None:
+    global _live_cholmod_factorizations
+    _live_cholmod_factorizations -= 1
+
+
+def _release_cholmod_patterns() -> None:
+    """Free `sparsax`'s factors once it holds `CHOLMOD_PATTERNS` patterns and no factorisation that uses them is alive.
+
+    A stream of meshes of new connectivities, each solved and dropped, then keeps a bounded number of
+    patterns; a kept `Factorization` (a heat-method solver, a flow's factor) keeps them all, so its
+    token stays valid. Tokens made inside a `jit` and returned from it are not counted: keep such a
+    factorisation by making it outside `jit`.
+    """
+    import sparsax
+
+    if _live_cholmod_factorizations == 0 and sparsax.cache_size() >= CHOLMOD_PATTERNS:
+        sparsax.clear_cache()
+
+
+def _cholmod_definite_now(pattern: SparsityPattern, values: Float[Array, " nnz"]) -> np.bool_:
+    """`_cholmod_definite` of what `_factor` factors, on concrete values, on the host now."""
+    rows, cols, host = np.asarray(pattern.rows), np.asarray(pattern.cols), np.asarray(values, np.float64)
+    if not np.all(np.isfinite(host)):
+        host = (rows == cols).astype(np.float64)  # `_factor`'s replacement of a non-finite matrix
+    return _definite_on_host(rows, cols, host, pattern.shape[0])
+
+
+def _definite_on_host(rows: np.ndarray, cols: np.ndarray, values: np.ndarray, n: int) -> np.bool_:
+    """Whether CHOLMOD factors the float64 matrix (`sparsax_cpp.logdet_np`, which fills `sparsax`'s cache)."""
+    import sparsax_cpp
+
+    try:
+        sparsax_cpp.logdet_np(
+            np.ascontiguousarray(rows, np.int32), np.ascontiguousarray(cols, np.int32), np.ascontiguousarray(values), n
+        )
+    except RuntimeError as error:  # "sparsax: matrix is not positive definite (failure at column j)"
+        if "not positive definite" not in str(error):
+            raise
+        return np.bool_(False)
+    return np.bool_(True)
+
+
 def _cholmod_definite(pattern: SparsityPattern, values: Float[Array, " nnz"]) -> Bool[Array, ""]:
     """Whether CHOLMOD factors the float64 matrix `values` on `pattern` (a host call that catches its failure).
 
@@ -480,20 +550,10 @@ def _cholmod_definite(pattern: SparsityPattern, values: Float[Array, " nnz"]) ->
     that follows hits: one factorisation in all. `sparsax_cpp.logdet_np` is the NumPy entry point
     `sparsax` itself uses for its PyTensor ops.
     """
-    import sparsax_cpp
-
-    n = pattern.shape[0]
+    n = pattern.shape[0]  # not `pattern` itself: the callback must hold no tracer
 
     def definite(rows, cols, values):
-        try:
-            sparsax_cpp.logdet_np(
-                np.ascontiguousarray(rows, np.int32), np.ascontiguousarray(cols, np.int32), np.ascontiguousarray(values), n
-            )
-        except RuntimeError as error:  # "sparsax: matrix is not positive definite (failure at column j)"
-            if "not positive definite" not in str(error):
-                raise
-            return np.bool_(False)
-        return np.bool_(True)
+        return _definite_on_host(rows, cols, values, n)
 
     shape = jax.ShapeDtypeStruct((), jnp.bool_)
     return jax.pure_callback(definite, shape, pattern.rows, pattern.cols, values, vmap_method="sequential")

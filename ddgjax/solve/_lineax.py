@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
+from .._compile import device_array
 from .._errors import DDGInputError, check_choice
 from .._options import LINEAR_SOLVERS
 from .._results import RESULTS
@@ -82,7 +83,7 @@ def column_colouring(pattern: SparsityPattern) -> ColumnColouring:
     stored = np.zeros(rows.size, dtype=bool)
     stored[pattern.entries()[2]] = True  # real slots; ELL padding repeats a position and reads 0
     lookup = np.where(stored, colour[cols] * n + rows, n_colours * n)
-    return ColumnColouring(seeds=jnp.asarray(seeds), lookup=jnp.asarray(lookup, dtype=jnp.int32))
+    return ColumnColouring(seeds=device_array(seeds), lookup=device_array(lookup, dtype=jnp.int32))
 
 
 def matrix_from_products(pattern: SparsityPattern, colouring: ColumnColouring, product) -> SparseMatrix:

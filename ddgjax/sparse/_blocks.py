@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import device_array
 from .._errors import DDGInputError, first_indices, is_traced
 from ._gather import gather_sum
 from ._matrix import SparseMatrix, _flags
@@ -61,7 +62,7 @@ class DirichletPlan(eqx.Module):
         `u = plan.join(u_f, u_c)` after solving `A_ff u_f = b_f - A_fc u_c`. libigl: the full `Z`
         that `min_quad_with_fixed` returns.
         """
-        free_values, fixed_values = jnp.asarray(free_values), jnp.asarray(fixed_values)
+        free_values, fixed_values = device_array(free_values), device_array(fixed_values)
         n_free, n_fixed = self.free.shape[0], self.fixed.shape[0]
         if free_values.shape[:1] != (n_free,) or fixed_values.shape != (n_fixed,) + free_values.shape[1:]:
             raise DDGInputError(
@@ -123,18 +124,18 @@ def dirichlet_plan(matrix: SparseMatrix | SparsityPattern, fixed: Int[ArrayLike,
         source[block_slot] = slot[in_block]
         readers = np.full(pattern.nnz, block_pattern.nnz, dtype=np.int32)
         readers[slot[in_block]] = block_slot  # each slot of A lands in at most one block slot
-        blocks.append((block_pattern, jnp.asarray(source[:, None]), jnp.asarray(readers[:, None])))
+        blocks.append((block_pattern, device_array(source[:, None]), device_array(readers[:, None])))
     (free_free, ff_source, ff_readers), (free_fixed, fc_source, fc_readers) = blocks
     return DirichletPlan(
-        free=jnp.asarray(free, dtype=jnp.int32),
-        fixed=jnp.asarray(fixed, dtype=jnp.int32),
+        free=device_array(free, dtype=jnp.int32),
+        fixed=device_array(fixed, dtype=jnp.int32),
         free_free=free_free,
         free_fixed=free_fixed,
         free_free_source=ff_source,
         free_free_readers=ff_readers,
         free_fixed_source=fc_source,
         free_fixed_readers=fc_readers,
-        position=jnp.asarray(position, dtype=jnp.int32),
+        position=device_array(position, dtype=jnp.int32),
         n_slots=pattern.nnz,
     )
 

@@ -24,6 +24,7 @@ from jax.extend.core import Primitive
 from jax.interpreters import ad, batching, mlir
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import device_array
 from .._errors import DDGInputError
 from .._indexing import take_rows_or_zero
 
@@ -54,8 +55,8 @@ def gather_sum(
     Returns:
         `(m, *rest)`.
     """
-    x = jnp.asarray(x)
-    index, transpose_index = jnp.asarray(index), jnp.asarray(transpose_index)
+    x = device_array(x)
+    index, transpose_index = device_array(index), device_array(transpose_index)
     for name, array in (("index", index), ("transpose_index", transpose_index)):
         if array.ndim != 2 or not jnp.issubdtype(array.dtype, jnp.integer):
             raise DDGInputError(f"{name}: expected a 2-d integer array, got shape {array.shape} dtype {array.dtype}")

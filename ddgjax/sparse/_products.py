@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import device_array
 from .._errors import DDGInputError, is_traced
 from ._gather import gather_sum
 from ._matrix import SparseMatrix
@@ -61,10 +62,10 @@ def congruence_plan(d_cols: np.ndarray, pattern: SparsityPattern) -> CongruenceP
     inverse_order = np.empty_like(order)
     inverse_order[order] = np.arange(order.size)
     return CongruencePlan(
-        d_cols=jnp.asarray(d_cols, dtype=jnp.int32),
-        order=jnp.asarray(order[:, None], dtype=jnp.int32),
-        inverse_order=jnp.asarray(inverse_order[:, None], dtype=jnp.int32),
-        sorted_slots=jnp.asarray(slot[order], dtype=jnp.int32),
+        d_cols=device_array(d_cols, dtype=jnp.int32),
+        order=device_array(order[:, None], dtype=jnp.int32),
+        inverse_order=device_array(inverse_order[:, None], dtype=jnp.int32),
+        sorted_slots=device_array(slot[order], dtype=jnp.int32),
         n_slots=pattern.nnz,
     )
 
@@ -94,7 +95,7 @@ def congruence(d: SparseMatrix, weights: Float[ArrayLike, " m"], pattern: Sparsi
     Returns:
         `(n, n)` symmetric `SparseMatrix` on `pattern`.
     """
-    weights = jnp.asarray(weights)
+    weights = device_array(weights)
     m, n = d.shape
     per_row = plan.d_cols.shape[1]
     if (
