@@ -146,6 +146,7 @@ def test_robust_laplacian_brings_camelhead_distances_near_potpourri3d_robust_mod
     assert errors[True] < 0.02 and errors[True] < errors[False] / 3, errors
 
 
+@pytest.mark.slow
 def test_outcomes_without_throw():
     """A successful query reports `RESULTS.successful` with the solves' residual; a conjugate gradient cut
     short in the heat flow reports `max_steps_reached` (the first failing solve), and raises with `throw=True`."""

@@ -346,6 +346,7 @@ def test_hermitian_real_form_solves_the_complex_problem_on_the_host():
         smallest_eigenpairs(L, M, 3, hermitian_real_form=True)
 
 
+@pytest.mark.slow
 def test_named_pairs_and_outcomes_without_throw(monkeypatch):
     """`Eigenpairs` unpacks and names its fields; `throw=False` returns a `Solution` whose result is the
     eigensolver's: successful, or `eigensolver_failed` for a subspace iteration out of steps and for ARPACK's

@@ -528,7 +528,7 @@ def _cholmod_definite_now(pattern: SparsityPattern, values: Float[Array, " nnz"]
     return _definite_on_host(rows, cols, host, pattern.shape[0])
 
 
-def _definite_on_host(rows: np.ndarray, cols: np.ndarray, values: np.ndarray, n: int) -> np.bool_:
+def _definite_on_host(rows: ArrayLike, cols: ArrayLike, values: ArrayLike, n: int) -> np.bool_:
     """Whether CHOLMOD factors the float64 matrix (`sparsax_cpp.logdet_np`, which fills `sparsax`'s cache)."""
     import sparsax_cpp
 
