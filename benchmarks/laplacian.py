@@ -282,7 +282,10 @@ def main(argv=None) -> int:
         for key, value in rows.items():
             print(f"  {key:55s} {value if isinstance(value, str) else fmt(value)}")
         print("  compile (first call, ms): " + ", ".join(f"{k} {v:.0f}" for k, v in compiles.items()))
-        print("  compiled structure (__ynn_fusion kernels of the mass matrix; gather_sum's boundaries, equal counts expected): " + ", ".join(f"{k} {v}" for k, v in fusions.items()))
+        print(
+            "  compiled structure (__ynn_fusion kernels of the mass matrix; gather_sum's boundaries, equal counts expected): "
+            + ", ".join(f"{k} {v}" for k, v in fusions.items())
+        )
         igl_ms = rows["igl.cotmatrix"][0]
         ratios = {
             "build / igl": rows["ddgjax build = Mesh.from_arrays + cotan_laplacian, new mesh each time"][0] / igl_ms,

@@ -64,7 +64,9 @@ def main() -> None:
     process_info = psutil.Process()
     rss, start = [], time.perf_counter()
     solver = f" ({args.solver})" if args.path == "solve" else ""
-    print(f"ddgjax {ddgjax.__version__}, jax {jax.__version__}; path {args.path}{solver}, {args.meshes} meshes of 500-5,000 vertices")
+    print(
+        f"ddgjax {ddgjax.__version__}, jax {jax.__version__}; path {args.path}{solver}, {args.meshes} meshes of 500-5,000 vertices"
+    )
     print("mesh  vertices  RSS (MB)  seconds")
     for i in range(args.meshes):
         mesh = sphere(int(rng.integers(500, 5000)), rng)

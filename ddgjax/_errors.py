@@ -9,8 +9,11 @@ class DDGInputError(ValueError):
     """Malformed input: wrong shape or dtype, out-of-range index, NaN/inf, too few elements."""
 
 
-class MeshDataError(ValueError):
-    """A well-formed mesh whose data an operator cannot handle (non-manifold, non-orientable, ...)."""
+class MeshDataError(DDGInputError):
+    """A well-formed mesh whose data an operator cannot handle (non-manifold, non-orientable, degenerate faces, ...).
+
+    A `DDGInputError` too: `except DDGInputError` catches every refusal of structurally bad input.
+    """
 
 
 def first_indices(mask: np.ndarray, limit: int = 10) -> str:

@@ -32,8 +32,8 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows
 from .._numerics import safe_reciprocal, safe_sqrt
-from ..mesh import Mesh, face_areas, face_edge_lengths_sq, face_vertex_positions, require_mesh
 from ..internal import degenerate_faces
+from ..mesh import Mesh, face_areas, face_edge_lengths_sq, face_vertex_positions, require_mesh
 from ..sparse import SparseMatrix
 from ._lengths import laplacian_values, off_diagonal_entries, psd_matrix
 from ._plan import TriangulationPlan, vertex_plan
