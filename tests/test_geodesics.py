@@ -104,13 +104,7 @@ def test_gradient_in_the_vertex_positions_matches_finite_differences():
     def loss(V):
         return jnp.sum(weights * heat_distance(mesh.with_vertices(V), [0]) ** 2)
 
-    gradient = jax.grad(loss)(V0)
-    assert np.all(np.isfinite(gradient))
-    direction = np.random.default_rng(0).standard_normal(V0.shape)
-    eps = 1e-6
-    finite = (loss(V0 + eps * direction) - loss(V0 - eps * direction)) / (2 * eps)
-    # Central differences with step 1e-6: truncation ~1e-12, rounding ~1e-10 relative.
-    np.testing.assert_allclose(jnp.vdot(gradient, direction), finite, rtol=1e-6)
+    _check_gradient_against_central_differences(loss, V0, seed=0)
 
 
 def test_bad_input(without_type_checker):
@@ -282,13 +276,7 @@ def test_gradient_with_unreachable_vertices_matches_finite_differences():
         return jnp.sum(jnp.where(jnp.isfinite(distance), distance, 0.0) ** 2)
 
     V0 = mesh.vertices
-    gradient = jax.grad(loss)(V0)
-    assert np.all(np.isfinite(gradient))
-    direction = np.random.default_rng(1).standard_normal(V0.shape)
-    eps = 1e-6
-    finite = (loss(V0 + eps * direction) - loss(V0 - eps * direction)) / (2 * eps)
-    # Central differences with step 1e-6: truncation ~1e-12, rounding ~1e-10 relative.
-    np.testing.assert_allclose(jnp.vdot(gradient, direction), finite, rtol=1e-6)
+    _check_gradient_against_central_differences(loss, V0, seed=1)
 
 
 @pytest.mark.slow
@@ -313,3 +301,14 @@ def test_messages_name_the_users_arguments():
         with pytest.raises(DDGInputError, match=message) as raised:
             call()
         assert "fixed" not in str(raised.value)
+
+
+def _check_gradient_against_central_differences(loss, V0, *, seed: int):
+    """`grad loss` finite, and its derivative along a random direction equal to central differences."""
+    gradient = jax.grad(loss)(V0)
+    assert np.all(np.isfinite(gradient))
+    direction = np.random.default_rng(seed).standard_normal(V0.shape)
+    eps = 1e-6
+    finite = (loss(V0 + eps * direction) - loss(V0 - eps * direction)) / (2 * eps)
+    # Central differences with step 1e-6: truncation ~1e-12, rounding ~1e-10 relative.
+    np.testing.assert_allclose(jnp.vdot(gradient, direction), finite, rtol=1e-6)

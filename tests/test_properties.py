@@ -112,6 +112,24 @@ def _refusal(mesh: Mesh, robust: bool) -> str | None:
     return "have zero or near-zero area.*Pass robust=True" if _is_degenerate(mesh) else None
 
 
+def _refused_or_outcome(run, mesh: Mesh, robust, modified: bool):
+    """`run(robust)`'s successful value, or `None` after checking it refused (`_refusal`) or failed with an outcome.
+
+    A refusal is a `MeshDataError` with the expected words; a failure is a `.result`, never silent, and
+    only a modified (degenerate) mesh may fail.
+    """
+    refusal = _refusal(mesh, bool(robust))
+    if refusal:
+        with pytest.raises(MeshDataError, match=refusal):
+            run(robust)
+        return None
+    solution = run(robust)
+    if solution.result != RESULTS.successful:
+        assert modified
+        return None
+    return solution
+
+
 def _check_psd_laplacian(L, what: str):
     """Flagged symmetric PSD; symmetric, zero row sums and no eigenvalue below rounding, all measured."""
     assert L.symmetric and L.positive_semidefinite, what
@@ -185,14 +203,8 @@ def test_angle_defects_keep_gauss_bonnet(drawn):
 def test_eigenpairs_are_non_negative_with_one_zero_per_component(drawn, robust):
     mesh, modified = _mesh(drawn)
     k = min(6, mesh.n_vertices - 1)
-    refusal = _refusal(mesh, robust)
-    if refusal:
-        with pytest.raises(MeshDataError, match=refusal):
-            eigenpairs(mesh, k, robust=robust, throw=False)
-        return
-    solution = eigenpairs(mesh, k, robust=robust, throw=False)
-    if solution.result != RESULTS.successful:
-        assert modified  # a failure is an outcome, never silent; an unmodified mesh must succeed
+    solution = _refused_or_outcome(lambda robust: eigenpairs(mesh, k, robust=robust, throw=False), mesh, robust, modified)
+    if solution is None:
         return
     values = np.asarray(solution.value.values)
     n_components, _ = _components(mesh)
@@ -214,14 +226,8 @@ def test_eigenpairs_are_non_negative_with_one_zero_per_component(drawn, robust):
 def test_heat_distance_is_non_negative_and_infinite_off_the_source_component(drawn, robust, data):
     mesh, modified = _mesh(drawn)
     source = data.draw(st.integers(0, mesh.n_vertices - 1))
-    refusal = _refusal(mesh, robust)
-    if refusal:
-        with pytest.raises(MeshDataError, match=refusal):
-            heat_distance(mesh, source, robust=robust, throw=False)
-        return
-    solution = heat_distance(mesh, source, robust=robust, throw=False)
-    if solution.result != RESULTS.successful:
-        assert modified
+    solution = _refused_or_outcome(lambda robust: heat_distance(mesh, source, robust=robust, throw=False), mesh, robust, modified)
+    if solution is None:
         return
     distance = np.asarray(solution.value)
     _, labels = _components(mesh)
@@ -239,15 +245,11 @@ def test_poisson_solution_solves_the_compatible_problem(drawn, robust, seed):
     """No fixed vertices: per component a compatible right-hand side and a zero-mean solution, `L phi = -M rho_c`."""
     mesh, modified = _mesh(drawn)
     rho = np.random.default_rng(seed).standard_normal(mesh.n_vertices)
-    refusal = _refusal(mesh, robust)
-    if refusal:
-        with pytest.raises(MeshDataError, match=refusal):
-            solve_poisson(mesh, rho, robust=robust, throw=False)
-        return
-    triangulation = intrinsic_delaunay(mesh) if robust else False
-    solution = solve_poisson(mesh, rho, robust=triangulation, throw=False)
-    if solution.result != RESULTS.successful:
-        assert modified
+    triangulation = intrinsic_delaunay(mesh) if robust and _refusal(mesh, True) is None else robust
+    solution = _refused_or_outcome(
+        lambda robust: solve_poisson(mesh, rho, robust=robust, throw=False), mesh, triangulation, modified
+    )
+    if solution is None:
         return
     phi = np.asarray(solution.value)
     L, M = laplacian_and_mass(mesh, robust=triangulation)
