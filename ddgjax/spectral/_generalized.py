@@ -171,14 +171,17 @@ def smallest_eigenpairs(
         RESULTS.where(status == _FAILED, RESULTS.eigensolver_failed, RESULTS.not_positive_definite),
     )
     pairs = Eigenpairs(values, vectors)
-    result = first_failure(result, _verified(L, M, jax.lax.stop_gradient(pairs)))
-    if throw:
-        return outcome(pairs, result, throw)
-    return outcome(pairs, result, throw, {"residual": _relative_residual(L, M, jax.lax.stop_gradient(pairs))})
+    checked, residual = _verified(L, M, jax.lax.stop_gradient(pairs))
+    return outcome(pairs, first_failure(result, checked), throw, {"residual": residual})
 
 
-def _verified(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> RESULTS:
-    """The solver's answer checked against the problem, relative to `scale = max(|lambda_k|, median_i L_ii / M_ii)`:
+def _verified(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> tuple[RESULTS, Float[Array, ""]]:
+    """The solver's answer checked against the problem, and its relative residual `stats["residual"]`.
+
+    The residual is `max_i |L phi_i - lambda_i M phi_i| / (lambda_k |M phi_i|)`: relative to the
+    spectrum's scale (the subspace iteration stops on the same measure over its larger block; NaN for
+    the zeros of a failed host solve). The outcome is relative to
+    `scale = max(|lambda_k|, median_i L_ii / M_ii)`:
 
     - `RESULTS.not_positive_definite` where `L` is flagged positive semidefinite and
       `lambda_1 < -sqrt(eps) scale`;
@@ -203,22 +206,14 @@ def _verified(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> RESULTS:
     eps = jnp.finfo(values.dtype).eps
     masses = M @ vectors
     residuals = jnp.linalg.norm(L @ vectors - masses * values, axis=0)
-    inaccurate = jnp.any(residuals > eps**0.25 * scale * jnp.linalg.norm(masses, axis=0))
+    mass_norms = jnp.linalg.norm(masses, axis=0)
+    inaccurate = jnp.any(residuals > eps**0.25 * scale * mass_norms)
     result = RESULTS.where(inaccurate, RESULTS.eigensolver_failed, RESULTS.successful)
     if L.positive_semidefinite:  # the more telling outcome first: it names degenerate elements
         negative = values[0] < -jnp.sqrt(eps) * scale
         result = first_failure(RESULTS.where(negative, RESULTS.not_positive_definite, RESULTS.successful), result)
-    return result
-
-
-def _relative_residual(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> Float[Array, ""]:
-    """`max_i |L phi_i - lambda_i M phi_i| / (lambda_k |M phi_i|)`: the eigen-residual relative to the spectrum's
-    scale (the subspace iteration stops on the same measure over its larger block; NaN for the zeros of a
-    failed host solve)."""
-    values, vectors = pairs
-    mass = M @ vectors
-    residual = jnp.linalg.norm(L @ vectors - mass * values, axis=0) / jnp.linalg.norm(mass, axis=0)
-    return jnp.max(residual) / jnp.maximum(jnp.abs(values[-1]), jnp.finfo(values.dtype).tiny)
+    relative = jnp.max(residuals / mass_norms) / jnp.maximum(jnp.abs(values[-1]), jnp.finfo(values.dtype).tiny)
+    return result, relative
 
 
 def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGHierarchy | None:
