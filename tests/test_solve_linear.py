@@ -356,3 +356,37 @@ def test_complex_hermitian_systems_match_scipy_and_differentiate(method):
     np.testing.assert_allclose(derivative, expected, rtol=1e-7)
     # Reverse mode: JAX's gradient g of a real function of complex inputs gives the derivative Re(sum(g * dz)).
     np.testing.assert_allclose(jnp.real(jnp.sum(grad_values * direction) + jnp.sum(grad_b * db)), expected, rtol=1e-7)
+
+
+def test_kept_factorisations_are_analysed_apart_and_answer_as_one_shot_solves(monkeypatch):
+    """`factorize` outside `jit` (a kept factorisation) is analysed simplicial under a pattern of its own,
+    `linear_solve` as CHOLMOD chooses (`_linear.cholmod_analysis`): the same answers as SciPy's, and
+    the process-wide switch is set for each block and restored to the enclosing one's mode after it."""
+    sparsax = pytest.importorskip("sparsax")
+    modes = []
+    monkeypatch.setattr(_linear, "_supernodal_setter", lambda: modes.append)
+    anchor = factorize(_heat_operator(DISK), method="cholesky")  # alive: ddgjax empties no sparsax cache meanwhile
+    random = sp.random(300, 300, density=0.02, random_state=np.random.default_rng(7))
+    A = from_scipy((random + random.T + 20.0 * sp.identity(300)).tocsr())  # a pattern no other test analyses
+    b = _rhs(A.shape[0])
+    expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
+    del modes[:]
+    before = sparsax.cache_size()
+    one_shot = linear_solve(A, b, method="cholesky").value
+    assert set(modes) == {1} and modes  # "auto" throughout, the default mode restored
+    del modes[:]
+    kept = factorize(A, method="cholesky")
+    assert modes == [0, 1]  # simplicial for the host check (which analyses), then restored
+    assert sparsax.cache_size() == before + 2  # two analyses of one matrix: the kept one has a pattern of its own
+    assert anchor.result == RESULTS.successful
+    np.testing.assert_allclose(one_shot, expected, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(kept.solve(b).value, expected, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(kept.solve(jnp.stack([b, 2 * b], axis=1)).value[:, 1], 2 * expected, rtol=1e-12)
+    with _linear.cholmod_analysis("simplicial"):
+        linear_solve(A, b, method="cholesky")
+        assert modes[-1] == 0  # linear_solve's "auto" block restored the enclosing "simplicial"
+        traced = jax.jit(lambda A, b: factorize(A, method="cholesky").solve(b).value)(A, b)  # analysed apart, traced
+    assert modes[-1] == 1
+    np.testing.assert_allclose(traced, expected, rtol=1e-12, atol=1e-14)
+    with pytest.raises(DDGInputError, match="mode"), _linear.cholmod_analysis("supernodal"):
+        pass

@@ -74,6 +74,8 @@ Dirichlet blocks.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import warnings
 import weakref
@@ -173,14 +175,15 @@ def linear_solve(
     """
     _check_matrix(A)
     _check_rhs(A, b)
-    factorization = factorize(
-        A,
-        method=method,
-        preconditioner=preconditioner,
-        rtol=rtol,
-        max_steps=max_steps,
-        residual_tolerance=residual_tolerance,
-    )
+    with cholmod_analysis("auto"):  # one solve: CHOLMOD's choice factors fastest (`cholmod_analysis`)
+        factorization = factorize(
+            A,
+            method=method,
+            preconditioner=preconditioner,
+            rtol=rtol,
+            max_steps=max_steps,
+            residual_tolerance=residual_tolerance,
+        )
     return factorization.solve(b, throw=throw)
 
 
@@ -293,13 +296,18 @@ def factorize(
     values = jax.lax.stop_gradient(system.values)
     token, hierarchy = None, None
     eager = at_top_level() and not is_traced(values)
+    analysis = _CHOLMOD_ANALYSIS.get() or ("simplicial" if eager else "auto")
     if method == "cholesky" and eager:
         _release_cholmod_patterns()
+        pattern, kept_values = _analysed_apart(system.pattern, values, analysis)
         # Checked here rather than by a callback inside the program: JAX never frees a compiled
         # program that holds a host callback (benchmarks/README.md, "Memory over a stream of meshes").
-        definite = _cholmod_definite_now(system.pattern, values)
-        token, result = _factor(system.pattern, values, definite, method=method)
-    elif method == "cholesky" or method in HOST_METHODS:
+        with cholmod_analysis(analysis):
+            definite = _cholmod_definite_now(pattern, kept_values)
+        token, result = _factor(pattern, kept_values, definite, method=method)
+    elif method == "cholesky":
+        token, result = _factor(*_analysed_apart(system.pattern, values, analysis), None, method=method)
+    elif method in HOST_METHODS:
         token, result = _factor(system.pattern, values, None, method=method)
     else:
         result = RESULTS.where(jnp.all(jnp.isfinite(values)), RESULTS.successful, RESULTS.nonfinite)
@@ -485,6 +493,66 @@ def _factor(
         token = sparsax.factor(rows, cols, jnp.where(definite, values, 1.0), n)
         factored = RESULTS.where(definite, RESULTS.successful, RESULTS.not_positive_definite)
     return token, RESULTS.where(finite, factored, RESULTS.nonfinite)
+
+
+# The CHOLMOD analysis of the factorisations made in this context (`cholmod_analysis`); unset: `factorize`'s default.
+_CHOLMOD_ANALYSIS: contextvars.ContextVar[str | None] = contextvars.ContextVar("ddgjax_cholmod_analysis", default=None)
+_CHOLMOD_MODES = {"simplicial": 0, "auto": 1}
+
+
+@contextlib.contextmanager
+def cholmod_analysis(mode: str):
+    """Analyse the CHOLMOD factorisations made (or, inside `jit`, run) in this block `"simplicial"`ly or as CHOLMOD chooses (`"auto"`).
+
+    A simplicial factor's solves are 1.6-2.3x faster than a supernodal one's on mesh Laplacians, its
+    factorisation as fast up to ~10k unknowns and 2-4.5x slower from 40k (benchmarks/README.md, "Kept
+    factorisations"): kept factorisations (`factorize` called outside `jit`, the heat method's solver,
+    Large Steps) are simplicial, one-shot solves (`linear_solve`) CHOLMOD's choice (supernodal from a
+    few thousand unknowns). `sparsax` fixes the choice per pattern when it first analyses it, process-wide
+    (`sparsax_cpp.set_supernodal`, which `sparsax.set_options` sets and then empties its cache), so
+    the mode is set for the block and a simplicial factorisation goes in with one explicit zero more on
+    the diagonal, a pattern of its own (`_analysed_apart`), never sharing a supernodal one's analysis.
+    A program that factorises inside this block must also run in it (block on its result).
+    """
+    check_choice("mode", mode, tuple(_CHOLMOD_MODES))
+    outer = _CHOLMOD_ANALYSIS.get() or "auto"
+    context = _CHOLMOD_ANALYSIS.set(mode)
+    setter = _supernodal_setter()
+    if setter is not None:
+        setter(_CHOLMOD_MODES[mode])
+    try:
+        yield
+    finally:
+        if setter is not None:
+            setter(_CHOLMOD_MODES[outer])
+        _CHOLMOD_ANALYSIS.reset(context)
+
+
+@functools.cache
+def _supernodal_setter():
+    """`sparsax_cpp.set_supernodal`, or `None` where `sparsax` is absent or has no such switch (then CHOLMOD chooses)."""
+    try:
+        import sparsax_cpp
+    except ImportError:
+        return None
+    return getattr(sparsax_cpp, "set_supernodal", None)
+
+
+def _analysed_apart(pattern: SparsityPattern, values: Float[Array, " nnz"], analysis: str):
+    """`(pattern, values)` as CHOLMOD takes them: for a simplicial analysis, with one explicit zero added at
+    `(0, 0)` (summed into the diagonal: the same matrix), so `sparsax` caches its analysis apart (`cholmod_analysis`)."""
+    if analysis != "simplicial":
+        return pattern, values
+    zero = jnp.zeros(1, pattern.rows.dtype)
+    apart = SparsityPattern(
+        rows=jnp.concatenate([pattern.rows, zero]),
+        cols=jnp.concatenate([pattern.cols, zero]),
+        indptr=None,
+        shape=pattern.shape,
+        layout="coo",
+        symmetric=True,
+    )
+    return apart, jnp.concatenate([values, jnp.zeros(1, values.dtype)])
 
 
 #: Sparsity patterns `sparsax` may hold (each its symbolic analysis and factors, ~3 MB at a few thousand
