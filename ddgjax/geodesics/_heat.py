@@ -67,7 +67,7 @@ from ..mesh import (
     scatter_corners_to_vertices,
 )
 from ..solve import Factorization, LinearSolution, factorize
-from ..solve._linear import cholmod_analysis
+from ..solve._linear import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
 
 HEAT_BOUNDARY_CONDITIONS = ("average", *BOUNDARY_CONDITIONS)
@@ -274,7 +274,7 @@ def heat_distance_solver(
     """
     mesh = require_mesh("mesh", mesh)
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
-    with cholmod_analysis("simplicial"):  # kept for many queries: the faster solves (`cholmod_analysis`)
+    with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
         t, factors = _factor(mesh, L, M, plans, t_coef, solver=solver)
         if at_top_level():
             jax.block_until_ready(factors)  # the factorisations run in the block

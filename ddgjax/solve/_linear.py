@@ -100,6 +100,11 @@ PRECONDITIONERS = ("jacobi", "amg")
 # SuperLU's factor + solve takes ~1 s at 41k and ~8 s at 164k, pyamg's setup + CG 0.4 s and 0.9 s.
 SUPERLU_LIMIT = 50_000
 
+# Kept CHOLMOD factorisations up to this many unknowns are analysed simplicial (`cholmod_analysis`): there
+# its factorisation takes at most ~2x the supernodal one (41k: 0.45 s against 0.25 s) and its solves are
+# 1.6-2.3x faster; at 164k it takes 4.5x (6.3 s against 1.4 s), hence CHOLMOD's choice above.
+SIMPLICIAL_LIMIT = 50_000
+
 
 class PrecisionWarning(UserWarning):
     """A solve runs in float32 (module docstring, "Precision"): shown once per process."""
@@ -280,7 +285,9 @@ def factorize(
     AMG preconditioner needs concrete values, or a hierarchy passed in) and differentiably (through
     `Factorization.solve`). Never raises on the values: a factorisation that fails (NaN in `A`, a
     matrix CHOLMOD finds not positive definite, one SuperLU finds singular) is kept in the
-    `Factorization`'s `result`, and its solves report it (raising with `throw=True`).
+    `Factorization`'s `result`, and its solves report it (raising with `throw=True`). Made outside
+    `jit`, a CHOLMOD factorisation of up to `SIMPLICIAL_LIMIT` (50,000) unknowns is simplicial, whose
+    solves are 1.6-2.3x faster than the supernodal one `linear_solve` gets (`cholmod_analysis`).
     SciPy: `scipy.sparse.linalg.splu(A).solve`; cholespy: `CholeskySolverD(...).solve`.
     """
     _check_matrix(A)
@@ -296,7 +303,7 @@ def factorize(
     values = jax.lax.stop_gradient(system.values)
     token, hierarchy = None, None
     eager = at_top_level() and not is_traced(values)
-    analysis = _CHOLMOD_ANALYSIS.get() or ("simplicial" if eager else "auto")
+    analysis = _CHOLMOD_ANALYSIS.get() or (kept_analysis(system.shape[0]) if eager else "auto")
     if method == "cholesky" and eager:
         _release_cholmod_patterns()
         pattern, kept_values = _analysed_apart(system.pattern, values, analysis)
@@ -495,6 +502,11 @@ def _factor(
     return token, RESULTS.where(finite, factored, RESULTS.nonfinite)
 
 
+def kept_analysis(n: int) -> str:
+    """The CHOLMOD analysis of a kept factorisation of `n` unknowns: `"simplicial"` up to `SIMPLICIAL_LIMIT`, else `"auto"`."""
+    return "simplicial" if n <= SIMPLICIAL_LIMIT else "auto"
+
+
 # The CHOLMOD analysis of the factorisations made in this context (`cholmod_analysis`); unset: `factorize`'s default.
 _CHOLMOD_ANALYSIS: contextvars.ContextVar[str | None] = contextvars.ContextVar("ddgjax_cholmod_analysis", default=None)
 _CHOLMOD_MODES = {"simplicial": 0, "auto": 1}
@@ -507,8 +519,8 @@ def cholmod_analysis(mode: str):
     A simplicial factor's solves are 1.6-2.3x faster than a supernodal one's on mesh Laplacians, its
     factorisation as fast up to ~10k unknowns and 2-4.5x slower from 40k (benchmarks/README.md, "Kept
     factorisations"): kept factorisations (`factorize` called outside `jit`, the heat method's solver,
-    Large Steps) are simplicial, one-shot solves (`linear_solve`) CHOLMOD's choice (supernodal from a
-    few thousand unknowns). `sparsax` fixes the choice per pattern when it first analyses it, process-wide
+    Large Steps) are simplicial up to `SIMPLICIAL_LIMIT` unknowns (`kept_analysis`), one-shot solves
+    (`linear_solve`) and larger systems CHOLMOD's choice (supernodal from a few thousand unknowns). `sparsax` fixes the choice per pattern when it first analyses it, process-wide
     (`sparsax_cpp.set_supernodal`, which `sparsax.set_options` sets and then empties its cache), so
     the mode is set for the block and a simplicial factorisation goes in with one explicit zero more on
     the diagonal, a pattern of its own (`_analysed_apart`), never sharing a supernodal one's analysis.

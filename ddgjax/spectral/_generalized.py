@@ -247,16 +247,16 @@ def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGH
 def _host_eigenpairs(l_rows, l_cols, l_values, m_rows, m_cols, m_values, n: int, k: int, hermitian_real_form: bool):
     """NumPy: ARPACK shift-invert (or a dense solve when small), ascending, M-normalised, signs fixed; and
     the status (`_CONVERGED`, or zeros with `_FAILED` / `_NOT_POSITIVE_DEFINITE`)."""
-    L = sp.csc_matrix((np.asarray(l_values, np.float64), (l_rows, l_cols)), shape=(n, n))
-    M = sp.csc_matrix((np.asarray(m_values, np.float64), (m_rows, m_cols)), shape=(n, n))
     dtype = l_values.dtype
     try:
         if hermitian_real_form:
-            values, vectors = _complex_eigenpairs(L, M, k // 2)
+            values, vectors = _complex_eigenpairs((l_rows, l_cols, l_values), (m_rows, m_cols, m_values), n, k // 2)
             values = np.repeat(values, 2)
             x, y = vectors.real, vectors.imag
             vectors = np.stack([np.vstack([x, y]), np.vstack([-y, x])], axis=2).reshape(n, k)  # u, i u per pair
         else:
+            L = sp.csc_matrix((np.asarray(l_values, np.float64), (l_rows, l_cols)), shape=(n, n))
+            M = sp.csc_matrix((np.asarray(m_values, np.float64), (m_rows, m_cols)), shape=(n, n))
             values, vectors = _real_eigenpairs(L, M, k)
     except _EigensolverFailure as failure:
         return np.zeros(k, dtype), np.zeros((n, k), dtype), np.int32(failure.status)
@@ -313,17 +313,28 @@ def _rayleigh_ritz(A, B, vectors):
     return values, vectors @ rotation
 
 
-def _complex_eigenpairs(L: sp.csc_matrix, M: sp.csc_matrix, k: int):
-    """The `k` smallest eigenpairs of the complex Hermitian problem whose real forms are `L`, `M` (see
-    `smallest_eigenpairs(hermitian_real_form=True)`): `A = L[:h, :h] + i L[h:, :h]`, `B = M[:h, :h]`."""
-    h = L.shape[0] // 2
-    A = (L[:h, :h] + 1j * L[h:, :h]).tocsc()
-    B = M[:h, :h].tocsc()
+def _complex_eigenpairs(l_entries: tuple, m_entries: tuple, n: int, k: int):
+    """The `k` smallest eigenpairs of the complex Hermitian problem whose `n x n` real forms have the COO
+    entries `(rows, cols, values)` `l_entries`, `m_entries` (see `smallest_eigenpairs(hermitian_real_form=True)`):
+    `A = L[:h, :h] + i L[h:, :h]` and `B = M[:h, :h]`, read off the entries (no real form is built)."""
+    h = n // 2
+    A, B = (_complex_block(*entries, h) for entries in (l_entries, m_entries))
     if h <= 2 * k + 64:
         values, vectors = _dense_eigenpairs(A.toarray(), B.toarray(), k)
     else:
         values, vectors = _arpack_eigenpairs(A, B, k, (np.ones(h) + np.linspace(0.0, 1.0, h)) * (1 + 0.5j))
     return values.real, vectors
+
+
+def _complex_block(rows, cols, values, h: int) -> sp.csc_matrix:
+    """`X[:h, :h] + i X[h:, :h]` of the `2h x 2h` real matrix `X` with these COO entries (repeats summed), CSC."""
+    rows, cols, values = np.asarray(rows), np.asarray(cols), np.asarray(values, np.float64)
+    real, imaginary = (cols < h) & (rows < h), (cols < h) & (rows >= h)
+    if not np.any(values[imaginary]):  # a real matrix (the mass) stays real: ARPACK's B-products are cheaper
+        return sp.csc_matrix((values[real], (rows[real], cols[real])), shape=(h, h))
+    entries = np.concatenate([values[real], 1j * values[imaginary]])
+    positions = (np.concatenate([rows[real], rows[imaginary] - h]), np.concatenate([cols[real], cols[imaginary]]))
+    return sp.csc_matrix((entries, positions), shape=(h, h))
 
 
 def _host_forward(l_pattern, m_pattern, k, hermitian_real_form, l_values, m_values):
