@@ -689,9 +689,12 @@ def _gradients_on(name, mesh, args):
 
 
 def section_optimistix(args):
-    """The screened Poisson problem `(L + s M) u = M rho` as a minimisation, by optimistix, against the direct solve."""
+    """Quadratic energies minimised by optimistix and by `ddgjax.optim.minimize_energy`, against the direct solve."""
 
-    print("\n# optimistix route: argmin 1/2 u^T (L + s M) u - u^T M rho, s = 1 / h^2, against linear_solve")
+    print("\n# optimistix route: argmin of a quadratic energy, against the direct solve (assemble, factor, solve)")
+    print("  screened: 1/2 u^T (L + s M) u - u^T M rho, s = 1 / h^2 (direct: linear_solve(L + s M, M rho))")
+    print("  dirichlet: 1/2 u^T L u with u = g fixed on the boundary (camelhead) or where |z| > 0.8 (closed meshes)")
+    print("  (direct: harmonic_interpolation)")
     for name, mesh in selected_meshes(args):
         _optimistix_on(name, mesh, args)
 
@@ -699,14 +702,19 @@ def section_optimistix(args):
 def _optimistix_on(name, mesh, args):
     import optimistix as optx
 
-    from ddgjax.pde import screened_dirichlet_energy
+    from ddgjax.optim import minimize_energy
+    from ddgjax.pde import dirichlet_energy, harmonic_interpolation, screened_dirichlet_energy
     from ddgjax.solve import SparseCholesky, linear_solve
 
     L = cotan_laplacian(mesh)
     s = 1.0 / mean_edge_length(mesh) ** 2
-    rho = jnp.asarray(np.random.default_rng(1).standard_normal(mesh.n_vertices))
+    rng = np.random.default_rng(1)
+    rho = jnp.asarray(rng.standard_normal(mesh.n_vertices))
+    boundary = np.asarray(mesh.topology.boundary_vertices)
+    fixed = boundary if boundary.size else np.flatnonzero(np.abs(np.asarray(mesh.vertices[:, 2])) > 0.8)
+    g = jnp.asarray(rng.standard_normal(fixed.size))
 
-    # Both routes start from the vertex positions (assembly or energy included), passed as arguments.
+    # Every route starts from the vertex positions (assembly or energy included), passed as arguments.
     def energy(u, data):
         moved = mesh.with_vertices(data[0])
         return screened_dirichlet_energy(moved, u, s) - jnp.vdot(u, mass_matrix(moved) @ data[1])
@@ -717,7 +725,6 @@ def _optimistix_on(name, mesh, args):
         return linear_solve(cotan_laplacian(moved) + s * M, M @ data[1]).value
 
     solver = SparseCholesky(L.pattern)
-    direct = jit(direct_solve)
     answer = lambda solution: (solution.value, solution.stats["num_steps"])
     start = lambda data: jnp.zeros_like(data[1])
     root = lambda method, steps: jit(
@@ -726,30 +733,53 @@ def _optimistix_on(name, mesh, args):
     minimise = lambda method, steps: jit(
         lambda data: answer(optx.minimise(energy, method, start(data), data, max_steps=steps, throw=False))
     )
-    calls = {
-        "linear_solve (direct)": direct,
+    screened = {
+        "direct (linear_solve)": jit(direct_solve),
+        "minimize_energy(E, mesh=mesh)": jit(lambda data: answer(minimize_energy(energy, start(data), mesh=mesh, args=(data,)))),
         "optx.root_find(grad E, Newton(SparseCholesky))": root(optx.Newton(1e-12, 1e-12, linear_solver=solver), 10),
         "optx.root_find(grad E, Chord(SparseCholesky))": root(optx.Chord(1e-12, 1e-12, linear_solver=solver), 10),
         "optx.minimise(E, LBFGS), 2000 steps at most": minimise(optx.LBFGS(1e-10, 1e-10), 2000),
         "optx.minimise(E, NonlinearCG), 2000 steps at most": minimise(optx.NonlinearCG(1e-10, 1e-10), 2000),
     }
-    # New vertex positions each call: sparsax would skip the factorisation of the values it saw last.
-    data = [(mesh.vertices * scale, rho) for scale in (1.001, 1.002)]
-    turn = itertools.count()
-    timed = {row: (lambda fn=fn: fn(data[next(turn) % 2]), ()) for row, fn in calls.items()}
-    repeats = max(2, args.repeats // 2)
-    times, results = timed_interleaved(warmed(timed), repeats, args.budget)
-    reference = np.asarray(direct(data[0]))
-    print(f"\n## {name}: n = {mesh.n_vertices}  (min / median ms; ratio to linear_solve; steps; max error / max |u|)")
-    for row, fn in calls.items():
-        result = fn(data[0])
-        value = result if row.startswith("linear_solve") else result[0]
-        steps = "" if row.startswith("linear_solve") else f"{int(result[1])} steps"
-        error = float(np.abs(np.asarray(value) - reference).max() / np.abs(reference).max())
+    dirichlet = {
+        "direct (harmonic_interpolation)": jit(
+            lambda data: harmonic_interpolation(mesh.with_vertices(data[0]), fixed_vertices=fixed, fixed_values=data[1])
+        ),
+        "minimize_energy(E, mesh=mesh, fixed_vertices=...)": jit(
+            lambda data: answer(
+                minimize_energy(
+                    lambda u, V: dirichlet_energy(mesh.with_vertices(V), u),
+                    jnp.zeros(mesh.n_vertices),
+                    mesh=mesh,
+                    fixed_vertices=fixed,
+                    fixed_values=data[1],
+                    args=(data[0],),
+                )
+            )
+        ),
+    }
+    for system, calls, rhs in (("screened", screened, rho), ("dirichlet", dirichlet, g)):
+        # New vertex positions each call: sparsax keeps the factors of recent values (per pattern) and skips
+        # their factorisation, so a cycle of two would time cache hits.
+        data = [(mesh.vertices * (1 + 1e-4 * k), rhs) for k in range(1, 65)]
+        turn = itertools.count()
+        timed = {row: (lambda fn=fn, data=data, turn=turn: fn(data[next(turn) % len(data)]), ()) for row, fn in calls.items()}
+        repeats = max(2, args.repeats // 2)
+        times, _ = timed_interleaved(warmed(timed), repeats, args.budget)
+        direct_row = next(iter(calls))
+        reference = np.asarray(calls[direct_row](data[0]))
         print(
-            f"  {row:52s} {fmt(times[row], repeats):>22s} {times[row][0] / times['linear_solve (direct)'][0]:7.2f}x "
-            f"{steps:>11s}  {error:.1e}"
+            f"\n## {name}, {system}: n = {mesh.n_vertices}  (min / median ms; ratio to the direct solve; steps; max error / max |u|)"
         )
+        for row, fn in calls.items():
+            result = fn(data[0])
+            value = result if row == direct_row else result[0]
+            steps = "" if row == direct_row else f"{int(result[1])} steps"
+            error = float(np.abs(np.asarray(value) - reference).max() / np.abs(reference).max())
+            print(
+                f"  {row:52s} {fmt(times[row], repeats):>22s} {times[row][0] / times[direct_row][0]:7.2f}x "
+                f"{steps:>11s}  {error:.1e}"
+            )
 
 
 def section_cg(args):
@@ -861,6 +891,69 @@ def _scan_on(name, mesh, args):
         print(f"  {row:46s} {fmt(t, max(2, args.repeats // 2)):>22s} {t[0] / fastest_peer:6.2f}x")
 
 
+def section_kept(args):
+    """Solves with a kept factorisation: ddgjax's `factorize(A).solve(b)` against cholespy's, and the factorisations."""
+
+    print(
+        "\n# kept factorisation of the heat step A = M + t L, t = h^2: one solve (1 and 8 right-hand sides), and the factorisation"
+    )
+    for name, mesh in selected_meshes(args, default=("icosphere(6)", "camelhead")):
+        _kept_on(name, mesh, args)
+
+
+def _kept_on(name, mesh, args):
+    from ddgjax.solve import factorize
+    from ddgjax.solve._linear import cholmod_analysis
+
+    A_jax = mass_matrix(mesh) + mean_edge_length(mesh) ** 2 * cotan_laplacian(mesh)
+    A = A_jax.to_scipy().tocsr()
+    rng = np.random.default_rng(4)
+    b, B = rng.standard_normal(A.shape[0]), rng.standard_normal((A.shape[0], 8))
+    kept = factorize(A_jax, method="cholesky")  # outside jit: a kept factorisation, simplicial (`cholmod_analysis`)
+    with cholmod_analysis("auto"):
+        supernodal = factorize(A_jax, method="cholesky")  # what `linear_solve` makes: CHOLMOD's own choice
+    solve = jit(lambda f, b: f.solve(b).value)
+    calls = {
+        "ddgjax factorize(A).solve(b), jitted": (solve, (kept, jnp.asarray(b))),
+        "ddgjax the same, eager": (lambda: kept.solve(jnp.asarray(b)).value, ()),
+        "ddgjax the same, CHOLMOD's supernodal choice (jitted)": (solve, (supernodal, jnp.asarray(b))),
+        "ddgjax 8 right-hand sides, jitted": (solve, (kept, jnp.asarray(B))),
+        "sparsax.solve_factor(the kept token), jitted: no residual check": (
+            jit(sparsax.solve_factor),
+            (kept.token, jnp.asarray(b)),
+        ),
+    }
+    if cholespy is not None:
+        factor = cholespy_factor(A)
+        calls["cholespy solve"] = (cholespy_solve, (factor, b))
+        calls["cholespy 8 right-hand sides"] = (cholespy_solve, (factor, B))
+    scales = itertools.count(1)
+
+    def new_values():
+        return A_jax * (1.0 + 1e-6 * next(scales))  # new values: no cached numeric factor is reused
+
+    calls["ddgjax factorize (eager, kept: simplicial)"] = (lambda: factorize(new_values(), method="cholesky").token, ())
+
+    def one_shot():
+        with cholmod_analysis("auto"):
+            return factorize(new_values(), method="cholesky").token
+
+    calls["ddgjax factorize, CHOLMOD's choice (linear_solve's)"] = (one_shot, ())
+    if cholespy is not None:
+        calls["cholespy factorisation"] = (cholespy_factor, (A,))
+    times, _ = timed_interleaved(warmed(calls), args.repeats, args.budget)
+    print(f"\n## {name}: n = {mesh.n_vertices}  (min / median ms; ratio to cholespy's row of the same kind)")
+    for row, t in times.items():
+        kind = "factorisation" if row.startswith("ddgjax factorize (") or row.startswith("ddgjax factorize,") else "solve"
+        peer = (
+            "cholespy factorisation"
+            if kind == "factorisation"
+            else ("cholespy 8 right-hand sides" if "8 right" in row else "cholespy solve")
+        )
+        ratio = f"{t[0] / times[peer][0]:6.2f}x" if peer in times else ""
+        print(f"  {row:58s} {fmt(t, args.repeats):>22s} {ratio}")
+
+
 def _dist_version(name):
     from importlib.metadata import PackageNotFoundError, version
 
@@ -876,6 +969,7 @@ SECTIONS = {
     "optimistix": section_optimistix,
     "cg": section_cg,
     "scan": section_scan,
+    "kept": section_kept,
 }
 
 

@@ -12,6 +12,9 @@
 - `large_steps(mesh, *, lambda_, weights=, fixed_vertices=, solver=)`: `U = (I + lambda L) V` and
   back with one kept factorisation (Nicolet, Jacobson, Jakob 2021); `adam_uniform` /
   `scale_by_adam_uniform`, the paper's optimiser, as optax transformations.
+- `minimize_energy(energy, x0, *, mesh=, fixed_vertices=, fixed_values=)`: Newton's method with the
+  sparse Hessian (the mesh's vertex adjacency, recovered by colouring, factorised by CHOLMOD) for
+  energies of vertex values; an `optx.Solution`. A quadratic energy takes one factorisation.
 - `minimize_shape(loss, mesh, *, steps, ...)`: the whole step compiled, `lax.scan` in chunks with a
   progress bar (`ddgjax._loop`, the loop the flows share), fixed vertices, a volume constraint or
   bounds; `ShapeOptimizationResult` with `.value` (the final vertices), `.result` and
@@ -33,6 +36,7 @@ from ._chamfer import nearest_neighbors as nearest_neighbors
 from ._chamfer import sample_points as sample_points
 from ._driver import ShapeOptimizationResult as ShapeOptimizationResult
 from ._driver import minimize_shape as minimize_shape
+from ._energy import minimize_energy as minimize_energy
 from ._fitting import mesh_fitting_loss as mesh_fitting_loss
 from ._large_steps import LargeSteps as LargeSteps
 from ._large_steps import ScaleByAdamUniformState as ScaleByAdamUniformState
