@@ -16,12 +16,12 @@ For each mesh (icospheres of growing size, `../shared/meshes/armadillo_loop1.ply
 - **matrix-free `L u`** (`laplacian_apply`, its own fused program) against assembling `L` and
   multiplying, both from moved vertices: the measured reason for keeping the matrix-free route;
 - **gradient** of the Dirichlet energy `u^T L u / 2` w.r.t. the vertices (`dirichlet_energy`, whose
-  derivative is written out per face), against the energy itself and against autodiff of the
-  assembled `0.5 u^T (L u)`.
+  derivative is written out), against the energy itself, its gradient in `u` alone, autodiff of the
+  assembled `0.5 u^T (L u)` and libigl's energy (`bench_energy`; `--energy-only` runs just these).
 
 Functions jitted here (as a user would) compile with `ddgjax.cpu_compiler_options()`, as the README
 recommends (triangulax's too). Times are min / median over repeats, in ms. Run:
-`python benchmarks/laplacian.py [--max-faces N]`.
+`python benchmarks/laplacian.py [--max-faces N] [--energy-only]`.
 """
 
 from __future__ import annotations
@@ -211,33 +211,19 @@ def bench_mesh(name, V, F, repeats, run_robust):
     X3 = np.random.default_rng(1).standard_normal((nv, 3))
     rows["scipy CSR L @ X (k=3)"] = timed(csr.dot, X3, repeats=2 * repeats)[0]
     rows["ddgjax L @ X (k=3)"] = timed(matvec, L, jnp.asarray(X3), repeats=2 * repeats)[0]
-    # --- Dirichlet energy and its gradient w.r.t. the vertices ----------------------------------
-    u = jnp.asarray(np.random.default_rng(2).standard_normal(nv))
-    energy = jit(lambda m, W: dirichlet_energy(m.with_vertices(W), u))
-    gradient = jit(jax.grad(lambda m, W: dirichlet_energy(m.with_vertices(W), u), argnums=1))
-    first_call(energy, mesh, moved)
-    gradient_compile = first_call(gradient, mesh, moved)
-    rows.update(
-        timed_interleaved(
-            {
-                "ddgjax energy u^T L u / 2 (jitted)": (energy, (mesh, moved)),
-                "ddgjax grad_V energy (jitted)": (gradient, (mesh, moved)),
-            },
-            repeats=repeats,
-        )
-    )
+    energy_rows, gradient_compile = bench_energy(mesh, V, repeats)
+    rows.update(energy_rows)
+    u = jnp.asarray(np.random.default_rng(2).standard_normal(nv))  # the energy's u (bench_energy)
     # The matrix-free routes against the assembled matrix they equal (tests check the values).
     apply = jit(lambda m, W: laplacian_apply(m.with_vertices(W), u))
     assembled_apply = jit(lambda m, W: cotan_laplacian(m.with_vertices(W)) @ u)
-    assembled_gradient = jit(jax.grad(lambda m, W: 0.5 * jnp.vdot(u, cotan_laplacian(m.with_vertices(W)) @ u), argnums=1))
-    for fn in (apply, assembled_apply, assembled_gradient):
+    for fn in (apply, assembled_apply):
         first_call(fn, mesh, moved)
     rows.update(
         timed_interleaved(
             {
                 "ddgjax laplacian_apply(moved, u) (matrix-free, jitted)": (apply, (mesh, moved)),
                 "ddgjax cotan_laplacian(moved) @ u (assembled, jitted)": (assembled_apply, (mesh, moved)),
-                "ddgjax grad_V 0.5 u^T (L u), autodiff of the assembly": (assembled_gradient, (mesh, moved)),
             },
             repeats=repeats,
         )
@@ -254,11 +240,58 @@ def bench_mesh(name, V, F, repeats, run_robust):
     return nv, nf, rows, compiles, fusions
 
 
+def bench_energy(mesh, V, repeats):
+    """Rows of the Dirichlet energy `u^T L u / 2` and its gradients (jitted, moved vertices), and the gradient's compile time.
+
+    Interleaved in one loop: the energy, its gradient in the vertex positions (`dirichlet_energy`'s
+    written-out derivative), its gradient in `u` alone (which skips the former), autodiff of the
+    assembled `0.5 u^T (L u)`, and libigl's energy (`cotmatrix` build and product) for scale.
+    """
+    u_host = np.random.default_rng(2).standard_normal(V.shape[0])
+    u = jnp.asarray(u_host)
+    moved_host = V * 1.01
+    moved = jnp.asarray(moved_host)
+    energy = jit(lambda m, W: dirichlet_energy(m.with_vertices(W), u))
+    gradient = jit(jax.grad(lambda m, W: dirichlet_energy(m.with_vertices(W), u), argnums=1))
+    gradient_u = jit(jax.grad(lambda m, w: dirichlet_energy(m.with_vertices(moved), w), argnums=1))
+    assembled_gradient = jit(jax.grad(lambda m, W: 0.5 * jnp.vdot(u, cotan_laplacian(m.with_vertices(W)) @ u), argnums=1))
+    first_call(energy, mesh, moved)
+    gradient_compile = first_call(gradient, mesh, moved)
+    for fn, args in ((gradient_u, (mesh, u)), (assembled_gradient, (mesh, moved))):
+        first_call(fn, *args)
+    F = np.asarray(mesh.faces)
+
+    def igl_energy(W):
+        return -0.5 * u_host @ (igl.cotmatrix(W, F) @ u_host)
+
+    rows = timed_interleaved(
+        {
+            "ddgjax energy u^T L u / 2 (jitted)": (energy, (mesh, moved)),
+            "ddgjax grad_V energy (jitted)": (gradient, (mesh, moved)),
+            "ddgjax grad_u energy (jitted)": (gradient_u, (mesh, u)),
+            "ddgjax grad_V 0.5 u^T (L u), autodiff of the assembly": (assembled_gradient, (mesh, moved)),
+            "libigl energy -u^T cotmatrix u / 2 (build + product)": (igl_energy, (moved_host,)),
+        },
+        repeats=repeats,
+    )
+    return rows, gradient_compile
+
+
+def energy_ratios(rows):
+    """The energy section's ratios (min times)."""
+    closed = rows["ddgjax grad_V energy (jitted)"][0]
+    return {
+        "grad / energy": closed / rows["ddgjax energy u^T L u / 2 (jitted)"][0],
+        "autodiff / closed-form grad": rows["ddgjax grad_V 0.5 u^T (L u), autodiff of the assembly"][0] / closed,
+    }
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--max-faces", type=int, default=1_310_720, help="skip meshes with more faces")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--robust-max-faces", type=int, default=400_000, help="robust_laplacian is slow; skip beyond")
+    parser.add_argument("--energy-only", action="store_true", help="only the Dirichlet energy and its gradients")
     args = parser.parse_args(argv)
     print(
         f"# machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
@@ -277,6 +310,14 @@ def main(argv=None) -> int:
     for name, V, F in meshes:
         # Small meshes take well under a millisecond per call: more repeats for a stable minimum.
         repeats = args.repeats * (4 if F.shape[0] < 100_000 else 1)
+        if args.energy_only:
+            rows, gradient_compile = bench_energy(Mesh.from_arrays(V, F), V, repeats)
+            print(f"\n## {name}: {V.shape[0]} vertices, {F.shape[0]} faces  (min / median ms)")
+            for key, value in rows.items():
+                print(f"  {key:55s} {fmt(value)}")
+            print(f"  compile (first call, ms): grad {gradient_compile:.0f}")
+            print("  ratios (min times): " + ", ".join(f"{k} {v:.2f}" for k, v in energy_ratios(rows).items()))
+            continue
         nv, nf, rows, compiles, fusions = bench_mesh(name, V, F, repeats, F.shape[0] <= args.robust_max_faces)
         print(f"\n## {name}: {nv} vertices, {nf} faces  (min / median ms)")
         for key, value in rows.items():
@@ -295,13 +336,11 @@ def main(argv=None) -> int:
             "L@x in loop / scipy": rows["ddgjax L @ x, jitted loop of 100 (per product)"][0]
             / rows["scipy CSR L @ x, loop of 100 (per product)"][0],
             "L@X(k=3) / scipy": rows["ddgjax L @ X (k=3)"][0] / rows["scipy CSR L @ X (k=3)"][0],
-            "grad / energy": rows["ddgjax grad_V energy (jitted)"][0] / rows["ddgjax energy u^T L u / 2 (jitted)"][0],
             "plain jit / tuned mass": rows["ddgjax Voronoi mass matrix, plain jax.jit (YNNPACK on)"][0]
             / rows["ddgjax Voronoi mass matrix (moved vertices, jitted)"][0],
             "assembled / matrix-free L u": rows["ddgjax cotan_laplacian(moved) @ u (assembled, jitted)"][0]
             / rows["ddgjax laplacian_apply(moved, u) (matrix-free, jitted)"][0],
-            "autodiff / closed-form grad": rows["ddgjax grad_V 0.5 u^T (L u), autodiff of the assembly"][0]
-            / rows["ddgjax grad_V energy (jitted)"][0],
+            **energy_ratios(rows),
         }
         print("  ratios (min times): " + ", ".join(f"{k} {v:.2f}" for k, v in ratios.items()))
     return 0

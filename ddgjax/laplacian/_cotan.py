@@ -26,15 +26,16 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Float
 
 from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows
-from .._numerics import safe_reciprocal, safe_sqrt
+from .._numerics import safe_div, safe_sqrt
 from ..internal import degenerate_faces
-from ..mesh import Mesh, face_areas, face_edge_lengths_sq, face_vertex_positions, require_mesh
-from ..sparse import SparseMatrix
+from ..mesh import Mesh, corner_cotangents_from_lengths_sq, face_areas, face_edge_lengths_sq, require_mesh
+from ..sparse import SparseMatrix, gather_sum
 from ._lengths import laplacian_values, off_diagonal_entries, psd_matrix
 from ._plan import TriangulationPlan, vertex_plan
 
@@ -125,12 +126,19 @@ def _vertex_values(mesh: Mesh, u) -> Float[Array, "nv *k"]:
 
 def _apply_laplacian(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
     """`laplacian_apply` without the input check (see there)."""
-    n = mesh.n_vertices
+    # L_ij on the off-diagonal slots nv.. (row i, column j): the entries `cotan_laplacian` assembles.
+    return _apply_slot_weights(off_diagonal_entries(face_edge_lengths_sq(mesh), plan, face_areas(mesh)), plan, u)
+
+
+def _apply_slot_weights(
+    weights: Float[Array, " n_off"], plan: TriangulationPlan, u: Float[Array, "nv *k"]
+) -> Float[Array, "nv *k"]:
+    """`sum_j W_ij (u_j - u_i)` per vertex `i`, `W` given on the off-diagonal slots of `plan.pattern` (ELL, then the COO tail)."""
+    n = plan.n_vertices
     shape = jnp.shape(u)
     columns = u.reshape(n, -1)
     pattern = plan.pattern
-    # L_ij on the off-diagonal slots nv.. (row i, column j): the entries `cotan_laplacian` assembles.
-    weights = off_diagonal_entries(face_edge_lengths_sq(mesh), plan, face_areas(mesh))[:, None]
+    weights = weights[:, None]
     ell_end = n * pattern.width
     ell_weights = weights[: ell_end - n].reshape(pattern.width - 1, n, 1)
     ell_heads = pattern.cols[n:ell_end].reshape(pattern.width - 1, n)
@@ -154,10 +162,11 @@ def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
     `u` of shape `(nv,)` or `(nv, k)`. Differentiable in `u` (`grad_u E = L u`) and in the vertex
     positions, in forward and reverse mode and to second order (Hessian-vector products by
     forward-over-reverse, as optimistix / lineax Newton operators use them). The derivative in the
-    vertex positions is written out per face (`_face_energy_gradients`, a custom JVP): autodiff
-    of the assembly would carry the per-corner values through the corner -> edge gather and back
-    (benchmarks/laplacian.py compares the two). Checked against autodiff of
-    `0.5 * u @ (cotan_laplacian(mesh) @ u)` (tests).
+    vertex positions is written out (`_vertex_gradient`, a custom JVP): per face three scalars, the
+    energy's derivatives in its squared edge lengths, applied to the positions through the
+    Laplacian's own fixed gathers, so the reverse pass has no scatter-add and costs about two
+    energies (benchmarks/laplacian.py). A derivative in `u` alone does not compute it. Checked
+    against autodiff of `0.5 * u @ (cotan_laplacian(mesh) @ u)`, central differences and libigl (tests).
 
     Args:
         mesh: any triangle mesh.
@@ -180,77 +189,96 @@ def _dirichlet_energy(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *
 _compiled_energy = kernel(_dirichlet_energy)
 
 
-@_dirichlet_energy.defjvp
 def _dirichlet_energy_jvp(primals, tangents):
-    """`dE = <L u, du> + sum_f sum_j <G_fj, dp_fj>` (`G` from `_face_energy_gradients`; linear in the tangents)."""
+    """`dE = <L u, du> + <grad_V E, dV>` (`_vertex_gradient`; linear in the tangents, so reverse mode needs no scatter).
+
+    Symbolic zeros: a derivative in `u` alone (`grad_u E`, Hessian-vector products of a Newton solve
+    in `u`) skips the vertex gradient, a derivative in the positions alone skips `<L u, du>`.
+    """
     mesh, plan, u = primals
     d_mesh, _, d_u = tangents  # the plan is integer data: no tangent
     applied = _apply_laplacian(mesh, plan, u)
-    d_energy = jnp.sum(applied * d_u)
-    gradients = _face_energy_gradients(mesh, u)
-    for c in range(3):
-        for j in range(3):
-            # One (nf,) gather per corner and coordinate: reverse mode scatters each G[j][c] as it is
-            # (stacking G into (nf, 3, 3) would make XLA concatenate, which it does not vectorise).
-            d_energy = d_energy + jnp.sum(gradients[j][c] * take_rows(d_mesh.vertices[:, c], mesh.faces[:, j]))
-    return 0.5 * jnp.sum(u * applied), d_energy
+    energy = 0.5 * jnp.sum(u * applied)
+    d_energy = jnp.zeros_like(energy)
+    if not isinstance(d_u, SymbolicZero):
+        d_energy = d_energy + jnp.sum(applied * d_u)
+    if not isinstance(d_mesh.vertices, SymbolicZero):
+        d_energy = d_energy + jnp.sum(_vertex_gradient(mesh, plan, u) * d_mesh.vertices)
+    return energy, d_energy
 
 
-def _face_energy_gradients(mesh: Mesh, u: Float[Array, "nv *k"]) -> list[list[Float[Array, " nf"]]]:
-    """`G[j][c]`: derivative of `E = 1/2 u^T L u` in coordinate `c` of corner `j` of each face (closed form).
+_dirichlet_energy.defjvp(_dirichlet_energy_jvp, symbolic_zeros=True)
 
-    Per face `E_f = A |g|^2 / 2` with `g = sum_k u_k grad phi_k` the (constant) gradient of `u`. Moving
-    the corners deforms the face affinely, and the shape derivative of a Dirichlet energy is its
-    energy-momentum (Eshelby) tensor `T = |g|^2 / 2 I - g g^T` applied to the hat gradients:
 
-        G_j = A T grad phi_j = A (|g|^2 / 2 grad phi_j - (g . grad phi_j) g).
+#: Faces per chunk of the gradient's per-face pass: its gathers (~6 MB in float64) stay reusable scratch memory.
+FACES_PER_CHUNK = 1 << 16
 
-    With `e_k = p_{k+2} - p_{k+1}` the edge opposite corner `k`, `n = e_1 x e_2 = 2 A N` and
-    `w = sum_k u_k e_k` (in the face plane), `grad phi_j = n x e_j / |n|^2` and `g = n x w / |n|^2`, so
 
-        G_j = N x (|w|^2 / 2 e_j - (w . e_j) w) / (2 |n|^2).
+def _vertex_gradient(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv 3"]:
+    """`grad_V E` of `E = 1/2 u^T L u` in closed form: `sum_{j ~ i} 2 mu_ij (p_i - p_j)`, `mu_ij = dE / d l_ij^2`.
 
-    `G_0 + G_1 + G_2 = 0` (translations keep `E`) and `G_j` lies in the face plane (moving a corner
-    off the plane changes the edge lengths only to second order). Zero-area faces contribute 0, with
-    finite derivatives; the unit normal and `1 / |n|^2` keep every factor within float32 range for
-    edge lengths from 1e-8 to 1e8 (tests). Columns of a `(nv, k)` `u` add up. Checked against
-    autodiff of the assembled matrix (tests). Reference: J. D. Eshelby, "The force on an elastic singularity" (1951),
-    the energy-momentum tensor; M. C. Delfour, J.-P. Zolesio, "Shapes and Geometries" (2011), shape
-    derivatives of the Dirichlet energy.
+    `E` depends on the positions through the squared edge lengths only, so its gradient is a
+    Laplacian-like operator applied to the positions, with weights `mu_ij` summed over the faces of
+    the edge `ij`. Per face, with `d_k = u_{k+1} - u_{k+2}` the difference along the edge opposite
+    corner `k`, `E_f = 1/4 sum_k cot_k d_k^2`, `cot_k = (l_{k+1}^2 + l_{k+2}^2 - l_k^2) / (4 A)` and
+    `dA / d l_k^2 = cot_k / 4` (Heron), so
+
+        dE_f / d l_m^2 = (D - 2 d_m^2 - cot_m S) / (16 A),   D = sum_k d_k^2,  S = sum_k cot_k d_k^2 = 4 E_f.
+
+    These per-corner scalars land on the off-diagonal slots of the vertex pattern through the fixed
+    gather that assembles `L` (`off_diagonal_entries`' `gather_sum`) and act on the positions as
+    `laplacian_apply` acts on `u`: no scatter-add, no per-face 3-vectors. (The per-corner
+    form `A T grad phi_j` of the energy-momentum tensor needs nine outputs per face, which XLA:CPU
+    computes in nine kernels that each recompute the face's geometry.) The per-face pass runs over
+    chunks of `FACES_PER_CHUNK` faces (`lax.map`): XLA materialises the `V[F]` and `u[F]` gathers, and
+    a program whose scratch memory passes glibc's 32 MiB `mmap` threshold gets fresh pages, faulted
+    in on every call; in chunks it stays below from ~150k to ~400k faces and touches 2.5x fewer bytes
+    beyond (benchmarks/README.md). Zero-area faces contribute 0, with finite derivatives (`safe_div`,
+    as their cotangents). The edge form carries each face's in-plane gradient through its edge
+    vectors, which loses digits in proportion to a sliver's aspect ratio: ~1e-13 of the largest
+    entry on nefertiti (tests). Columns of a `(nv, k)` `u` add up.
+
+    Reference: M. Meyer, M. Desbrun, P. Schroeder, A. Barr (2003) (cotangents and their derivatives
+    through the edge lengths); K. Crane, "Discrete Differential Geometry: An Applied Introduction"
+    (2020), ch. 6.
     """
-    edges, normal = _face_edges(mesh)
-    values = take_rows(u, mesh.faces)  # (nf, 3) or (nf, 3, columns)
-    if u.ndim == 1:  # (nf,) arrays throughout: no reductions over a size-1 axis for XLA to keep
-        per_column, column_sum = lambda x: x, lambda x: x
+    vertices, faces = mesh.vertices, mesh.faces
+    n_chunks = faces.shape[0] // FACES_PER_CHUNK
+    if n_chunks < 2:
+        weights = _corner_weights(vertices, u, faces)
     else:
-        per_column, column_sum = lambda x: x[:, None], lambda x: jnp.sum(x, axis=-1)
-    w = [sum(values[:, k] * per_column(edges[k][c]) for k in range(3)) for c in range(3)]
-    inverse_sq = safe_reciprocal(_dot(normal, normal))
-    unit_normal = [normal[c] * safe_sqrt(inverse_sq) for c in range(3)]
-    half_w_sq = 0.5 * column_sum(_dot(w, w))
-    gradients = []
-    for j in range(3):
-        w_dot_e = _dot(w, [per_column(edges[j][c]) for c in range(3)])
-        v = [(half_w_sq * edges[j][c] - column_sum(w_dot_e * w[c])) * (0.5 * inverse_sq) for c in range(3)]
-        gradients.append(_cross(unit_normal, v))
-    return gradients
+        split = n_chunks * FACES_PER_CHUNK
+        chunks = faces[:split].reshape(n_chunks, FACES_PER_CHUNK, 3)
+        weights = jax.lax.map(lambda chunk: _corner_weights(vertices, u, chunk), chunks).reshape(split, 3)
+        if split < faces.shape[0]:
+            weights = jnp.concatenate([weights, _corner_weights(vertices, u, faces[split:])])
+    slot_weights = gather_sum(weights.reshape(-1), plan.slot_corners, plan.corner_slots)
+    return _apply_slot_weights(slot_weights, plan, vertices)
 
 
-def _face_edges(mesh: Mesh) -> tuple[list[list[Float[Array, " nf"]]], list[Float[Array, " nf"]]]:
-    """`(edges, normal)` per face as coordinate lists: `edges[k][c]`, coordinate `c` of the edge opposite
-    corner `k` (`p_{k+2} - p_{k+1}`), and `normal[c] = (e_1 x e_2)[c] = 2 A N` (counterclockwise corners).
+def _corner_weights(vertices: Float[Array, "nv 3"], u: Float[Array, "nv *k"], faces) -> Float[Array, "nf 3"]:
+    """`-2 dE_f / d l_m^2` per face and corner `m` (`_vertex_gradient`): the slot weight `W_ij` of `_apply_slot_weights`.
 
-    Coordinate by coordinate on `(nf,)` arrays: XLA's CPU backend does not vectorise reductions over a
-    size-3 axis, which `(nf, 3, 3)` arrays with `sum(axis=-1)` / `jnp.cross` would need. From the one
-    `V[F]` gather the edge lengths of the energy's primal read too (`face_edge_lengths_sq`).
+    Coordinate by coordinate on `(nf,)` arrays from one `V[F]` gather, as `face_edge_lengths_sq` and
+    `face_areas` compute them (XLA:CPU does not vectorise reductions over a size-3 axis).
     """
-    corners = face_vertex_positions(mesh)
+    corners = take_rows(vertices, faces)
     edges = [[corners[:, (k + 2) % 3, c] - corners[:, (k + 1) % 3, c] for c in range(3)] for k in range(3)]
-    return edges, _cross(edges[1], edges[2])
+    lengths_sq = jnp.stack([_dot(edges[k], edges[k]) for k in range(3)], axis=1)
+    normal = _cross(edges[1], edges[2])
+    areas = 0.5 * safe_sqrt(_dot(normal, normal))
+    cotangents = corner_cotangents_from_lengths_sq(lengths_sq, areas=areas)
+    values = take_rows(u, faces)  # (nf, 3) or (nf, 3, columns)
+    differences = [values[:, (k + 1) % 3] - values[:, (k + 2) % 3] for k in range(3)]
+    squares = [d * d if u.ndim == 1 else jnp.sum(d * d, axis=-1) for d in differences]  # columns add up
+    total = squares[0] + squares[1] + squares[2]
+    weighted = cotangents[:, 0] * squares[0] + cotangents[:, 1] * squares[1] + cotangents[:, 2] * squares[2]
+    eight_areas = 8.0 * areas
+    return jnp.stack([safe_div(cotangents[:, m] * weighted + 2.0 * squares[m] - total, eight_areas) for m in range(3)], axis=1)
 
 
 def _dot(a, b):
-    """Dot product of 3-vectors given as coordinate lists (XLA does not vectorise size-3 reductions)."""
+    """Dot product of 3-vectors given as coordinate lists."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
