@@ -4,7 +4,7 @@ Sections (`--sections`, comma-separated; all by default):
 
 - **fit**: per-iteration time of the mesh-fitting loop of PyTorch3D's tutorial (an icosphere fitted to
   points sampled from an ellipsoid: Chamfer distance of `n` fresh surface samples against `n` target
-  points, plus edge-length, normal-consistency and uniform Laplacian-smoothing regularisers), one
+  points (its nearest-neighbour search: `method="auto"`, SciPy's k-d trees on a CPU), plus edge-length, normal-consistency and uniform Laplacian-smoothing regularisers), one
   jitted step (`value_and_grad`, uniform Adam, the Large Steps solve) in `lax.scan` chunks, on
   `icosphere(4)` (2,562 vertices, `n = 5,000`) and `icosphere(6)` (40,962 vertices, `n = 10,000`);
   compile time (first call less second) apart, and per iteration the difference of runs of `--steps`

@@ -1,5 +1,5 @@
 """Tests for ddgjax.optim: the Willmore energy's convergence to 4 pi (sphere) and 2 pi^2 (Clifford torus) and libigl's
-formula; PyTorch3D's regularisers on closed-form meshes; the Chamfer distance against brute force; gradients
+formula; PyTorch3D's regularisers on closed-form meshes (the Chamfer distance: tests/test_chamfer.py); gradients
 against finite differences; the Large Steps map against dense algebra, and uniform Adam's first step; and the
 acceptance runs of `minimize_shape`: the catenoid between two rings, Willmore minimisation of a bumpy sphere at
 fixed volume, and a PyTorch3D-style mesh fit."""
@@ -27,7 +27,6 @@ from ddgjax.optim import (
     large_steps,
     mesh_fitting_loss,
     minimize_shape,
-    nearest_neighbors,
     normal_consistency_loss,
     sample_points,
     total_area,
@@ -143,33 +142,7 @@ def test_laplacian_smoothing_cotan_gradient_holds_the_weights_fixed():
     np.testing.assert_allclose(ours, jax.grad(frozen)(jnp.asarray(V)), rtol=1e-10, atol=1e-13)
 
 
-# --- Chamfer distance and sampling ---------------------------------------------------------------
-
-
-@pytest.mark.slow
-def test_chamfer_against_brute_force_and_chunking():
-    a = np.random.default_rng(0).normal(size=(301, 3))
-    b = np.random.default_rng(1).normal(size=(157, 3))
-    d = np.sum((a[:, None] - b[None]) ** 2, axis=-1)
-    expected = d.min(1).mean() + d.min(0).mean()
-    for chunk in (None, 1, 64, 301, 1000):
-        assert float(chamfer_distance(a, b, chunk_size=chunk)) == pytest.approx(expected, rel=1e-13)
-    nearest = nearest_neighbors(a, b, chunk_size=50)
-    np.testing.assert_array_equal(nearest.nearest_in_b, d.argmin(1))
-    np.testing.assert_array_equal(nearest.nearest_in_a, d.argmin(0))
-    nn_b, nn_a = nearest  # a named result still unpacks
-    np.testing.assert_array_equal(nn_a, d.argmin(0))
-    assert float(chamfer_distance(a, a)) == 0.0
-
-
-@pytest.mark.slow
-def test_chamfer_gradient():
-    a = jnp.asarray(np.random.default_rng(2).normal(size=(40, 3)))
-    b = jnp.asarray(np.random.default_rng(3).normal(size=(30, 3)))
-    # A small step: the loss has kinks where a nearest neighbour changes, and a large random step crosses some.
-    check_grads(jax.jit(lambda a, b: chamfer_distance(a, b, chunk_size=16)), (a, b), order=1, modes=("rev",), eps=1e-6)
-    # Moving b onto a's points zeroes the a->b term's gradient on those points.
-    assert np.all(np.isfinite(jax.grad(chamfer_distance)(a, a)))
+# --- Sampling (the Chamfer distance: tests/test_chamfer.py) --------------------------------------
 
 
 @pytest.mark.slow

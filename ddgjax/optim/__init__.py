@@ -1,7 +1,7 @@
 """Shape optimisation: objectives, the Large Steps reparametrisation, and a compiled optimisation driver.
 
 - Objectives (plain scalar JAX functions, differentiable in the vertex positions): `willmore_energy`;
-  `chamfer_distance` (dense, chunked) with `sample_points` (area-uniform samples of a mesh; with
+  `chamfer_distance` (SciPy k-d trees on a CPU, chunked brute force on accelerators) with `sample_points` (area-uniform samples of a mesh; with
   normals a `SampledPoints`) and `nearest_neighbors` (a `NearestNeighbors` pair of index arrays);
   PyTorch3D's mesh-fitting regularisers `edge_length_loss`, `normal_consistency_loss`,
   `laplacian_smoothing_loss`, and the tutorial's whole objective `mesh_fitting_loss(target,
