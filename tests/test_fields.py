@@ -312,6 +312,15 @@ def test_interpolation_solves_the_dirichlet_problem_of_the_connection_laplacian(
     expected = np.linalg.solve(A[np.ix_(free, free)], -A[np.ix_(free, fixed)] @ np.asarray(values))
     np.testing.assert_allclose(u[free], expected, atol=1e-10)
     np.testing.assert_array_equal(u[fixed], values)
+    # Under jit with traced values, and eagerly again with new values: one program, the block plan kept.
+    from ddgjax.fields._interpolation import _interpolate
+
+    jitted = jax.jit(lambda V, x: interpolate_field(mesh.with_vertices(V), fixed_vertices=fixed, fixed_values=x, n=2))
+    np.testing.assert_allclose(np.asarray(jitted(mesh.vertices, values))[free], expected, atol=1e-10)
+    programs = _interpolate._cache_size()
+    again = np.asarray(interpolate_field(mesh, fixed_vertices=fixed, fixed_values=2 * values, n=2))
+    np.testing.assert_allclose(again[free], 2 * expected, atol=1e-10)
+    assert _interpolate._cache_size() == programs
 
 
 @pytest.mark.slow

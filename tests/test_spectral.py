@@ -158,6 +158,27 @@ def test_jit_and_vmap_equal_eager():
     np.testing.assert_allclose(batched[1], batched[0] / 4, rtol=1e-8, atol=1e-10)  # lambda scales as 1 / s^2
 
 
+def test_a_second_eager_call_compiles_nothing():
+    """The host eigensolver's callback runs inside one program cached per size: called op by op, a
+    callback made anew on each call was compiled again on each call."""
+    compiles = []
+
+    def listen(event, duration, **kwargs):
+        if event.endswith("backend_compile_duration"):
+            compiles.append(event)
+
+    mesh = icosphere(2)
+    first = eigenpairs(mesh, 5)
+    moved = mesh.with_vertices(1.5 * mesh.vertices)
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        second = eigenpairs(moved, 5, throw=False)
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    np.testing.assert_allclose(second.value.values, first.values / 1.5**2, rtol=1e-9, atol=1e-12)
+    assert compiles == []
+
+
 def test_spectral_tools():
     mesh = icosphere(2)
     M = mass_matrix(mesh)
@@ -244,6 +265,31 @@ def test_subspace_iteration_with_a_multigrid_hierarchy_passed_into_jit_different
         jax.jit(lambda V: eigenpairs(mesh.with_vertices(V), 6, method="subspace", solver="cg", preconditioner="amg"))(
             mesh.vertices
         )
+
+
+def test_gradient_operator_is_libigls_grad_eagerly_and_under_jit_one_program_per_size():
+    import igl
+
+    from ddgjax.mesh import Mesh
+    from ddgjax.spectral import gradient_operator
+    from ddgjax.spectral._operators import _gradient_values
+
+    mesh = icosphere(2)
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    nf = mesh.n_faces
+    # igl.grad stacks all x rows, then y, then z: our row 3 f + c is its row c nf + f.
+    rows = (np.arange(3)[None, :] * nf + np.arange(nf)[:, None]).ravel()
+    expected = igl.grad(V, F).toarray()[rows]
+    np.testing.assert_allclose(gradient_operator(mesh).to_scipy().toarray(), expected, atol=1e-12)
+    jitted = jax.jit(lambda m: gradient_operator(m))(mesh)
+    np.testing.assert_allclose(jitted.to_scipy().toarray(), expected, atol=1e-12)
+    # Another connectivity of the same size: its own pattern (host, cached), the same compiled program.
+    permutation = np.random.default_rng(0).permutation(V.shape[0])
+    V2, F2 = V[permutation], np.argsort(permutation)[F]
+    programs = _gradient_values._cache_size()
+    ours = gradient_operator(Mesh.from_arrays(V2, F2)).to_scipy().toarray()
+    np.testing.assert_allclose(ours, igl.grad(V2, F2).toarray()[rows], atol=1e-12)
+    assert _gradient_values._cache_size() == programs
 
 
 @pytest.mark.slow

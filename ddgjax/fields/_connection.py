@@ -130,6 +130,19 @@ def connection(mesh: Mesh, boundary_scaling: str) -> ConnectionAngles:
     return connection_angles(mesh, plan_of(mesh), boundary_scaling=boundary_scaling)
 
 
+def connection_part(mesh: Mesh, boundary_scaling: str, part: str) -> Float[Array, "..."]:
+    """One field of `ConnectionAngles` (`"edge_polar"`, `"holonomy"`, or `"transport"` wrapped into `[-pi, pi)`)
+    after the checks of `connection`, as its own program: an eager call computes only that field."""
+    check_boundary_scaling(boundary_scaling)
+    return _connection_part(mesh, plan_of(mesh), boundary_scaling=boundary_scaling, part=part)
+
+
+@kernel(static_argnames=("boundary_scaling", "part"))
+def _connection_part(mesh: Mesh, plan: FieldPlan, *, boundary_scaling: str, part: str) -> Float[Array, "..."]:
+    angles = connection_angles(mesh, plan, boundary_scaling=boundary_scaling)
+    return wrap_angle(angles.transport) if part == "transport" else getattr(angles, part)
+
+
 def edge_polar_angles(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Float[Array, "ne 2"]:
     """Polar angle of each edge at both its ends, `(ne, 2)`, in `[0, 2 pi)` (module docstring).
 
@@ -145,7 +158,7 @@ def edge_polar_angles(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Floa
     Reference: Knoeppel et al. 2013, section 5.1. geometry-central: `halfedgeVectorsInVertex` (as
     complex numbers `l exp(i theta)`).
     """
-    return connection(mesh, boundary_scaling).edge_polar
+    return connection_part(mesh, boundary_scaling, "edge_polar")
 
 
 def wrap_angle(angle: Float[Array, "..."]) -> Float[Array, "..."]:
@@ -168,7 +181,7 @@ def edge_transport_angles(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> 
     Reference: Knoeppel et al. 2013, eq. (5); geometry-central `transportVectorsAlongHalfedge` (per
     halfedge, as the unit complex number `exp(i rho)`).
     """
-    return wrap_angle(connection(mesh, boundary_scaling).transport)
+    return connection_part(mesh, boundary_scaling, "transport")
 
 
 def face_holonomies(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Float[Array, " nf"]:
@@ -184,7 +197,7 @@ def face_holonomies(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Float[
 
     Reference: Knoeppel et al. 2013, section 5.2 (the "angle defect of the rescaled angles").
     """
-    return connection(mesh, boundary_scaling).holonomy
+    return connection_part(mesh, boundary_scaling, "holonomy")
 
 
 class TangentBases(NamedTuple):

@@ -11,19 +11,25 @@ vertex positions by implicit differentiation.
 
 from __future__ import annotations
 
+import weakref
+
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Complex, Inexact, Int
+from jaxtyping import Array, ArrayLike, Complex, Float, Inexact, Int
 
+from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._options import check_solver
 from .._results import RESULTS, Solution, outcome
-from ..mesh import Mesh, require_mesh
+from ..internal import vertex_plan
+from ..laplacian import TriangulationPlan
+from ..mesh import Mesh, MeshTopology, require_mesh
 from ..solve import linear_solve
-from ..sparse import SparseMatrix, dirichlet_blocks, dirichlet_plan
-from ._connection import check_boundary_scaling
-from ._laplacian import check_degree, connection_laplacian
+from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
+from ._connection import check_boundary_scaling, plan_of
+from ._laplacian import check_degree, planned_connection_laplacian
+from ._plan import FieldPlan
 
 
 def interpolate_field(
@@ -84,12 +90,57 @@ def interpolate_field(
         raise DDGInputError(
             f"fixed_values: expected shape {fixed.shape} (one complex number per vertex), got {np.shape(fixed_values)}"
         )
-    values = jnp.asarray(fixed_values)
-    values = values.astype(jnp.result_type(values.dtype, jnp.complex64))
-    A = connection_laplacian(mesh, n=n, boundary_scaling=boundary_scaling)
-    plan = dirichlet_plan(A.pattern, fixed)
-    if plan.free.shape[0] == 0:
-        return outcome(values[np.argsort(fixed)], RESULTS.successful, throw)
+    field_plan, vertex = plan_of(mesh), vertex_plan(mesh)
+    values = device_array(fixed_values)
+    blocks = _blocks(mesh.topology, vertex.pattern, fixed)
+    if blocks.free.shape[0] == 0:
+        return outcome(_complex(values)[np.argsort(fixed)], RESULTS.successful, throw)
+    u, result, stats = _interpolate(
+        mesh, field_plan, vertex, blocks, values, float(n), boundary_scaling=boundary_scaling, solver=solver
+    )
+    return outcome(u, result, throw, stats)
+
+
+def _complex(values: Inexact[Array, "..."]) -> Complex[Array, "..."]:
+    return values.astype(jnp.result_type(values.dtype, jnp.complex64))
+
+
+# The block plans of the last few constraint sets per connectivity: interpolating again from the same
+# vertices (new values, moved vertices) skips the host work.
+_BLOCKS: "weakref.WeakKeyDictionary[MeshTopology, dict]" = weakref.WeakKeyDictionary()
+_BLOCKS_KEPT = 8
+
+
+def _blocks(topology: MeshTopology, pattern: SparsityPattern, fixed: np.ndarray) -> DirichletPlan:
+    """`dirichlet_plan(pattern, fixed)`, cached per connectivity and fixed vertices."""
+    kept = _BLOCKS.setdefault(topology, {})
+    key = fixed.astype(np.int64).tobytes()
+    plan = kept.get(key)
+    if plan is None:
+        with jax.ensure_compile_time_eval():  # host data even when a caller's jit traces this call (it is cached)
+            plan = dirichlet_plan(pattern, fixed)
+        if len(kept) >= _BLOCKS_KEPT:
+            kept.pop(next(iter(kept)))
+        kept[key] = plan
+    return plan
+
+
+# The outcome is checked outside the program (`outcome`), as `solve_poisson` does.
+@kernel(static_argnames=("boundary_scaling", "solver"))
+def _interpolate(
+    mesh: Mesh,
+    field_plan: FieldPlan,
+    vertex: TriangulationPlan,
+    plan: DirichletPlan,
+    values: Inexact[Array, " n_fixed"],
+    n: Float[ArrayLike, ""],
+    *,
+    boundary_scaling: str,
+    solver: str,
+) -> tuple[Complex[Array, " nv"], RESULTS, dict[str, Array]]:
+    """`(u, result, stats)` of `interpolate_field`; `mesh` comes without its topology, the plans are passed in."""
+    values = _complex(values)
+    A = planned_connection_laplacian(mesh, field_plan, vertex, n, boundary_scaling=boundary_scaling)
     # The blocks and the join are gathers of the real and imaginary parts (`gather_sum` is typed real).
     real, imaginary = (dirichlet_blocks(SparseMatrix(part, A.pattern), plan) for part in (A.values.real, A.values.imag))
     free_free = SparseMatrix(
@@ -98,4 +149,4 @@ def interpolate_field(
     free_fixed = SparseMatrix(real[1].values + 1j * imaginary[1].values, plan.free_fixed)
     solve = linear_solve(free_free, -(free_fixed @ values), method=solver, throw=False)
     u = jax.lax.complex(plan.join(solve.value.real, values.real), plan.join(solve.value.imag, values.imag))
-    return outcome(u, solve.result, throw, {"residual": solve.residual, "num_steps": solve.num_steps})
+    return u, solve.result, {"residual": solve.residual, "num_steps": solve.num_steps}

@@ -12,7 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Complex, Float
+from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .._compile import kernel
 from .._errors import DDGInputError
@@ -22,7 +22,7 @@ from ..internal import vertex_plan
 from ..laplacian import TriangulationPlan, mass_matrix
 from ..mesh import Mesh, edge_cotan_weights
 from ..sparse import SparseMatrix, diagonal_matrix
-from ._connection import connection
+from ._connection import check_boundary_scaling, connection_angles, plan_of
 from ._plan import FieldPlan
 
 """The `mass=` values of tangent fields: the lumped ones (`connection_mass_matrix`)."""
@@ -35,9 +35,12 @@ def check_degree(n) -> int:
     return int(n)
 
 
-@kernel
-def _values(mesh: Mesh, vertex: TriangulationPlan, transport: Float[Array, " ne"], n: Float[Array, ""]) -> Complex[Array, " nnz"]:
+@kernel(static_argnames=("boundary_scaling",))
+def _values(
+    mesh: Mesh, field: FieldPlan, vertex: TriangulationPlan, n: Float[ArrayLike, ""], *, boundary_scaling: str
+) -> Complex[Array, " nnz"]:
     # `n` is traced, not static: one program per mesh size serves every n.
+    transport = connection_angles(mesh, field, boundary_scaling=boundary_scaling).transport
     weights = edge_cotan_weights(mesh)
     rotations = jnp.exp(-1j * n * transport)
     low_high = -weights * rotations
@@ -75,10 +78,16 @@ def connection_laplacian(mesh: Mesh, *, n: int = 1, boundary_scaling: str = "geo
     change of basis); geometry-central `vertexConnectionLaplacian`.
     """
     n = check_degree(n)
-    angles = connection(mesh, boundary_scaling)
-    plan = vertex_plan(mesh)
-    values = _values(mesh, plan, angles.transport, jnp.asarray(n, angles.transport.dtype))
-    return SparseMatrix(values, plan.pattern, hermitian=True, positive_semidefinite=True)
+    check_boundary_scaling(boundary_scaling)
+    return planned_connection_laplacian(mesh, plan_of(mesh), vertex_plan(mesh), float(n), boundary_scaling=boundary_scaling)
+
+
+def planned_connection_laplacian(
+    mesh: Mesh, field: FieldPlan, vertex: TriangulationPlan, n: Float[ArrayLike, ""], *, boundary_scaling: str
+) -> SparseMatrix:
+    """`connection_laplacian` from its host plans, unchecked: callable inside a kernel (whose mesh has no topology)."""
+    values = _values(mesh, field, vertex, n, boundary_scaling=boundary_scaling)
+    return SparseMatrix(values, vertex.pattern, hermitian=True, positive_semidefinite=True)
 
 
 def connection_mass_matrix(mesh: Mesh, *, mass: str = "voronoi") -> SparseMatrix:

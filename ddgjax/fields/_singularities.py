@@ -30,13 +30,17 @@ from .._compile import kernel
 from .._indexing import take_rows
 from .._numerics import safe_atan2
 from ..mesh import Mesh, require_mesh
-from ._connection import connection
+from ._connection import check_boundary_scaling, connection_angles, plan_of
 from ._laplacian import check_degree
+from ._plan import FieldPlan
 from ._smoothest import _complex_field
 
 
-@kernel
-def _indices(mesh: Mesh, field: Complex[Array, " nv"], transport, holonomy, n) -> Float[Array, " nf"]:
+@kernel(static_argnames=("boundary_scaling",))
+def _indices(mesh: Mesh, plan: FieldPlan, field: Complex[Array, " nv"], n, *, boundary_scaling: str) -> Float[Array, " nf"]:
+    # `n` is traced, not static: one program per mesh size serves every n.
+    angles = connection_angles(mesh, plan, boundary_scaling=boundary_scaling)
+    transport, holonomy = angles.transport, angles.holonomy
     rotations = jnp.exp(-1j * n * transport)
     turns = take_rows(field, mesh.edges[:, 1]) * rotations * jnp.conj(take_rows(field, mesh.edges[:, 0]))
     delta = safe_atan2(turns.imag, turns.real)
@@ -68,6 +72,7 @@ def field_singularities(
     """
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)
-    angles = connection(mesh, boundary_scaling)
+    check_boundary_scaling(boundary_scaling)
+    plan = plan_of(mesh)
     field = _complex_field("field", field, mesh.n_vertices)
-    return _indices(mesh, field, angles.transport, angles.holonomy, jnp.asarray(n, angles.holonomy.dtype))
+    return _indices(mesh, plan, field, float(n), boundary_scaling=boundary_scaling)

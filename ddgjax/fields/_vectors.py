@@ -10,7 +10,7 @@ from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_normalize
 from ..mesh import Mesh, face_normals, face_vertex_positions, require_mesh
-from ._connection import _tangent_bases, connection, plan_of
+from ._connection import _tangent_bases, check_boundary_scaling, connection_angles, plan_of
 from ._laplacian import check_degree
 from ._smoothest import _complex_field, unit
 
@@ -29,8 +29,9 @@ def _vertex_vectors(mesh: Mesh, plan, field, n: int):
     return _directions(field, e1, e2, n)
 
 
-@kernel(static_argnames=("n",))
-def _face_vectors(mesh: Mesh, field, vertex_angles, n: int):
+@kernel(static_argnames=("n", "boundary_scaling"))
+def _face_vectors(mesh: Mesh, plan, field, n: int, boundary_scaling: str):
+    vertex_angles = connection_angles(mesh, plan, boundary_scaling=boundary_scaling).corner_polar
     corners = face_vertex_positions(mesh)
     normal = face_normals(mesh)
     x = safe_normalize(corners[:, 1] - corners[:, 0])
@@ -67,8 +68,9 @@ def field_to_vectors(
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)
     check_choice("at", at, ("vertices", "faces"))
-    angles = connection(mesh, boundary_scaling)
+    check_boundary_scaling(boundary_scaling)
+    plan = plan_of(mesh)
     field = _complex_field("field", field, mesh.n_vertices)
     if at == "vertices":
-        return _vertex_vectors(mesh, plan_of(mesh), field, n)
-    return _face_vectors(mesh, field, angles.corner_polar, n)
+        return _vertex_vectors(mesh, plan, field, n)
+    return _face_vectors(mesh, plan, field, n=n, boundary_scaling=boundary_scaling)

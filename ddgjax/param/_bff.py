@@ -60,7 +60,14 @@ from ..laplacian import cotan_laplacian
 from ..mesh import Mesh, vertex_angle_defects
 from ..solve import factorize, linear_solve
 from ..sparse import dirichlet_blocks, dirichlet_plan
-from ._disk import boundary_dual_lengths, boundary_edge_lengths, boundary_values, cached_plan, require_disk
+from ._disk import (
+    boundary_dual_lengths,
+    boundary_edge_lengths,
+    boundary_values,
+    cached_plan,
+    on_device,
+    require_disk,
+)
 from ._tutte import boundary_plan, harmonic_extension, solves_outcome
 
 SHAPES = ("circle", "rectangle")
@@ -138,7 +145,16 @@ def boundary_first_flattening(
         fixed = np.concatenate([loop[:1], disk.unreferenced])
         neumann = cached_plan(disk, "bff-neumann", lambda: dirichlet_plan(vertex_plan(mesh).pattern, fixed))
     uv, result, stats = _flatten(
-        mesh, cotan_laplacian(mesh), dirichlet, neumann, jnp.asarray(loop), scale, angles, corner_mask, shape=shape, solver=solver
+        mesh,
+        cotan_laplacian(mesh),
+        dirichlet,
+        neumann,
+        on_device(disk, "loop"),
+        scale,
+        angles,
+        corner_mask,
+        shape=shape,
+        solver=solver,
     )
     return outcome(uv, result, throw, stats)
 

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import device_array
 from .._errors import DDGInputError, check_float_shape, is_traced
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm
@@ -112,6 +113,11 @@ def cached_plan(disk: DiskTopology, key, build):
         with jax.ensure_compile_time_eval():  # host work even when called inside a caller's trace
             plan = disk.plans[key] = build()
     return plan
+
+
+def on_device(disk: DiskTopology, name: str) -> Int[Array, " m"]:
+    """The index set `disk.<name>` (`"loop"`, `"unreferenced"`) as a device array, transferred once per connectivity."""
+    return cached_plan(disk, ("device", name), lambda: device_array(getattr(disk, name)))
 
 
 def boundary_edge_lengths(vertices: Float[Array, "nv 3"], loop: Int[Array, " nb"]) -> Float[Array, " nb"]:

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_float_shape, is_traced
 from .._indexing import take_rows
 from .._numerics import cross2, safe_div, safe_norm
@@ -107,7 +107,7 @@ def map_distortion(mesh: Mesh, uv: Float[ArrayLike, "nv 2"]) -> MapDistortion:
     if np.shape(uv) != expected:
         raise DDGInputError(f"uv: expected shape {expected} (one plane position per vertex), got {np.shape(uv)}")
     check_float_shape("uv", uv if is_traced(uv) else np.asarray(uv), (2,))
-    uv = jnp.asarray(uv)
+    uv = device_array(uv)
     return _distortion(mesh.vertices, mesh.faces, uv if jnp.issubdtype(uv.dtype, jnp.floating) else uv.astype(float))
 
 

@@ -51,7 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice, check_positive, is_traced
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import cross2, safe_div, safe_norm, safe_sqrt
@@ -66,6 +66,7 @@ from ._disk import (
     boundary_dual_lengths,
     boundary_edge_lengths,
     cached_plan,
+    on_device,
     require_disk,
     vertex_indices,
 )
@@ -110,18 +111,25 @@ def conformal_energy_matrix(mesh: Mesh) -> SparseMatrix:
     mesh only (`DDGInputError` otherwise). libigl: the second output of `igl.lscm(V, F, b, bc)`.
     """
     disk = require_disk(mesh, "conformal_energy_matrix")
-    return _conformal_matrix(mesh, conformal_plan(mesh, disk), jnp.asarray(disk.loop))
+    return _conformal_matrix(mesh, conformal_plan(mesh, disk), on_device(disk, "loop"))
 
 
 def _conformal_matrix(mesh: Mesh, plan: ConformalPlan, loop) -> SparseMatrix:
+    """`Q` on `plan.pattern`: its values are one program of their own in an eager call, traced inline in a kernel."""
+    return SparseMatrix(
+        _conformal_values(mesh, plan.source, plan.order, loop), plan.pattern, symmetric=True, positive_semidefinite=True
+    )
+
+
+@kernel
+def _conformal_values(mesh: Mesh, source: Int[Array, " nnz"], order: Int[Array, " n_graph_edges"], loop) -> Float[Array, " nnz"]:
     weights = edge_cotan_weights(mesh)
     n, nb = mesh.n_vertices, loop.shape[0]
     degree = jax.ops.segment_sum(jnp.concatenate([weights, weights]), mesh.edges.T.reshape(-1), num_segments=n)
     half = jnp.full((nb,), 0.5, weights.dtype)
-    edge_values = jnp.concatenate([-weights, -weights, -half, half])[plan.order]
+    edge_values = jnp.concatenate([-weights, -weights, -half, half])[order]
     entries = jnp.concatenate([degree, degree, edge_values, edge_values])
-    values = take_rows_or_zero(entries, plan.source)
-    return SparseMatrix(values, plan.pattern, symmetric=True, positive_semidefinite=True)
+    return take_rows_or_zero(entries, source)
 
 
 def lscm(
@@ -162,7 +170,7 @@ def lscm(
     fixed = np.concatenate([pins, pins + n, disk.unreferenced, disk.unreferenced + n])
     plan = conformal_plan(mesh, disk)
     blocks = cached_plan(disk, ("lscm", tuple(pins.tolist())), lambda: dirichlet_plan(plan.pattern, fixed))
-    uv, result, stats = _lscm(mesh, plan, blocks, jnp.asarray(disk.loop), jnp.asarray(pins), positions, solver=solver)
+    uv, result, stats = _lscm(mesh, plan, blocks, on_device(disk, "loop"), device_array(pins), positions, solver=solver)
     return outcome(uv, result, throw, stats)
 
 
@@ -195,7 +203,7 @@ def _pins(disk: DiskTopology, mesh: Mesh, vertices, positions) -> tuple[np.ndarr
             raise DDGInputError(f"fixed_values: expected finite real coordinates, got {host.tolist()}")
         if np.all(np.ptp(host, axis=0) == 0):
             raise DDGInputError("fixed_values: all pins at one point collapse the map to that point; give two distinct positions")
-    positions = jnp.asarray(positions)
+    positions = device_array(positions)
     return pins, positions if jnp.issubdtype(positions.dtype, jnp.floating) else positions.astype(float)
 
 
@@ -255,7 +263,7 @@ def spectral_conformal_map(
     plan = conformal_plan(mesh, disk)
     k = 4 + 2 * disk.unreferenced.size
     uv, result, stats = _spectral(
-        mesh, plan, jnp.asarray(disk.loop), jnp.asarray(disk.unreferenced), regularization, k=k, method=method, solver=solver
+        mesh, plan, on_device(disk, "loop"), on_device(disk, "unreferenced"), regularization, k=k, method=method, solver=solver
     )
     return outcome(uv, result, throw, stats)
 

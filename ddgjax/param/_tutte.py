@@ -36,7 +36,15 @@ from ..laplacian import cotan_laplacian
 from ..mesh import Mesh
 from ..solve import Factorization, factorize
 from ..sparse import DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan
-from ._disk import DiskTopology, boundary_edge_lengths, cached_plan, place_boundary, require_disk, shape_argument
+from ._disk import (
+    DiskTopology,
+    boundary_edge_lengths,
+    cached_plan,
+    on_device,
+    place_boundary,
+    require_disk,
+    shape_argument,
+)
 
 
 def tutte_embedding(
@@ -74,7 +82,7 @@ def tutte_embedding(
     else:  # connectivity only: made once per connectivity and dtype
         matrix = cached_plan(disk, ("uniform", jnp.dtype(mesh.vertices.dtype).name), lambda: uniform_laplacian(mesh))
     uv, result, stats = _embed(
-        mesh, matrix, boundary_plan(mesh, disk), jnp.asarray(disk.loop), positions, kind=kind, solver=solver
+        mesh, matrix, boundary_plan(mesh, disk), on_device(disk, "loop"), positions, kind=kind, solver=solver
     )
     return outcome(uv, result, throw, stats)
 
@@ -91,7 +99,7 @@ def harmonic_map(mesh: Mesh, *, shape="circle", solver: str = "auto", throw: boo
     disk = require_disk(mesh, "harmonic_map")
     kind, positions = shape_argument(shape, disk)
     uv, result, stats = _embed(
-        mesh, cotan_laplacian(mesh), boundary_plan(mesh, disk), jnp.asarray(disk.loop), positions, kind=kind, solver=solver
+        mesh, cotan_laplacian(mesh), boundary_plan(mesh, disk), on_device(disk, "loop"), positions, kind=kind, solver=solver
     )
     return outcome(uv, result, throw, stats)
 

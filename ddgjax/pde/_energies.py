@@ -44,13 +44,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Real
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_float_shape
 from .._options import check_mass
 from ..dec import gradient
 from ..laplacian import dirichlet_energy as dirichlet_energy
 from ..laplacian import mass_matrix
 from ..mesh import Mesh, face_areas, require_mesh
+from ..sparse import SparseMatrix
 
 
 def screened_dirichlet_energy(
@@ -81,7 +82,7 @@ def screened_dirichlet_energy(
     check_mass(mass)
     if np.ndim(screening) != 0 or not np.isrealobj(screening):
         raise DDGInputError(f"screening: expected a real scalar, got {_describe(screening)}")
-    return dirichlet_energy(mesh, phi) + 0.5 * screening * jnp.sum(phi * (mass_matrix(mesh, mass=mass) @ phi))
+    return _plus_mass_term(mesh, dirichlet_energy(mesh, phi), _galerkin(mesh, mass), phi, phi, 0.5 * screening, mass=mass)
 
 
 def poisson_energy(
@@ -114,7 +115,30 @@ def poisson_energy(
     phi = _vertex_values("phi", mesh, phi)
     rho = _vertex_values("rho", mesh, rho, like=phi)
     check_mass(mass)
-    return dirichlet_energy(mesh, phi) + jnp.sum(phi * (mass_matrix(mesh, mass=mass) @ rho))
+    return _plus_mass_term(mesh, dirichlet_energy(mesh, phi), _galerkin(mesh, mass), phi, rho, 1.0, mass=mass)
+
+
+def _galerkin(mesh: Mesh, mass: str) -> SparseMatrix | None:
+    """The Galerkin mass matrix (it needs the mesh's storage plan, which a kernel does not see), else `None`."""
+    return mass_matrix(mesh, mass=mass) if mass == "galerkin" else None
+
+
+# One program for the mass term of an eager call (the Dirichlet term keeps its own kernel and its
+# written-out vertex derivative); under a caller's jit both are traced into the caller's program.
+@kernel(static_argnames=("mass",))
+def _plus_mass_term(
+    mesh: Mesh,
+    energy: Float[Array, ""],
+    galerkin: SparseMatrix | None,
+    phi: Float[Array, "nv *k"],
+    rho: Float[Array, "nv *k"],
+    scale: Real[ArrayLike, ""],
+    *,
+    mass: str,
+) -> Float[Array, ""]:
+    """`energy + scale * phi^T M rho`, `M` the lumped `mass` matrix of `mesh` or the given Galerkin one."""
+    matrix = mass_matrix(mesh, mass=mass) if galerkin is None else galerkin
+    return energy + scale * jnp.sum(phi * (matrix @ rho))
 
 
 def gradient_fitting_energy(mesh: Mesh, phi: Float[ArrayLike, "nv *k"], field: Float[ArrayLike, "nf 3 *k"]) -> Float[Array, ""]:
@@ -151,7 +175,7 @@ def gradient_fitting_energy(mesh: Mesh, phi: Float[ArrayLike, "nv *k"], field: F
     if np.shape(field) != expected:
         raise DDGInputError(f"field: expected shape {expected} (one 3-vector per face, per column of phi), got {np.shape(field)}")
     check_float_shape("field", field, expected[1:])
-    return _gradient_fitting_energy(mesh, phi, jnp.asarray(field))
+    return _gradient_fitting_energy(mesh, phi, device_array(field))
 
 
 @kernel
@@ -176,7 +200,7 @@ def _vertex_values(name: str, mesh: Mesh, values, like: Array | None = None) -> 
     if len(shape) not in (1, 2) or shape[0] != n:
         raise DDGInputError(f"{name}: expected shape ({n},) or ({n}, k), got {shape}")
     check_float_shape(name, values, shape[1:])
-    return values if isinstance(values, jax.Array) else jnp.asarray(values)
+    return values if isinstance(values, jax.Array) else device_array(values)
 
 
 def _describe(value) -> str:

@@ -64,13 +64,14 @@ from __future__ import annotations
 import weakref
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float
 from scipy.sparse import csgraph
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice, check_float_shape
 from .._options import DUAL_CELLS, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
@@ -151,30 +152,28 @@ def hodge_decomposition(
             f"omega: expected shape ({ne},) or ({ne}, k), one value per edge of mesh.edges, got {np.shape(omega)}"
         )
     check_float_shape("omega", omega, np.shape(omega)[1:])
-    omega = jnp.asarray(omega)
+    omega = device_array(omega)
     if not jnp.issubdtype(omega.dtype, jnp.floating):
         omega = omega.astype(mesh.vertices.dtype)
     plan = vertex_plan(mesh)
     pins = DirichletData(mesh, None, None, (), plan.pattern)  # one vertex per component pinned to 0
     parts, result, stats = _decompose(
         mesh,
-        omega.reshape(ne, -1),
-        closed_cocycle_basis(mesh.topology),
+        omega,
+        _device_cocycle_basis(mesh.topology),
         plan,
         dec_plan(mesh) if dual == "barycentric" else None,
         pins.plan,
         dual=dual,
         solver=solver,
     )
-    shape = omega.shape
-    parts = HodgeDecomposition(*(part.reshape(shape) for part in parts))
-    return outcome(parts, result, throw, stats)
+    return outcome(HodgeDecomposition(*parts), result, throw, stats)
 
 
 @kernel(static_argnames=("dual", "solver"))
 def _decompose(
     mesh: Mesh,
-    columns: Float[Array, "ne c"],
+    omega: Float[Array, "ne *k"],
     cocycles: Float[Array, "ne g"],
     plan: TriangulationPlan,
     congruence_plan: CongruencePlan | None,
@@ -183,12 +182,13 @@ def _decompose(
     dual: str,
     solver: str,
 ) -> tuple[tuple[Array, Array, Array], RESULTS, dict[str, Array]]:
-    """`((exact, coexact, harmonic), result, stats)` of the columns of `columns` (module docstring, steps 1-4).
+    """`((exact, coexact, harmonic), result, stats)` of `omega`, each part its shape (module docstring, steps 1-4).
 
     `mesh` comes without its topology: the tree-cotree `cocycles`, the vertex `plan`, the
     `congruence_plan` of `d0^T *1 d0` (barycentric `*1` only) and the `pins` of one vertex per
     component are passed in.
     """
+    columns = omega.reshape(omega.shape[0], -1)
     n_columns = columns.shape[1]
     star = hodge_star_entries(mesh, degree=1, dual=dual)
     generators = cocycles.astype(columns.dtype)
@@ -220,7 +220,8 @@ def _decompose(
         projected = RESULTS.where(jnp.all(jnp.isfinite(coefficients)), RESULTS.successful, RESULTS.singular)
     else:
         harmonic = jnp.zeros_like(remainder)
-    return (exact, remainder - harmonic, harmonic), first_failure(solved, projected), stats
+    parts = tuple(part.reshape(omega.shape) for part in (exact, remainder - harmonic, harmonic))
+    return parts, first_failure(solved, projected), stats
 
 
 _COCYCLES: "weakref.WeakKeyDictionary[MeshTopology, np.ndarray]" = weakref.WeakKeyDictionary()
@@ -242,6 +243,19 @@ def closed_cocycle_basis(topology: MeshTopology) -> np.ndarray:
     basis = _COCYCLES.get(topology)
     if basis is None:
         basis = _COCYCLES[topology] = _tree_cotree_cocycles(topology)
+    return basis
+
+
+# The same basis on the device, so an eager call does not transfer it again.
+_DEVICE_COCYCLES: "weakref.WeakKeyDictionary[MeshTopology, Array]" = weakref.WeakKeyDictionary()
+
+
+def _device_cocycle_basis(topology: MeshTopology) -> Float[Array, "ne k"]:
+    """`closed_cocycle_basis(topology)` as a device array (cached per connectivity)."""
+    basis = _DEVICE_COCYCLES.get(topology)
+    if basis is None:
+        with jax.ensure_compile_time_eval():  # host data even when a caller's jit traces this call (it is cached)
+            basis = _DEVICE_COCYCLES[topology] = device_array(closed_cocycle_basis(topology))
     return basis
 
 

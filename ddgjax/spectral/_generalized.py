@@ -69,6 +69,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._options import check_solver
 from .._results import RESULTS, Solution, first_failure, outcome, raise_if_failed
@@ -163,7 +164,31 @@ def smallest_eigenpairs(
     hermitian_real_form = bool(hermitian_real_form)
     if hermitian_real_form and (n % 2 or k % 2):
         raise DDGInputError(f"hermitian_real_form: needs an even size and an even k (pairs), got n = {n}, k = {k}")
-    options = (method, solver, preconditioner, hermitian_real_form)
+    # A hierarchy holds arrays (an argument of the program); a preconditioner's name is static.
+    hierarchy = preconditioner if isinstance(preconditioner, AMGHierarchy) else None
+    named = None if hierarchy is not None else preconditioner
+    pairs, result, residual = _solve(
+        L, M, hierarchy, k=k, method=method, solver=solver, preconditioner=named, hermitian_real_form=hermitian_real_form
+    )
+    return outcome(pairs, result, throw, {"residual": residual})
+
+
+# One program per size for an eager call: op by op, the host callback (a new function each call)
+# would be compiled again on every call. The outcome is checked outside (`outcome`).
+@kernel(static_argnames=("k", "method", "solver", "preconditioner", "hermitian_real_form"))
+def _solve(
+    L: SparseMatrix,
+    M: SparseMatrix,
+    hierarchy: AMGHierarchy | None,
+    *,
+    k: int,
+    method: str,
+    solver: str,
+    preconditioner: str | None,
+    hermitian_real_form: bool,
+) -> tuple[Eigenpairs, RESULTS, Float[Array, ""]]:
+    """`(pairs, result, residual)` of `smallest_eigenpairs`, after its checks."""
+    options = (method, solver, preconditioner if hierarchy is None else hierarchy, hermitian_real_form)
     values, vectors, status = _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, options)
     result = RESULTS.where(
         status == _CONVERGED,
@@ -172,7 +197,7 @@ def smallest_eigenpairs(
     )
     pairs = Eigenpairs(values, vectors)
     checked, residual = _verified(L, M, jax.lax.stop_gradient(pairs))
-    return outcome(pairs, first_failure(result, checked), throw, {"residual": residual})
+    return pairs, first_failure(result, checked), residual
 
 
 def _verified(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> tuple[RESULTS, Float[Array, ""]]:

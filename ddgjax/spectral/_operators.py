@@ -13,17 +13,20 @@ entries `grad phi_j` of each face's hat functions (Crane 2020, section 6.2).
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Iterable
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 
+from .._compile import device_array, kernel
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import Solution, outcome
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..mesh import Mesh, face_hat_gradients, require_mesh
+from ..mesh import Mesh, MeshTopology, face_hat_gradients, require_mesh
 from ..sparse import SparseMatrix, SparsityPattern
 from ._generalized import smallest_eigenpairs
 
@@ -74,14 +77,34 @@ def shape_operators(
 def gradient_operator(mesh: Mesh) -> SparseMatrix:
     """The `(3 nf, nv)` matrix `G` of the per-face gradient of vertex functions (module docstring)."""
     mesh = require_mesh("mesh", mesh)
-    faces = np.asarray(mesh.topology.faces)
-    nf = faces.shape[0]
-    rows = (3 * np.arange(nf)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)  # row 3 f + c
-    cols = np.repeat(faces[:, :, None], 3, axis=2)  # column: the face's corner j
-    pattern, slot = SparsityPattern.from_coo(rows.ravel(), cols.ravel(), (3 * nf, mesh.n_vertices))
+    pattern, slot = _gradient_pattern(mesh.topology)
+    return SparseMatrix(_gradient_values(mesh, slot, nnz=pattern.nnz), pattern)
+
+
+# Keyed by topology, which compares by content: meshes of one connectivity share one pattern.
+_GRADIENT_PATTERNS: "weakref.WeakKeyDictionary[MeshTopology, tuple[SparsityPattern, Array]]" = weakref.WeakKeyDictionary()
+
+
+def _gradient_pattern(topology: MeshTopology) -> tuple[SparsityPattern, Int[Array, " m"]]:
+    """`(pattern, slot)` of `G` for this connectivity: entry `(f, j, c)` of `face_hat_gradients` lands in `slot`."""
+    cached = _GRADIENT_PATTERNS.get(topology)
+    if cached is None:
+        faces = np.asarray(topology.faces)
+        nf = faces.shape[0]
+        rows = (3 * np.arange(nf)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)  # row 3 f + c
+        cols = np.repeat(faces[:, :, None], 3, axis=2)  # column: the face's corner j
+        # Host work even when called inside a caller's trace: the pattern depends on the topology only.
+        with jax.ensure_compile_time_eval():
+            pattern, slot = SparsityPattern.from_coo(rows.ravel(), cols.ravel(), (3 * nf, topology.n_vertices))
+            cached = _GRADIENT_PATTERNS[topology] = (pattern, device_array(slot))
+    return cached
+
+
+@kernel(static_argnames=("nnz",))
+def _gradient_values(mesh: Mesh, slot: Int[Array, " m"], *, nnz: int) -> Float[Array, " nnz"]:
+    """The values of `G` on its pattern's `nnz` slots (one compiled program per mesh size)."""
     entries = face_hat_gradients(mesh)  # [f, j, c]
-    values = jnp.zeros(pattern.nnz, entries.dtype).at[jnp.asarray(slot)].add(entries.ravel())
-    return SparseMatrix(values, pattern)
+    return jnp.zeros(nnz, entries.dtype).at[slot].add(entries.ravel())
 
 
 def shape_operators_of_meshes(
