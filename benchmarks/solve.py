@@ -944,10 +944,10 @@ def _kept_on(name, mesh, args):
     times, _ = timed_interleaved(warmed(calls), args.repeats, args.budget)
     print(f"\n## {name}: n = {mesh.n_vertices}  (min / median ms; ratio to cholespy's row of the same kind)")
     for row, t in times.items():
-        kind = "factorisation" if row.startswith("ddgjax factorize (") or row.startswith("ddgjax factorize,") else "solve"
+        factorisation = row.startswith(("ddgjax factorize (", "ddgjax factorize,", "cholespy factorisation"))
         peer = (
             "cholespy factorisation"
-            if kind == "factorisation"
+            if factorisation
             else ("cholespy 8 right-hand sides" if "8 right" in row else "cholespy solve")
         )
         ratio = f"{t[0] / times[peer][0]:6.2f}x" if peer in times else ""

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._options import check_mass, check_solver
 from .._results import RESULTS, Solution, outcome
@@ -256,8 +256,8 @@ class DirichletData:
         if np.unique(vertices).size != vertices.size:
             raise DDGInputError("fixed_vertices: expected distinct vertices, got repeated ones")
         if values is None:
-            values = jnp.zeros((vertices.size,) + trailing)
-        values = jnp.asarray(values)
+            values = np.zeros((vertices.size,) + trailing)
+        values = device_array(values)  # host data moved without an eager program (`ddgjax._compile.device_array`)
         if values.shape != (vertices.size,) + trailing:
             raise DDGInputError(
                 f"fixed_values: expected shape {(vertices.size,) + trailing} (one value per fixed vertex, "

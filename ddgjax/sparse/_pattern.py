@@ -29,6 +29,8 @@ both on the host (for maps built once, e.g. `congruence_plan`, `dirichlet_plan`)
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -276,7 +278,7 @@ class SparsityPattern(eqx.Module):
     def diagonal(cls, n: int) -> "SparsityPattern":
         """The `(n, n)` diagonal pattern (values are the diagonal; `A @ x` is `values * x`)."""
         if at_top_level():  # transferred from the host: an eager `jnp.arange` compiles a program per size
-            index, indptr = (device_array(np.arange(size, dtype=np.int32)) for size in (n, n + 1))
+            index, indptr = _diagonal_indices(n)
         else:  # inside a trace an iota, rather than a constant embedded in the program
             index, indptr = (jnp.arange(size, dtype=jnp.int32) for size in (n, n + 1))
         return cls(
@@ -290,6 +292,12 @@ class SparsityPattern(eqx.Module):
             symmetric=True,
             n_entries=n,
         )
+
+
+@functools.lru_cache(maxsize=8)
+def _diagonal_indices(n: int) -> tuple[Int[Array, " n"], Int[Array, " n_plus_1"]]:
+    """`(arange(n), arange(n + 1))` on the device, for the last few sizes: an eager mass matrix transfers nothing."""
+    return device_array(np.arange(n, dtype=np.int32)), device_array(np.arange(n + 1, dtype=np.int32))
 
 
 def _row_major(storage_cols: np.ndarray, n_rows: int, width: int, first: int) -> np.ndarray:
