@@ -259,3 +259,20 @@ def test_throw_false_inside_jit_and_the_failing_member_of_a_batch():
     np.testing.assert_array_equal(solutions.result == RESULTS.successful, [True, False])
     np.testing.assert_array_equal(solutions.result == RESULTS.nonfinite, [False, True])
     np.testing.assert_allclose(solutions.value[0], solve_poisson(mesh, rho[0], fixed_vertices=rim), rtol=0, atol=1e-14)
+
+
+def test_an_intrinsic_triangulation_as_a_jit_argument_is_refused_naming_the_remedy():
+    """`solve_poisson` and `heat_distance` build host plans on the triangulation's pattern: passed as an
+    argument of the caller's `jit` it is traced, and the refusal says to close over it, which works."""
+    from ddgjax.geodesics import heat_distance
+    from ddgjax.laplacian import intrinsic_delaunay
+    from ddgjax.mesh import icosphere
+
+    mesh = icosphere(2)
+    T = intrinsic_delaunay(mesh)
+    rho = jnp.sin(mesh.vertices[:, 0]) - jnp.mean(jnp.sin(mesh.vertices[:, 0]))
+    for call in (lambda T: solve_poisson(mesh, rho, robust=T), lambda T: heat_distance(mesh, 0, robust=T)):
+        with pytest.raises(DDGInputError, match="close over it"):
+            jax.jit(call)(T)
+    closed = jax.jit(lambda r: solve_poisson(mesh, r, robust=T))(rho)
+    np.testing.assert_allclose(closed, solve_poisson(mesh, rho, robust=True), atol=1e-12)

@@ -237,7 +237,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, boundary: str, robust, solver: str
     check_solver(solver)
     if isinstance(t_coef, bool) or not isinstance(t_coef, (int, float, np.integer, np.floating)) or not t_coef > 0:
         raise DDGInputError(f"t_coef: expected a positive number, got {t_coef!r}")
-    triangulation = resolve_robust(mesh, robust, mass=mass)
+    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="heat_distance")
     L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
     plans = _plans(mesh, boundary, L.pattern, cached=triangulation is None)
     return L, M, plans, jnp.asarray(float(t_coef), L.values.dtype)

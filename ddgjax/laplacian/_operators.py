@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from .._errors import DDGInputError
+from .._errors import DDGInputError, is_traced
 from .._options import check_mass
 from ..internal import require_nondegenerate
 from ..mesh import Mesh
@@ -75,10 +75,14 @@ def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | Intr
     )
 
 
-def resolve_robust(mesh: Mesh, robust: bool | IntrinsicTriangulation, *, mass: str = "voronoi") -> IntrinsicTriangulation | None:
+def resolve_robust(
+    mesh: Mesh, robust: bool | IntrinsicTriangulation, *, mass: str = "voronoi", host_plans: str | None = None
+) -> IntrinsicTriangulation | None:
     """The triangulation a `robust=` argument asks for: `None` (the mesh's own, after refusing degenerate
     faces on concrete positions: `MeshDataError`, module docstring), or the intrinsic Delaunay one
-    (`True`: flipped here, on the host), after checking `mass`; `DDGInputError` otherwise."""
+    (`True`: flipped here, on the host), after checking `mass`; `DDGInputError` otherwise.
+    `host_plans` names a caller that builds host plans (Dirichlet blocks, pins) on the triangulation's
+    pattern, which then must be concrete: not a triangulation passed as an argument of a `jit`."""
     check_mass(mass)
     if robust is False:
         require_nondegenerate(mesh)
@@ -88,5 +92,11 @@ def resolve_robust(mesh: Mesh, robust: bool | IntrinsicTriangulation, *, mass: s
     if not isinstance(robust, IntrinsicTriangulation):
         raise DDGInputError(
             f"robust: expected True, False or an IntrinsicTriangulation (intrinsic_delaunay(mesh)), got {robust!r}"
+        )
+    if host_plans is not None and is_traced(robust.plan.pattern.rows):
+        raise DDGInputError(
+            f"robust: {host_plans} builds host plans on the intrinsic triangulation's sparsity pattern, which is traced "
+            "when the IntrinsicTriangulation is an argument of your jit; make it outside jit and close over it "
+            f"(jax.jit(lambda V: {host_plans}(mesh.with_vertices(V), ..., robust=T))), or pass robust=True outside jit"
         )
     return robust

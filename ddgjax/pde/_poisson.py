@@ -106,7 +106,7 @@ def solve_poisson(
     mesh = require_mesh("mesh", mesh)
     check_mass(mass)
     check_solver(solver)
-    triangulation = resolve_robust(mesh, robust, mass=mass)
+    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="solve_poisson")
     rho = _vertex_values("rho", mesh, rho)
     plan = vertex_plan(mesh) if triangulation is None else triangulation.plan
     dirichlet = DirichletData(mesh, fixed_vertices, fixed_values, rho.shape[1:], plan.pattern)
