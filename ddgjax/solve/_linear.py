@@ -5,7 +5,9 @@ a problem-level function passes its `solver=` here):
 
 - `"cholesky"`: a sparse direct Cholesky factorisation on the host, CHOLMOD called through XLA's
   foreign-function interface by `sparsax` (so it runs inside `jit`, `lax.scan` and `vmap`, with no
-  Python round trip); the symbolic analysis of a pattern is computed once and cached. Installed by
+  Python round trip); the symbolic analysis of a pattern is computed once and cached, supernodal or
+  simplicial as CHOLMOD chooses, except for kept factorisations (`factorize` outside `jit`, up to
+  `SIMPLICIAL_LIMIT` unknowns), analysed simplicial for their faster solves (`cholmod_analysis`). Installed by
   the `cholmod` extra (`pip install "ddgjax[cholmod]"`): its wheels bundle GPL-2+ CHOLMOD modules,
   so the MIT bare install leaves it out (benchmarks/README.md compares the candidates).
 - `"superlu"`: SciPy's sparse LU (`scipy.sparse.linalg.splu`, COLAMD column ordering) on the host,
