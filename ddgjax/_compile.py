@@ -166,7 +166,7 @@ def device_array(x, dtype=None) -> jax.Array:
     through `jnp.asarray` unchanged. Host values get JAX's canonical dtype (float32 without x64).
     """
     if isinstance(x, (jax.Array, jax.core.Tracer)) and (dtype is None or x.dtype == dtype):
-        return x  # what `jnp.asarray` returns, without its ~50 us of dispatch
+        return x  # what `jnp.asarray` returns, without its dispatch (an eager call makes several)
     if isinstance(x, (jax.Array, jax.core.Tracer)) or np.ndim(x) == 0:  # scalars keep JAX's weak typing
         return jnp.asarray(x, dtype)
     host = np.asarray(x, dtype)

@@ -47,8 +47,8 @@ from ..mesh import Mesh, face_area_vectors, face_areas, face_vertex_positions, r
 #: The values of `method=` of `nearest_neighbors` and `chamfer_distance` (module docstring).
 NEAREST_NEIGHBOR_METHODS = ("auto", "kdtree", "brute")
 
-# `"auto"` on a CPU keeps the brute force up to this many pairs: as fast as the k-d tree at 1,000 x 1,000
-# points, faster below (the host round trip costs ~1 ms).
+# `"auto"` on a CPU keeps the brute force up to this many pairs: measured as fast as the k-d tree at
+# 1,000 x 1,000 points and faster below, where the host round trip dominates (benchmarks/README.md).
 _SMALL_PAIRS = 1 << 20
 
 # Pairwise distances per chunk: rows * columns stays under this many entries (32 MiB of float64).

@@ -130,7 +130,7 @@ class _Plan(NamedTuple):
     cholesky: SparseCholesky
 
 
-# The last few plans (the colouring is host work of ~0.1 s per 10k unknowns): solving again on the same
+# The last few plans (the colouring is host work, growing with the unknowns): solving again on the same
 # mesh with the same fixed vertices, new values and a new energy skips it.
 _PLANS: collections.OrderedDict = collections.OrderedDict()
 _PLANS_KEPT = 8

@@ -102,9 +102,9 @@ PRECONDITIONERS = ("jacobi", "amg")
 # SuperLU's factor + solve takes ~1 s at 41k and ~8 s at 164k, pyamg's setup + CG 0.4 s and 0.9 s.
 SUPERLU_LIMIT = 50_000
 
-# Kept CHOLMOD factorisations up to this many unknowns are analysed simplicial (`cholmod_analysis`): there
-# its factorisation takes at most ~2x the supernodal one (41k: 0.45 s against 0.25 s) and its solves are
-# 1.6-2.3x faster; at 164k it takes 4.5x (6.3 s against 1.4 s), hence CHOLMOD's choice above.
+# Kept CHOLMOD factorisations up to this many unknowns are analysed simplicial (`cholmod_analysis`): up to
+# here a simplicial factorisation costs little more than a supernodal one and its solves are faster; above
+# it the factorisation falls far behind (measured: benchmarks/README.md, "Kept factorisations").
 SIMPLICIAL_LIMIT = 50_000
 
 
@@ -289,7 +289,7 @@ def factorize(
     matrix CHOLMOD finds not positive definite, one SuperLU finds singular) is kept in the
     `Factorization`'s `result`, and its solves report it (raising with `throw=True`). Made outside
     `jit`, a CHOLMOD factorisation of up to `SIMPLICIAL_LIMIT` (50,000) unknowns is simplicial, whose
-    solves are 1.6-2.3x faster than the supernodal one `linear_solve` gets (`cholmod_analysis`).
+    solves are faster than those of the supernodal one `linear_solve` gets (`cholmod_analysis`).
     SciPy: `scipy.sparse.linalg.splu(A).solve`; cholespy: `CholeskySolverD(...).solve`.
     """
     _check_matrix(A)
@@ -518,9 +518,8 @@ _CHOLMOD_MODES = {"simplicial": 0, "auto": 1}
 def cholmod_analysis(mode: str):
     """Analyse the CHOLMOD factorisations made (or, inside `jit`, run) in this block `"simplicial"`ly or as CHOLMOD chooses (`"auto"`).
 
-    A simplicial factor's solves are 1.6-2.3x faster than a supernodal one's on mesh Laplacians, its
-    factorisation as fast up to ~10k unknowns and 2-4.5x slower from 40k (benchmarks/README.md, "Kept
-    factorisations"): kept factorisations (`factorize` called outside `jit`, the heat method's solver,
+    A simplicial factor's solves are faster than a supernodal one's on mesh Laplacians, its factorisation
+    as fast at ~10k unknowns and slower beyond (benchmarks/README.md, "Kept factorisations"): kept factorisations (`factorize` called outside `jit`, the heat method's solver,
     Large Steps) are simplicial up to `SIMPLICIAL_LIMIT` unknowns (`kept_analysis`), one-shot solves
     (`linear_solve`) and larger systems CHOLMOD's choice (supernodal from a few thousand unknowns). `sparsax` fixes the choice per pattern when it first analyses it, process-wide
     (`sparsax_cpp.set_supernodal`, which `sparsax.set_options` sets and then empties its cache), so
