@@ -124,7 +124,8 @@ def _draw(mesh: Mesh, panels, name: str, args, bands: int | None = None) -> bool
 
     columns = min(3, len(panels))
     rows = -(-len(panels) // columns)
-    figure = Figure(figsize=(4.6 * columns + 0.6, 4.2 * rows), layout="constrained")
+    # At least 7 inches wide: a one-panel figure must still hold the mesh's name as its title.
+    figure = Figure(figsize=(max(4.6 * columns + 0.6, 7.0), 4.2 * rows), layout="constrained")
     FigureCanvasAgg(figure)
     # Bands of one colour each: their edges are the isolines.
     cmap = colormaps["viridis"].resampled(bands) if bands else "RdBu_r"

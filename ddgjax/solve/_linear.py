@@ -214,8 +214,11 @@ class Factorization(eqx.Module):
         result: the factorisation's outcome, an item of `ddgjax.RESULTS`: `nonfinite` (NaN or inf in
             `A`), `not_positive_definite` (CHOLMOD), `singular` (SuperLU: exactly singular), else
             `successful`. Every solve with a failed factorisation reports it and returns NaN.
-        method, complex_dtype (`A`'s dtype when complex, else `None`), rtol, max_steps,
-        residual_tolerance: static.
+        method: the backend, one of `LINEAR_SOLVERS` (static, as are the four below).
+        complex_dtype: `A`'s dtype when `A` is complex, else `None`.
+        rtol: the relative residual tolerance of `"cg"` and `"pyamg"`.
+        max_steps: their iteration limit.
+        residual_tolerance: the relative residual above which a direct solve reports failure.
     """
 
     system: SparseMatrix
