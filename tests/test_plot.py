@@ -1,4 +1,4 @@
-"""Drawing curves and flows (ddgjax/plot.py) on matplotlib axes with the Agg canvas."""
+"""Drawing curves, flows and direction fields (ddgjax/plot/_matplotlib.py) on matplotlib axes with the Agg canvas."""
 
 from __future__ import annotations
 

@@ -1,21 +1,4 @@
-"""Drawing curves, curve-shortening flows and functions on meshes with matplotlib.
-
-Every function draws on a matplotlib `Axes` the caller made (`plt.subplots()` in a notebook, or
-`matplotlib.figure.Figure().add_subplot()` in a script, as `ddgjax flow` does), and changes no
-global state (no pyplot, no backend). `import ddgjax` does not import this module or matplotlib.
-
-    import matplotlib.pyplot as plt
-    import ddgjax.curves as dc
-    from ddgjax.plot import plot_flow
-
-    result = dc.curve_shortening_flow(dc.flower(64), kind="B", tau=1e-3, steps=2000, save_every=100)
-    fig, ax = plt.subplots()
-    plot_flow(ax, result, color="tab:orange")
-
-A function on a mesh is drawn by `plot_mesh_function(ax, mesh, values)`: an orthographic view,
-faces painted back to front (no 3-D axes needed), returning the collection for `fig.colorbar`;
-`plot_direction_field(ax, mesh, vectors)` draws tangent directions on top, in the same view.
-"""
+"""Drawing curves, curve-shortening flows and functions on meshes on matplotlib axes (static figures)."""
 
 from __future__ import annotations
 
@@ -26,20 +9,10 @@ from jaxtyping import ArrayLike
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize, to_rgb
 
-from ._errors import DDGInputError, check_choice
-from .curves import Curve, CurveFlowResult, require_curve
-from .mesh import Mesh, edge_lengths, require_mesh, vertex_normals
-
-#: `(azimuth, elevation)` in degrees of `plot_mesh_function`'s default view of a non-flat mesh.
-OBLIQUE_VIEW = (-60.0, 20.0)
-#: The view from `+z` (x to the right, y up): the default for a mesh flat in z.
-TOP_VIEW = (0.0, 90.0)
-# Rotations that carry the named axis to +z (a proper rotation each, so orientation is kept).
-_UP = {
-    "z": np.eye(3),
-    "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
-    "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
-}
+from .._errors import DDGInputError, check_choice
+from ..curves import Curve, CurveFlowResult, require_curve
+from ..mesh import Mesh, edge_lengths, require_mesh, vertex_normals
+from ._view import _UP, OBLIQUE_VIEW, TOP_VIEW, is_flat, view_rotation
 
 
 def polyline(points: ArrayLike, closed: bool = True) -> np.ndarray:
@@ -85,25 +58,6 @@ def plot_flow(axes, result: CurveFlowResult, *, snapshots: int = 6, color="tab:b
     axes.plot(*centroid[-1], "kx", ms=7)
     axes.set_aspect("equal")
     return chosen
-
-
-def view_rotation(azimuth: Real, elevation: Real) -> np.ndarray:
-    """`(3, 3)` rotation of an orthographic camera: rows 0 and 2 are screen x and up, row 1 the depth.
-
-    The camera turns by `azimuth` degrees about `z`, then looks down by `elevation` degrees; `(0, 90)`
-    looks from `+z` with `x` to the right and `y` up, `(0, 0)` from `-y` with `z` up.
-    """
-    a, e = np.radians(azimuth), np.radians(elevation)
-    about_z = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-    about_x = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(e), -np.sin(e)], [0.0, np.sin(e), np.cos(e)]])
-    return about_x @ about_z
-
-
-def is_flat(mesh: Mesh) -> bool:
-    """Whether every vertex of `mesh` lies in one plane `z = const` (to 1e-12 of its extent)."""
-    vertices = np.asarray(mesh.vertices)
-    extent = float(np.ptp(vertices, axis=0).max())
-    return bool(np.ptp(vertices[:, 2]) <= 1e-12 * max(extent, np.finfo(float).tiny))
 
 
 def plot_mesh_function(
