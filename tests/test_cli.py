@@ -15,7 +15,7 @@ from ddgjax.cli import main
 
 PACKAGE = pathlib.Path(ddgjax.__file__).parent
 #: Modules that serve the command line, files and figures; every other module is mathematics.
-OUTSIDE_MATHEMATICS = {"__init__.py", "cli.py", "io.py", "plot.py", "_cli"}
+OUTSIDE_MATHEMATICS = {"__init__.py", "cli.py", "io.py", "plot", "_cli"}
 FORBIDDEN = ("ddgjax.io", "ddgjax._cli", "ddgjax.cli", "ddgjax.plot", "matplotlib", "argparse")
 
 

@@ -3,8 +3,10 @@
 `smallest_eigenpairs(L, M, k)` returns the `k` smallest eigenvalues `lambda_1 <= ... <= lambda_k` of
 a symmetric positive semidefinite `L` and a symmetric positive definite `M` (the cotan Laplacian and
 a mass matrix) and eigenvectors `Phi = [phi_1 ... phi_k]` normalised `Phi^T M Phi = I`, each with a
-deterministic sign: its entry of largest magnitude is positive. Within a cluster of equal
-eigenvalues (the sphere's `2l + 1`) the basis is whatever the solver found. The answer is an
+deterministic sign: its entry of largest magnitude is positive (on a symmetric shape two entries can
+tie for largest, and the sign then flips under tiny motions: differentiate sign-independent functions
+such as `phi_i^2` there). Within a cluster of equal eigenvalues (the sphere's `2l + 1`) the basis is
+whatever the solver found. The answer is an
 `Eigenpairs(values, vectors)` named tuple (it unpacks as `values, vectors = ...`).
 
 **Outcome** (`throw=`, `ddgjax.RESULTS`): ARPACK's non-convergence (or a singular shift-invert
@@ -143,7 +145,7 @@ def smallest_eigenpairs(
         `Eigenpairs(values (k,), vectors (n, k))`, ascending, `Phi^T M Phi = I`, in `L`'s dtype
         (in a `ddgjax.Solution` with `throw=False`).
 
-    SciPy: `scipy.sparse.linalg.eigsh(L, k, M, sigma=0)`; libigl: `igl.eigs(L, M, k, igl.EIGS_TYPE_SM)`.
+    SciPy: `scipy.sparse.linalg.eigsh(L, k, M, sigma=0)`; libigl (C++ only): `igl::eigs(L, M, k, igl::EIGS_TYPE_SM, U, D)`.
     """
     for name, matrix in (("L", L), ("M", M)):
         if not isinstance(matrix, SparseMatrix):

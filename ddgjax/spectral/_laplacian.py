@@ -16,7 +16,7 @@ the eigenvalues and eigenvectors as their first two arguments, so an `Eigenpairs
 
 References: B. Vallet & B. Lévy, "Spectral geometry processing with manifold harmonics" (2008);
 J. Sun, M. Ovsjanikov & L. Guibas, "A concise and provably informative multi-scale signature based
-on heat diffusion" (2009). libigl: `igl.eigs(L, M, k, igl.EIGS_TYPE_SM)`; SciPy:
+on heat diffusion" (2009). libigl (C++ only: its Python bindings have no `eigs`): `igl::eigs(L, M, k, igl::EIGS_TYPE_SM, ...)`; SciPy:
 `scipy.sparse.linalg.eigsh(L, k, M, sigma=0)`.
 """
 
@@ -77,7 +77,7 @@ def eigenpairs(
         (`ddgjax.spectral.smallest_eigenpairs`: eigenvalues always; eigenvectors away from clusters
         of equal eigenvalues; any function invariant within a cluster), under `jit` and `vmap`.
 
-    libigl: `igl.eigs(-igl.cotmatrix(V, F), igl.massmatrix(V, F), k, igl.EIGS_TYPE_SM)`.
+    libigl (C++ only): `igl::eigs(-cotmatrix, massmatrix, k, igl::EIGS_TYPE_SM, U, D)`.
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
@@ -177,7 +177,7 @@ def heat_kernel(
     `heat_kernel(*eigenpairs(mesh, 100), sources, t=0.01)`. References: J. Sun, M. Ovsjanikov, L.
     Guibas, "A concise and provably informative multi-scale signature based on heat diffusion" (2009),
     eq. (2); B. Vallet, B. Levy (2008). libigl / gpytoolbox / potpourri3d: none (compute the
-    eigenpairs with `igl.eigs` and sum the series by hand).
+    eigenpairs with SciPy `eigsh` and sum the series by hand).
     """
     values, vectors = jnp.asarray(values), jnp.asarray(vectors)
     sources = np.atleast_1d(np.asarray(sources))
