@@ -38,6 +38,13 @@ GALLERY = (
         "flows, and the quantities each keeps (total curvature, centroid, cyclic residual). `ddgjax.curves`.",
     ),
     Entry(
+        "curvature",
+        "Curvature",
+        ("info", "--output", "curvature.png"),
+        "The pointwise Gaussian and mean curvature of a torus (angle defects and dihedral angles over Voronoi areas): "
+        "positive outside, negative inside, summing to `2 pi chi = 0`. `ddgjax.mesh`.",
+    ),
+    Entry(
         "poisson",
         "A Poisson problem",
         ("poisson",),
@@ -139,7 +146,13 @@ def compress(path: pathlib.Path) -> None:
     with Image.open(path) as image:
         rgb = image.convert("RGB")
     palette = rgb.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
-    rgb.quantize(colors=256, palette=palette, dither=Image.Dither.FLOYDSTEINBERG).save(path, optimize=True)
+    indexed = rgb.quantize(colors=256, palette=palette, dither=Image.Dither.FLOYDSTEINBERG)
+    # Pillow maps colours to the palette approximately: the background's entry is set to its exact colour.
+    colors = indexed.getpalette()
+    background = 3 * indexed.getpixel((0, 0))
+    colors[background : background + 3] = rgb.getpixel((0, 0))
+    indexed.putpalette(colors)
+    indexed.save(path, optimize=True)
 
 
 def page() -> str:

@@ -241,6 +241,22 @@ def test_info_reports_signed_curvatures_on_oriented_meshes(capsys):
     assert "undefined" not in out
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("name, panels", [(None, 2), ("moebius.obj", 1)])
+def test_info_draws_the_curvatures_when_asked(capsys, tmp_path, name, panels):
+    """`--output`: K and H side by side (K alone without an orientation, where H's sign means nothing)."""
+    import matplotlib.image
+
+    output = tmp_path / "curvature.png"
+    argv = ["info", "--output", str(output)] + ([] if name is None else [str(data_path("meshes", name))])
+    assert main(argv) == 0
+    assert f"figure written to {output}" in capsys.readouterr().out
+    height, width = matplotlib.image.imread(output).shape[:2]
+    assert (width > 1.8 * height) == (panels == 2)
+    assert main(["info", "--output", str(tmp_path / "missing" / "c.png")]) == 2
+    assert "could not write" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("name", ["missing.obj", "points.xyz"])
 def test_info_bad_file_exits_2_without_traceback(capsys, tmp_path, name):
     assert main(["info", str(tmp_path / name)]) == 2

@@ -1,4 +1,8 @@
-"""`ddgjax info [MESH]`: topology report, area, volume, Gauss-Bonnet check and curvature statistics."""
+"""`ddgjax info [MESH]`: topology report, area, volume, Gauss-Bonnet check and curvature statistics.
+
+With `--output FILE` it also draws the pointwise Gaussian curvature and, on an oriented mesh, the mean
+curvature on the mesh (`ddgjax.plot.plot_mesh_function`, diverging colours centred on 0).
+"""
 
 from __future__ import annotations
 
@@ -24,6 +28,7 @@ from ..mesh import (
     vertex_pointwise_mean_curvatures,
     vertex_principal_curvatures,
 )
+from ._common import write_figure
 
 _DEFAULT_SHAPE = "built-in torus(major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16)"
 
@@ -42,6 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1e-12,
         help="relative tolerance for zero-area faces: area <= tol * (longest edge)^2 (default 1e-12)",
     )
+    parser.add_argument("--output", default=None, help="also draw the Gaussian and mean curvature to this figure file")
+    parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the axis that points up in the figure")
     parser.set_defaults(run=run_info)
 
 
@@ -76,8 +83,42 @@ def run_info(args: argparse.Namespace) -> int:
     except (OSError, DDGInputError, MeshDataError) as error:
         print(f"ddgjax info: error: {error}", file=sys.stderr)
         return 2
-    print(format_info(name, report, jax.tree_util.tree_map(np.asarray, _statistics(mesh, oriented=mesh.topology.is_oriented))))
+    stats = jax.tree_util.tree_map(np.asarray, _statistics(mesh, oriented=mesh.topology.is_oriented))
+    print(format_info(name, report, stats))
+    if args.output is not None and not _draw(mesh, name, report, stats, args):
+        return 2
     return 0
+
+
+def _draw(mesh: Mesh, name: str, report: MeshReport, stats: dict, args: argparse.Namespace) -> bool:
+    """The pointwise Gaussian (and mean) curvature on the mesh: diverging colours centred on 0 for a field that
+    changes sign, else sequential ones; limits at the 2nd and 98th percentiles."""
+    # Imported here: matplotlib is only needed when a figure is written.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from ..plot import plot_mesh_function
+
+    referenced = np.ones(report.n_vertices, dtype=bool)
+    referenced[report.unreferenced_vertices] = False
+    panels = [("Gaussian curvature K", stats["K"])]
+    if "H" in stats:
+        panels.append(("mean curvature H", stats["H"]))
+    figure = Figure(figsize=(4.8 * len(panels) + 0.6, 4.4), layout="constrained")
+    FigureCanvasAgg(figure)
+    for index, (title, values) in enumerate(panels):
+        axes = figure.add_subplot(1, len(panels), index + 1)
+        # Percentiles: a few extreme vertices (creases, cone tips) would wash out the rest of the field.
+        low, high = np.percentile(values[referenced], [2, 98])
+        if low < 0 < high:
+            low, high, cmap = -max(-low, high), max(-low, high), "RdBu_r"
+        else:
+            cmap = "viridis"
+        collection = plot_mesh_function(axes, mesh, values, up=args.up, cmap=cmap, vmin=low, vmax=high)
+        axes.set_title(title, fontsize=10)
+        figure.colorbar(collection, ax=axes, shrink=0.8)
+    figure.suptitle(name, fontsize=10)
+    return write_figure(figure, args.output, args.command)
 
 
 def format_info(name: str, report: MeshReport, stats: dict) -> str:
