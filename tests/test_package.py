@@ -13,11 +13,13 @@ from ddgjax._results import RESULTS, Solution, first_failure, outcome
 def test_import_loads_no_subpackage_until_used():
     code = (
         "import sys, ddgjax; loaded = sorted(m for m in sys.modules if m.startswith('ddgjax.')); print(loaded); "
-        "ddgjax.pde; print('ddgjax.pde' in sys.modules, 'ddgjax.plot' in sys.modules)"
+        "ddgjax.pde; print('ddgjax.pde' in sys.modules, 'ddgjax.plot' in sys.modules); "
+        "ddgjax.plot; print('plotly' in sys.modules)"
     )
     lines = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.splitlines()
     assert lines[0] == "['ddgjax._errors']"  # the exceptions only
     assert lines[1] == "True False"
+    assert lines[2] == "False"  # ddgjax.plot imports plotly only when show() draws (the viewer extra)
 
 
 def test_top_level_names_and_unknown_attributes():

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import jax.numpy as jnp
@@ -234,8 +233,3 @@ def test_missing_plotly_says_which_extra_to_install(sphere, monkeypatch):
     monkeypatch.setitem(sys.modules, "plotly.graph_objects", None)
     with pytest.raises(ImportError, match=r'pip install "ddgjax\[viewer\]"'):
         show(sphere)
-
-
-def test_import_ddgjax_plot_does_not_import_plotly():
-    code = "import sys, ddgjax, ddgjax.plot; print('plotly' in sys.modules)"
-    assert subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.strip() == "False"
