@@ -1,6 +1,6 @@
 """Make the gallery: one figure per capability, drawn by the `ddgjax` command line from built-in shapes.
 
-    python docs/make_gallery.py            # every figure (a few minutes on 2 cores), then docs/gallery.md
+    python docs/make_gallery.py            # every figure, then docs/gallery.md
     python docs/make_gallery.py geodesic   # only the named entries (the page is written anew either way)
 
 Each entry of `GALLERY` is one command line, run as `ddgjax ARGS --output docs/gallery/NAME.png` in this process

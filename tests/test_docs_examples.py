@@ -25,10 +25,9 @@ import pytest
 
 DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs"
 
-# Pages whose blocks take more than about 2 s together (measured on 2 cores; listed so the tiers are
-# decided statically, not by timing): the home page's tour eigensolves and compiles its first kernels
-# (~3-10 s); the guides differentiate through solves, eigensolves and flows (~135 s) and compare with
-# libigl, potpourri3d and PyTorch3D's formulas (~13-36 s each).
+# Pages whose blocks take more than about 2 s together, listed so the tiers are decided statically, not
+# by timing: the home page's tour eigensolves and compiles its first kernels; the guides differentiate through
+# solves, eigensolves and flows, and compare with libigl, potpourri3d and PyTorch3D's formulas.
 SLOW_PAGES = frozenset(
     {
         "index.md",
