@@ -7,7 +7,8 @@ intrinsic Delaunay), `ddgjax.sparse` (fixed-pattern sparse matrices), `ddgjax.so
 algebra: differentiable solves, CG, AMG), `ddgjax.pde` (Poisson / harmonic problems, Hodge
 decomposition, mean curvature flow, energies), `ddgjax.spectral` (Laplacian eigenpairs),
 `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields`
-(direction fields), `ddgjax.optim` (shape optimisation), `ddgjax.sharding` (several devices),
+(direction fields), `ddgjax.optim` (shape optimisation), `ddgjax.deform` (k-harmonic and ARAP
+deformation from handles), `ddgjax.sharding` (several devices),
 `ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
 their values, outcomes) is the table in docs/conventions.md.
 
@@ -35,6 +36,7 @@ from ._errors import MeshDataError as MeshDataError
 _SUBPACKAGES = (
     "curves",
     "dec",
+    "deform",
     "fields",
     "geodesics",
     "io",
@@ -66,6 +68,7 @@ _NAMES = {
 if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__ below does the same lazily
     from . import curves as curves
     from . import dec as dec
+    from . import deform as deform
     from . import fields as fields
     from . import geodesics as geodesics
     from . import io as io
