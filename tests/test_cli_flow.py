@@ -45,6 +45,7 @@ def default_run(tmp_path_factory):
     return status, out, err, output
 
 
+@pytest.mark.slow  # the main job end to end, with its figure (> 2 s)
 def test_flow_writes_a_figure(default_run):
     status, out, err, output = default_run
     assert status == 0, err
@@ -57,6 +58,7 @@ def test_flow_writes_a_figure(default_run):
     assert f"figure written to {output}" in out
 
 
+@pytest.mark.slow
 def test_flow_table_lists_every_flow_and_invariant(default_run):
     _, out, _, _ = default_run
     changes = _table(out)

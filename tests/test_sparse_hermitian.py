@@ -249,6 +249,7 @@ def test_lineax_tags_and_cg_on_complex_hermitian(hpd):
     assert lx.is_symmetric(from_scipy((base + base.T).tocsr()).as_lineax_operator())
 
 
+@pytest.mark.slow
 def test_gradients_with_complex_values(hpd):
     matrix, reference = hpd
     rng = np.random.default_rng(13)

@@ -147,6 +147,7 @@ def test_gradients_of_eigenvalues_eigenvectors_and_cluster_invariant_functions()
         np.testing.assert_allclose(jnp.vdot(gradient, direction), finite, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_jit_and_vmap_equal_eager():
     mesh = icosphere(2)
     eager = eigenpairs(mesh, 5, boundary="neumann")
