@@ -102,6 +102,14 @@ GALLERY = (
         "The smoothest vector field of the same sphere: two +1 singularities (Poincare-Hopf). `ddgjax.fields`.",
     ),
     Entry(
+        "deform",
+        "Deformation from handles",
+        ("deform", "--method", "both"),
+        "A cylinder's top ring turned a quarter turn, its bottom ring fixed: as-rigid-as-possible modelling keeps "
+        "the tube round where the biharmonic deformation pinches its middle. `ddgjax.deform.arap`, "
+        "`ddgjax.deform.biharmonic_deformation`.",
+    ),
+    Entry(
         "optimize_willmore",
         "Willmore flow",
         ("optimize", "--example", "willmore", "--no-progress"),

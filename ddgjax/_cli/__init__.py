@@ -1,7 +1,9 @@
 """The `ddgjax` command line: `ddgjax flow` (curve-shortening flows, the reading report's Figure 3),
 `ddgjax info` (topology and curvature report of a mesh), `ddgjax poisson` (a Poisson or harmonic
 problem solved on a mesh, with a picture of the solution), `ddgjax geodesic` (a heat-method distance
-field) and `ddgjax spectrum` (Laplacian eigenvalues and eigenfunctions).
+field), `ddgjax spectrum` (Laplacian eigenvalues and eigenfunctions), `ddgjax param` (flattenings),
+`ddgjax fields` (direction fields), `ddgjax optimize` (shape-optimisation examples) and `ddgjax deform`
+(ARAP and k-harmonic deformation from handles).
 
 Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
@@ -25,7 +27,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import fields, flow, info, optimize, param, poisson, spectral
+from . import deform, fields, flow, info, optimize, param, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -152,6 +154,15 @@ def build_parser() -> argparse.ArgumentParser:
             help="run a shape-optimisation example (Willmore flow to a sphere, catenoid, mesh fitting) and draw it",
             description="Run one shape-optimisation example on built-in shapes, compare with its analytic answer and "
             "write a figure of the shape before and after and the loss curve.",
+        )
+    )
+    deform.add_arguments(
+        sub.add_parser(
+            "deform",
+            parents=[common],
+            help="move handles of a mesh and deform the rest by ARAP or k-harmonic deformation, drawn side by side",
+            description="Fix the lowest vertices of a mesh, turn / lift / shift the highest, deform the rest as rigidly "
+            "as possible (ARAP) or by a k-harmonic displacement, print the solvers' numbers and draw the shapes.",
         )
     )
     return parser
