@@ -6,7 +6,7 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from ddgjax._cli.deform import handles, standing_cylinder
+from ddgjax._cli.deform import fixed_and_moved_vertices, standing_cylinder
 from ddgjax.deform import arap
 from ddgjax.io import save_mesh
 
@@ -21,7 +21,7 @@ def test_handles_are_the_lowest_and_highest_bands_turned_about_the_up_axis():
     for up in ("x", "y", "z"):
         rest = np.asarray(standing_cylinder(up).vertices)
         axis = "xyz".index(up)
-        fixed, moved, targets = handles(rest, up, 0.1, 0.3, 90.0, 0.2)
+        fixed, moved, targets = fixed_and_moved_vertices(rest, up, 0.1, 0.3, 90.0, 0.2)
         # 17 rings 0.125 apart: a band of 0.2 of the height 2 holds the two end rings of 32 vertices.
         assert fixed.size == moved.size == 64
         assert np.all(rest[fixed, axis] < -0.8) and np.all(rest[moved, axis] > 0.8)
@@ -43,10 +43,10 @@ def test_deform_default_writes_a_figure_and_moves_the_handles_exactly(tmp_path):
     assert matplotlib.image.imread(output).shape[0] > 100
     # The printed largest displacement is the quarter turn of the top ring: |d| = sqrt(2) r = 0.7071.
     assert "0.7071" in row.split()
-    # The same handles through the library: exact at the handles, the largest move at the top ring.
+    # The same handles through the library: exact at the fixed_and_moved_vertices, the largest move at the top ring.
     mesh = standing_cylinder()
     rest = np.asarray(mesh.vertices)
-    fixed, moved, targets = handles(rest, "z", 0.1, 0.0, 90.0, 0.0)
+    fixed, moved, targets = fixed_and_moved_vertices(rest, "z", 0.1, 0.0, 90.0, 0.0)
     deformed = np.asarray(
         arap(mesh, fixed_vertices=np.concatenate([fixed, moved]), fixed_values=np.concatenate([rest[fixed], targets]))
     )

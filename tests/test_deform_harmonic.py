@@ -186,3 +186,19 @@ def test_bad_input_names_the_argument(without_type_checker):
     two = disjoint_union([(np.asarray(mesh.vertices), np.asarray(mesh.faces))] * 2).mesh
     with pytest.raises(DDGInputError, match="fixed_vertices: every connected component needs a handle"):
         biharmonic_deformation(two, fixed_vertices=b, fixed_values=bc)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["arap", "biharmonic_deformation"])
+def test_degenerate_geometry_keeps_values_and_gradients_finite(name):
+    """Two vertices at one point (zero-length edge, zero-area faces): answers and handle gradients stay finite."""
+    import ddgjax.deform as deform
+
+    function = getattr(deform, name)
+    sphere = icosphere(2)
+    collapsed = sphere.with_vertices(sphere.vertices.at[1].set(sphere.vertices[0]))
+    fixed = jnp.array([10, 11, 12])
+    values = collapsed.vertices[fixed] + 0.1
+    assert jnp.all(jnp.isfinite(function(collapsed, fixed_vertices=fixed, fixed_values=values)))
+    gradient = jax.grad(lambda x: function(collapsed, fixed_vertices=fixed, fixed_values=x).sum())(values)
+    assert jnp.all(jnp.isfinite(gradient))

@@ -39,7 +39,7 @@ def standing_cylinder(up: str = "z") -> Mesh:
     return mesh.with_vertices(np.roll(np.asarray(mesh.vertices), _AXES[up] - 2, axis=1))
 
 
-def handles(vertices: np.ndarray, up: str, band: float, lift: float, turn: float, shift: float):
+def fixed_and_moved_vertices(vertices: np.ndarray, up: str, band: float, lift: float, turn: float, shift: float):
     """`(fixed, moved, targets)`: the vertices in the lowest / highest `band` of the height range along `up`,
     and the moved ones' new positions (turned by `turn` degrees about the up axis through their centroid,
     then lifted by `lift` along it and shifted by `shift` along the next axis, x -> y -> z -> x)."""
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             name, mesh = load_cli_mesh(args.mesh)
         rest = np.asarray(mesh.vertices, dtype=float)
-        fixed, moved, targets = handles(rest, args.up, args.band, args.lift, args.turn, args.shift)
+        fixed, moved, targets = fixed_and_moved_vertices(rest, args.up, args.band, args.lift, args.turn, args.shift)
         vertices = np.concatenate([fixed, moved])
         values = np.concatenate([rest[fixed], targets])
         methods = ("arap", "biharmonic") if args.method == "both" else (args.method,)
