@@ -236,7 +236,7 @@ def _check_order(k) -> int:
     return int(k)
 
 
-def _check_handles(mesh: Mesh, fixed_vertices, fixed_values) -> tuple[np.ndarray, Array]:
+def _check_handles(mesh: Mesh, fixed_vertices, fixed_values) -> tuple[ArrayLike, Array]:
     """The handles as given, refused when there are none or `fixed_values` is not `(n_fixed, 3)`.
 
     Indices (range, repeats, dtype) are `DirichletData`'s checks."""
