@@ -56,6 +56,7 @@ _PATTERNS = """
 import json
 import jax, numpy as np, sparsax
 jax.config.update("jax_enable_x64", True)
+from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import grid
 from ddgjax.solve import _linear, factorize, linear_solve
 _linear.CHOLMOD_PATTERNS = 3
