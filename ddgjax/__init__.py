@@ -8,7 +8,7 @@ algebra: differentiable solves, CG, AMG), `ddgjax.pde` (Poisson / harmonic probl
 decomposition, mean curvature flow, energies), `ddgjax.spectral` (Laplacian eigenpairs),
 `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields`
 (direction fields), `ddgjax.optim` (shape optimisation), `ddgjax.deform` (k-harmonic and ARAP
-deformation from handles), `ddgjax.sharding` (several devices),
+deformation from handles), `ddgjax.matching` (shape correspondence by functional maps), `ddgjax.sharding` (several devices),
 `ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
 their values, outcomes) is the table in docs/conventions.md.
 
@@ -41,6 +41,7 @@ _SUBPACKAGES = (
     "geodesics",
     "io",
     "laplacian",
+    "matching",
     "mesh",
     "optim",
     "param",
@@ -73,6 +74,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import geodesics as geodesics
     from . import io as io
     from . import laplacian as laplacian
+    from . import matching as matching
     from . import mesh as mesh
     from . import optim as optim
     from . import param as param

@@ -110,6 +110,14 @@ GALLERY = (
         "`ddgjax.deform.biharmonic_deformation`.",
     ),
     Entry(
+        "match",
+        "Shape correspondence",
+        ("match",),
+        "Two meshes of one lumpy surface (an icosphere and a UV sphere, the second bent by ARAP) matched by functional "
+        "maps with the orientation-aware term and ZoomOut: a checkerboard on the source pulled back to the target "
+        "through the map, next to the same through the true map. `ddgjax.matching.match_shapes`.",
+    ),
+    Entry(
         "optimize_willmore",
         "Willmore flow",
         ("optimize", "--example", "willmore", "--no-progress"),

@@ -2,8 +2,8 @@
 `ddgjax info` (topology and curvature report of a mesh), `ddgjax poisson` (a Poisson or harmonic
 problem solved on a mesh, with a picture of the solution), `ddgjax geodesic` (a heat-method distance
 field), `ddgjax spectrum` (Laplacian eigenvalues and eigenfunctions), `ddgjax param` (flattenings),
-`ddgjax fields` (direction fields), `ddgjax optimize` (shape-optimisation examples) and `ddgjax deform`
-(ARAP and k-harmonic deformation from handles).
+`ddgjax fields` (direction fields), `ddgjax optimize` (shape-optimisation examples), `ddgjax deform`
+(ARAP and k-harmonic deformation from handles) and `ddgjax match` (a point map between two meshes).
 
 Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
@@ -27,7 +27,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import deform, fields, flow, info, optimize, param, poisson, spectral
+from . import deform, fields, flow, info, match, optimize, param, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -163,6 +163,16 @@ def build_parser() -> argparse.ArgumentParser:
             help="move handles of a mesh and deform the rest by ARAP or k-harmonic deformation, drawn side by side",
             description="Fix the lowest vertices of a mesh, turn / lift / shift the highest, deform the rest as rigidly "
             "as possible (ARAP) or by a k-harmonic displacement, print the solvers' numbers and draw the shapes.",
+        )
+    )
+    match.add_arguments(
+        sub.add_parser(
+            "match",
+            parents=[common],
+            help="a point-to-point map between two meshes by functional maps, drawn as a texture carried through it",
+            description="Match two meshes (default: a built-in pair with known ground truth) by functional maps with "
+            "ZoomOut refinement, print the map's size, time and (with ground truth) its mean geodesic error, and draw "
+            "a checkerboard on the source pulled back to the target through the map.",
         )
     )
     return parser

@@ -9,8 +9,9 @@ multiplicity `2 l + 1`. Eigenvectors are M-orthonormal, `Phi^T M Phi = I`: the d
 
 On top of an eigenbasis: `spectral_coefficients` (`c = Phi^T M f`), `spectral_reconstruction`
 (`Phi c`), `spectral_filter` (`Phi g(Lambda) Phi^T M f`), `heat_kernel` (`k_t(x, y) = sum_i
-exp(-lambda_i t) phi_i(x) phi_i(y)`) and `heat_kernel_signature` (`k_t(x, x)`, Sun, Ovsjanikov &
-Guibas 2009), all plain JAX functions of the eigenpairs, so differentiable through them. They take
+exp(-lambda_i t) phi_i(x) phi_i(y)`), `heat_kernel_signature` (`k_t(x, x)`, Sun, Ovsjanikov &
+Guibas 2009) and `wave_kernel_signature` (band-passed `phi_i(x)^2` in log-eigenvalue, Aubry,
+Schlickewei & Cremers 2011), all plain JAX functions of the eigenpairs, so differentiable through them. They take
 the eigenvalues and eigenvectors as their first two arguments, so an `Eigenpairs` passes unpacked:
 `heat_kernel(*eigenpairs(mesh, 30), sources, t=0.1)`.
 
@@ -200,6 +201,61 @@ def heat_kernel_signature(
     """
     values, vectors, times = jnp.asarray(values), jnp.asarray(vectors), jnp.atleast_1d(jnp.asarray(t))
     return (vectors**2) @ jnp.exp(-values[:, None] * times[None, :])
+
+
+def wave_kernel_signature(
+    values: Float[ArrayLike, " k"],
+    vectors: Float[ArrayLike, "nv k"],
+    *,
+    energies: Float[ArrayLike, " n_energies"] | None = None,
+    n_energies: int = 100,
+    sigma: float | Float[ArrayLike, ""] | None = None,
+) -> Float[Array, "nv n_energies"]:
+    """The wave kernel signature `WKS(x, e) = sum_i w_i(e) phi_i(x)^2 / sum_i w_i(e)` (Aubry et al. 2011), `(nv, n_energies)`.
+
+    `w_i(e) = exp(-(e - log lambda_i)^2 / (2 sigma^2))`: a Gaussian band in log-eigenvalue around the
+    log-energy `e`, over the eigenpairs with `lambda_i > 1e-8 max lambda` (the constant eigenvector of
+    a closed or Neumann shape, `lambda_0 = 0`, carries no log-energy and is left out). Each column is
+    divided by its band's total weight `sum_i w_i(e)` (pyFM's `scaled=True`). One column per energy.
+
+    Default grid (pyFM's `auto_WKS`): with `l_0 <= l_1 <= ... <= l_{k-1}` the sorted `|lambda|`, `e_min = log l_1` (the
+    second smallest), `e_max = log l_{k-1}`, `sigma = 7 (e_max - e_min) / n_energies` and
+    `n_energies` log-energies evenly spaced on `[e_min + 2 sigma, e_max - 2 sigma]`. Pass `energies`
+    (log-energies) and/or `sigma` to choose them; a missing `sigma` is the default one for
+    `len(energies)` energies. Eigenvalues are expected ascending (as `eigenpairs` returns them).
+
+    A plain JAX function of the eigenpairs: under `jit`, differentiable (away from repeated
+    eigenvalues it is smooth; like the HKS it is invariant within eigenspaces).
+    pyFM: `pyFM.signatures.auto_WKS(values, vectors, n_energies)` (and `WKS(..., scaled=True)`).
+    Reference: M. Aubry, U. Schlickewei & D. Cremers, "The wave kernel signature: a quantum mechanical
+    approach to shape analysis" (2011).
+    """
+    values, vectors = jnp.asarray(values), jnp.asarray(vectors)
+    if energies is None:
+        energies, default_sigma = wave_kernel_energies(values, n_energies)
+    else:
+        energies = jnp.atleast_1d(jnp.asarray(energies))
+        default_sigma = wave_kernel_energies(values, energies.shape[0])[1]
+    weights = wave_kernel_weights(values, energies, default_sigma if sigma is None else sigma)
+    return (vectors**2) @ weights.T / jnp.sum(weights, axis=1)
+
+
+def wave_kernel_energies(values: Float[Array, " k"], n_energies: int) -> tuple[Float[Array, " n"], Float[Array, ""]]:
+    """pyFM's `auto_WKS` grid: `(log-energies (n_energies,), sigma)` from the sorted `|lambda|`."""
+    sorted_values = jnp.sort(jnp.abs(values))
+    e_min, e_max = jnp.log(sorted_values[1]), jnp.log(sorted_values[-1])
+    sigma = 7 * (e_max - e_min) / n_energies
+    return jnp.linspace(e_min + 2 * sigma, e_max - 2 * sigma, n_energies), sigma
+
+
+def wave_kernel_weights(values: Float[Array, " k"], energies: Float[Array, " n"], sigma) -> Float[Array, "n k"]:
+    """`w_i(e) = exp(-(e - log|lambda_i|)^2 / (2 sigma^2))`, 0 for `|lambda_i| <= 1e-8 max` (pyFM's dropped pairs)."""
+    magnitudes = jnp.abs(values)
+    kept = magnitudes > 1e-8 * jnp.max(magnitudes)
+    # The dropped pairs' log is taken of 1 so that neither the value nor its gradient is NaN.
+    log_values = jnp.log(jnp.where(kept, magnitudes, 1.0))
+    weights = jnp.exp(-jnp.square(energies[:, None] - log_values[None, :]) / (2 * jnp.square(sigma)))
+    return jnp.where(kept[None, :], weights, 0.0)
 
 
 def _basis(name: str, vectors, M: SparseMatrix) -> Float[Array, "nv k"]:

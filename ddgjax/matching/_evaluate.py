@@ -1,0 +1,76 @@
+"""The accuracy of a point map against ground truth: mean geodesic error over the area's square root (Kim et al. 2011)."""
+
+from __future__ import annotations
+
+import numpy as np
+from jaxtyping import ArrayLike, Int
+
+from .._errors import DDGInputError, check_count
+from ..geodesics import heat_distance_solver
+from ..mesh import Mesh, require_mesh, total_area
+
+
+def geodesic_error(
+    source_mesh: Mesh,
+    point_map: Int[ArrayLike, " n"],
+    true_point_map: Int[ArrayLike, " n"],
+    *,
+    n_samples: int | None = None,
+    seed: int = 0,
+) -> float:
+    """Mean geodesic distance on the source between predicted and true matches, over `sqrt(area)`.
+
+    `error = mean_i d_S(point_map[i], true_point_map[i]) / sqrt(area(S))` over the target vertices
+    `i` (all, or `n_samples` drawn without replacement), `d_S` the geodesic distance on the source
+    mesh by the heat method (`ddgjax.geodesics.heat_distance_solver`: one factorisation, one query
+    per distinct true source vertex). Normalising by the square root of the area makes errors of
+    shapes of any size comparable: 0.25 is about a quarter of the shape's width.
+
+    Args:
+        source_mesh: the source mesh (the point maps' values index its vertices).
+        point_map: `(n,)` predicted source vertex of each target vertex.
+        true_point_map: `(n,)` its true source vertex.
+        n_samples: evaluate on this many target vertices drawn at random (default: all), for large meshes.
+        seed: the seed of that draw (NumPy's `default_rng`).
+
+    Returns:
+        The normalised mean geodesic error, a Python float.
+
+    Reference: V. G. Kim, Y. Lipman, T. Funkhouser, "Blended intrinsic maps" (SIGGRAPH 2011),
+    section 7. pyFM computes geodesic errors in its examples from exact geodesic matrices
+    (`potpourri3d` or `gdist`).
+    """
+    mesh = require_mesh("source_mesh", source_mesh)
+    nv = mesh.n_vertices
+    predicted = _indices("point_map", point_map, nv)
+    true = _indices("true_point_map", true_point_map, nv)
+    if predicted.shape != true.shape:
+        raise DDGInputError(f"true_point_map: expected the shape of point_map {predicted.shape}, got {true.shape}")
+    if n_samples is not None:
+        n_samples = check_count("n_samples", n_samples)
+        if n_samples < predicted.size:
+            chosen = np.random.default_rng(seed).choice(predicted.size, n_samples, replace=False)
+            predicted, true = predicted[chosen], true[chosen]
+    solver = heat_distance_solver(mesh)
+    distance = np.empty(predicted.size)
+    # Only the true vertices that are missed need a query; each query serves every target vertex that shares it.
+    missed = predicted != true
+    distance[~missed] = 0.0
+    for source in np.unique(true[missed]):
+        pairs = np.flatnonzero(missed & (true == source))
+        distance[pairs] = np.asarray(solver.distance(int(source)))[predicted[pairs]]
+    return float(np.mean(distance) / np.sqrt(float(total_area(mesh))))
+
+
+def _indices(name: str, value, n_vertices: int) -> np.ndarray:
+    """A 1-D array of vertex indices in `[0, n_vertices)` on the host, else `DDGInputError`."""
+    array = np.asarray(value)
+    if array.ndim != 1 or array.size == 0 or not np.issubdtype(array.dtype, np.integer):
+        raise DDGInputError(
+            f"{name}: expected a non-empty 1-D array of source vertex indices, got shape {array.shape}, dtype {array.dtype}"
+        )
+    if array.min() < 0 or array.max() >= n_vertices:
+        raise DDGInputError(
+            f"{name}: expected indices in [0, {n_vertices}) (source vertices), got values in [{array.min()}, {array.max()}]"
+        )
+    return array.astype(np.int64)
