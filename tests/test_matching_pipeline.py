@@ -88,3 +88,20 @@ def test_bad_input(spot, without_type_checker):
         match_shapes(spot, spot, k=50, k_final=20)
     with pytest.raises(DDGInputError, match="target_mesh"):
         match_shapes(spot, np.zeros((3, 3)))
+
+
+def test_match_shapes_with_throw_false_reports_its_steps_outcome_in_a_solution():
+    """`throw=False`: the pipeline's result in a `ddgjax.Solution`, its `result` the first failed step's
+    (here none: a shape with no symmetry matched to itself maps every vertex to itself)."""
+    import ddgjax
+    from ddgjax.matching import MatchResult, match_shapes
+    from ddgjax.mesh import icosphere
+
+    mesh = icosphere(2, dtype=np.float64)
+    radii = 1.0 + 0.1 * np.random.default_rng(0).standard_normal(mesh.n_vertices)
+    mesh = mesh.with_vertices(np.asarray(mesh.vertices) * radii[:, None])
+    solution = match_shapes(mesh, mesh, k=10, k_final=20, throw=False)
+    assert isinstance(solution, ddgjax.Solution) and isinstance(solution.value, MatchResult)
+    assert solution.result == ddgjax.RESULTS.successful
+    assert solution.value.functional_map.shape == (20, 20)
+    np.testing.assert_array_equal(solution.value.point_map, np.arange(mesh.n_vertices))

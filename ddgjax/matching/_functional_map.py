@@ -196,6 +196,10 @@ def functional_map(
     structure = jax.ShapeDtypeStruct((k_t, k_s), A.dtype)
     if method == "cholesky":
         matrix = _hessian_matrix(mu_d, AAt, mu_l, mask, operator_terms, free)
+        # The energy can be flat along some maps (a shape matched to itself: every map commuting with its
+        # operators): a ridge at round-off of the diagonal picks the minimiser nearest 0, as CG from 0 does.
+        ridge = jax.lax.stop_gradient(jnp.max(jnp.diagonal(matrix))) * jnp.finfo(matrix.dtype).eps * matrix.shape[0]
+        matrix = matrix + ridge * jnp.eye(matrix.shape[0], dtype=matrix.dtype)
         operator = lx.MatrixLinearOperator(matrix, lx.positive_semidefinite_tag)
         solution = lx.linear_solve(operator, (rhs / scale).reshape(-1), lx.Cholesky(), throw=False)
         solution = eqx.tree_at(lambda sol: sol.value, solution, solution.value.reshape(k_t, k_s))

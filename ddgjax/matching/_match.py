@@ -6,6 +6,7 @@ import equinox as eqx
 from jaxtyping import Array, Float, Int
 
 from .._errors import DDGInputError, check_choice, check_count
+from .._results import Solution, first_failure, outcome
 from ..mesh import Mesh, require_mesh
 from ._descriptors import descriptors
 from ._functional_map import functional_map
@@ -49,7 +50,7 @@ def match_shapes(
     k_final: int = 100,
     robust: bool = False,
     throw: bool = True,
-) -> MatchResult:
+) -> MatchResult | Solution:
     """Match two shapes: for each target vertex its source vertex, by functional maps refined with ZoomOut.
 
     The pipeline (pyFM's `FunctionalMapping` preprocess / fit / zoomout_refine / get_p2p):
@@ -80,11 +81,13 @@ def match_shapes(
         k_final: ZoomOut's final size (default 100); ignored otherwise.
         robust: the intrinsic Delaunay Laplacian for both shapes (`spectral_shape(robust=True)`),
             for meshes with degenerate faces.
-        throw: a failed eigensolve or functional-map solve raises (default); with `False` it goes on
-            and the outcome is lost.
+        throw: a failed eigensolve or functional-map solve raises (default); with `False` the
+            pipeline runs to its end and returns a `ddgjax.Solution` whose `result` is the first
+            failure of its steps (`ddgjax.RESULTS.successful` when none failed).
 
     Returns:
-        `MatchResult` with `.point_map`, `.functional_map`, `.source`, `.target`.
+        `MatchResult` with `.point_map`, `.functional_map`, `.source`, `.target`; in a
+        `ddgjax.Solution` with `throw=False`.
 
     Reference: M. Ovsjanikov et al., "Functional maps" (SIGGRAPH 2012); S. Melzi et al., "ZoomOut"
     (SIGGRAPH Asia 2019). pyFM: `FunctionalMapping(mesh1, mesh2)`, `.preprocess(n_descr=100,
@@ -105,33 +108,31 @@ def match_shapes(
             raise DDGInputError(
                 f"{name}: {mesh.n_vertices} vertices are too few for {n_eigenpairs} eigenpairs: lower k and k_final"
             )
-    source = _unwrapped(spectral_shape(source_mesh, n_eigenpairs, robust=robust, throw=throw))
-    target = _unwrapped(spectral_shape(target_mesh, n_eigenpairs, robust=robust, throw=throw))
+    source_solution = spectral_shape(source_mesh, n_eigenpairs, robust=robust, throw=False)
+    target_solution = spectral_shape(target_mesh, n_eigenpairs, robust=robust, throw=False)
+    source, target = source_solution.value, target_solution.value
     source_descriptors = descriptors(source, kind=descriptor_kind, n_descriptors=n_descriptors)
     target_descriptors = descriptors(target, kind=descriptor_kind, n_descriptors=n_descriptors)
-    C = _unwrapped(
-        functional_map(
-            source,
-            target,
-            source_descriptors,
-            target_descriptors,
-            k_source=k,
-            k_target=k,
-            descriptor_weight=descriptor_weight,
-            laplacian_weight=laplacian_weight,
-            commutativity_weight=commutativity_weight,
-            orientation_weight=orientation_weight,
-            orientation=orientation,
-            throw=throw,
-        )
+    fit = functional_map(
+        source,
+        target,
+        source_descriptors,
+        target_descriptors,
+        k_source=k,
+        k_target=k,
+        descriptor_weight=descriptor_weight,
+        laplacian_weight=laplacian_weight,
+        commutativity_weight=commutativity_weight,
+        orientation_weight=orientation_weight,
+        orientation=orientation,
+        throw=False,
     )
+    C = fit.value
     if refine == "zoomout":
         C = zoomout_refine(C, source, target, k_final=k_final)
     elif refine == "icp":
         C = icp_refine(C, source, target)
-    return MatchResult(point_map=point_map(C, source, target), functional_map=C, source=source, target=target)
-
-
-def _unwrapped(value):
-    """The value of a `ddgjax.Solution` (`throw=False`), or the value itself."""
-    return value.value if hasattr(value, "result") and hasattr(value, "value") else value
+    match = MatchResult(point_map=point_map(C, source, target), functional_map=C, source=source, target=target)
+    # Every step runs: a failure is reported once, at the end, with what the pipeline made of it.
+    result = first_failure(source_solution.result, target_solution.result, fit.result)
+    return outcome(match, result, throw)
