@@ -15,7 +15,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import DDGInputError, check_choice
 from ..spectral._laplacian import wave_kernel_energies, wave_kernel_weights
-from ._shape import SpectralShape
+from ._shape import SpectralShape, require_spectral_shape
 
 DESCRIPTOR_KINDS = ("wks", "hks")
 
@@ -47,10 +47,7 @@ def descriptors(
     pyFM: `FunctionalMapping(m1, m2).preprocess(n_descr=n_descriptors, descr_type="WKS", landmarks=...,
     k_descr=n_eigenpairs)`'s `descr1` (pyFM's defaults: `k_descr=128`, no subsampling).
     """
-    if not isinstance(shape, SpectralShape):
-        raise DDGInputError(
-            f"shape: expected a SpectralShape (`ddgjax.matching.spectral_shape(mesh, k)`), got {type(shape).__name__}"
-        )
+    shape = require_spectral_shape("shape", shape)
     kind = check_choice("kind", kind, DESCRIPTOR_KINDS)
     if not isinstance(n_descriptors, (int, np.integer)) or n_descriptors < 1:
         raise DDGInputError(f"n_descriptors: expected a positive integer, got {n_descriptors!r}")

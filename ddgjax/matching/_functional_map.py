@@ -26,7 +26,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError, check_choice
 from .._results import RESULTS, Solution, outcome
-from ._shape import SpectralShape
+from ._shape import SpectralShape, require_spectral_shape
 
 ORIENTATIONS = ("preserving", "reversing")
 FUNCTIONAL_MAP_METHODS = ("auto", "cholesky", "cg")
@@ -113,11 +113,7 @@ def functional_map(
     functional maps" (2018); J. Ren, M. Panine, P. Wonka & M. Ovsjanikov, "Structured regularization
     of functional map computations" (2019).
     """
-    for name, shape in (("source", source), ("target", target)):
-        if not isinstance(shape, SpectralShape):
-            raise DDGInputError(
-                f"{name}: expected a SpectralShape (`ddgjax.matching.spectral_shape(mesh, k)`), got {type(shape).__name__}"
-            )
+    source, target = require_spectral_shape("source", source), require_spectral_shape("target", target)
     k_s = _basis_size("k_source", k_source, source)
     k_t = _basis_size("k_target", k_target, target)
     F_s = _descriptor_array("source_descriptors", source_descriptors, source)

@@ -20,17 +20,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import kernel
 from .._errors import DDGInputError, is_traced
-from ._shape import SpectralShape
-
-
-def require_spectral_shape(name: str, value) -> SpectralShape:
-    """`value` if it is a `SpectralShape`, else `DDGInputError` saying how to make one."""
-    if not isinstance(value, SpectralShape):
-        raise DDGInputError(
-            f"{name}: expected a ddgjax.matching.SpectralShape (make one with spectral_shape(mesh, k)), "
-            f"got {type(value).__name__}"
-        )
-    return value
+from ._shape import SpectralShape, require_spectral_shape
 
 
 def check_functional_map(name: str, C, source: SpectralShape, target: SpectralShape) -> tuple[int, int]:

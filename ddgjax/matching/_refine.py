@@ -21,8 +21,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_count
-from ._point_map import check_functional_map, embedded_nearest, project_point_map, require_spectral_shape
-from ._shape import SpectralShape
+from ._point_map import check_functional_map, embedded_nearest, project_point_map
+from ._shape import SpectralShape, require_spectral_shape
 
 
 def icp_refine(

@@ -10,6 +10,7 @@ from __future__ import annotations
 import equinox as eqx
 from jaxtyping import Array, Float
 
+from .._errors import DDGInputError
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import Solution, outcome
 from ..laplacian import IntrinsicTriangulation
@@ -55,3 +56,13 @@ def spectral_shape(
     operators = solution.value
     shape = SpectralShape(mesh=mesh, mass=operators.mass, values=operators.values, vectors=operators.vectors)
     return outcome(shape, solution.result, throw, solution.stats)
+
+
+def require_spectral_shape(name: str, value) -> SpectralShape:
+    """`value` if it is a `SpectralShape`, else `DDGInputError` saying how to make one."""
+    if not isinstance(value, SpectralShape):
+        raise DDGInputError(
+            f"{name}: expected a ddgjax.matching.SpectralShape (make one with spectral_shape(mesh, k)), "
+            f"got {type(value).__name__}"
+        )
+    return value
