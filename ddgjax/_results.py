@@ -42,9 +42,10 @@ class RESULTS(eqx.Enumeration):
         "inspect `result`."
     )
     max_steps_reached = (
-        "The iterative solver did not reach its tolerance within `max_steps` iterations. Raise "
-        '`max_steps`, loosen `rtol`, or use a direct method (`method="cholesky"`); pass `throw=False` '
-        "to inspect the result."
+        "The iteration did not reach its tolerance within `max_steps` iterations (an iterative linear "
+        "solve's, or the function's own loop: ARAP's local-global steps, ICP's refinements). Raise "
+        '`max_steps` or loosen `rtol`; for a linear solve, a direct method (`method="cholesky"`, '
+        '`solver="cholesky"`) avoids the iteration. Pass `throw=False` to inspect the result.'
     )
     singular = (
         "The solution does not solve the system to `residual_tolerance`: the matrix is singular (a "

@@ -6,7 +6,8 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from ddgjax._cli.match import checkerboard
+from ddgjax import DDGInputError
+from ddgjax._cli.match import built_in_pair, checkerboard
 
 from conftest import run_cli
 
@@ -33,3 +34,8 @@ def test_match_default_pair_remeshed_and_bent_is_matched_under_the_error_target(
     (row,) = [line for line in out.splitlines() if line.startswith("error")]
     assert float(row.split()[-1]) < 0.03
     assert matplotlib.image.imread(output).shape[0] > 100
+
+
+def test_built_in_pair_refuses_a_bad_size():
+    with pytest.raises(DDGInputError, match="subdivisions"):
+        built_in_pair(0)

@@ -21,10 +21,19 @@ def geodesic_error(
     """Mean geodesic distance on the source between predicted and true matches, over `sqrt(area)`.
 
     `error = mean_i d_S(point_map[i], true_point_map[i]) / sqrt(area(S))` over the target vertices
-    `i` (all, or `n_samples` drawn without replacement), `d_S` the geodesic distance on the source
-    mesh by the heat method (`ddgjax.geodesics.heat_distance_solver`: one factorisation, one query
-    per distinct true source vertex). Normalising by the square root of the area makes errors of
-    shapes of any size comparable: 0.25 is about a quarter of the shape's width.
+    `i` (all, or `n_samples` drawn uniformly without replacement: an unbiased estimate of the mean
+    over all), `d_S` the geodesic distance on the source mesh by the heat method
+    (`ddgjax.geodesics.heat_distance_solver`: one factorisation, one query per distinct true source
+    vertex), raised to the straight-line distance where it falls below it (a geodesic is never
+    shorter than the chord). Normalising by the square root of the area makes errors of shapes of
+    any size comparable: 0.25 is about a quarter of the shape's width.
+
+    Accuracy: the heat method (t = h^2) approximates geodesics to first order in the edge length
+    and underestimates short ones; against exact (MMP) geodesics on a 1,500-vertex mesh its mean
+    relative error is about 8% (low) within two edge lengths and 2% beyond, as potpourri3d's. The
+    chord bound makes a neighbour's distance exact (the edge) and removes most of the short-range
+    bias, where matching errors lie: the mean error is then within 1% of the exact one over pairs a
+    few edges apart and within 2% over distant pairs (tests/test_matching_pipeline.py).
 
     Args:
         source_mesh: the source mesh (the point maps' values index its vertices).
@@ -52,13 +61,13 @@ def geodesic_error(
             chosen = np.random.default_rng(seed).choice(predicted.size, n_samples, replace=False)
             predicted, true = predicted[chosen], true[chosen]
     solver = heat_distance_solver(mesh)
-    distance = np.empty(predicted.size)
+    positions = np.asarray(mesh.vertices, dtype=np.float64)
+    distance = np.linalg.norm(positions[predicted] - positions[true], axis=1)
     # Only the true vertices that are missed need a query; each query serves every target vertex that shares it.
     missed = predicted != true
-    distance[~missed] = 0.0
     for source in np.unique(true[missed]):
         pairs = np.flatnonzero(missed & (true == source))
-        distance[pairs] = np.asarray(solver.distance(int(source)))[predicted[pairs]]
+        distance[pairs] = np.maximum(distance[pairs], np.asarray(solver.distance(int(source)))[predicted[pairs]])
     return float(np.mean(distance) / np.sqrt(float(total_area(mesh))))
 
 

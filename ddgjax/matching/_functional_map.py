@@ -25,6 +25,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import DDGInputError, check_choice
+from .._numerics import safe_div, safe_norm
 from .._results import RESULTS, Solution, outcome
 from ._shape import SpectralShape, require_spectral_shape
 
@@ -299,8 +300,8 @@ def _orientation_operators(shape: SpectralShape, Phi, F) -> Float[Array, "d k k"
     V = shape.mesh.vertices
     v1, v2, v3 = V[faces[:, 0]], V[faces[:, 1]], V[faces[:, 2]]
     cross = jnp.cross(v2 - v1, v3 - v1)
-    double_area = jnp.linalg.norm(cross, axis=1)
-    normals = cross / double_area[:, None]
+    double_area = safe_norm(cross, axis=1)
+    normals = safe_div(cross, double_area[:, None])  # a zero-area face has no normal and contributes nothing
     # The hat-function gradient directions times the face area (pyFM's `Jc1, Jc2, Jc3`).
     J = jnp.stack([jnp.cross(normals, v3 - v2), jnp.cross(normals, v1 - v3), jnp.cross(normals, v2 - v1)], axis=1) / 2
     corner_mean = (Phi[faces[:, 0]] + Phi[faces[:, 1]] + Phi[faces[:, 2]]) / 3
@@ -308,9 +309,8 @@ def _orientation_operators(shape: SpectralShape, Phi, F) -> Float[Array, "d k k"
 
     def operator(f):
         # pyFM's `grad_f`: (f2 - f1) grad_2 + (f3 - f1) grad_3 with grad_u = J_u / area.
-        gradient = (
-            (f[faces[:, 1]] - f[faces[:, 0]])[:, None] * J[:, 1] + (f[faces[:, 2]] - f[faces[:, 0]])[:, None] * J[:, 2]
-        ) / (double_area[:, None] / 2)
+        gradient = (f[faces[:, 1]] - f[faces[:, 0]])[:, None] * J[:, 1] + (f[faces[:, 2]] - f[faces[:, 0]])[:, None] * J[:, 2]
+        gradient = safe_div(gradient, double_area[:, None] / 2)
         rotated = jnp.cross(normals, gradient)
         coefficients = jnp.einsum("fuc,fc->fu", J, rotated)  # (nf, 3)
         return corner_mean.T @ jnp.einsum("fu,fuk->fk", coefficients, corners)

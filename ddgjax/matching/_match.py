@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import equinox as eqx
+import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from .._errors import DDGInputError, check_choice, check_count
@@ -127,7 +128,8 @@ def match_shapes(
         orientation=orientation,
         throw=False,
     )
-    C = fit.value
+    # A failed fit (reported below) may hold NaN: zeroed, the steps after it still run and the result says why.
+    C = jnp.where(jnp.isfinite(fit.value), fit.value, 0.0)
     if refine == "zoomout":
         C = zoomout_refine(C, source, target, k_final=k_final)
     elif refine == "icp":

@@ -7,8 +7,9 @@ maps the delta function at a source vertex (coefficients `Phi_s[j]` up to its ma
 coefficients of its image on the target, which should be a delta at the matching target vertex.
 The way back, point map to functional map, is the projection `C = Phi_t^T M_t Phi_s[point_map]`.
 
-The searches go through `ddgjax.optim.nearest_neighbors` (a k-d tree on the host on a CPU, an exact
-chunked brute force on an accelerator); the matrix products are jitted kernels.
+The searches are an exact chunked brute force (`embedded_nearest`: one matrix product per chunk),
+as pyFM's are in more than 8 dimensions (its `kdtree_max_dim`): in the 50-100 dimensions of a
+spectral embedding a k-d tree visits nearly every leaf. The matrix products are jitted kernels.
 """
 
 from __future__ import annotations
