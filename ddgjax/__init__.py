@@ -47,6 +47,7 @@ _SUBPACKAGES = (
     "param",
     "pde",
     "plot",
+    "pointcloud",
     "sharding",
     "solve",
     "sparse",
@@ -80,6 +81,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import param as param
     from . import pde as pde
     from . import plot as plot
+    from . import pointcloud as pointcloud
     from . import sharding as sharding
     from . import solve as solve
     from . import sparse as sparse

@@ -37,11 +37,17 @@ def check_degree(n) -> int:
 
 @kernel(static_argnames=("boundary_scaling",))
 def _values(
-    mesh: Mesh, field: FieldPlan, vertex: TriangulationPlan, n: Float[ArrayLike, ""], *, boundary_scaling: str
+    mesh: Mesh,
+    field: FieldPlan,
+    vertex: TriangulationPlan,
+    n: Float[ArrayLike, ""],
+    edge_weights: Float[Array, " ne"] | None,
+    *,
+    boundary_scaling: str,
 ) -> Complex[Array, " nnz"]:
     # `n` is traced, not static: one program per mesh size serves every n.
     transport = connection_angles(mesh, field, boundary_scaling=boundary_scaling).transport
-    weights = edge_cotan_weights(mesh)
+    weights = edge_cotan_weights(mesh) if edge_weights is None else edge_weights
     rotations = jnp.exp(-1j * n * transport)
     low_high = -weights * rotations
     diagonal = jax.ops.segment_sum(jnp.repeat(weights, 2), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
@@ -83,10 +89,21 @@ def connection_laplacian(mesh: Mesh, *, n: int = 1, boundary_scaling: str = "geo
 
 
 def planned_connection_laplacian(
-    mesh: Mesh, field: FieldPlan, vertex: TriangulationPlan, n: Float[ArrayLike, ""], *, boundary_scaling: str
+    mesh: Mesh,
+    field: FieldPlan,
+    vertex: TriangulationPlan,
+    n: Float[ArrayLike, ""],
+    *,
+    boundary_scaling: str,
+    edge_weights: Float[Array, " ne"] | None = None,
 ) -> SparseMatrix:
-    """`connection_laplacian` from its host plans, unchecked: callable inside a kernel (whose mesh has no topology)."""
-    values = _values(mesh, field, vertex, n, boundary_scaling=boundary_scaling)
+    """`connection_laplacian` from its host plans, unchecked: callable inside a kernel (whose mesh has no topology).
+
+    `edge_weights` `(ne,)` replace the cotan weights `w_ij` (the mesh's edge order): the intrinsic Delaunay
+    Laplacian's weights of the mesh's edges (`>= 0`, finite on degenerate faces; 0 on an edge flipped away)
+    give the robust connection Laplacian of the vector and signed heat methods.
+    """
+    values = _values(mesh, field, vertex, n, edge_weights, boundary_scaling=boundary_scaling)
     return SparseMatrix(values, vertex.pattern, hermitian=True, positive_semidefinite=True)
 
 

@@ -1,0 +1,591 @@
+"""Parallel transport, the logarithmic map and geodesic centroids by the vector heat method, differentiable.
+
+The vector heat method (Sharp, Soliman & Crane 2019) diffuses tangent vectors for a short time with the
+connection Laplacian `A` (`ddgjax.fields.connection_laplacian(mesh, n=1)`, complex Hermitian in the
+vertices' polar coordinates) instead of the cotan Laplacian `L`. With `M` the lumped mass matrix,
+`t = t_coef * h^2` (`h` the mean edge length) and tangent vectors at vertex `i` written as complex
+numbers `z = v . e1_i + i v . e2_i` in the frames of `ddgjax.fields.tangent_bases`:
+
+- **Parallel transport** (the paper's Algorithm 1): one backward-Euler step of the vector heat flow
+  `(M + t A) Y = Y_0` from the sources' unit directions `Y_0 = z / |z|` (as geometry-central, so each
+  source steers its own region whatever its magnitude), the scalar heat flows `(M + t L) u = |z|` and
+  `(M + t L) phi = 1_sources`, and the transported field `X = Y / |Y| * u / phi`: the direction of the
+  diffused vector is the transport along the shortest geodesic from the nearest source (the
+  connection's diffusion is dominated by the shortest path for small `t`), the magnitude the nearest
+  source's (for one source `u / phi = |z|` exactly, and the scalar flows are not run).
+- **Logarithmic map** (the paper's Algorithm 2, section 7.1): the *horizontal* field `H`, the source's
+  `e1` transported everywhere (above); the *radial* field `R`, the vector heat flow of the unit field
+  pointing away from the source in its one-ring, integrated against the hat functions in closed form
+  (the paper's Appendix A, geometry-central's `addVertexOutwardBall`); the distance `r` by the heat
+  method (`ddgjax.geodesics.heat_distance` with the Neumann heat flow, on the same kept `M + t L`;
+  geometry-central integrates `R` instead: on the unit sphere the heat method's distance is three
+  times closer to the great-circle distance, tests). Parallel transport keeps angles, so the angle of
+  `R` against `H` at `x` is the angle at the source of the geodesic to `x` against `e1`:
+  `log_s(x) = r(x) * (R/H) / |R/H|`, in the source's frame `(e1, e2)`.
+- **Geodesic centroid** (Karcher mean, section 7.2, geometry-central `findCenter`): from a source
+  vertex `c`, the weighted mean `m = sum_k w_k log_c(x_k) / sum_k w_k` of the log map at `c`; the
+  centre moves to the vertex whose log coordinates lie nearest to `m` (a discrete step along `m`) until
+  it stays; the final centre is the point of the mesh whose log coordinates are `m`, found in the
+  triangles of `c`'s faces laid out by `log_c` (barycentric coordinates).
+
+`VectorHeatSolver` keeps the factorisations of `M + t L` (scalar heat), `M + t A` (vector heat, solved
+as its real form of twice the size) and the pinned `L` (the heat method's Poisson step), the tangent
+frames and the corners' polar angles and heights; a query is one vector solve (transport) or two
+vector solves and the heat method's two scalar solves (log map), in one compiled program.
+`robust=True` replaces the scalar operators by the intrinsic Delaunay ones, and the connection
+Laplacian's cotan weights by the intrinsic Delaunay weights of the mesh's edges (non-negative, 0 on
+an edge the intrinsic triangulation flipped away; transport still along mesh edges): a face with an
+angle near `pi` (a flat cap), whose cotan weight is large and negative, would otherwise make
+`M + t A` indefinite (`RESULTS.not_positive_definite`).
+Every step is a JAX function of the vertex positions and the solves differentiate implicitly, so the
+results are differentiable in the positions away from the cut locus (where the transported direction
+jumps) and from the source (where the log map's direction is undefined). Each solve reports its outcome
+(`ddgjax.RESULTS`); `throw=False` returns a `ddgjax.Solution` whose `stats` hold the largest relative
+residual and the CG iterations.
+
+References: N. Sharp, Y. Soliman, K. Crane, "The vector heat method", ACM TOG 38(3) (2019), sections
+4-7; K. Crane, C. Weischedel, M. Wardetzky, "Geodesics in heat" (2013). potpourri3d:
+`MeshVectorHeatSolver(V, F, t_coef, use_intrinsic_delaunay)` with `transport_tangent_vector(v, vector)`,
+`transport_tangent_vectors(vs, vectors)`, `compute_log_map(v, strategy="VectorHeat")`; geometry-central
+`VectorHeatMethodSolver::transportTangentVectors`, `computeLogMap`, `findCenter`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .._compile import at_top_level, kernel
+from .._errors import DDGInputError
+from .._indexing import take_rows, take_rows_or_zero
+from .._numerics import safe_div, safe_norm
+from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
+from .._results import RESULTS, Solution, first_failure, outcome
+from ..fields import connection_laplacian, connection_mass_matrix
+from ..fields._connection import _tangent_bases, connection_angles, plan_of, scaled_corner_angles
+from ..fields._laplacian import planned_connection_laplacian
+from ..fields._plan import FieldPlan, require_referenced
+from ..fields._smoothest import unit
+from ..internal import resolve_robust, vertex_plan
+from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
+from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradients, face_vertex_positions, require_mesh
+from ..solve import Factorization, factorize
+from ..solve._linear import cholmod_analysis, kept_analysis
+from ..sparse import DirichletPlan
+from ._heat import _factor_held, _Factors, _heat_method, _plans
+
+_INSIDE = 1e-9
+"""How far outside a face (in barycentric coordinates) a centroid still counts as inside it."""
+
+
+class GeodesicCentroid(NamedTuple):
+    """A geodesic centroid (`geodesic_centroid`), a point of the mesh; unpacks as `vertex, face, barycentric, position`.
+
+    Attributes:
+        vertex: `()` the vertex the discrete walk ended at (the log map's base).
+        face: `()` the face holding the centroid (a face of `vertex`).
+        barycentric: `(3,)` its barycentric coordinates in `face` (the face's vertex order): pass
+            `(face[None], barycentric[None])` as the sources of `heat_distance`.
+        position: `(3,)` the centroid in world coordinates.
+    """
+
+    vertex: Int[Array, ""]
+    face: Int[Array, ""]
+    barycentric: Float[Array, " 3"]
+    position: Float[Array, " 3"]
+
+
+class VectorHeatSolver(eqx.Module):
+    """The vector heat method's kept factorisations for one mesh (module docstring).
+
+    Made by `vector_heat_solver(mesh, ...)`; a pytree, so it passes into `jit`, and its queries take a
+    traced source vertex (they `vmap` over sources).
+
+    Attributes:
+        mesh: the mesh.
+        t: the heat flows' time `t_coef * h^2`.
+        heat: factorisation of the scalar heat operator `M + t L`.
+        vector_heat: factorisation of the vector heat operator `M + t A` (complex Hermitian).
+        poisson: factorisation of `L` with one vertex per component pinned (the heat method's last step).
+        poisson_plan: the pins' `DirichletPlan`.
+        components: `(nv,)` the connected component of each vertex.
+        area_gradients: `(nf, 3, 3)` `A_f grad phi_k` per face and corner (the heat method's sweeps).
+        e1, e2, normal: `(nv, 3)` the vertices' tangent frames (`ddgjax.fields.tangent_bases`).
+        corner_angles: `(nf, 3)` the corner angles.
+        heights: `(nf, 3)` each face's height from each corner, `2 A_f / |opposite edge|`.
+        corner_first, corner_second: `(nf, 3)` the polar angles, at each corner's vertex, of its first
+            edge (towards the next corner) and its second (towards the previous one).
+    """
+
+    mesh: Mesh
+    t: Float[Array, ""]
+    heat: Factorization
+    vector_heat: Factorization
+    poisson: Factorization
+    poisson_plan: DirichletPlan
+    components: Int[Array, " nv"]
+    area_gradients: Float[Array, "nf 3 3"]
+    e1: Float[Array, "nv 3"]
+    e2: Float[Array, "nv 3"]
+    normal: Float[Array, "nv 3"]
+    corner_angles: Float[Array, "nf 3"]
+    heights: Float[Array, "nf 3"]
+    corner_first: Float[Array, "nf 3"]
+    corner_second: Float[Array, "nf 3"]
+
+    def _kept(self) -> "_Kept":
+        return _Kept(**{name: getattr(self, name) for name in _Kept.__dataclass_fields__})
+
+    def transport(self, source, vector, *, throw: bool = True) -> Float[Array, "nv 3"] | Solution:
+        """Parallel transport of tangent vectors from source vertices to every vertex, `(nv, 3)` world coordinates.
+
+        Each vertex gets the vector of its nearest source transported along the shortest geodesic
+        (the paper's Algorithm 1, module docstring), tangent to its frame (`e1`, `e2`); zero vectors
+        on components that hold no source.
+
+        Args:
+            source: a vertex index, or `(m,)` vertex indices (concrete values are checked; under
+                `jit` a traced index is taken as is).
+            vector: `(3,)` (or `(m, 3)`, one per source) world-coordinate vectors at the sources; the
+                part along the source's normal is dropped (the vector is projected on its tangent plane).
+            throw: raise when a solve fails (default), or return a `ddgjax.Solution` (module docstring).
+        """
+        sources = _source_vertices(self.mesh, source)
+        vectors = _vectors(vector, sources.shape[0], self.e1.dtype)
+        value, result, stats = _transport(self.mesh, self._kept(), sources, vectors)
+        return outcome(value, result, throw, stats)
+
+    def log_map(self, source, *, throw: bool = True) -> Float[Array, "nv 2"] | Solution:
+        """The logarithmic map at a source vertex, `(nv, 2)`: each vertex's coordinates in the source's frame.
+
+        Row `x` is `r(x) (cos a, sin a)`: `r` the geodesic distance (heat method), `a` the angle
+        at the source, from `e1` towards `e2` (`tangent_bases(mesh)` at the source), of the shortest
+        geodesic to `x` (module docstring); `inf` on components the source does not reach.
+
+        Args:
+            source: a vertex index (checked when concrete; traced under `jit`).
+            throw: raise when a solve fails (default), or return a `ddgjax.Solution`.
+        """
+        (source,) = _source_vertices(self.mesh, source, single=True)
+        value, result, stats = _log_map(self.mesh, self._kept(), source)
+        return outcome(value, result, throw, stats)
+
+
+class _Kept(eqx.Module):
+    """`VectorHeatSolver` without its mesh, which a kernel takes apart (as the heat method's `_Factors`)."""
+
+    t: Float[Array, ""]
+    heat: Factorization
+    vector_heat: Factorization
+    poisson: Factorization
+    poisson_plan: DirichletPlan
+    components: Int[Array, " nv"]
+    area_gradients: Float[Array, "nf 3 3"]
+    e1: Float[Array, "nv 3"]
+    e2: Float[Array, "nv 3"]
+    normal: Float[Array, "nv 3"]
+    corner_angles: Float[Array, "nf 3"]
+    heights: Float[Array, "nf 3"]
+    corner_first: Float[Array, "nf 3"]
+    corner_second: Float[Array, "nf 3"]
+
+
+def vector_heat_solver(
+    mesh: Mesh,
+    *,
+    t_coef: float = 1.0,
+    mass: str = "voronoi",
+    robust: bool | IntrinsicTriangulation = False,
+    solver: str = "auto",
+) -> VectorHeatSolver:
+    """Factor the vector heat method's systems for `mesh` once (module docstring); query `.transport`, `.log_map`.
+
+    Args:
+        mesh: a manifold, consistently oriented triangle mesh with every vertex in a face (boundaries,
+            several components and any genus are fine; `MeshDataError` otherwise).
+        t_coef: the heat flows' time in units of the squared mean edge length (1 in the paper).
+        mass: the lumped mass matrix `M` of both flows, `"voronoi"` (default) or `"barycentric"`
+            (potpourri3d's; `"galerkin"` is refused: the vector flow needs a lumped mass,
+            `ddgjax.fields.connection_mass_matrix`).
+        robust: the intrinsic Delaunay `L` and `M` (`True` or an `IntrinsicTriangulation`,
+            `ddgjax.laplacian.laplacian_and_mass`), and their edge weights in the connection
+            Laplacian (module docstring): for meshes with degenerate or obtuse faces.
+        solver: the backend of the kept factorisations (`ddgjax.LINEAR_SOLVERS`).
+
+    Returns:
+        `VectorHeatSolver`; its queries take `throw=`.
+
+    potpourri3d: `MeshVectorHeatSolver(V, F, t_coef=1.0, use_intrinsic_delaunay=True)`: compare with
+    `use_intrinsic_delaunay=False` and `mass="barycentric"` (tests).
+    """
+    mesh = require_mesh("mesh", mesh)
+    L, M, A, MA, plans, field_plan, t_coef = _operators(mesh, t_coef, mass, robust, solver)
+    with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
+        kept = _factor(mesh, L, M, A, MA, plans.poisson, plans.components, field_plan, t_coef, solver=solver)
+        if at_top_level():
+            jax.block_until_ready(kept)  # the factorisations run in the block
+    return VectorHeatSolver(mesh=mesh, **{name: getattr(kept, name) for name in _Kept.__dataclass_fields__})
+
+
+def parallel_transport(
+    mesh: Mesh,
+    source,
+    vector,
+    *,
+    t_coef: float = 1.0,
+    mass: str = "voronoi",
+    robust: bool | IntrinsicTriangulation = False,
+    solver: str = "auto",
+    throw: bool = True,
+) -> Float[Array, "nv 3"] | Solution:
+    """Parallel transport of a tangent vector at a source vertex to every vertex along shortest geodesics, `(nv, 3)`.
+
+    The vector heat method's Algorithm 1 (module docstring): `(M + t A) Y = Y_0`, the direction of `Y`
+    with the source's magnitude (with several sources, the nearest source's: the diffused magnitudes
+    over the diffused indicator). The result at vertex `i` is a world-coordinate vector in its
+    tangent plane (`Re z e1_i + Im z e2_i`). Differentiable in the vertex positions and `vector`
+    away from the cut locus. For many queries keep the factorisations: `vector_heat_solver(mesh).transport(...)`.
+
+    Args:
+        mesh: the mesh (as `vector_heat_solver`).
+        source: a vertex index (or `(m,)` indices).
+        vector: `(3,)` (or `(m, 3)`) world-coordinate vectors at the sources, projected on their tangent planes.
+        t_coef, mass, robust, solver: as `vector_heat_solver`.
+        throw: raise when a solve fails (default), or return a `ddgjax.Solution`.
+
+    Returns:
+        `(nv, 3)` tangent vectors (in a `ddgjax.Solution` with `throw=False`).
+
+    potpourri3d: `MeshVectorHeatSolver(V, F).transport_tangent_vector(v, [x, y])` returns `(nv, 2)`
+    coordinates in its own frames (`get_tangent_frames()`); here world coordinates. Reference: Sharp,
+    Soliman & Crane (2019), Algorithm 1.
+    """
+    mesh = require_mesh("mesh", mesh)
+    sources = _source_vertices(mesh, source)  # refuse bad sources before factoring
+    _vectors(vector, sources.shape[0], mesh.vertices.dtype)
+    return vector_heat_solver(mesh, t_coef=t_coef, mass=mass, robust=robust, solver=solver).transport(source, vector, throw=throw)
+
+
+def log_map(
+    mesh: Mesh,
+    source,
+    *,
+    t_coef: float = 1.0,
+    mass: str = "voronoi",
+    robust: bool | IntrinsicTriangulation = False,
+    solver: str = "auto",
+    throw: bool = True,
+) -> Float[Array, "nv 2"] | Solution:
+    """The logarithmic map at a source vertex, `(nv, 2)` coordinates in the source's tangent frame.
+
+    `log_s(x) = r(x) (R/H)(x) / |(R/H)(x)|` (module docstring): `r` the heat method's distance, `R` the
+    diffused radial field, `H` the source's `e1` transported; coordinates along `e1` and `e2` of
+    `ddgjax.fields.tangent_bases(mesh)` at the source. On the unit sphere `|log_s(x)| = arccos(x . s)`
+    and its direction is that of `x - s` projected on the tangent plane (tests). Differentiable in the
+    vertex positions away from the source and the cut locus; `inf` on components without the source.
+    For many queries keep the factorisations: `vector_heat_solver(mesh).log_map(source)`.
+
+    Args:
+        mesh: the mesh (as `vector_heat_solver`).
+        source: a vertex index.
+        t_coef, mass, robust, solver: as `vector_heat_solver`.
+        throw: raise when a solve fails (default), or return a `ddgjax.Solution`.
+
+    Returns:
+        `(nv, 2)` log coordinates (in a `ddgjax.Solution` with `throw=False`).
+
+    potpourri3d: `MeshVectorHeatSolver(V, F).compute_log_map(v, strategy="VectorHeat")` (the paper's
+    algorithm; its default `"AffineLocal"` is the affine heat method), in its own frame at `v`: the two
+    differ by the rotation between the frames' first axes. Reference: Sharp, Soliman & Crane (2019),
+    section 7.1 and Algorithm 2.
+    """
+    mesh = require_mesh("mesh", mesh)
+    _source_vertices(mesh, source, single=True)
+    return vector_heat_solver(mesh, t_coef=t_coef, mass=mass, robust=robust, solver=solver).log_map(source, throw=throw)
+
+
+def geodesic_centroid(
+    mesh: Mesh,
+    sources,
+    *,
+    weights=None,
+    max_steps: int = 64,
+    t_coef: float = 1.0,
+    mass: str = "voronoi",
+    robust: bool | IntrinsicTriangulation = False,
+    solver: str = "auto",
+    throw: bool = True,
+) -> GeodesicCentroid | Solution:
+    """The weighted geodesic centroid (Karcher mean) of source vertices, a point of the mesh (`GeodesicCentroid`).
+
+    Minimises `sum_k w_k d(c, x_k)^2` by the fixed-point iteration of the vector heat method's paper
+    (section 7.2; module docstring): at the current vertex `c`, `m = sum_k w_k log_c(x_k) / sum_k w_k`;
+    `c` moves to the vertex whose log coordinates are nearest to `m` and stops when it stays (the walk
+    is discrete, so it ends exactly: no `rtol`); the centroid is then the point whose log coordinates
+    at `c` are `m`, in one of `c`'s faces. It starts at the heaviest source. Converges when the sources
+    lie well inside a convex geodesic ball (the Karcher mean is unique there); on the unit sphere two
+    points give the midpoint of their great-circle arc (tests). The position and barycentric
+    coordinates are differentiable in the vertex positions and `weights` for a fixed final vertex and
+    face; runs as one `lax.while_loop` (jit-able).
+
+    Args:
+        mesh: the mesh (as `vector_heat_solver`).
+        sources: `(m,)` vertex indices (or one).
+        weights: `(m,)` non-negative weights, not all 0 (default: equal).
+        max_steps: the most moves of the walk (`RESULTS.max_steps_reached` beyond; default 64).
+        t_coef, mass, robust, solver: as `vector_heat_solver`.
+        throw: raise when a solve fails or the walk does not settle (default), or return a
+            `ddgjax.Solution` (`stats`: `"num_steps"`, the moves made).
+
+    Returns:
+        `GeodesicCentroid(vertex, face, barycentric, position)` (in a `ddgjax.Solution` with `throw=False`).
+
+    geometry-central: `findCenter(mesh, geom, vectorHeatSolver, points, p=2)` (it traces geodesics
+    from a surface point; not in potpourri3d).
+    """
+    mesh = require_mesh("mesh", mesh)
+    points = _source_vertices(mesh, sources)
+    m = points.shape[0]
+    if weights is None:
+        weights = jnp.ones(m, mesh.vertices.dtype)
+    else:
+        weights = jnp.asarray(weights, mesh.vertices.dtype)
+        if weights.shape != (m,):
+            raise DDGInputError(f"weights: expected shape ({m},), one per source, got {weights.shape}")
+        if not isinstance(weights, jax.core.Tracer) and (np.any(np.asarray(weights) < 0) or not np.any(np.asarray(weights) > 0)):
+            raise DDGInputError("weights: expected non-negative weights, not all 0")
+    if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise DDGInputError(f"max_steps: expected a positive integer, got {max_steps!r}")
+    vector_solver = vector_heat_solver(mesh, t_coef=t_coef, mass=mass, robust=robust, solver=solver)
+    value, result, stats = _centroid(mesh, vector_solver._kept(), points, weights, max_steps=int(max_steps))
+    return outcome(value, result, throw, stats)
+
+
+def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
+    """Checked options, then the host-built operators and plans the factor kernel takes."""
+    check_mass(mass, LUMPED_MASS_MATRICES)
+    check_solver(solver)
+    if isinstance(t_coef, bool) or not isinstance(t_coef, (int, float, np.integer, np.floating)) or not t_coef > 0:
+        raise DDGInputError(f"t_coef: expected a positive number, got {t_coef!r}")
+    field_plan = plan_of(mesh)
+    require_referenced(mesh, "vector_heat_solver")
+    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="vector_heat_solver")
+    L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
+    plans = _plans(mesh, "neumann", L.pattern, cached=triangulation is None)
+    if triangulation is None:
+        A, MA = connection_laplacian(mesh, n=1), connection_mass_matrix(mesh, mass=mass)
+    else:  # the intrinsic Delaunay weights of the mesh's edges (>= 0; 0 where flipped away) and mass
+        edges = mesh.topology.edges
+        weights = -take_rows_or_zero(L.values, jnp.asarray(L.pattern.slots(edges[:, 0], edges[:, 1])))
+        A = planned_connection_laplacian(
+            mesh, field_plan, vertex_plan(mesh), 1.0, boundary_scaling="geodesic", edge_weights=weights
+        )
+        MA = M
+    return L, M, A, MA, plans, field_plan, jnp.asarray(float(t_coef), L.values.dtype)
+
+
+@kernel(static_argnames=("solver",))
+def _factor(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: FieldPlan, t_coef, *, solver: str):
+    t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
+    e1, e2, normal = _tangent_bases(mesh, field_plan)
+    corners = face_vertex_positions(mesh)
+    areas = face_areas(mesh)
+    opposite = safe_norm(jnp.roll(corners, -1, axis=1) - jnp.roll(corners, -2, axis=1))
+    first = connection_angles(mesh, field_plan, boundary_scaling="geodesic").corner_polar
+    return _Kept(
+        t=t,
+        heat=factorize(M + t * L, method=solver),
+        vector_heat=factorize(MA + t * A, method=solver),
+        poisson=_factor_held(L, poisson_plan, solver),
+        poisson_plan=poisson_plan,
+        components=components,
+        area_gradients=areas[:, None, None] * face_hat_gradients(mesh),
+        e1=e1,
+        e2=e2,
+        normal=normal,
+        corner_angles=corner_angles(mesh),
+        heights=safe_div(2.0 * areas[:, None], opposite),
+        corner_first=first,
+        corner_second=first + scaled_corner_angles(mesh, field_plan, "geodesic"),
+    )
+
+
+def _source_vertices(mesh: Mesh, source, *, single: bool = False) -> Int[Array, " m"]:
+    """`source` as a `(m,)` integer array (`(1,)` when `single`), refusing malformed or out-of-range concrete indices."""
+    what = "a vertex index" if single else "a vertex index or a 1-d array of them"
+    if isinstance(source, jax.core.Tracer):
+        if not jnp.issubdtype(source.dtype, jnp.integer) or source.ndim > (0 if single else 1):
+            raise DDGInputError(f"source: expected {what}, got a traced {source.dtype} array of shape {source.shape}")
+        return jnp.atleast_1d(source)
+    vertices = np.atleast_1d(np.asarray(source))
+    if (
+        vertices.ndim != 1
+        or vertices.size == 0
+        or (single and vertices.size != 1)
+        or not np.issubdtype(vertices.dtype, np.integer)
+        or (single and np.ndim(source) != 0)
+    ):
+        raise DDGInputError(f"source: expected {what}, got {source!r}")
+    outside = (vertices < 0) | (vertices >= mesh.n_vertices)
+    if outside.any():
+        raise DDGInputError(f"source: vertex indices must lie in [0, {mesh.n_vertices}), got {vertices[outside][:5].tolist()}")
+    return jnp.asarray(vertices)
+
+
+def _vectors(vector, m: int, dtype) -> Float[Array, "m 3"]:
+    """`vector` as `(m, 3)` (one `(3,)` vector is shared by the `m` sources only when `m == 1`)."""
+    vector = jnp.asarray(vector, dtype)
+    if vector.shape == (3,):
+        vector = vector[None]
+    if vector.shape != (m, 3):
+        raise DDGInputError(
+            f"vector: expected a (3,) world-coordinate vector per source, shape ({m}, 3) or (3,) for one, got {vector.shape}"
+        )
+    return vector
+
+
+def _stats(*solutions) -> tuple[RESULTS, dict]:
+    result = first_failure(*(solution.result for solution in solutions))
+    return result, {
+        "residual": jnp.max(jnp.stack([solution.residual for solution in solutions])),
+        "num_steps": sum(solution.num_steps for solution in solutions),
+    }
+
+
+def _point_masses(n: int, indices, values) -> Array:
+    """`(n,)` zeros with `values` added at `indices` (the heat flows' initial conditions)."""
+    return jnp.zeros(n, values.dtype).at[indices].add(values)
+
+
+@kernel
+def _transport(mesh: Mesh, solver: _Kept, sources, vectors):
+    """`(vectors (nv, 3), result, stats)` of `VectorHeatSolver.transport`."""
+    n = mesh.n_vertices
+    z = jax.lax.complex(jnp.sum(vectors * solver.e1[sources], -1), jnp.sum(vectors * solver.e2[sources], -1))
+    magnitude = jnp.abs(z)
+    # Unit directions diffused (as geometry-central): each source steers its own region whatever its magnitude.
+    vector_solution = solver.vector_heat.solve(_point_masses(n, sources, unit(z)), throw=False)
+    solutions = [vector_solution]
+    if sources.shape[0] == 1:  # the diffused magnitude over the diffused indicator is |z| exactly
+        magnitude = magnitude[0]
+    else:
+        rhs = jnp.stack([_point_masses(n, sources, magnitude), _point_masses(n, sources, jnp.ones_like(magnitude))], axis=1)
+        scalar_solution = solver.heat.solve(rhs, throw=False)
+        solutions.append(scalar_solution)
+        magnitude = safe_div(scalar_solution.value[:, 0], scalar_solution.value[:, 1])  # 0 where no source reaches
+    field = unit(vector_solution.value) * magnitude
+    value = field.real[:, None] * solver.e1 + field.imag[:, None] * solver.e2
+    return (value, *_stats(*solutions))
+
+
+def _outward_ball(mesh: Mesh, solver: _Kept, source) -> Array:
+    """The radial field's right-hand side at a (possibly traced) source vertex, `(nv,)` complex: the unit
+    field pointing away from the source in its one-ring, integrated against the hat functions in closed
+    form (the paper's Appendix A), in each vertex's polar coordinates."""
+    theta = solver.corner_angles  # (nf, 3) the source's corner angle when corner k is the source
+    h = solver.heights
+    h_next, h_prev = jnp.roll(h, -1, axis=1), jnp.roll(h, -2, axis=1)
+    gamma = jnp.roll(solver.corner_angles, -1, axis=1)  # the angle at the next corner
+    # Per corner k taken as the source s, with a = the next corner and b = the previous one:
+    # the face seen from the edge s -> a (at a), from the edge s -> b (at b), and at s itself.
+    along = theta * jnp.cos(theta) - jnp.sin(theta)
+    at_next = (-theta * jnp.sin(theta) + 1j * along) / (2.0 * h_next) * jnp.exp(1j * jnp.roll(solver.corner_second, -1, axis=1))
+    at_prev = (-theta * jnp.sin(theta) - 1j * along) / (2.0 * h_prev) * jnp.exp(1j * jnp.roll(solver.corner_first, -2, axis=1))
+    alpha = jnp.pi / 2.0 - gamma
+    at_self = (
+        -(theta * jnp.cos(alpha) + jnp.cos(alpha - theta) * jnp.sin(theta)) / (2.0 * h)
+        - 1j * (jnp.cos(alpha) - jnp.cos(alpha - 2.0 * theta) + 2.0 * theta * jnp.sin(alpha)) / (4.0 * h)
+    ) * jnp.exp(1j * solver.corner_first)
+    faces = mesh.faces
+    is_source = faces == source
+    targets = jnp.concatenate([jnp.roll(faces, -1, axis=1), jnp.roll(faces, -2, axis=1), faces]).reshape(-1)
+    values = jnp.where(jnp.tile(is_source, (3, 1)), jnp.concatenate([at_next, at_prev, at_self]), 0.0).reshape(-1)
+    return jnp.zeros(mesh.n_vertices, values.dtype).at[targets].add(values)
+
+
+def _log_map_steps(mesh: Mesh, solver: _Kept, source):
+    """`(log (nv, 2), result, stats)` at a (possibly traced) source vertex: the module docstring's algorithm."""
+    n = mesh.n_vertices
+    radial = _outward_ball(mesh, solver, source)
+    horizontal = jnp.zeros(n, radial.dtype).at[source].set(1.0)
+    # Two one-column solves: faster than one two-column solve with a simplicial CHOLMOD factor.
+    radial_solution = solver.vector_heat.solve(radial, throw=False)
+    horizontal_solution = solver.vector_heat.solve(horizontal, throw=False)
+    R, H = radial_solution.value, horizontal_solution.value
+    corners = jnp.full((1, 3), source)
+    weights = jnp.zeros((1, 3), solver.t.dtype).at[0, 0].set(1.0)
+    factors = _Factors(
+        solver.heat, None, None, None, solver.poisson, solver.poisson_plan, solver.components, solver.area_gradients
+    )
+    steps, heat_result, heat_stats = _heat_method(mesh, factors, corners, weights)
+    r = steps.distance
+    direction = unit(R * jnp.conj(H))
+    reached = jnp.isfinite(r)
+    r_finite = jnp.where(reached, r, 0.0)
+    log = jnp.stack([direction.real, direction.imag], axis=-1) * r_finite[:, None]
+    log = jnp.where(reached[:, None], log, jnp.inf)
+    vector_result, vector_stats = _stats(radial_solution, horizontal_solution)
+    result = first_failure(heat_result, vector_result)
+    stats = {
+        "residual": jnp.maximum(heat_stats["residual"], vector_stats["residual"]),
+        "num_steps": heat_stats["num_steps"] + vector_stats["num_steps"],
+    }
+    return log, result, stats
+
+
+@kernel
+def _log_map(mesh: Mesh, solver: _Kept, source):
+    return _log_map_steps(mesh, solver, source)
+
+
+@kernel(static_argnames=("max_steps",))
+def _centroid(mesh: Mesh, solver: _Kept, points, weights, *, max_steps: int):
+    """`(GeodesicCentroid, result, stats)` of `geodesic_centroid`: the walk, then the point in one of its faces."""
+    total = jnp.sum(weights)
+    faces = mesh.faces
+
+    def locate(c):
+        """At vertex `c`: the mean log vector `m`, the face of `c` whose layout holds it best, its barycentric
+        coordinates there, whether it lies inside, the vertex whose log coordinates are nearest to `m`."""
+        log, result, _ = _log_map_steps(mesh, solver, c)
+        m = jnp.sum(weights[:, None] * log[points], axis=0) / total
+        corners = log[faces]  # (nf, 3, 2): every face laid out by the log map at `c`
+        a, first, second = corners[:, 0], corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+        p = m - a
+        det = first[:, 0] * second[:, 1] - first[:, 1] * second[:, 0]
+        safe = jnp.where(det != 0, det, 1.0)
+        beta = (p[:, 0] * second[:, 1] - p[:, 1] * second[:, 0]) / safe
+        gamma = (first[:, 0] * p[:, 1] - first[:, 1] * p[:, 0]) / safe
+        barycentric = jnp.stack([1.0 - beta - gamma, beta, gamma], axis=-1)
+        usable = jnp.any(faces == c, axis=1) & (det != 0) & jnp.all(jnp.isfinite(corners), axis=(1, 2))
+        depth = jnp.where(usable, jnp.min(barycentric, axis=-1), -jnp.inf)
+        face = jnp.argmax(depth)
+        nearest = jnp.argmin(jnp.where(jnp.isfinite(log[:, 0]), jnp.sum((log - m) ** 2, axis=-1), jnp.inf))
+        return face, barycentric[face], depth[face] >= -_INSIDE, nearest, result
+
+    def cond(state):
+        _, _, step, done, _ = state
+        return ~done & (step < max_steps)
+
+    def body(state):
+        c, previous, step, _, result = state
+        _, _, inside, nearest, located = locate(c)
+        # Inside `c`'s star the walk is over; a walk back to the previous vertex is a tie between the two.
+        done = inside | (nearest == c) | (nearest == previous)
+        return jnp.where(done, c, nearest), c, step + 1, done, first_failure(result, located)
+
+    start = points[jnp.argmax(weights)]
+    c, _, steps, settled, result = jax.lax.while_loop(
+        cond, body, (start, jnp.asarray(-1, start.dtype), jnp.asarray(0), jnp.asarray(False), RESULTS.successful)
+    )
+    face, barycentric, _, _, final = locate(c)
+    barycentric = jnp.clip(barycentric, 0.0, None)  # `m` past the mesh's boundary: the nearest point of the face
+    barycentric = barycentric / jnp.sum(barycentric)
+    position = barycentric @ take_rows(mesh.vertices, faces[face])
+    result = first_failure(result, final, RESULTS.where(settled, RESULTS.successful, RESULTS.max_steps_reached))
+    return GeodesicCentroid(c, face, barycentric, position), result, {"num_steps": steps}

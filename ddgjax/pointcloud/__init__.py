@@ -1,0 +1,20 @@
+"""Operators on point clouds: the Laplacian of Sharp & Crane 2020, PCA normals, heat-method geodesic distance.
+
+- `point_cloud_triangulation(points, n_neighbors=30)`: the tufted intrinsic Delaunay triangulation of
+  the points' local Delaunay triangulations, built once on the host (`PointCloudTriangulation`),
+  whose metric is replayed in JAX from the positions;
+- `point_cloud_laplacian(points, n_neighbors=30)`: `LaplacianAndMass(L, M)`, robust_laplacian's
+  `point_cloud_laplacian` (PSD `L`, the same sign), differentiable in the points;
+- `point_cloud_normals(points, n_neighbors=30)`: unoriented PCA normals, differentiable;
+- `point_cloud_heat_distance(points, sources)` and `point_cloud_heat_solver(points).distance(sources)`
+  (`PointCloudHeatSolver`): the heat method on the tufted triangulation, as potpourri3d's
+  `PointCloudHeatSolver.compute_distance`.
+"""
+
+from ._heat import PointCloudHeatSolver as PointCloudHeatSolver
+from ._heat import point_cloud_heat_distance as point_cloud_heat_distance
+from ._heat import point_cloud_heat_solver as point_cloud_heat_solver
+from ._laplacian import point_cloud_laplacian as point_cloud_laplacian
+from ._laplacian import point_cloud_normals as point_cloud_normals
+from ._triangulation import PointCloudTriangulation as PointCloudTriangulation
+from ._triangulation import point_cloud_triangulation as point_cloud_triangulation
