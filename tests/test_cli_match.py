@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import matplotlib.image
 import numpy as np
 import pytest
@@ -32,7 +34,8 @@ def test_match_default_pair_remeshed_and_bent_is_matched_under_the_error_target(
     status, out, err = run_cli(["match", "--output", str(output)])
     assert status == 0, err
     (row,) = [line for line in out.splitlines() if line.startswith("error")]
-    assert float(row.split()[-1]) < 0.03
+    error, initial_error = (float(word.strip("(")) for word in re.findall(r"\(?\d\.\d+", row))
+    assert error < 0.03 and error <= initial_error  # ZoomOut refines (measured 0.0079 from 0.0100)
     assert matplotlib.image.imread(output).shape[0] > 100
 
 

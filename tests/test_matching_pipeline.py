@@ -203,6 +203,7 @@ def test_match_shapes_on_slivers_with_robust_laplacian_is_finite_and_reports_its
     assert solution.result == ddgjax.RESULTS.successful
     result = solution.value
     assert np.all(np.isfinite(np.asarray(result.functional_map))) and result.functional_map.shape == (20, 20)
+    assert result.initial_functional_map.shape == (10, 10) and np.all(np.isfinite(np.asarray(result.initial_functional_map)))
     for shape in (result.source, result.target):
         assert np.all(np.isfinite(np.asarray(shape.values))) and np.all(np.isfinite(np.asarray(shape.vectors)))
     point_map = np.asarray(result.point_map)

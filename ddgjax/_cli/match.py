@@ -27,6 +27,7 @@ import scipy.spatial
 from .._errors import DDGInputError, MeshDataError, check_count
 from ..deform import arap
 from ..matching import geodesic_error, match_shapes
+from ..matching import point_map as matching_point_map
 from ..mesh import Mesh, icosphere, uv_sphere
 from ._common import load_cli_mesh, write_figure
 
@@ -130,7 +131,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{'map':8s} functional map {k_target} x {k_source}, refine {args.refine}, {elapsed:.3g} s")
     if true_map is not None:
         error = float(geodesic_error(source, point_map, true_map))
-        print(f"{'error':8s} mean geodesic error / sqrt(area) {error:.4f}")
+        initial_map = np.asarray(matching_point_map(result.initial_functional_map, result.source, result.target))
+        initial_error = float(geodesic_error(source, initial_map, true_map))
+        print(f"{'error':8s} mean geodesic error / sqrt(area) {error:.4f} ({initial_error:.4f} before refinement)")
     if args.no_plot:
         return 0
     return 0 if _draw(source, target, point_map, true_map, name, args) else 2

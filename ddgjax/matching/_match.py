@@ -25,12 +25,15 @@ class MatchResult(eqx.Module):
     Attributes:
         point_map: `(n_target,)` for each target vertex, its source vertex.
         functional_map: `(k_t, k_s)` the final functional map (after refinement) from the source to the target.
+        initial_functional_map: `(k, k)` the fitted map before refinement (step 3; its point map is
+            `point_map(initial_functional_map, source, target)`).
         source: the source `SpectralShape` (its bases hold every eigenpair used).
         target: the target `SpectralShape`.
     """
 
     point_map: Int[Array, " n_target"]
     functional_map: Float[Array, "k_t k_s"]
+    initial_functional_map: Float[Array, "k k"]
     source: SpectralShape
     target: SpectralShape
 
@@ -129,12 +132,14 @@ def match_shapes(
         throw=False,
     )
     # A failed fit (reported below) may hold NaN: zeroed, the steps after it still run and the result says why.
-    C = jnp.where(jnp.isfinite(fit.value), fit.value, 0.0)
+    initial = C = jnp.where(jnp.isfinite(fit.value), fit.value, 0.0)
     if refine == "zoomout":
         C = zoomout_refine(C, source, target, k_final=k_final)
     elif refine == "icp":
         C = icp_refine(C, source, target)
-    match = MatchResult(point_map=point_map(C, source, target), functional_map=C, source=source, target=target)
+    match = MatchResult(
+        point_map=point_map(C, source, target), functional_map=C, initial_functional_map=initial, source=source, target=target
+    )
     # Every step runs: a failure is reported once, at the end, with what the pipeline made of it.
     result = first_failure(source_solution.result, target_solution.result, fit.result)
     return outcome(match, result, throw)
