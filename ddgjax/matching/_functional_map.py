@@ -24,6 +24,7 @@ import lineax as lx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._numerics import safe_div, safe_norm
 from .._results import RESULTS, Solution, outcome
@@ -137,11 +138,52 @@ def functional_map(
     total = sum(weights.values())
     if total <= 0:
         raise DDGInputError("descriptor_weight ... orientation_weight: at least one weight must be positive")
-    w_d, w_l, w_c, w_o = (w / total for w in weights.values())
     method = check_choice("method", method, FUNCTIONAL_MAP_METHODS)
     if method == "auto":
         method = "cholesky" if k_s * k_t <= _DENSE_UNKNOWNS else "cg"
+    # One compiled program per sizes and method (eagerly, a few hundred small ones compiled op by op).
+    C, result, num_steps = _fit(
+        _traceable(source),
+        _traceable(target),
+        F_s,
+        F_t,
+        jnp.asarray([w / total for w in weights.values()], F_s.dtype),
+        sign,
+        k_s=k_s,
+        k_t=k_t,
+        method=method,
+        rtol=rtol,
+        max_steps=max_steps,
+        commutativity=weights["commutativity_weight"] > 0,
+        orientation_term=weights["orientation_weight"] > 0,
+    )
+    return outcome(C, result, throw, {"num_steps": num_steps})
 
+
+def _traceable(shape: SpectralShape) -> SpectralShape:
+    """`shape` with its mesh's host topology dropped: the compiled fit needs only its arrays (`ddgjax._compile.kernel`)."""
+    return eqx.tree_at(lambda s: s.mesh, shape, shape.mesh.without_topology())
+
+
+@kernel(static_argnames=("k_s", "k_t", "method", "rtol", "max_steps", "commutativity", "orientation_term"))
+def _fit(
+    source: SpectralShape,
+    target: SpectralShape,
+    F_s,
+    F_t,
+    weights,
+    sign,
+    *,
+    k_s: int,
+    k_t: int,
+    method: str,
+    rtol,
+    max_steps,
+    commutativity: bool,
+    orientation_term: bool,
+):
+    """`functional_map`'s computation on checked arguments: `(C, result, CG steps)` (its docstring)."""
+    w_d, w_l, w_c, w_o = weights[0], weights[1], weights[2], weights[3]
     Phi_s, Phi_t = source.vectors[:, :k_s], target.vectors[:, :k_t]
     A = Phi_s.T @ (source.mass[:, None] * F_s)
     B = Phi_t.T @ (target.mass[:, None] * F_t)
@@ -151,10 +193,10 @@ def functional_map(
     # Each term's weight over its scale at a generic map (pyFM's `canonical_taus`).
     terms = [(w_d / _guard(m * jnp.sum(A[1:] ** 2) / k_s / p_eff), None), (w_l / _guard(m * jnp.sum(mask) / (k_s * k_t)), None)]
     operator_terms = []
-    if w_c > 0:
+    if commutativity:
         P, Q = _multiplication_operators(source, Phi_s, F_s), _multiplication_operators(target, Phi_t, F_t)
         operator_terms.append((w_c / _operator_tau(P, Q, m, p_eff, skew=False), P, Q))
-    if w_o > 0:
+    if orientation_term:
         G, H = _orientation_operators(source, Phi_s, F_s), sign * _orientation_operators(target, Phi_t, F_t)
         operator_terms.append((w_o / _operator_tau(G, H, m, p_eff, skew=True), G, H))
     mu_d, mu_l = terms[0][0], terms[1][0]
@@ -227,7 +269,7 @@ def functional_map(
         RESULTS.where(solution.result == lx.RESULTS.max_steps_reached, RESULTS.max_steps_reached, RESULTS.nonfinite),
     )
     result = RESULTS.where(jnp.all(jnp.isfinite(C)), result, RESULTS.nonfinite)
-    return outcome(C, result, throw, {"num_steps": num_steps})
+    return C, result, num_steps
 
 
 def _basis_size(name: str, k, shape: SpectralShape) -> int:
