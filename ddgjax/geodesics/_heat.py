@@ -230,13 +230,19 @@ def _build_plans(mesh: Mesh, boundary: str, pattern: SparsityPattern) -> _Plans:
         )
 
 
+def check_t_coef(t_coef) -> float:
+    """`t_coef` (the heat methods' time in units of `h^2`) as a float if it is a positive host number, else `DDGInputError`."""
+    if isinstance(t_coef, bool) or not isinstance(t_coef, (int, float, np.integer, np.floating)) or not t_coef > 0:
+        raise DDGInputError(f"t_coef: expected a positive number, got {t_coef!r}")
+    return float(t_coef)
+
+
 def _operators(mesh: Mesh, t_coef, mass: str, boundary: str, robust, solver: str):
     """Checked options, then `(L, M, plans, t_coef)`: what the kernels below take (host work and plans here)."""
     check_choice("boundary", boundary, HEAT_BOUNDARY_CONDITIONS)
     check_mass(mass)
     check_solver(solver)
-    if isinstance(t_coef, bool) or not isinstance(t_coef, (int, float, np.integer, np.floating)) or not t_coef > 0:
-        raise DDGInputError(f"t_coef: expected a positive number, got {t_coef!r}")
+    check_t_coef(t_coef)
     triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="heat_distance")
     L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
     plans = _plans(mesh, boundary, L.pattern, cached=triangulation is None)

@@ -81,6 +81,7 @@ from ..mesh import (
 from ..solve import Factorization, factorize
 from ..solve._linear import cholmod_analysis, kept_analysis
 from ..sparse import SparseMatrix
+from ._heat import check_t_coef
 
 LEVEL_SET_CONSTRAINTS = ("zero_set", "none")
 """`level_set=` of the signed heat method (module docstring, step 4)."""
@@ -144,8 +145,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
     """Checked options, then `(L, M, host plans, t_coef)`."""
     check_mass(mass, LUMPED_MASS_MATRICES)
     check_solver(solver)
-    if isinstance(t_coef, bool) or not isinstance(t_coef, (int, float, np.integer, np.floating)) or not t_coef > 0:
-        raise DDGInputError(f"t_coef: expected a positive number, got {t_coef!r}")
+    check_t_coef(t_coef)
     if not mesh.topology.is_oriented:
         raise DDGInputError(
             "mesh: the signed heat method needs a manifold, consistently oriented mesh (its curves' normals "

@@ -77,7 +77,7 @@ from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradi
 from ..solve import Factorization, factorize
 from ..solve._linear import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan
-from ._heat import _factor_held, _Factors, _heat_method, _plans
+from ._heat import _factor_held, _Factors, _heat_method, _plans, check_t_coef
 
 _INSIDE = 1e-9
 """How far outside a face (in barycentric coordinates) a centroid still counts as inside it."""
@@ -108,38 +108,11 @@ class VectorHeatSolver(eqx.Module):
 
     Attributes:
         mesh: the mesh.
-        t: the heat flows' time `t_coef * h^2`.
-        heat: factorisation of the scalar heat operator `M + t L`.
-        vector_heat: factorisation of the vector heat operator `M + t A` (complex Hermitian).
-        poisson: factorisation of `L` with one vertex per component pinned (the heat method's last step).
-        poisson_plan: the pins' `DirichletPlan`.
-        components: `(nv,)` the connected component of each vertex.
-        area_gradients: `(nf, 3, 3)` `A_f grad phi_k` per face and corner (the heat method's sweeps).
-        e1, e2, normal: `(nv, 3)` the vertices' tangent frames (`ddgjax.fields.tangent_bases`).
-        corner_angles: `(nf, 3)` the corner angles.
-        heights: `(nf, 3)` each face's height from each corner, `2 A_f / |opposite edge|`.
-        corner_first, corner_second: `(nf, 3)` the polar angles, at each corner's vertex, of its first
-            edge (towards the next corner) and its second (towards the previous one).
+        kept: the factorisations and per-face data the queries read (`_Kept`).
     """
 
     mesh: Mesh
-    t: Float[Array, ""]
-    heat: Factorization
-    vector_heat: Factorization
-    poisson: Factorization
-    poisson_plan: DirichletPlan
-    components: Int[Array, " nv"]
-    area_gradients: Float[Array, "nf 3 3"]
-    e1: Float[Array, "nv 3"]
-    e2: Float[Array, "nv 3"]
-    normal: Float[Array, "nv 3"]
-    corner_angles: Float[Array, "nf 3"]
-    heights: Float[Array, "nf 3"]
-    corner_first: Float[Array, "nf 3"]
-    corner_second: Float[Array, "nf 3"]
-
-    def _kept(self) -> "_Kept":
-        return _Kept(**{name: getattr(self, name) for name in _Kept.__dataclass_fields__})
+    kept: "_Kept"
 
     def transport(self, source, vector, *, throw: bool = True) -> Float[Array, "nv 3"] | Solution:
         """Parallel transport of tangent vectors from source vertices to every vertex, `(nv, 3)` world coordinates.
@@ -156,8 +129,8 @@ class VectorHeatSolver(eqx.Module):
             throw: raise when a solve fails (default), or return a `ddgjax.Solution` (module docstring).
         """
         sources = _source_vertices(self.mesh, source)
-        vectors = _vectors(vector, sources.shape[0], self.e1.dtype)
-        value, result, stats = _transport(self.mesh, self._kept(), sources, vectors)
+        vectors = _vectors(vector, sources.shape[0], self.kept.e1.dtype)
+        value, result, stats = _transport(self.mesh, self.kept, sources, vectors)
         return outcome(value, result, throw, stats)
 
     def log_map(self, source, *, throw: bool = True) -> Float[Array, "nv 2"] | Solution:
@@ -172,12 +145,27 @@ class VectorHeatSolver(eqx.Module):
             throw: raise when a solve fails (default), or return a `ddgjax.Solution`.
         """
         (source,) = _source_vertices(self.mesh, source, single=True)
-        value, result, stats = _log_map(self.mesh, self._kept(), source)
+        value, result, stats = _log_map(self.mesh, self.kept, source)
         return outcome(value, result, throw, stats)
 
 
 class _Kept(eqx.Module):
-    """`VectorHeatSolver` without its mesh, which a kernel takes apart (as the heat method's `_Factors`)."""
+    """What a `VectorHeatSolver` keeps besides its mesh (a kernel takes the mesh apart, as the heat method's `_Factors`).
+
+    Attributes:
+        t: the heat flows' time `t_coef * h^2`.
+        heat: factorisation of the scalar heat operator `M + t L`.
+        vector_heat: factorisation of the vector heat operator `M + t A` (complex Hermitian).
+        poisson: factorisation of `L` with one vertex per component pinned (the heat method's last step).
+        poisson_plan: the pins' `DirichletPlan`.
+        components: `(nv,)` the connected component of each vertex.
+        area_gradients: `(nf, 3, 3)` `A_f grad phi_k` per face and corner (the heat method's sweeps).
+        e1, e2, normal: `(nv, 3)` the vertices' tangent frames (`ddgjax.fields.tangent_bases`).
+        corner_angles: `(nf, 3)` the corner angles.
+        heights: `(nf, 3)` each face's height from each corner, `2 A_f / |opposite edge|`.
+        corner_first, corner_second: `(nf, 3)` the polar angles, at each corner's vertex, of its first
+            edge (towards the next corner) and its second (towards the previous one).
+    """
 
     t: Float[Array, ""]
     heat: Factorization
@@ -229,7 +217,7 @@ def vector_heat_solver(
         kept = _factor(mesh, L, M, A, MA, plans.poisson, plans.components, field_plan, t_coef, solver=solver)
         if at_top_level():
             jax.block_until_ready(kept)  # the factorisations run in the block
-    return VectorHeatSolver(mesh=mesh, **{name: getattr(kept, name) for name in _Kept.__dataclass_fields__})
+    return VectorHeatSolver(mesh=mesh, kept=kept)
 
 
 def parallel_transport(
@@ -362,7 +350,7 @@ def geodesic_centroid(
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise DDGInputError(f"max_steps: expected a positive integer, got {max_steps!r}")
     vector_solver = vector_heat_solver(mesh, t_coef=t_coef, mass=mass, robust=robust, solver=solver)
-    value, result, stats = _centroid(mesh, vector_solver._kept(), points, weights, max_steps=int(max_steps))
+    value, result, stats = _centroid(mesh, vector_solver.kept, points, weights, max_steps=int(max_steps))
     return outcome(value, result, throw, stats)
 
 
@@ -370,8 +358,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
     """Checked options, then the host-built operators and plans the factor kernel takes."""
     check_mass(mass, LUMPED_MASS_MATRICES)
     check_solver(solver)
-    if isinstance(t_coef, bool) or not isinstance(t_coef, (int, float, np.integer, np.floating)) or not t_coef > 0:
-        raise DDGInputError(f"t_coef: expected a positive number, got {t_coef!r}")
+    check_t_coef(t_coef)
     field_plan = plan_of(mesh)
     require_referenced(mesh, "vector_heat_solver")
     triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="vector_heat_solver")
