@@ -71,6 +71,20 @@ GALLERY = (
         "The heat method's distance from one vertex of a torus, with isolines. `ddgjax.geodesics.heat_distance`.",
     ),
     Entry(
+        "geodesic_log_map",
+        "Log map",
+        ("geodesic", "--log-map"),
+        "The logarithmic map at one vertex of a torus drawn as a polar-grid decal, by the vector heat method. "
+        "`ddgjax.geodesics.log_map`.",
+    ),
+    Entry(
+        "geodesic_signed",
+        "Signed distance to a broken curve",
+        ("geodesic", "--signed", "--gap", "5"),
+        "The signed distance to the loop bounding a geodesic ball on a torus, five of its edges removed: the signed "
+        "heat method closes the gap. `ddgjax.geodesics.signed_heat_distance`.",
+    ),
+    Entry(
         "spectrum",
         "Laplacian eigenfunctions",
         ("spectrum",),

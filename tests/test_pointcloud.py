@@ -16,7 +16,9 @@ from ddgjax.pointcloud import (
     point_cloud_heat_distance,
     point_cloud_heat_solver,
     point_cloud_laplacian,
+    point_cloud_log_map,
     point_cloud_normals,
+    point_cloud_parallel_transport,
     point_cloud_triangulation,
 )
 from ddgjax.pointcloud._triangulation import local_triangles, nearest_neighbor_graph
@@ -171,3 +173,146 @@ def test_bad_input():
     triangulation = point_cloud_triangulation(points, n_neighbors=10)
     with pytest.raises(DDGInputError, match="built for 50 points"):
         point_cloud_laplacian(points[:40], triangulation=triangulation)
+
+
+def _great_circle_transport(source: np.ndarray, points: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """Unit closed-form transport of `vector` (tangent at `source`) along the great circles to `points` (unit sphere)."""
+    axis = np.cross(source, points)
+    sine, cosine = np.linalg.norm(axis, axis=1), points @ source
+    k = axis / np.where(sine > 0, sine, 1.0)[:, None]
+    moved = vector * cosine[:, None] + np.cross(k, vector) * sine[:, None] + k * (k @ vector)[:, None] * (1 - cosine)[:, None]
+    return moved / np.linalg.norm(moved, axis=1, keepdims=True)
+
+
+def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    cosine = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.arccos(np.clip(cosine, -1, 1))
+
+
+@pytest.mark.slow
+def test_transport_and_log_map_on_sphere_and_against_potpourri3d():
+    points = _jittered_icosphere(4)  # 2562 points, spacing ~0.075
+    solver = point_cloud_heat_solver(points)
+    e1, e2, normal = (np.asarray(frame) for frame in solver.tangent_frames)
+    np.testing.assert_allclose(np.sum(e1 * normal, axis=1), 0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(e2, axis=1), 1, atol=1e-12)
+    assert np.min(np.sum(normal * points, axis=1)) > 0.999  # oriented outward
+    great_circle = np.arccos(np.clip(points @ points[0], -1, 1))
+    away = great_circle < 2.8  # off the cut locus (the antipode)
+    transported = np.asarray(solver.transport(0, 2.0 * e1[0]))
+    np.testing.assert_allclose(np.sum(transported * normal, axis=1), 0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(transported, axis=1), 2.0, rtol=1e-10)
+    exact = _great_circle_transport(points[0], points, e1[0])
+    # Measured max 0.017 rad, mean 0.0043 (potpourri3d's: max 0.093).
+    assert _angles(transported, exact)[away].max() < 0.03
+    assert _angles(transported, exact).mean() < 0.008
+
+    log = np.asarray(solver.log_map(0))
+    radius = np.linalg.norm(log, axis=1)
+    inside = great_circle < 2.5
+    # The heat distance's first-order error: measured max 0.017, mean 0.013.
+    assert np.abs(radius - great_circle)[inside].max() < 0.025
+    chord = points - points[0]
+    tangent = chord - np.outer(chord @ points[0], points[0])
+    log_world = log[:, :1] * e1[0] + log[:, 1:] * e2[0]
+    direction = (great_circle > 0.05) & inside
+    # Measured max 0.037 rad, mean 0.012.
+    error = _angles(log_world[direction], tangent[direction])
+    assert error.max() < 0.06
+    assert error.mean() < 0.02
+
+    reference = pp3d.PointCloudHeatSolver(points)
+    basis_x, basis_y, _ = reference.get_tangent_frames()
+    theirs = reference.transport_tangent_vector(0, [1.0, 0.0])
+    theirs = theirs[:, :1] * basis_x + theirs[:, 1:] * basis_y
+    ours = np.asarray(solver.transport(0, basis_x[0]))
+    # Their own error against the closed form is max 0.093 rad; measured between the two: max 0.093, mean 0.0074.
+    assert _angles(ours, theirs)[away].max() < 0.12
+    assert _angles(ours, theirs).mean() < 0.015
+    their_log = reference.compute_log_map(0)
+    # The same heat distance up to the covers' gluing: measured 3.7e-5.
+    assert np.abs(np.linalg.norm(their_log, axis=1) - radius)[inside].max() < 1e-3
+    their_world = their_log[:, :1] * basis_x[0] + their_log[:, 1:] * basis_y[0]
+    # Measured max 0.071 rad, mean 0.015 (theirs against the tangent projection: max 0.054, mean 0.012).
+    assert _angles(log_world[direction], their_world[direction]).max() < 0.1
+    np.testing.assert_allclose(np.asarray(point_cloud_log_map(points, 0)), log, atol=1e-10)
+    one_shot = np.asarray(point_cloud_parallel_transport(points, 0, 2.0 * e1[0]))
+    np.testing.assert_allclose(one_shot, transported, atol=1e-10)
+
+
+@pytest.mark.slow
+def test_transport_several_sources_gradient_and_outcome():
+    points = _jittered_icosphere(2)  # 162 points
+    triangulation = point_cloud_triangulation(points, n_neighbors=12)
+    solver = point_cloud_heat_solver(points, triangulation=triangulation)
+    e1 = np.asarray(solver.tangent_frames.e1)
+    far = int(np.argmin(points @ points[0]))
+    solution = solver.transport(np.array([0, far]), np.stack([e1[0], 3.0 * e1[far]]), throw=False)
+    assert solution.result == ddgjax.RESULTS.successful
+    to_sources = np.arccos(np.clip(points @ points[[0, far]].T, -1, 1))
+    # Each point takes its nearest source's magnitude, the diffused ratio blending them near the bisector.
+    error = np.abs(np.linalg.norm(np.asarray(solution.value), axis=1) - np.where(to_sources[:, 0] < to_sources[:, 1], 1.0, 3.0))
+    clear = np.abs(to_sources[:, 0] - to_sources[:, 1]) > 2.0
+    assert error[[0, far]].max() < 1e-3  # measured 1.4e-4
+    assert error[clear].max() < 0.01  # measured 3.5e-3 (0.07 within 1 of the bisector: the heat kernels' overlap)
+
+    great_circle = np.arccos(np.clip(points @ points[5], -1, 1))
+    weights = jnp.asarray(np.where((great_circle > 0.3) & (great_circle < 2.0), 1.0, 0.0))
+    vector = jnp.asarray(e1[5])
+    target = jnp.asarray(np.random.default_rng(1).normal(size=points.shape))
+
+    def loss(p):
+        kept = point_cloud_heat_solver(p, triangulation=triangulation)
+        log = kept.log_map(5)
+        return jnp.sum(weights[:, None] * target * kept.transport(5, vector)) + jnp.sum(weights * log[:, 0] ** 2)
+
+    jax.test_util.check_grads(loss, (jnp.asarray(points),), order=1, modes=("rev",), atol=1e-5, rtol=1e-5, eps=1e-6)
+
+
+def test_transport_bad_input():
+    points = _sphere_samples(50)
+    solver = point_cloud_heat_solver(points, n_neighbors=10)
+    with pytest.raises(DDGInputError, match="source"):
+        solver.transport(50, [1.0, 0.0, 0.0])
+    with pytest.raises(DDGInputError, match="vector"):
+        solver.transport(0, [1.0, 0.0])
+    with pytest.raises(DDGInputError, match="vector"):
+        solver.transport([0, 1], [1.0, 0.0, 0.0])
+    with pytest.raises(DDGInputError, match="source"):
+        solver.log_map([0, 1])
+    with pytest.raises(DDGInputError, match="source"):
+        solver.log_map(-1)
+    with pytest.raises(DDGInputError, match="source"):
+        point_cloud_parallel_transport(points, [70], [1.0, 0.0, 0.0])
+    with pytest.raises(DDGInputError, match="source"):
+        point_cloud_log_map(points, 2.5)
+
+
+@pytest.mark.slow
+def test_transport_and_log_map_two_components():
+    sphere = _jittered_icosphere(2)
+    points = np.concatenate([sphere, 0.5 * sphere + 5.0])  # two spheres, radii 1 and 0.5
+    solver = point_cloud_heat_solver(points, n_neighbors=12)
+    normal = np.asarray(solver.tangent_frames.normal)
+    assert np.min(np.sum(normal[:162] * sphere, axis=1)) > 0.99  # each part turned outward
+    assert np.min(np.sum(normal[162:] * sphere, axis=1)) > 0.99
+    transported = np.asarray(solver.transport(0, solver.tangent_frames.e1[0]))
+    assert np.all(transported[162:] == 0)  # no source there
+    np.testing.assert_allclose(np.linalg.norm(transported[:162], axis=1), 1, rtol=1e-10)
+    log = np.asarray(solver.log_map(170))
+    assert np.all(np.isinf(log[:162])) and np.all(np.isfinite(log[162:]))
+    assert np.linalg.norm(log[162:], axis=1).max() < 0.5 * np.pi + 0.1  # measured 1.52
+
+
+@pytest.mark.slow
+def test_transport_and_log_map_with_points_in_no_triangle():
+    grid = np.stack(np.meshgrid(np.linspace(0, 1, 12), np.linspace(0, 1, 12)), axis=-1).reshape(-1, 2)
+    plane = np.c_[grid, 0.01 * np.random.default_rng(0).normal(size=len(grid))]
+    line = np.c_[np.linspace(5, 8, 20), np.zeros((20, 2))]  # collinear neighbourhoods: in no triangle
+    solver = point_cloud_heat_solver(np.concatenate([plane, line]), n_neighbors=8)
+    assert solver.heat_plan is not None and solver.heat_plan.fixed.shape == (20,)
+    transported = np.asarray(solver.transport(np.array([0, 5]), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])))
+    assert np.all(transported[144:] == 0)
+    np.testing.assert_allclose(np.linalg.norm(transported[:144], axis=1), 1, atol=1e-3)  # both sources' magnitude 1
+    log = np.asarray(solver.log_map(0))
+    assert np.all(np.isinf(log[144:])) and np.all(np.isfinite(log[:144]))

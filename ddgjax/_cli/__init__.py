@@ -1,9 +1,10 @@
 """The `ddgjax` command line: `ddgjax flow` (curve-shortening flows, the reading report's Figure 3),
 `ddgjax info` (topology and curvature report of a mesh), `ddgjax poisson` (a Poisson or harmonic
 problem solved on a mesh, with a picture of the solution), `ddgjax geodesic` (a heat-method distance
-field), `ddgjax spectrum` (Laplacian eigenvalues and eigenfunctions), `ddgjax param` (flattenings),
-`ddgjax fields` (direction fields), `ddgjax optimize` (shape-optimisation examples), `ddgjax deform`
-(ARAP and k-harmonic deformation from handles) and `ddgjax match` (a point map between two meshes).
+field; a log map, parallel transport, a signed distance or a point-cloud distance), `ddgjax spectrum`
+(Laplacian eigenvalues and eigenfunctions), `ddgjax param` (flattenings), `ddgjax fields` (direction
+fields), `ddgjax optimize` (shape-optimisation examples), `ddgjax deform` (ARAP and k-harmonic
+deformation from handles) and `ddgjax match` (a point map between two meshes).
 
 Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
@@ -27,7 +28,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import deform, fields, flow, info, match, optimize, param, poisson, spectral
+from . import deform, fields, flow, geodesic, info, match, optimize, param, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -113,12 +114,15 @@ def build_parser() -> argparse.ArgumentParser:
             "print the solver's numbers and write a figure of the solution.",
         )
     )
-    spectral.add_geodesic_arguments(
+    geodesic.add_arguments(
         sub.add_parser(
             "geodesic",
             parents=[common],
-            help="geodesic distance from a vertex by the heat method, drawn with isolines",
-            description="Compute the heat-method distance from one vertex and draw it on the mesh.",
+            help="geodesic distance from a vertex (heat method), or its log map, parallel transport, a signed "
+            "distance to a curve, or the distance on a point cloud, drawn on the mesh",
+            description="Compute the heat-method distance from one vertex and draw it with isolines; or, with "
+            "--log-map, --transport, --signed or --point-cloud, the vector heat method's log map or parallel "
+            "transport, the signed heat method's distance to a loop of edges, or the point-cloud heat method.",
         )
     )
     spectral.add_spectrum_arguments(

@@ -1,5 +1,6 @@
-"""`ddgjax geodesic [MESH]` and `ddgjax spectrum [MESH]`: a heat-method distance field and the first
-Laplacian eigenfunctions, printed as numbers and drawn on the mesh.
+"""`ddgjax spectrum [MESH]`: the first Laplacian eigenfunctions, printed as numbers and drawn on the mesh,
+and what it shares with `ddgjax geodesic` (`ddgjax._cli.geodesic`): the MESH argument and its options, the
+panels of functions on the mesh.
 
 Both default to a built-in shape (no file needed): the torus, whose distances wrap around its hole and
 whose eigenfunctions come in pairs. A mesh file is read with `ddgjax.io.load_mesh`.
@@ -16,21 +17,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import DDGInputError, MeshDataError
-from ..geodesics import heat_distance_solver
 from ..mesh import Mesh, torus
 from ..spectral import eigenpairs
 from ._common import load_cli_mesh, write_figure
 
 _DEFAULT_SHAPE = "built-in torus(major_radius=1.0, minor_radius=0.4, n_major=64, n_minor=24)"
-
-
-def add_geodesic_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of `ddgjax geodesic`; its action is `run_geodesic`."""
-    _common(parser, "geodesic.png")
-    parser.add_argument("--source", type=int, default=0, help="source vertex (default 0)")
-    parser.add_argument("--t-coef", type=float, default=1.0, help="heat time in units of the squared mean edge length")
-    parser.add_argument("--bands", type=int, default=12, help="number of colour bands, whose edges are the isolines")
-    parser.set_defaults(run=run_geodesic)
 
 
 def add_spectrum_arguments(parser: argparse.ArgumentParser) -> None:
@@ -54,33 +45,6 @@ def _mesh(args) -> tuple[str, Mesh]:
     if args.mesh is None:
         return _DEFAULT_SHAPE, torus(major_radius=1.0, minor_radius=0.4, n_major=64, n_minor=24, dtype=jnp.float64)
     return load_cli_mesh(args.mesh)
-
-
-def run_geodesic(args: argparse.Namespace) -> int:
-    """Action of `ddgjax geodesic`: distance from one vertex by the heat method; 2 on bad input."""
-    try:
-        name, mesh = _mesh(args)
-        if not 0 <= args.source < mesh.n_vertices:
-            raise DDGInputError(f"--source: expected a vertex index in [0, {mesh.n_vertices}), got {args.source}")
-        if not args.t_coef > 0 or args.bands < 2:
-            raise DDGInputError("--t-coef: expected a positive number; --bands: expected at least 2")
-        start = time.perf_counter()
-        solver = heat_distance_solver(mesh, t_coef=args.t_coef)
-        distance = np.asarray(jax.block_until_ready(solver.distance([args.source])))
-        elapsed = time.perf_counter() - start
-    except (DDGInputError, MeshDataError) as error:
-        print(f"ddgjax geodesic: error: {error}", file=sys.stderr)
-        return 2
-    rows = [
-        ("mesh", f"{name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces"),
-        ("source", f"vertex {args.source}"),
-        ("time", f"{elapsed:.3g} s (factorisations, one query, compilation included)"),
-        ("distance", _distance_summary(distance)),
-    ]
-    print("\n".join(f"{key:10s} {value}" for key, value in rows))
-    if not args.no_plot and not _draw(mesh, [("geodesic distance (heat method)", distance)], name, args, bands=args.bands):
-        return 2
-    return 0
 
 
 def _distance_summary(distance: np.ndarray) -> str:
