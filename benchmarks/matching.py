@@ -182,6 +182,8 @@ def main(argv=None) -> int:
         "--error-samples", type=int, default=2000, dest="error_samples", help="target vertices the geodesic error averages"
     )
     args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error("--repeats: expected at least 1 (the stages and the warm total are timed on those runs)")
     args.pairs = args.pairs.split(",")
     if pyfm_functional is not None:
         from importlib.metadata import version
