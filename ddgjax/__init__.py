@@ -38,6 +38,7 @@ _SUBPACKAGES = (
     "dec",
     "deform",
     "fields",
+    "fluids",
     "geodesics",
     "io",
     "laplacian",
@@ -72,6 +73,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import dec as dec
     from . import deform as deform
     from . import fields as fields
+    from . import fluids as fluids
     from . import geodesics as geodesics
     from . import io as io
     from . import laplacian as laplacian

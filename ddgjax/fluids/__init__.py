@@ -1,0 +1,22 @@
+"""Incompressible fluids on closed surfaces: vorticity - stream function Euler flow, differentiable end to end.
+
+- `fluid_basis(mesh, k, *, mass="voronoi", robust=False) -> FluidBasis`: the first `k` Laplacian
+  eigenpairs and the alternating advection tensor `W (k, k, k)` between them (Azencot et al. 2014),
+  built once per mesh, differentiable in the vertex positions.
+- `euler_flow(mesh, vorticity, *, tau, steps, save_every=None, rotation=0.0, viscosity=0.0, dye=None,
+  k=64, basis=None, method="spectral", progress=False, throw=True) -> EulerFlowResult`: the vorticity
+  equation (optionally on a frame turning at `rotation` about +z, viscous, with a passive dye)
+  reduced to the basis and integrated by implicit midpoint steps, which conserve energy and
+  enstrophy; one compiled, checkpointed `lax.scan`; outcomes as `ddgjax.RESULTS` (`nonfinite`).
+- `stream_function_velocity(mesh, psi)`: face velocities `n x grad psi`, `(nf, 3)`.
+
+Reference: O. Azencot, S. Weissmann, M. Ovsjanikov, M. Wardetzky, M. Ben-Chen, "Functional fluids on
+surfaces" (SGP 2014).
+"""
+
+from ._basis import FluidBasis as FluidBasis
+from ._basis import fluid_basis as fluid_basis
+from ._euler import NEWTON_STEPS as NEWTON_STEPS
+from ._euler import EulerFlowResult as EulerFlowResult
+from ._euler import euler_flow as euler_flow
+from ._velocity import stream_function_velocity as stream_function_velocity
