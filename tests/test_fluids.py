@@ -7,9 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import ddgjax
 from ddgjax import RESULTS, DDGInputError
 from ddgjax.fluids import EulerFlowResult, FluidBasis, euler_flow, fluid_basis, stream_function_velocity
-from ddgjax.mesh import disk, icosphere
+from ddgjax.mesh import Mesh, disk, icosphere
 
 
 @pytest.fixture(scope="module")
@@ -244,3 +245,24 @@ def test_bad_input(sphere, without_type_checker):
         fluid_basis(mesh, 8, mass="galerkin")
     with pytest.raises(DDGInputError, match="stream_function"):
         stream_function_velocity(mesh, x[:3])
+
+
+@pytest.mark.slow
+def test_zero_area_face_refused_plainly_and_finite_with_robust():
+    """A vertex moved onto its opposite edge (a face of zero area): the mesh's own basis is refused with
+    `MeshDataError` naming `robust=True`; the intrinsic Delaunay basis keeps the flow and its gradient finite."""
+    mesh = icosphere(2)
+    V = np.array(mesh.vertices)
+    F = np.asarray(mesh.faces)
+    a, b, c = F[0]
+    V[a] = (V[b] + V[c]) / 2
+    cap = Mesh.from_arrays(V, F)
+    vorticity = V[:, 0] * V[:, 2]
+    with pytest.raises(ddgjax.MeshDataError, match="robust=True"):
+        euler_flow(cap, vorticity, tau=0.01, steps=5, k=16)
+    basis = fluid_basis(cap, 16, robust=True)
+    solution = euler_flow(cap, vorticity, tau=0.01, steps=20, basis=basis, throw=False)
+    assert solution.result == ddgjax.RESULTS.successful
+    assert np.all(np.isfinite(np.asarray(solution.vorticity)))
+    gradient = jax.grad(lambda w: euler_flow(cap, w, tau=0.01, steps=5, basis=basis).value.sum())(vorticity)
+    assert np.all(np.isfinite(np.asarray(gradient)))

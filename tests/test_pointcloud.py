@@ -316,3 +316,16 @@ def test_transport_and_log_map_with_points_in_no_triangle():
     np.testing.assert_allclose(np.linalg.norm(transported[:144], axis=1), 1, atol=1e-3)  # both sources' magnitude 1
     log = np.asarray(solver.log_map(0))
     assert np.all(np.isinf(log[144:])) and np.all(np.isfinite(log[:144]))
+
+
+@pytest.mark.slow
+def test_duplicated_points_keep_finite_operators_and_distances():
+    """Coincident points (a cloud with five points repeated): the mollified intrinsic Delaunay metric keeps
+    L and M finite, and the heat distance reaches every point."""
+    points = _jittered_icosphere(3)
+    points = np.vstack([points, points[:5]])
+    L, M = point_cloud_laplacian(points, n_neighbors=12)
+    assert np.all(np.isfinite(np.asarray(L.values))) and np.all(np.isfinite(np.asarray(M.values)))
+    distance = point_cloud_heat_distance(points, [0], n_neighbors=12)
+    assert np.all(np.isfinite(np.asarray(distance)))
+    assert np.max(np.abs(np.asarray(distance)[-5:] - np.asarray(distance)[:5])) < 0.05
