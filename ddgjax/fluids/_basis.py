@@ -21,8 +21,24 @@ tensor is alternating (`int f J(g, h) = int g J(h, f)`); this discrete one is an
 order of accuracy). Antisymmetry in `(k, j)` conserves the enstrophy `1/2 sum a^2`, in `(k, i)` the
 kinetic energy `1/2 sum lambda b^2`, both exactly under an implicit midpoint step (`euler_flow`).
 
-Reference: O. Azencot, S. Weissmann, M. Ovsjanikov, M. Wardetzky, M. Ben-Chen, "Functional fluids on
-surfaces" (SGP 2014).
+**Surfaces with handles.** On a closed surface of genus `g` a divergence-free velocity is `u = n x
+grad psi + sum_m c_m h_m`, the second part harmonic (curl and divergence free, `2 g` dimensional) and
+invisible to the vorticity. The fields `h_m` are piecewise constant per face: the closed 1-forms of a
+tree-cotree basis (as `ddgjax.pde.hodge_decomposition` builds) turned into face vectors (`ddgjax.dec.sharp`,
+exact for closed forms), minus their `L^2` projection on the gradients of piecewise linear functions
+(one Poisson solve; the projection on rotated gradients `n x grad phi` is already 0 for a closed form,
+by the discrete Stokes theorem on each vertex star), orthonormalised in `L^2` (Cholesky of the Gram
+matrix). Being `L^2`-orthogonal to every `n x grad phi`, they split the kinetic energy exactly:
+`1/2 int |u|^2 = 1/2 sum lambda b^2 + 1/2 sum c^2`. They enter the flow through two more tensors,
+
+    H_kmj = -int phi_k h_m . grad phi_j dA      (antisymmetrised in (k, j), as it is for div h = 0),
+    G_kmn = int phi_k (n x h_n) . h_m dA          (antisymmetric in (m, n) exactly),
+
+with the same quadrature (`phi_k` by its corner mean, the integrand constant per face otherwise).
+
+References: O. Azencot, S. Weissmann, M. Ovsjanikov, M. Wardetzky, M. Ben-Chen, "Functional fluids on
+surfaces" (SGP 2014); K. Polthier, E. Preuss, "Identifying vector field singularities using a discrete
+Hodge decomposition" (2003) for the harmonic fields of piecewise constant vector fields.
 """
 
 from __future__ import annotations
@@ -34,9 +50,21 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_count
+from .._numerics import safe_div
 from .._options import LUMPED_MASS_MATRICES, check_mass
+from ..dec import sharp
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..mesh import Mesh, require_mesh
+from ..mesh import (
+    Mesh,
+    face_areas,
+    face_hat_gradients,
+    face_normals,
+    require_mesh,
+    scatter_corners_to_vertices,
+    vertex_dual_areas,
+)
+from ..pde import solve_poisson
+from ..pde._hodge_decomposition import closed_cocycle_basis
 from ..spectral import smallest_eigenpairs
 
 
@@ -50,6 +78,11 @@ class FluidBasis(eqx.Module):
         advection: `(k, k, k)` the alternating tensor `W_kij` (module docstring).
         coriolis: `(k,)` the coefficients of `2 z` (the vertices' z coordinate): the Coriolis
             parameter `f = 2 Omega z` of a frame turning at `Omega` about +z is `Omega * coriolis`.
+        harmonic: `(nf, h, 3)` the `h = 2 g` harmonic velocity fields per face, `L^2`-orthonormal
+            (`h = 0` on a sphere).
+        areas: `(nf,)` the face areas (the `L^2` pairing of face fields).
+        harmonic_advection: `(k, h, k)` the tensor `H_kmj` (module docstring).
+        harmonic_exchange: `(k, h, h)` the tensor `G_kmn` (module docstring).
     """
 
     values: Float[Array, " k"]
@@ -57,6 +90,10 @@ class FluidBasis(eqx.Module):
     mass: Float[Array, " nv"]
     advection: Float[Array, "k k k"]
     coriolis: Float[Array, " k"]
+    harmonic: Float[Array, "nf h 3"]
+    areas: Float[Array, " nf"]
+    harmonic_advection: Float[Array, "k h k"]
+    harmonic_exchange: Float[Array, "k h h"]
 
     def coefficients(self, function: Float[ArrayLike, "*s nv"]) -> Float[Array, "*s k"]:
         """The basis coefficients `Phi^T M f` of vertex values `f` (the M-orthogonal projection)."""
@@ -69,6 +106,23 @@ class FluidBasis(eqx.Module):
     def stream_coefficients(self, vorticity: Float[ArrayLike, "*s k"]) -> Float[Array, "*s k"]:
         """`b = -a / lambda` (0 on the constant modes): the stream function solving `Delta psi = w` in the basis."""
         return -jnp.asarray(vorticity) * inverse_values(self.values)
+
+    def harmonic_coefficients(self, velocity: Float[ArrayLike, "nf 3"]) -> Float[Array, " h"]:
+        """`c_m = int u . h_m dA`: the harmonic part of a face velocity field `(nf, 3)` (its `L^2` projection).
+
+        For example the coefficients of the rotation `e_z x p` on a torus of revolution about z
+        (`ddgjax.mesh.torus`) describe the flow round the hole.
+        """
+        velocity = jnp.asarray(velocity)
+        if velocity.shape != (self.areas.shape[0], 3):
+            raise DDGInputError(
+                f"velocity: expected shape ({self.areas.shape[0]}, 3) (one vector per face), got {velocity.shape}"
+            )
+        return jnp.einsum("f,fmd,fd->m", self.areas, self.harmonic, velocity.astype(self.harmonic.dtype))
+
+    def harmonic_velocity(self, coefficients: Float[ArrayLike, "*s h"]) -> Float[Array, "*s nf 3"]:
+        """The face velocities `sum_m c_m h_m` of harmonic coefficients `c`."""
+        return jnp.einsum("...m,fmd->...fd", jnp.asarray(coefficients), self.harmonic)
 
 
 def inverse_values(values: Float[Array, " k"]) -> Float[Array, " k"]:
@@ -88,7 +142,7 @@ def fluid_basis(mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | Int
 
     Args:
         mesh: a closed, consistently oriented triangle mesh (outward normals: vorticity is measured
-            about them). Any genus (the harmonic velocity of handles is not part of the basis).
+            about them). Any genus: a surface with handles gets its harmonic fields (module docstring).
         k: number of eigenfunctions, `2 <= k < nv`. On a round sphere choose a square
             (`(l_max + 1)^2`: 16, 25, 36, 49, 64) so that no degree is cut in the middle.
         mass: the lumped mass matrix, `"voronoi"` (default) or `"barycentric"` (`ddgjax.LUMPED_MASS_MATRICES`).
@@ -96,7 +150,8 @@ def fluid_basis(mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | Int
 
     Returns:
         `FluidBasis` (`values (k,)`, `vectors (nv, k)`, `mass (nv,)`, `advection (k, k, k)`,
-        `coriolis (k,)`), differentiable in the vertex positions through `ddgjax.spectral.eigenpairs`
+        `coriolis (k,)`; `harmonic (nf, 2 g, 3)`, `areas (nf,)`, `harmonic_advection (k, 2 g, k)`,
+        `harmonic_exchange (k, 2 g, 2 g)`), differentiable in the vertex positions through `ddgjax.spectral.eigenpairs`
         (any function invariant within clusters of equal eigenvalues).
 
     Raises:
@@ -115,7 +170,25 @@ def fluid_basis(mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | Int
     # What `ddgjax.spectral.eigenpairs` does with Neumann conditions, keeping the mass matrix it used.
     L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     values, vectors = smallest_eigenpairs(L, M, k)
-    return _fluid_basis(mesh, values, vectors, M.diagonal())
+    harmonic = _harmonic_fields(mesh, closed_cocycle_basis(mesh.topology))
+    return _fluid_basis(mesh, values, vectors, M.diagonal(), harmonic)
+
+
+def _harmonic_fields(mesh: Mesh, cocycles) -> Float[Array, "nf h 3"]:
+    """`L^2`-orthonormal harmonic face fields spanning the classes of the closed `cocycles (ne, h)` (module docstring)."""
+    if cocycles.shape[1] == 0:  # a sphere: no Poisson solve
+        return jnp.zeros((mesh.n_faces, 0, 3), mesh.vertices.dtype)
+    closed = jnp.stack([sharp(mesh, jnp.asarray(eta, mesh.vertices.dtype)) for eta in cocycles.T], axis=1)
+    areas = face_areas(mesh)
+    gradients = face_hat_gradients(mesh)  # (nf, 3 corners, 3)
+    # L a = int grad phi_i . v dA: the gradient part of v. `solve_poisson` takes a pointwise right-hand side.
+    divergence = scatter_corners_to_vertices(mesh, jnp.einsum("f,fcd,fmd->fcm", areas, gradients, closed))
+    mass = vertex_dual_areas(mesh, dual="barycentric")
+    potential = solve_poisson(mesh, safe_div(-divergence, mass[:, None]), mass="barycentric")
+    fields = closed - jnp.einsum("fcd,fcm->fmd", gradients, potential[mesh.faces])
+    gram = jnp.einsum("f,fmd,fnd->mn", areas, fields, fields)
+    factor = jnp.linalg.cholesky(gram)
+    return jnp.einsum("mn,fnd->fmd", jnp.linalg.inv(factor), fields)
 
 
 def check_basis_size(mesh: Mesh, k: int) -> int:
@@ -127,7 +200,7 @@ def check_basis_size(mesh: Mesh, k: int) -> int:
 
 
 @kernel(requires_orientation="fluid_basis")
-def _fluid_basis(mesh: Mesh, values, vectors, mass) -> FluidBasis:
+def _fluid_basis(mesh: Mesh, values, vectors, mass, harmonic) -> FluidBasis:
     corners = vectors[mesh.faces]  # (nf, 3, k)
     k = vectors.shape[1]
     weights = jnp.broadcast_to(jnp.mean(corners, axis=1, keepdims=True), corners.shape).reshape(-1, k)
@@ -146,5 +219,23 @@ def _fluid_basis(mesh: Mesh, values, vectors, mass) -> FluidBasis:
     cyclic = (advection + jnp.einsum("ijk->kij", advection) + jnp.einsum("jki->kij", advection)) / 3.0
     # The cyclic mean is alternating up to round-off; this makes `(i, j)` antisymmetry exact.
     alternating = 0.5 * (cyclic - jnp.swapaxes(cyclic, 1, 2))
-    basis = FluidBasis(values=values, vectors=vectors, mass=mass, advection=alternating, coriolis=jnp.zeros_like(values))
+
+    areas = face_areas(mesh)
+    centre_values = jnp.mean(corners, axis=1)  # (nf, k)
+    along = jnp.einsum("f,fmd,fcd->fcm", areas, harmonic, face_hat_gradients(mesh))  # A_f h_m . grad hat_c
+    harmonic_advection = -jnp.einsum("fk,fcm,fcj->kmj", centre_values, along, corners)
+    harmonic_advection = 0.5 * (harmonic_advection - jnp.transpose(harmonic_advection, (2, 1, 0)))
+    turned = jnp.cross(face_normals(mesh)[:, None, :], harmonic)  # n x h_n
+    harmonic_exchange = jnp.einsum("fk,f,fnd,fmd->kmn", centre_values, areas, turned, harmonic)
+    basis = FluidBasis(
+        values=values,
+        vectors=vectors,
+        mass=mass,
+        advection=alternating,
+        coriolis=jnp.zeros_like(values),
+        harmonic=harmonic,
+        areas=areas,
+        harmonic_advection=harmonic_advection,
+        harmonic_exchange=harmonic_exchange,
+    )
     return eqx.tree_at(lambda b: b.coriolis, basis, basis.coefficients(2.0 * mesh.vertices[:, 2]))

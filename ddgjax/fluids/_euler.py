@@ -2,7 +2,7 @@
 
 The vorticity equation with an optional rotating frame, viscosity and a passive dye,
 
-    dw/dt + u . grad(w + f) = nu Delta w,     dc/dt + u . grad c = 0,     u = n x grad psi,  Delta psi = w,
+    dw/dt + u . grad(w + f) = nu Delta w,     dc/dt + u . grad c = 0,     u = n x grad psi + h,  Delta psi = w,
 
 (`f = 2 Omega z` the Coriolis parameter of a frame turning at `Omega` about +z) is projected on the
 first `k` eigenfunctions (`FluidBasis`; Azencot et al. 2014): with `w = Phi a`, `psi = Phi b`,
@@ -10,7 +10,17 @@ first `k` eigenfunctions (`FluidBasis`; Azencot et al. 2014): with `w = Phi a`, 
 
     da_k/dt = sum_ij W_kij b_i (a_j + f_j) - nu lambda_k a_k,     dg_k/dt = sum_ij W_kij b_i g_j.
 
-Integrator: the implicit midpoint rule, `a' = a + tau F((a + a') / 2)`, viscosity included (for the
+On a surface of genus `g` the velocity also has a harmonic part `h = sum_m c_m h_m` (`2 g` fields,
+`FluidBasis`): it advects like the rest (`sum_m c_m H_kmj` joins `sum_i W_kij b_i`), and it evolves by
+the harmonic projection of the momentum equation `du/dt = -(w + f) n x u - grad(p + |u|^2 / 2)`:
+
+    dc_m/dt = sum_kj H_kmj b_k (a_j + f_j) - sum_kn (a_k + f_k) G_kmn c_n,
+
+the exchange that keeps the total kinetic energy `1/2 sum lambda b^2 + 1/2 sum c^2` (Kelvin's
+theorem for the loops round the handles).
+
+Integrator: the implicit midpoint rule on the state `x = (a, c)`, `x' = x + tau F((x + x') / 2)`,
+viscosity included (for the
 linear viscous term it is Crank-Nicolson). The midpoint `x = (a + a') / 2` solves
 `(1 + tau nu lambda / 2) x = a + tau/2 N(x)` (`N` the quadratic advection), by `NEWTON_STEPS` Newton
 steps from `x = a` (the `k x k` Jacobian is cheap: `k^3` flops, as one evaluation of `N`). The count
@@ -26,9 +36,11 @@ coefficients), the relative drift of energy and enstrophy after 200 steps is, fo
 7e-16, 3e-14, 8e-10, 1e-6; with 3 (the count used) 2e-15 at every `tau` (round-off). The dye's midpoint step is linear
 (a Cayley transform of the antisymmetric `sum_i W_kij b_i`): its `L^2` norm is kept exactly.
 
-Differentiable in reverse mode with respect to the initial vorticity, the dye, `tau`, `rotation`,
-`viscosity` and (through `fluid_basis`) the vertex positions; each saved chunk is checkpointed, so
-reverse-mode memory grows with the number of saved states, not of steps.
+Differentiable in reverse mode with respect to the initial vorticity, the harmonic coefficients, the
+dye, `tau`, `rotation`, `viscosity` and (through `fluid_basis`) the vertex positions. The midpoint is
+differentiated implicitly (`jax.custom_vjp`: one transposed solve with the converged Newton matrix, the
+implicit function theorem, rather than reverse mode through the Newton steps), and each saved chunk
+is checkpointed, so reverse-mode memory grows with the number of saved states, not of steps.
 
 Reference: O. Azencot, S. Weissmann, M. Ovsjanikov, M. Wardetzky, M. Ben-Chen, "Functional fluids on
 surfaces" (SGP 2014); B. Haurwitz, "The motion of atmospheric disturbances on the spherical earth"
@@ -78,7 +90,10 @@ class EulerFlowResult(eqx.Module):
         stream_function: `(s, nv)` `psi = Phi b`, `Delta psi = w` (no constant part).
         dye: `(s, nv)` the dye `Phi g` at the vertices, or None when `euler_flow` had none.
         coefficients: `(s, k)` the vorticity's basis coefficients `a`.
-        kinetic_energy: `(s,)` `1/2 int |u|^2 = 1/2 sum lambda_i b_i^2`.
+        harmonic: `(s, h)` the harmonic velocity's coefficients `c` (`FluidBasis.harmonic_velocity`;
+            `h = 2 g`, 0 on a sphere). The velocity of state `i` is
+            `stream_function_velocity(mesh, stream_function[i]) + basis.harmonic_velocity(harmonic[i])`.
+        kinetic_energy: `(s,)` `1/2 int |u|^2 = 1/2 sum lambda_i b_i^2 + 1/2 sum c_m^2`.
         enstrophy: `(s,)` `1/2 int w^2 = 1/2 sum a_i^2` (of the relative vorticity).
         times: `(s,)` flow times `step * tau`.
         steps: `(s,)` the step numbers of the saved states.
@@ -93,6 +108,7 @@ class EulerFlowResult(eqx.Module):
     stream_function: Float[Array, "s nv"]
     dye: Float[Array, "s nv"] | None
     coefficients: Float[Array, "s k"]
+    harmonic: Float[Array, "s h"]
     kinetic_energy: Float[Array, " s"]
     enstrophy: Float[Array, " s"]
     times: Float[Array, " s"]
@@ -117,6 +133,7 @@ def euler_flow(
     rotation: Real[ArrayLike, ""] = 0.0,
     viscosity: Real[ArrayLike, ""] = 0.0,
     dye: Float[ArrayLike, " nv"] | None = None,
+    harmonic: Float[ArrayLike, " h"] | None = None,
     k: int = 64,
     basis: FluidBasis | None = None,
     method: str = "spectral",
@@ -144,6 +161,8 @@ def euler_flow(
             the vertices' third coordinate). Default 0.
         viscosity: `nu >= 0`, the kinematic viscosity. Default 0 (inviscid).
         dye: `(nv,)` a passive scalar advected by the flow (projected on the basis), or None.
+        harmonic: `(2 g,)` the initial harmonic velocity's coefficients on a surface of genus `g`
+            (`FluidBasis.harmonic_coefficients` of a face velocity field gives them), default 0.
         k: number of eigenfunctions when `basis` is None (default 64 = 8^2: degrees up to 7 on a sphere).
         basis: a `FluidBasis` of this mesh (`fluid_basis`), kept for repeated runs; `k` is then its own.
         method: `"spectral"` (the only one).
@@ -152,12 +171,12 @@ def euler_flow(
 
     Returns:
         `EulerFlowResult`: `vorticity`, `stream_function`, `dye` `(s, nv)`, `coefficients` `(s, k)`,
-        `kinetic_energy`, `enstrophy`, `times`, `steps` `(s,)`, `value` (the final vorticity),
+        `harmonic` `(s, 2 g)`, `kinetic_energy`, `enstrophy`, `times`, `steps` `(s,)`, `value` (the final vorticity),
         `tau`, `result`, `first_failure_step`.
 
     Raises:
         DDGInputError: `mesh` not a `Mesh`; `vorticity` or `dye` not of shape `(nv,)` or not finite;
-            bad `tau`, `steps`, `save_every`, `rotation`, `viscosity` (< 0), `k`, `basis`, `method`,
+            bad `tau`, `steps`, `save_every`, `rotation`, `viscosity` (< 0), `harmonic`, `k`, `basis`, `method`,
             `progress` with traced input; a mesh `fluid_basis` refuses.
         equinox.EquinoxRuntimeError: with `throw=True`, a non-finite state (`RESULTS.nonfinite`).
     """
@@ -171,16 +190,28 @@ def euler_flow(
     tau = check_time_step(tau, dtype)
     rotation = _scalar("rotation", rotation, dtype)
     viscosity = _scalar("viscosity", viscosity, dtype, nonnegative=True)
-    progress = check_progress(progress, vorticity, dye, tau, rotation, viscosity, basis)
+    progress = check_progress(progress, vorticity, dye, harmonic, tau, rotation, viscosity, basis)
     if basis is None:
         basis = fluid_basis(mesh, check_basis_size(mesh, k))
     elif not isinstance(basis, FluidBasis):
         raise DDGInputError(f"basis: expected a FluidBasis (ddgjax.fluids.fluid_basis(mesh, k)), got {type(basis).__name__}")
     elif basis.vectors.shape[0] != mesh.n_vertices:
         raise DDGInputError(f"basis: made for {basis.vectors.shape[0]} vertices, this mesh has {mesh.n_vertices}")
+    n_harmonic = basis.harmonic.shape[1]
+    if harmonic is None:
+        harmonic = jnp.zeros(n_harmonic, dtype)
+    elif np.iscomplexobj(harmonic) or np.shape(harmonic) != (n_harmonic,):
+        raise DDGInputError(
+            f"harmonic: expected a real array of shape ({n_harmonic},) (2 x the genus: coefficients of basis.harmonic), "
+            f"got shape {np.shape(harmonic)}"
+        )
+    elif not is_traced(harmonic) and not np.all(np.isfinite(np.asarray(harmonic))):
+        raise DDGInputError(f"harmonic: expected finite values, got {np.asarray(harmonic)}")
     run = functools.partial(_states, progress=True) if progress else _run
-    state = (basis.coefficients(vorticity), None if dye is None else basis.coefficients(dye))
-    (coefficients, dye_coefficients), failure = run(basis, state, tau, rotation, viscosity, steps=steps, save_every=save_every)
+    state = (basis.coefficients(vorticity), jnp.asarray(harmonic).astype(dtype), None if dye is None else basis.coefficients(dye))
+    (coefficients, harmonic, dye_coefficients), failure = run(
+        basis, state, tau, rotation, viscosity, steps=steps, save_every=save_every
+    )
     saved = save_every * jnp.arange(steps // save_every + 1, dtype=jnp.int32)
     stream = basis.stream_coefficients(coefficients)
     flow = EulerFlowResult(
@@ -188,7 +219,8 @@ def euler_flow(
         stream_function=basis.function(stream),
         dye=None if dye is None else basis.function(dye_coefficients),
         coefficients=coefficients,
-        kinetic_energy=0.5 * jnp.sum(basis.values * stream**2, axis=-1),
+        harmonic=harmonic,
+        kinetic_energy=0.5 * (jnp.sum(basis.values * stream**2, axis=-1) + jnp.sum(harmonic**2, axis=-1)),
         enstrophy=0.5 * jnp.sum(coefficients**2, axis=-1),
         times=tau * saved.astype(dtype),
         steps=saved,
@@ -222,41 +254,123 @@ def _scalar(name: str, value, dtype, *, nonnegative: bool = False) -> Real[Array
     return jnp.asarray(value).astype(dtype)
 
 
-def _midpoint_step(basis: FluidBasis, state, tau, coriolis, viscosity):
-    """One implicit midpoint step of `(a, g)` (module docstring)."""
-    vorticity, dye = state
-    W = basis.advection
-    inverse = inverse_values(basis.values)
-    half = 0.5 * tau
-    damping = 1.0 + half * viscosity * basis.values
+class _Dynamics(eqx.Module):
+    """The reduced equations' coefficients: the basis tensors, the damping and the absolute vorticity's offset."""
+
+    advection: Float[Array, "k k k"]
+    harmonic_advection: Float[Array, "k h k"]
+    harmonic_exchange: Float[Array, "k h h"]
+    inverse: Float[Array, " k"]
+    damping: Float[Array, " k+h"]
+    coriolis: Float[Array, " k"]
+    half: Float[Array, ""]
+
+    def transport(self, vorticity, harmonic) -> Float[Array, "k k"]:
+        """`T_kj = sum_i W_kij b_i + sum_m H_kmj c_m`: `d q_k / dt = sum_j T_kj q_j` for an advected `q`."""
+        stream = -vorticity * self.inverse
+        return jnp.tensordot(self.advection, stream, axes=([1], [0])) + jnp.tensordot(
+            self.harmonic_advection, harmonic, axes=([1], [0])
+        )
+
+    def split(self, x):
+        k = self.inverse.shape[0]
+        return x[:k], x[k:]
+
+    def residual(self, midpoint, start):
+        """`D x - x_0 - tau/2 F(x)` of the stacked state `x = (a, c)` (module docstring)."""
+        return self.damping * midpoint - start - self.half * self.tendency(midpoint)[0]
+
+    def tendency(self, x):
+        """`(F(x), dF/dx)`: the advection part of `(da/dt, dc/dt)` and its `(k + h, k + h)` Jacobian."""
+        vorticity, harmonic = self.split(x)
+        stream = -vorticity * self.inverse
+        absolute = vorticity + self.coriolis
+        transport = self.transport(vorticity, harmonic)
+        along = jnp.tensordot(self.harmonic_advection, absolute, axes=([2], [0]))  # sum_j H_kmj q_j: (k, h)
+        exchange = jnp.tensordot(absolute, self.harmonic_exchange, axes=([0], [0]))  # sum_k q_k G_kmn: (h, h)
+        tendency = jnp.concatenate([transport @ absolute, along.T @ stream - exchange @ harmonic])
+        # Derivatives of T(a, c) q through b = -a / lambda, q = a + f and c, block by block.
+        by_vorticity = transport - jnp.tensordot(self.advection, absolute, axes=([2], [0])) * self.inverse
+        harmonic_by_vorticity = (
+            -along.T * self.inverse
+            + jnp.tensordot(stream, self.harmonic_advection, axes=([0], [0]))
+            - jnp.tensordot(self.harmonic_exchange, harmonic, axes=([2], [0])).T
+        )
+        jacobian = jnp.block([[by_vorticity, along], [harmonic_by_vorticity, -exchange]])
+        return tendency, jacobian
+
+    def system(self, midpoint):
+        """`dR/dx = D - tau/2 dF/dx`, the Newton matrix."""
+        return jnp.diag(self.damping) - self.half * self.tendency(midpoint)[1]
+
+
+@jax.custom_vjp
+def _midpoint(dynamics: _Dynamics, start):
+    """The implicit midpoint `x = (x_0 + x_1) / 2`: `NEWTON_STEPS` Newton steps on the residual from `x_0`."""
 
     def newton(x, _):
-        stream = -x * inverse
-        transport = jnp.tensordot(W, stream, axes=([1], [0]))  # sum_i W_kij b_i: (k, j)
-        absolute = x + coriolis
-        residual = damping * x - vorticity - half * transport @ absolute
-        # d/dx of sum_ij W_kij b_i q_j: the transport matrix (via q) plus sum_j W_kij q_j db_i/dx_i.
-        jacobian = transport - jnp.tensordot(W, absolute, axes=([2], [0])) * inverse[None, :]
-        system = jnp.diag(damping) - half * jacobian
+        tendency, jacobian = dynamics.tendency(x)
+        residual = dynamics.damping * x - start - dynamics.half * tendency
+        system = jnp.diag(dynamics.damping) - dynamics.half * jacobian
         return x - jnp.linalg.solve(system, residual), None
 
-    midpoint, _ = jax.lax.scan(newton, vorticity, None, length=NEWTON_STEPS)
-    new_vorticity = 2.0 * midpoint - vorticity
+    midpoint, _ = jax.lax.scan(newton, start, None, length=NEWTON_STEPS)
+    return midpoint
+
+
+def _midpoint_forward(dynamics, start):
+    midpoint = _midpoint(dynamics, start)
+    return midpoint, (dynamics, start, midpoint)
+
+
+def _midpoint_backward(saved, cotangent):
+    # The implicit function theorem on R(x, p) = 0: one transposed solve with the converged Newton
+    # matrix, instead of reverse mode through the Newton iterations.
+    dynamics, start, midpoint = saved
+    adjoint = jnp.linalg.solve(dynamics.system(midpoint).T, cotangent)
+    _, pullback = jax.vjp(lambda dynamics, start: dynamics.residual(midpoint, start), dynamics, start)
+    return jax.tree.map(jnp.negative, pullback(adjoint))
+
+
+_midpoint.defvjp(_midpoint_forward, _midpoint_backward)
+
+
+def _dynamics(basis: FluidBasis, tau, coriolis, viscosity) -> _Dynamics:
+    k, h = basis.harmonic_advection.shape[:2]
+    damping = 1.0 + 0.5 * tau * viscosity * basis.values  # Crank-Nicolson viscosity; harmonic fields do not diffuse
+    return _Dynamics(
+        advection=basis.advection,
+        harmonic_advection=basis.harmonic_advection,
+        harmonic_exchange=basis.harmonic_exchange,
+        inverse=inverse_values(basis.values),
+        damping=jnp.concatenate([damping, jnp.ones(h, damping.dtype)]),
+        coriolis=coriolis,
+        half=0.5 * tau,
+    )
+
+
+def _midpoint_step(dynamics: _Dynamics, state):
+    """One implicit midpoint step of `(a, c, g)` (module docstring)."""
+    vorticity, harmonic, dye = state
+    start = jnp.concatenate([vorticity, harmonic])
+    midpoint = _midpoint(dynamics, start)
+    new_vorticity, new_harmonic = dynamics.split(2.0 * midpoint - start)
     if dye is None:
-        return new_vorticity, None
-    transport = half * jnp.tensordot(W, -midpoint * inverse, axes=([1], [0]))
+        return new_vorticity, new_harmonic, None
+    # The dye's step is linear: a Cayley transform of the antisymmetric midpoint transport.
+    transport = dynamics.half * dynamics.transport(*dynamics.split(midpoint))
     identity = jnp.eye(transport.shape[0], dtype=transport.dtype)
-    return new_vorticity, jnp.linalg.solve(identity - transport, dye + transport @ dye)
+    return new_vorticity, new_harmonic, jnp.linalg.solve(identity - transport, dye + transport @ dye)
 
 
 @kernel(static_argnames=("count",))
 def _advance(basis: FluidBasis, state, failure: Failure, start, tau, rotation, viscosity, *, count):
     """Steps `start + 1, ..., start + count`: `((state, failure), state)`."""
-    coriolis = rotation * basis.coriolis
+    dynamics = _dynamics(basis, tau, rotation * basis.coriolis, viscosity)
 
     def step(carry, k):
         state, failure = carry
-        state = _midpoint_step(basis, state, tau, coriolis, viscosity)
+        state = _midpoint_step(dynamics, state)
         return (state, record(failure, k, finite_outcome(state))), None
 
     def step_or_stop(carry, k):
