@@ -85,6 +85,13 @@ GALLERY = (
         "heat method closes the gap. `ddgjax.geodesics.signed_heat_distance`.",
     ),
     Entry(
+        "fluid",
+        "Fluid on a sphere",
+        ("fluid",),
+        "A pair of opposite vortices travelling east on the unit sphere, stirring latitude bands of dye: incompressible "
+        "Euler flow in 64 Laplacian eigenfunctions, energy and enstrophy kept to round-off. `ddgjax.fluids.euler_flow`.",
+    ),
+    Entry(
         "spectrum",
         "Laplacian eigenfunctions",
         ("spectrum",),

@@ -4,7 +4,8 @@ problem solved on a mesh, with a picture of the solution), `ddgjax geodesic` (a 
 field; a log map, parallel transport, a signed distance or a point-cloud distance), `ddgjax spectrum`
 (Laplacian eigenvalues and eigenfunctions), `ddgjax param` (flattenings), `ddgjax fields` (direction
 fields), `ddgjax optimize` (shape-optimisation examples), `ddgjax deform` (ARAP and k-harmonic
-deformation from handles) and `ddgjax match` (a point map between two meshes).
+deformation from handles), `ddgjax match` (a point map between two meshes) and `ddgjax fluid`
+(incompressible Euler flow on a closed surface, frames or an animation written to disk).
 
 Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
@@ -28,7 +29,7 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
-from . import deform, fields, flow, geodesic, info, match, optimize, param, poisson, spectral
+from . import deform, fields, flow, fluid, geodesic, info, match, optimize, param, poisson, spectral
 
 #: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
 CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
@@ -177,6 +178,17 @@ def build_parser() -> argparse.ArgumentParser:
             description="Match two meshes (default: a built-in pair with known ground truth) by functional maps with "
             "ZoomOut refinement, print the map's size, time and (with ground truth) its mean geodesic error, and draw "
             "a checkerboard on the source pulled back to the target through the map.",
+        )
+    )
+    fluid.add_arguments(
+        sub.add_parser(
+            "fluid",
+            parents=[common],
+            help="incompressible Euler flow on a closed surface (a vortex pair, a Rossby-Haurwitz wave), drawn or animated",
+            description="Run the spectral Euler flow of ddgjax.fluids from a vortex pair (default; on the built-in sphere "
+            "or a closed mesh file) or a Rossby-Haurwitz wave on the rotating sphere, with a passive dye; print energy and "
+            "enstrophy drift (and the wave's measured rate against Haurwitz's closed form) and write a figure, one PNG "
+            "per saved state or a GIF.",
         )
     )
     return parser
