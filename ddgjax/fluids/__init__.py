@@ -2,12 +2,14 @@
 
 - `fluid_basis(mesh, k, *, mass="voronoi", robust=False) -> FluidBasis`: the first `k` Laplacian
   eigenpairs and the alternating advection tensor `W (k, k, k)` between them (Azencot et al. 2014),
+  and on a surface of genus `g` its `2 g` harmonic velocity fields with their coupling tensors;
   built once per mesh, differentiable in the vertex positions.
 - `euler_flow(mesh, vorticity, *, tau, steps, save_every=None, rotation=0.0, viscosity=0.0, dye=None,
-  k=64, basis=None, method="spectral", progress=False, throw=True) -> EulerFlowResult`: the vorticity
-  equation (optionally on a frame turning at `rotation` about +z, viscous, with a passive dye)
-  reduced to the basis and integrated by implicit midpoint steps, which conserve energy and
-  enstrophy; one compiled, checkpointed `lax.scan`; outcomes as `ddgjax.RESULTS` (`nonfinite`).
+  harmonic=None, k=64, basis=None, method="spectral", progress=False, throw=True) -> EulerFlowResult`:
+  the vorticity equation (optionally on a frame turning at `rotation` about +z, viscous, with a
+  passive dye and a harmonic flow round the handles) reduced to the basis and integrated by implicit
+  midpoint steps, which conserve energy and enstrophy; one compiled, checkpointed `lax.scan`
+  differentiated implicitly per step; outcomes as `ddgjax.RESULTS` (`nonfinite`).
 - `stream_function_velocity(mesh, psi)`: face velocities `n x grad psi`, `(nf, 3)`.
 
 Reference: O. Azencot, S. Weissmann, M. Ovsjanikov, M. Wardetzky, M. Ben-Chen, "Functional fluids on
