@@ -370,14 +370,13 @@ def _advance(basis: FluidBasis, state, failure: Failure, start, tau, rotation, v
 
     def step(carry, k):
         state, failure = carry
-        state = _midpoint_step(dynamics, state)
+        # After a failure the flow stops (the failed state is kept): a select, as a branch per step
+        # costs as much as the step itself on small states.
+        stopped = failed_before(failure, k)
+        state = jax.tree.map(functools.partial(jnp.where, stopped), state, _midpoint_step(dynamics, state))
         return (state, record(failure, k, finite_outcome(state))), None
 
-    def step_or_stop(carry, k):
-        # After a failure the flow stops, so that the recorded first failing step stays the first.
-        return jax.lax.cond(failed_before(carry[1], k), lambda carry, _: (carry, None), step, carry, k)
-
-    carry, _ = scan_steps(step_or_stop, (state, failure), start, count)
+    carry, _ = scan_steps(step, (state, failure), start, count)
     return carry, carry[0]
 
 
