@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import math
 import os
 import sys
 
@@ -31,3 +33,15 @@ def write_figure(figure, output: str, command: str) -> bool:
         return False
     print(f"figure written to {output}")
     return True
+
+
+def positive(kind):
+    """argparse type: a finite number of type `kind` (int or float) > 0."""
+
+    def parse(text: str):
+        value = kind(text)
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        return value
+
+    return parse

@@ -39,7 +39,7 @@ from ..curves import (
     regular_polygon,
     star,
 )
-from ._common import write_figure
+from ._common import positive, write_figure
 
 SHAPES = ("figure3", "flower", "star", "random", "regular")
 # One colour per kind, the same in every panel.
@@ -58,18 +58,6 @@ def _kinds(text: str) -> list[str]:
     return kinds
 
 
-def _positive(kind):
-    """argparse type: a finite number (int or float) > 0."""
-
-    def parse(text: str):
-        value = kind(text)
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-        return value
-
-    return parse
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the options of `ddgjax flow` to `parser` and make `run_flow` its action."""
     parser.formatter_class = argparse.ArgumentDefaultsHelpFormatter
@@ -81,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--vertices",
-        type=_positive(int),
+        type=positive(int),
         default=64,
         help="number of vertices of the flower, random and regular shapes; the 5-tip star gets the nearest multiple of "
         "10 (its 10 straight edges are split into equal segments)",
@@ -95,17 +83,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--tau",
-        type=_positive(float),
+        type=positive(float),
         default=None,
         help="time step of the pointwise D flow (flow time); the integrated flows A, B, C step by tau / h, h the initial "
         "mean edge length, so that every flow covers the same flow time. Default: (shortest edge)^2 / 4, the explicit "
         "stability bound, and without rescaling at most 60%% of the time |area| / (2 pi) a smooth flow takes to shrink "
         "the curve to a point, spread over --steps",
     )
-    parser.add_argument("--steps", type=_positive(int), default=3000, help="number of time steps of every flow")
+    parser.add_argument("--steps", type=positive(int), default=3000, help="number of time steps of every flow")
     parser.add_argument(
         "--save-every",
-        type=_positive(int),
+        type=positive(int),
         default=None,
         help="save the state every this many steps (must divide --steps); default: about 100 saved states",
     )
@@ -122,7 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="after each step scale the curve about its vertex centroid back to its initial area or length, so the "
         "limit shape shows (none: watch it shrink)",
     )
-    parser.add_argument("--snapshots", type=_positive(int), default=6, help="snapshots overlaid in each flow's panel")
+    parser.add_argument("--snapshots", type=positive(int), default=6, help="snapshots overlaid in each flow's panel")
     parser.add_argument("--output", "-o", default="ddgjax_flow.png", help="PNG file to write the figure to")
     parser.add_argument("--no-plot", action="store_true", help="print the table only, write no figure")
     parser.add_argument("--progress", action="store_true", help="show a progress bar over the steps of each flow (for long runs)")

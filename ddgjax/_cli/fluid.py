@@ -50,7 +50,7 @@ from .._results import RESULTS
 from ..fluids import euler_flow, fluid_basis
 from ..geodesics import heat_distance_solver
 from ..mesh import Mesh, icosphere, total_area
-from ._common import load_cli_mesh, write_figure
+from ._common import load_cli_mesh, positive, write_figure
 
 _SUBDIVISIONS = 4
 _DEFAULT_SHAPE = f"built-in unit icosphere({_SUBDIVISIONS})"
@@ -65,18 +65,6 @@ _PANELS = 4
 """Saved states drawn in the `--output` grid."""
 
 
-def _positive(kind):
-    """argparse type: a finite number (int or float) > 0."""
-
-    def parse(text: str):
-        value = kind(text)
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-        return value
-
-    return parse
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `ddgjax fluid`; its action is `run`."""
     parser.add_argument(
@@ -88,11 +76,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="vortex-pair",
         help="initial vorticity: two opposite Gaussian vortices (default), or a Rossby-Haurwitz wave (unit sphere only)",
     )
-    parser.add_argument("--tau", type=_positive(float), default=0.05, help="time step (default 0.05)")
-    parser.add_argument("--steps", type=_positive(int), default=200, help="number of time steps (default 200)")
+    parser.add_argument("--tau", type=positive(float), default=0.05, help="time step (default 0.05)")
+    parser.add_argument("--steps", type=positive(int), default=200, help="number of time steps (default 200)")
     parser.add_argument(
         "--save-every",
-        type=_positive(int),
+        type=positive(int),
         default=None,
         help="save the state every this many steps; must divide --steps (default: the largest divisor of --steps "
         "that saves at least 20 states)",
@@ -108,7 +96,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-k", type=int, default=64, help="number of Laplacian eigenfunctions of the basis (default 64)")
     parser.add_argument(
         "--width",
-        type=_positive(float),
+        type=positive(float),
         default=0.3,
         help="vortex-pair: the Gaussians' width over the radius of the sphere of the mesh's area (default 0.3)",
     )
