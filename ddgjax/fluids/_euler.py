@@ -20,21 +20,21 @@ the exchange that keeps the total kinetic energy `1/2 sum lambda b^2 + 1/2 sum c
 theorem for the loops round the handles).
 
 Integrator: the implicit midpoint rule on the state `x = (a, c)`, `x' = x + tau F((x + x') / 2)`,
-viscosity included (for the
-linear viscous term it is Crank-Nicolson). The midpoint `x = (a + a') / 2` solves
-`(1 + tau nu lambda / 2) x = a + tau/2 N(x)` (`N` the quadratic advection), by `NEWTON_STEPS` Newton
-steps from `x = a` (the `k x k` Jacobian is cheap: `k^3` flops, as one evaluation of `N`). The count
-is fixed, so the step is a plain differentiable function under `jit`. Newton rather than the plain
-fixed-point iteration: its error squares each step, so a fixed count reaches round-off over the
-whole useful range of `tau`, where fixed-point iterations need a count that grows with
-`tau |N'|`. The rule conserves every quadratic invariant of the ODE; with the alternating tensor
-these are the kinetic energy `1/2 sum lambda b^2` and the enstrophy of the absolute vorticity
-`1/2 sum (a + f)^2` (the relative enstrophy `1/2 sum a^2` without rotation). Measured on the unit
-sphere (icosphere(3), k = 36, 200 steps of a random vorticity of degrees 1 to 3 with unit normal
-coefficients), the relative drift of energy and enstrophy after 200 steps is, for `tau` = 0.01,
-0.05, 0.2, 0.5: with 1 Newton step (a linearly implicit step) 1e-7, 1e-5, 2e-3, 1e-2; with 2 steps
-7e-16, 3e-14, 8e-10, 1e-6; with 3 (the count used) 2e-15 at every `tau` (round-off). The dye's midpoint step is linear
-(a Cayley transform of the antisymmetric `sum_i W_kij b_i`): its `L^2` norm is kept exactly.
+viscosity included (for the linear viscous term it is Crank-Nicolson). The midpoint `x = (a + a') / 2`
+solves `R(x) = D x - a - tau/2 N(x) = 0` (`D = 1 + tau nu lambda / 2`, `N` the quadratic advection),
+to round-off (an iteration moving it by at most `CONVERGENCE` ulps of the state): first fixed-point
+iterations `x <- D^{-1} (a + tau/2 N(x))` from `x = a`, one `k^3` product each, while each moves `x` at
+most `CONTRACTION` times the last move (5-7 of them at the usual `tau`, where `tau |N'|` is small),
+then Newton steps (`k x k` Jacobian, at most `NEWTON_STEPS`), whose error squares each step where
+the fixed point contracts slowly or not at all (large `tau`). Both are `lax.while_loop`s; the gradient
+does not go through them (below). The rule conserves every quadratic invariant of the ODE; with the
+alternating tensor these are the kinetic energy `1/2 sum lambda b^2` and the enstrophy of the absolute
+vorticity `1/2 sum (a + f)^2` (the relative enstrophy `1/2 sum a^2` without rotation). Measured on the
+unit sphere (icosphere(3), k = 36, 200 steps of a random vorticity of degrees 1 to 3 with unit normal
+coefficients), the largest relative drift of energy and enstrophy is 2e-15 at `tau` = 0.01, 0.05, 0.2
+and 0.5 (round-off; a fixed count of 1 or 2 Newton steps drifts 1e-7 to 1e-2 and 7e-16 to 1e-6). The
+dye's midpoint step is linear (a Cayley transform of the antisymmetric `sum_i W_kij b_i`): its `L^2`
+norm is kept exactly.
 
 Differentiable in reverse mode with respect to the initial vorticity, the harmonic coefficients, the
 dye, `tau`, `rotation`, `viscosity` and (through `fluid_basis`) the vertex positions. The midpoint is
@@ -76,8 +76,15 @@ from .._results import RESULTS, raise_if_failed
 from ..mesh import Mesh, require_mesh
 from ._basis import FluidBasis, check_basis_size, fluid_basis, inverse_values
 
-#: Newton steps per implicit midpoint step (module docstring).
+#: At most this many fixed-point iterations per implicit midpoint step, then at most `NEWTON_STEPS`
+#: Newton steps (module docstring).
+FIXED_POINT_STEPS = 10
 NEWTON_STEPS = 3
+#: Fixed-point iterations go on while each moves the midpoint at most this fraction of the last move
+#: (10 iterations then reach round-off; a slower contraction hands over to Newton).
+CONTRACTION = 0.01
+#: The midpoint is converged when an iteration moves it by at most this many ulps of the state's size.
+CONVERGENCE = 16
 
 
 class EulerFlowResult(eqx.Module):
@@ -144,7 +151,7 @@ def euler_flow(
 
     `dw/dt + u . grad(w + 2 Omega z) = nu Delta w`, `u = n x grad psi`, `Delta psi = w`, reduced to
     the first `k` Laplacian eigenfunctions (Azencot et al. 2014) and integrated by implicit midpoint
-    steps (`NEWTON_STEPS` Newton steps each), which conserve energy and enstrophy of the inviscid,
+    steps (solved to round-off), which conserve energy and enstrophy of the inviscid,
     non-rotating flow to round-off. One compiled `lax.scan` over saved chunks, differentiable:
 
         basis = fluid_basis(mesh, 36)
@@ -258,19 +265,22 @@ class _Dynamics(eqx.Module):
     """The reduced equations' coefficients: the basis tensors, the damping and the absolute vorticity's offset."""
 
     advection: Float[Array, "k k k"]
+    # W_kij and H_kmj with the summed index first, (i, k j) and (m, k j): the transport is then one
+    # vector-matrix product (the layout is made once per chunk, not at every product).
+    advection_by_stream: Float[Array, "k kk"]
+    harmonic_advection_by_field: Float[Array, "h kk"]
     harmonic_advection: Float[Array, "k h k"]
     harmonic_exchange: Float[Array, "k h h"]
     inverse: Float[Array, " k"]
-    damping: Float[Array, " k+h"]
+    damping: Float[Array, " n"]
     coriolis: Float[Array, " k"]
     half: Float[Array, ""]
 
     def transport(self, vorticity, harmonic) -> Float[Array, "k k"]:
         """`T_kj = sum_i W_kij b_i + sum_m H_kmj c_m`: `d q_k / dt = sum_j T_kj q_j` for an advected `q`."""
         stream = -vorticity * self.inverse
-        return jnp.tensordot(self.advection, stream, axes=([1], [0])) + jnp.tensordot(
-            self.harmonic_advection, harmonic, axes=([1], [0])
-        )
+        k = stream.shape[0]
+        return (stream @ self.advection_by_stream + harmonic @ self.harmonic_advection_by_field).reshape(k, k)
 
     def split(self, x):
         k = self.inverse.shape[0]
@@ -278,43 +288,66 @@ class _Dynamics(eqx.Module):
 
     def residual(self, midpoint, start):
         """`D x - x_0 - tau/2 F(x)` of the stacked state `x = (a, c)` (module docstring)."""
-        return self.damping * midpoint - start - self.half * self.tendency(midpoint)[0]
+        return self.damping * midpoint - start - self.half * self.rate(midpoint)
 
-    def tendency(self, x):
-        """`(F(x), dF/dx)`: the advection part of `(da/dt, dc/dt)` and its `(k + h, k + h)` Jacobian."""
+    def rate(self, x) -> Float[Array, " n"]:
+        """`F(x)`: the advection part of `(da/dt, dc/dt)` (module docstring)."""
         vorticity, harmonic = self.split(x)
-        stream = -vorticity * self.inverse
         absolute = vorticity + self.coriolis
-        transport = self.transport(vorticity, harmonic)
         along = jnp.tensordot(self.harmonic_advection, absolute, axes=([2], [0]))  # sum_j H_kmj q_j: (k, h)
         exchange = jnp.tensordot(absolute, self.harmonic_exchange, axes=([0], [0]))  # sum_k q_k G_kmn: (h, h)
-        tendency = jnp.concatenate([transport @ absolute, along.T @ stream - exchange @ harmonic])
-        # Derivatives of T(a, c) q through b = -a / lambda, q = a + f and c, block by block.
-        by_vorticity = transport - jnp.tensordot(self.advection, absolute, axes=([2], [0])) * self.inverse
+        stream = -vorticity * self.inverse
+        return jnp.concatenate([self.transport(vorticity, harmonic) @ absolute, along.T @ stream - exchange @ harmonic])
+
+    def system(self, x) -> Float[Array, "n n"]:
+        """`dR/dx = D - tau/2 dF/dx`, the Newton matrix, block by block through `b = -a / lambda`, `q = a + f`, `c`."""
+        vorticity, harmonic = self.split(x)
+        absolute = vorticity + self.coriolis
+        stream = -vorticity * self.inverse
+        along = jnp.tensordot(self.harmonic_advection, absolute, axes=([2], [0]))
+        by_vorticity = (
+            self.transport(vorticity, harmonic) - jnp.tensordot(self.advection, absolute, axes=([2], [0])) * self.inverse
+        )
         harmonic_by_vorticity = (
             -along.T * self.inverse
             + jnp.tensordot(stream, self.harmonic_advection, axes=([0], [0]))
             - jnp.tensordot(self.harmonic_exchange, harmonic, axes=([2], [0])).T
         )
+        exchange = jnp.tensordot(absolute, self.harmonic_exchange, axes=([0], [0]))
         jacobian = jnp.block([[by_vorticity, along], [harmonic_by_vorticity, -exchange]])
-        return tendency, jacobian
-
-    def system(self, midpoint):
-        """`dR/dx = D - tau/2 dF/dx`, the Newton matrix."""
-        return jnp.diag(self.damping) - self.half * self.tendency(midpoint)[1]
+        return jnp.diag(self.damping) - self.half * jacobian
 
 
 @jax.custom_vjp
 def _midpoint(dynamics: _Dynamics, start):
-    """The implicit midpoint `x = (x_0 + x_1) / 2`: `NEWTON_STEPS` Newton steps on the residual from `x_0`."""
+    """The implicit midpoint `x = (x_0 + x_1) / 2`, `R(x) = 0` to round-off (module docstring)."""
+    tolerance = CONVERGENCE * jnp.finfo(start.dtype).eps * jnp.max(jnp.abs(start))
 
-    def newton(x, _):
-        tendency, jacobian = dynamics.tendency(x)
-        residual = dynamics.damping * x - start - dynamics.half * tendency
-        system = jnp.diag(dynamics.damping) - dynamics.half * jacobian
-        return x - jnp.linalg.solve(system, residual), None
+    def contracting(carry):
+        count, _, change, fast = carry
+        return (count < FIXED_POINT_STEPS) & (change > tolerance) & fast
 
-    midpoint, _ = jax.lax.scan(newton, start, None, length=NEWTON_STEPS)
+    def fixed_point(carry):
+        count, x, change, _ = carry
+        new = (start + dynamics.half * dynamics.rate(x)) / dynamics.damping
+        new_change = jnp.max(jnp.abs(new - x))
+        improves = new_change < change  # an iterate that moved less than the last one is kept for Newton
+        fast = new_change < CONTRACTION * change
+        return count + 1, jnp.where(improves, new, x), jnp.where(improves, new_change, change), fast
+
+    infinite = jnp.asarray(jnp.inf, start.dtype)
+    _, x, change, _ = jax.lax.while_loop(contracting, fixed_point, (0, start, infinite, jnp.asarray(True)))
+
+    def unconverged(carry):
+        count, _, change = carry
+        return (count < NEWTON_STEPS) & (change > tolerance)
+
+    def newton(carry):
+        count, x, _ = carry
+        step = jnp.linalg.solve(dynamics.system(x), dynamics.residual(x, start))
+        return count + 1, x - step, jnp.max(jnp.abs(step))
+
+    _, midpoint, _ = jax.lax.while_loop(unconverged, newton, (0, x, change))
     return midpoint
 
 
@@ -340,6 +373,8 @@ def _dynamics(basis: FluidBasis, tau, coriolis, viscosity) -> _Dynamics:
     damping = 1.0 + 0.5 * tau * viscosity * basis.values  # Crank-Nicolson viscosity; harmonic fields do not diffuse
     return _Dynamics(
         advection=basis.advection,
+        advection_by_stream=jnp.transpose(basis.advection, (1, 0, 2)).reshape(k, k * k),
+        harmonic_advection_by_field=jnp.transpose(basis.harmonic_advection, (1, 0, 2)).reshape(h, k * k),
         harmonic_advection=basis.harmonic_advection,
         harmonic_exchange=basis.harmonic_exchange,
         inverse=inverse_values(basis.values),
