@@ -270,6 +270,12 @@ def test_torus_harmonic_flow_stays_and_carries_the_dye(ring):
     around_hole, around_tube = _torus_fields(mesh)
     coefficients = basis.harmonic_coefficients(around_hole)
     x, y, z = _xyz(mesh)
+    with pytest.raises(DDGInputError, match="harmonic"):
+        euler_flow(mesh, np.zeros_like(x), tau=0.05, steps=1, harmonic=[np.nan, 0.0], basis=basis)
+    with pytest.raises(DDGInputError, match="harmonic"):
+        euler_flow(mesh, np.zeros_like(x), tau=0.05, steps=1, harmonic=[1.0], basis=basis)
+    with pytest.raises(DDGInputError, match="velocity"):
+        basis.harmonic_coefficients(around_hole[:10])
     # Without vorticity a harmonic flow is steady, also viscous (the harmonic fields do not diffuse).
     flow = euler_flow(
         mesh, np.zeros_like(x), tau=0.025, steps=20, save_every=10, harmonic=coefficients, basis=basis, viscosity=0.1, dye=x
@@ -341,6 +347,30 @@ def test_torus_gradient_through_the_harmonic_exchange(ring):
     eps = 1e-5
     fd = (loss(w0 + eps * dw, c0 + eps * dc) - loss(w0 - eps * dw, c0 - eps * dc)) / (2 * eps)
     assert float(gradient_w @ dw + gradient_c @ dc) == pytest.approx(float(fd), rel=1e-7)
+
+
+@pytest.mark.slow
+def test_torus_with_a_zero_area_face_keeps_the_harmonic_flow_finite():
+    # The harmonic fields vanish on the degenerate face (a closed form's vector there is of size 1 / area);
+    # with the intrinsic Delaunay basis the flow, its harmonic part and their gradient stay finite.
+    ring = torus(major_radius=1.0, minor_radius=0.4, n_major=24, n_minor=10)
+    V = np.array(ring.vertices)
+    a, b, c = np.asarray(ring.faces)[0]
+    V[a] = (V[b] + V[c]) / 2
+    flat = Mesh.from_arrays(V, np.asarray(ring.faces))
+    basis = fluid_basis(flat, 16, robust=True)
+    assert all(np.all(np.isfinite(np.asarray(leaf))) for leaf in jax.tree.leaves(basis))
+    np.testing.assert_array_equal(np.asarray(basis.harmonic[0]), 0.0)
+    vorticity = V[:, 0] * V[:, 2]
+
+    def final(harmonic):
+        return euler_flow(flat, vorticity, tau=0.01, steps=10, basis=basis, harmonic=harmonic).harmonic[-1]
+
+    flow = euler_flow(flat, vorticity, tau=0.01, steps=10, basis=basis, harmonic=jnp.array([1.0, 0.5]), throw=False)
+    assert flow.result == ddgjax.RESULTS.successful
+    energy = np.asarray(flow.kinetic_energy)
+    assert abs(energy[-1] / energy[0] - 1) < 1e-12
+    assert np.all(np.isfinite(np.asarray(jax.jacrev(final)(jnp.array([1.0, 0.5])))))
 
 
 def test_bad_input(sphere, without_type_checker):

@@ -28,8 +28,9 @@ tree-cotree basis (as `ddgjax.pde.hodge_decomposition` builds) turned into face 
 exact for closed forms), minus their `L^2` projection on the gradients of piecewise linear functions
 (one Poisson solve; the projection on rotated gradients `n x grad phi` is already 0 for a closed form,
 by the discrete Stokes theorem on each vertex star), orthonormalised in `L^2` (Cholesky of the Gram
-matrix). Being `L^2`-orthogonal to every `n x grad phi`, they split the kinetic energy exactly:
-`1/2 int |u|^2 = 1/2 sum lambda b^2 + 1/2 sum c^2`. They enter the flow through two more tensors,
+matrix); faces of (near-)zero area carry none. Being `L^2`-orthogonal to every `n x grad phi`, they
+split the kinetic energy exactly: `1/2 int |u|^2 = 1/2 sum lambda b^2 + 1/2 sum c^2` (with the cotan
+Laplacian; to the discretisation's accuracy with `robust=True`). They enter the flow through two more tensors,
 
     H_kmj = -int phi_k h_m . grad phi_j dA      (antisymmetrised in (k, j), as it is for div h = 0),
     G_kmn = int phi_k (n x h_n) . h_m dA          (antisymmetric in (m, n) exactly),
@@ -57,12 +58,13 @@ from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import (
     Mesh,
     face_areas,
+    face_edge_lengths_sq,
     face_hat_gradients,
     face_normals,
     require_mesh,
     scatter_corners_to_vertices,
-    vertex_dual_areas,
 )
+from ..mesh._check import default_area_tol
 from ..pde import solve_poisson
 from ..pde._hodge_decomposition import closed_cocycle_basis
 from ..spectral import smallest_eigenpairs
@@ -170,22 +172,29 @@ def fluid_basis(mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | Int
     # What `ddgjax.spectral.eigenpairs` does with Neumann conditions, keeping the mass matrix it used.
     L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     values, vectors = smallest_eigenpairs(L, M, k)
-    harmonic = _harmonic_fields(mesh, closed_cocycle_basis(mesh.topology))
+    harmonic = _harmonic_fields(mesh, closed_cocycle_basis(mesh.topology), M.diagonal(), mass=mass, robust=robust)
     return _fluid_basis(mesh, values, vectors, M.diagonal(), harmonic)
 
 
-def _harmonic_fields(mesh: Mesh, cocycles) -> Float[Array, "nf h 3"]:
-    """`L^2`-orthonormal harmonic face fields spanning the classes of the closed `cocycles (ne, h)` (module docstring)."""
+def _harmonic_fields(mesh: Mesh, cocycles, vertex_mass, *, mass, robust) -> Float[Array, "nf h 3"]:
+    """`L^2`-orthonormal harmonic face fields spanning the classes of the closed `cocycles (ne, h)` (module docstring).
+
+    The gradient part is removed with the basis's own Laplacian and mass (`vertex_mass`, `mass=`,
+    `robust=`): exactly `L^2`-orthogonal to the mesh's gradients with the cotan Laplacian, to the
+    discretisation's accuracy with the intrinsic Delaunay one (`robust=True`, which keeps degenerate
+    faces finite)."""
     if cocycles.shape[1] == 0:  # a sphere: no Poisson solve
         return jnp.zeros((mesh.n_faces, 0, 3), mesh.vertices.dtype)
-    closed = jnp.stack([sharp(mesh, jnp.asarray(eta, mesh.vertices.dtype)) for eta in cocycles.T], axis=1)
     areas = face_areas(mesh)
+    # Faces of (near-)zero area carry no field: a closed form's vector there is of size 1 / area.
+    regular = (areas > default_area_tol(areas.dtype) * jnp.max(face_edge_lengths_sq(mesh), axis=1))[:, None, None]
+    closed = jnp.stack([sharp(mesh, jnp.asarray(eta, mesh.vertices.dtype)) for eta in cocycles.T], axis=1)
+    closed = jnp.where(regular, closed, 0.0)
     gradients = face_hat_gradients(mesh)  # (nf, 3 corners, 3)
     # L a = int grad phi_i . v dA: the gradient part of v. `solve_poisson` takes a pointwise right-hand side.
     divergence = scatter_corners_to_vertices(mesh, jnp.einsum("f,fcd,fmd->fcm", areas, gradients, closed))
-    mass = vertex_dual_areas(mesh, dual="barycentric")
-    potential = solve_poisson(mesh, safe_div(-divergence, mass[:, None]), mass="barycentric")
-    fields = closed - jnp.einsum("fcd,fcm->fmd", gradients, potential[mesh.faces])
+    potential = solve_poisson(mesh, safe_div(-divergence, vertex_mass[:, None]), mass=mass, robust=robust)
+    fields = jnp.where(regular, closed - jnp.einsum("fcd,fcm->fmd", gradients, potential[mesh.faces]), 0.0)
     gram = jnp.einsum("f,fmd,fnd->mn", areas, fields, fields)
     factor = jnp.linalg.cholesky(gram)
     return jnp.einsum("mn,fnd->fmd", jnp.linalg.inv(factor), fields)
