@@ -271,9 +271,9 @@ def test_torus_harmonic_flow_stays_and_carries_the_dye(ring):
     coefficients = basis.harmonic_coefficients(around_hole)
     x, y, z = _xyz(mesh)
     with pytest.raises(DDGInputError, match="harmonic"):
-        euler_flow(mesh, np.zeros_like(x), tau=0.05, steps=1, harmonic=[np.nan, 0.0], basis=basis)
+        euler_flow(mesh, np.zeros_like(x), tau=0.05, steps=1, harmonic=np.array([np.nan, 0.0]), basis=basis)
     with pytest.raises(DDGInputError, match="harmonic"):
-        euler_flow(mesh, np.zeros_like(x), tau=0.05, steps=1, harmonic=[1.0], basis=basis)
+        euler_flow(mesh, np.zeros_like(x), tau=0.05, steps=1, harmonic=np.ones(1), basis=basis)
     with pytest.raises(DDGInputError, match="velocity"):
         basis.harmonic_coefficients(around_hole[:10])
     # Without vorticity a harmonic flow is steady, also viscous (the harmonic fields do not diffuse).
