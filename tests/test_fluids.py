@@ -95,7 +95,7 @@ def test_energy_and_enstrophy_conserved(sphere):
     assert np.corrcoef(flow.value, w0)[0, 1] < 0.9  # the flow did move
     for invariant in (flow.kinetic_energy, flow.enstrophy):
         invariant = np.asarray(invariant)
-        assert np.max(np.abs(invariant / invariant[0] - 1)) < 1e-13  # measured ~ 2e-15: Newton at round-off
+        assert np.max(np.abs(invariant / invariant[0] - 1)) < 1e-13  # measured ~ 2e-15: the midpoint solved to round-off
     rotating = euler_flow(mesh, w0, tau=0.05, steps=200, save_every=20, basis=basis, rotation=1.5)
     absolute = 0.5 * np.sum((np.asarray(rotating.coefficients) + 1.5 * np.asarray(basis.coriolis)) ** 2, axis=1)
     for invariant in (np.asarray(rotating.kinetic_energy), absolute):
