@@ -10,7 +10,8 @@
   passive dye and a harmonic flow round the handles) reduced to the basis and integrated by implicit
   midpoint steps, which conserve energy and enstrophy; one compiled, checkpointed `lax.scan`
   differentiated implicitly per step; outcomes as `ddgjax.RESULTS` (`nonfinite`).
-- `stream_function_velocity(mesh, psi)`: face velocities `n x grad psi`, `(nf, 3)`.
+- `stream_function_velocity(mesh, psi, *, at="faces")`: velocities `n x grad psi`, per face `(nf, 3)` or
+  averaged at the vertices `(nv, 3)`.
 
 Reference: O. Azencot, S. Weissmann, M. Ovsjanikov, M. Wardetzky, M. Ben-Chen, "Functional fluids on
 surfaces" (SGP 2014).
