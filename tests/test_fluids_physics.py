@@ -130,6 +130,7 @@ def _circulations(basis, flow, weight, coriolis):
     return np.sum(weight(np.asarray(flow.dye)) * absolute * mass, axis=1)
 
 
+@pytest.mark.slow  # the fast tier is at its time limit; the coarse basis is built once for both
 def test_circulation_linear_in_dye_conserved_exactly(coarse):
     """`int c (w + f) dA = sum_k g_k (a_k + f_k)` is a quadratic invariant of the Galerkin system, kept to round-off.
 
@@ -182,6 +183,7 @@ def test_circulation_of_material_region_kept(coarse):
     assert changes[64] < 0.5 * changes[36]
 
 
+@pytest.mark.slow  # the fast tier is at its time limit; the coarse basis is built once for both
 def test_viscous_energy_and_enstrophy_budget(coarse):
     """Under viscosity the step loses exactly `tau nu sum x_k^2` of energy and `tau nu sum lambda_k x_k^2` of enstrophy.
 
