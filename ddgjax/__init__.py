@@ -40,6 +40,7 @@ _SUBPACKAGES = (
     "fields",
     "fluids",
     "geodesics",
+    "graph",
     "io",
     "laplacian",
     "matching",
@@ -75,6 +76,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import fields as fields
     from . import fluids as fluids
     from . import geodesics as geodesics
+    from . import graph as graph
     from . import io as io
     from . import laplacian as laplacian
     from . import matching as matching
