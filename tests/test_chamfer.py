@@ -64,6 +64,7 @@ def test_nearest_and_value_against_numpy_and_ckdtree(method):
     np.testing.assert_array_equal(nn_a, _dense_reference(a, b)[1])
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_brute_force_chunks():
     rng = np.random.default_rng(1)
     a, b = rng.normal(size=(301, 3)), rng.normal(size=(157, 3))

@@ -46,6 +46,7 @@ def _compile_requests(argv) -> tuple[int, int]:
     return events.count("/jax/compilation_cache/compile_requests_use_cache"), events.count("/jax/compilation_cache/cache_hits")
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_a_second_run_compiles_nothing(user_cache, capsys):
     requests, _ = _compile_requests(["info"])
     first = capsys.readouterr().out

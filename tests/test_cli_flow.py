@@ -105,6 +105,7 @@ def test_flow_bad_options_are_usage_errors(argv):
     assert status == 2 and "usage:" in err
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_flow_reads_and_reorients_a_clockwise_file(tmp_path):
     points = np.asarray(figure3_polygon().points)[::-1]
     path = tmp_path / "clockwise.csv"

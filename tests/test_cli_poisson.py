@@ -55,6 +55,7 @@ def default_run(tmp_path_factory):
     return (*_run(["poisson", "--output", str(output)]), output)
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_default_run_prints_the_table_and_writes_the_figure(default_run):
     status, out, err, output = default_run
     assert status == 0, err

@@ -346,6 +346,7 @@ def test_step_derivatives_are_finite_on_degenerate_curves():
         assert np.isfinite(np.asarray(gradient)).all(), kind
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_semi_implicit_solves_the_linearly_implicit_system(polygon):
     steps = _one_step_each(polygon.points)
     for kind in "ABCD":

@@ -61,6 +61,7 @@ def test_matches_libigl_spokes_converged():
     np.testing.assert_allclose(np.asarray(ours), _libigl_arap(mesh, handles, values, other, 1000), atol=1e-6 * _diagonal(mesh))
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_energy_does_not_increase_and_handles_are_exact():
     """Each local-global step lowers `E_hat(V') = min_R E(V', R)` or keeps it; the handles are where they were put."""
     mesh, handles, values = _twisted()

@@ -147,6 +147,7 @@ def test_throw_false_returns_a_solution():
     np.testing.assert_array_equal(solution.value, biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=bc))
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_every_vertex_a_handle_and_unused_vertices():
     """All vertices fixed: the handles' values, nothing solved. A vertex used by no face stays where it is."""
     mesh = icosphere(0)

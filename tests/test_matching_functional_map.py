@@ -65,6 +65,7 @@ def pair():
     return source, target
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_wave_kernel_signature_matches_pyfm(pair):
     shape = pair[0]
     values, vectors = np.asarray(shape.values), np.asarray(shape.vectors)

@@ -100,6 +100,7 @@ def test_remeshed_pair(spot, spot_full):
     _assert_good_match(spot, Mesh.from_arrays(W, G.astype(np.int64)), truth, pyfm_orientation_weight=1.0)
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_geodesic_error_against_potpourri3d(spot):
     """The same heat method as potpourri3d's, on pairs mostly far apart (where the chord bound rarely acts)."""
     V, F = np.asarray(spot.vertices), np.asarray(spot.faces)

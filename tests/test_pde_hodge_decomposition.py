@@ -166,6 +166,7 @@ def test_coexact_part_matches_an_independent_face_system_solve(union, dual):
     _check_identities(mesh, omega[:, 0], HodgeDecomposition(*(part[:, 0] for part in parts)), dual)
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_pure_forms_are_their_own_part(union):
     mesh = union.mesh
     rng = np.random.default_rng(2)

@@ -149,6 +149,7 @@ def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_f
     )
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_elsewhere():
     """A harmonic function lies between its boundary extremes on a Delaunay mesh (non-negative cotan
     weights); the obtuse slivers of beetle break it, and the result shows it rather than hiding it."""

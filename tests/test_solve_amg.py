@@ -141,6 +141,7 @@ def test_jit_and_vmap_equal_eager(heat):
     np.testing.assert_allclose(amg_v_cycle(hierarchy, R), eager, rtol=0, atol=1e-13 * np.abs(eager).max())
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_amg_cg_matches_spsolve_on_heat_operator(heat):
     # A ten times longer time step on the `heat` mesh (its hierarchy gets the same level sizes here, so
     # the module's compiled programs serve it).

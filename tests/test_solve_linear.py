@@ -358,6 +358,7 @@ def test_complex_hermitian_systems_match_scipy_and_differentiate(method):
     np.testing.assert_allclose(jnp.real(jnp.sum(grad_values * direction) + jnp.sum(grad_b * db)), expected, rtol=1e-7)
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_kept_factorisations_are_analysed_apart_and_answer_as_one_shot_solves(monkeypatch):
     """`factorize` outside `jit` (a kept factorisation) is analysed simplicial under a pattern of its own,
     `linear_solve` as CHOLMOD chooses (`_linear.cholmod_analysis`): the same answers as SciPy's, and

@@ -190,6 +190,7 @@ def spd():
     return from_scipy(reference, positive_semidefinite=True), reference
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_lineax_cg_solves(spd):
     matrix, reference = spd
     b = np.random.default_rng(9).random(25)
@@ -519,6 +520,7 @@ def disk_operators():
     return mesh, cotan_laplacian(mesh), mass_matrix(mesh), mass_matrix(mesh, mass="galerkin")
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_nonnegative_traced_scalar_keeps_the_psd_flag_into_lineax_cg(disk_operators):
     from scipy.sparse.linalg import spsolve
 
@@ -542,6 +544,7 @@ def test_nonnegative_traced_scalar_keeps_the_psd_flag_into_lineax_cg(disk_operat
         jax.vmap(heat_step, in_axes=(0, None))(jnp.asarray([0.1, -0.1]), rhs).block_until_ready()
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_nonnegative_products_flags_and_checks(disk_operators):
     _, laplacian, mass, galerkin = disk_operators
     x = jnp.asarray(np.random.default_rng(19).random(laplacian.shape[0]))
@@ -595,6 +598,7 @@ def test_nonnegative_products_flags_and_checks(disk_operators):
     check_grads(jax.jit(quadratic), (0.3,), order=1, modes=("fwd", "rev"))
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_shifted_and_identity_match_scipy(disk_operators):
     _, laplacian, _, _ = disk_operators
     n = laplacian.shape[0]

@@ -152,6 +152,7 @@ def test_harmonic_extension_matches_igl_min_quad_with_fixed():
     np.testing.assert_allclose(ours, theirs[:, 0], rtol=1e-12, atol=1e-13)
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_join_places_values_and_differentiates():
     matrix = from_scipy(_random_spd(10, 5))
     plan = dirichlet_plan(matrix.pattern, np.array([7, 2, 4]))

@@ -233,6 +233,7 @@ def test_check_init_and_self_adjoint(hpd):
     np.testing.assert_allclose(real_hermitian.todense(), np.real(reference.toarray()))
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_lineax_tags_and_cg_on_complex_hermitian(hpd):
     matrix, reference = hpd
     operator = matrix.as_lineax_operator()

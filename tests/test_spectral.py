@@ -180,6 +180,7 @@ def test_a_second_eager_call_compiles_nothing():
     assert compiles == []
 
 
+@pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
 def test_spectral_tools():
     mesh = icosphere(2)
     M = mass_matrix(mesh)
