@@ -62,6 +62,34 @@ def is_traced(array) -> bool:
     return isinstance(array, jax.core.Tracer)
 
 
+def check_vertex_indices(name: str, values, n_vertices: int, *, minimum: int = 0) -> np.ndarray:
+    """Concrete, distinct, in-range vertex indices (at least `minimum`) as an int64 NumPy array, else `DDGInputError`.
+
+    Every problem with prescribed vertices (Dirichlet data, pins, a boundary cycle) refuses the same
+    things with the same words: traced indices (they decide the system's structure), a shape other than
+    `(n,)` or a non-integer dtype (an empty list is accepted when `minimum` is 0), indices outside
+    `[0, n_vertices)`, repeated vertices.
+    """
+    if is_traced(values):
+        raise DDGInputError(f"{name}: vertex indices decide the system's structure; pass them as host data (NumPy), not traced")
+    array = np.asarray(values)
+    if array.ndim != 1 or not (array.size == 0 or np.issubdtype(array.dtype, np.integer)):
+        raise DDGInputError(
+            f"{name}: expected a 1-d integer array of vertex indices, got shape {array.shape} dtype {array.dtype}"
+        )
+    if array.size < minimum:
+        raise DDGInputError(f"{name}: expected at least {'one' if minimum == 1 else minimum} vertex index, got {array.size}")
+    array = array.astype(np.int64)
+    outside = (array < 0) | (array >= n_vertices)
+    if outside.any():
+        raise DDGInputError(
+            f"{name}: vertex indices must lie in [0, {n_vertices}); out of range at positions {first_indices(outside)}"
+        )
+    if np.unique(array).size != array.size:
+        raise DDGInputError(f"{name}: expected distinct vertices, got repeated ones")
+    return array
+
+
 def check_count(name: str, value, minimum: int = 1) -> int:
     """A Python / NumPy integer `>= minimum` (not a bool) as an `int`, else `DDGInputError` naming the argument."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:

@@ -447,7 +447,7 @@ def test_bad_input_is_refused_with_clear_errors(without_type_checker):
         principal_curvature_alignment(mesh, n=3)
     with pytest.raises(DDGInputError, match="fixed_vertices: expected distinct"):
         interpolate_field(mesh, fixed_vertices=np.array([1, 1]), fixed_values=jnp.ones(2, complex))
-    with pytest.raises(DDGInputError, match="fixed_vertices: indices must lie in"):
+    with pytest.raises(DDGInputError, match="fixed_vertices: vertex indices must lie in"):
         interpolate_field(mesh, fixed_vertices=np.array([42]), fixed_values=jnp.ones(1, complex))
     with pytest.raises(DDGInputError, match=r"fixed_values: expected shape \(2,\)"):
         interpolate_field(mesh, fixed_vertices=np.array([1, 2]), fixed_values=jnp.ones(3, complex))

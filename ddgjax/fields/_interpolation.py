@@ -19,7 +19,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float, Inexact, Int
 
 from .._compile import device_array, kernel
-from .._errors import DDGInputError
+from .._errors import DDGInputError, check_vertex_indices
 from .._options import check_solver
 from .._results import RESULTS, Solution, outcome
 from ..internal import vertex_plan
@@ -75,17 +75,7 @@ def interpolate_field(
     n = check_degree(n)
     check_boundary_scaling(boundary_scaling)
     check_solver(solver)
-    fixed = np.asarray(fixed_vertices)
-    if fixed.ndim != 1 or fixed.size == 0 or not np.issubdtype(fixed.dtype, np.integer):
-        raise DDGInputError(
-            "fixed_vertices: expected a non-empty 1-d integer array of vertex indices, got shape "
-            f"{fixed.shape} dtype {fixed.dtype}"
-        )
-    outside = (fixed < 0) | (fixed >= mesh.n_vertices)
-    if outside.any():
-        raise DDGInputError(f"fixed_vertices: indices must lie in [0, {mesh.n_vertices}), got {fixed[outside][:5].tolist()}")
-    if np.unique(fixed).size != fixed.size:
-        raise DDGInputError("fixed_vertices: expected distinct vertices, got repeated ones")
+    fixed = check_vertex_indices("fixed_vertices", fixed_vertices, mesh.n_vertices, minimum=1)
     if np.shape(fixed_values) != fixed.shape:
         raise DDGInputError(
             f"fixed_values: expected shape {fixed.shape} (one complex number per vertex), got {np.shape(fixed_values)}"

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._errors import DDGInputError, check_count, first_indices, is_traced
+from .._errors import DDGInputError, check_count, check_vertex_indices, first_indices
 from .._results import Solution, outcome
 from ..sparse import diagonal_matrix
 from ..spectral import smallest_eigenpairs
@@ -121,18 +121,8 @@ def tutte_layout(
     Tutte layout (`nx.planar_layout` draws by a combinatorial embedding).
     """
     structure = graph_structure(edges, n_vertices)
-    if is_traced(boundary_vertices):
-        raise DDGInputError("boundary_vertices: expected concrete host indices, got a traced array")
-    boundary = np.asarray(boundary_vertices)
-    if boundary.ndim != 1 or boundary.size < 3 or not np.issubdtype(boundary.dtype, np.integer):
-        raise DDGInputError(
-            f"boundary_vertices: expected a cycle of at least 3 vertex indices, got shape {boundary.shape} dtype {boundary.dtype}"
-        )
     n = structure.n_vertices
-    if ((boundary < 0) | (boundary >= n)).any():
-        raise DDGInputError(f"boundary_vertices: indices must lie in [0, {n})")
-    if np.unique(boundary).size != boundary.size:
-        raise DDGInputError("boundary_vertices: expected distinct vertices (a simple cycle), got repeated ones")
+    boundary = check_vertex_indices("boundary_vertices", boundary_vertices, n, minimum=3)  # a simple cycle
     pair_keys = structure.pairs[:, 0] * n + structure.pairs[:, 1]
     following = np.roll(boundary, -1)
     keys = np.minimum(boundary, following).astype(np.int64) * n + np.maximum(boundary, following)

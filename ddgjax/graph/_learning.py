@@ -30,7 +30,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array, kernel
-from .._errors import DDGInputError, first_indices, is_traced
+from .._errors import DDGInputError, check_vertex_indices, is_traced
 from .._options import check_solver
 from .._results import RESULTS, Solution, outcome
 from ..solve import linear_solve
@@ -77,7 +77,7 @@ def harmonic_interpolation(
     check_solver(solver)
     structure = graph_structure(edges, n_vertices)
     edge_weights = check_weights(edge_weights, structure.n_edges)
-    fixed = _check_fixed_vertices(fixed_vertices, structure.n_vertices)
+    fixed = check_vertex_indices("fixed_vertices", fixed_vertices, structure.n_vertices, minimum=1)
     values = device_array(fixed_values)
     if values.ndim not in (1, 2) or values.shape[0] != fixed.size:
         raise DDGInputError(
@@ -160,24 +160,6 @@ def _tikhonov(edge_weights, signal, alpha, graph: GraphPlan, *, solver: str):
     system = (nonnegative(alpha) * laplacian_from_plan(edge_weights, graph)).shifted(1.0)
     solution = linear_solve(system, signal.astype(system.dtype), method=solver, throw=False)
     return solution.value, solution.result, _stats(solution)
-
-
-def _check_fixed_vertices(vertices, n: int) -> np.ndarray:
-    """`fixed_vertices` as distinct in-range host int64 indices, at least one (`DDGInputError` otherwise)."""
-    if is_traced(vertices):
-        raise DDGInputError("fixed_vertices: expected concrete host indices (they decide the system's shape), got a traced array")
-    if vertices is None or np.size(vertices) == 0:
-        raise DDGInputError("fixed_vertices: expected at least one vertex to interpolate from, got none")
-    vertices = np.asarray(vertices)
-    if vertices.ndim != 1 or not np.issubdtype(vertices.dtype, np.integer):
-        raise DDGInputError(f"fixed_vertices: expected a 1-d integer array, got shape {vertices.shape} dtype {vertices.dtype}")
-    vertices = vertices.astype(np.int64)
-    outside = (vertices < 0) | (vertices >= n)
-    if outside.any():
-        raise DDGInputError(f"fixed_vertices: indices must lie in [0, {n}); out of range at positions {first_indices(outside)}")
-    if np.unique(vertices).size != vertices.size:
-        raise DDGInputError("fixed_vertices: expected distinct vertices, got repeated ones")
-    return vertices
 
 
 def _dirichlet(structure: GraphStructure, fixed: np.ndarray) -> tuple[DirichletPlan | None, int]:

@@ -48,7 +48,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PyTree, Scalar
 
 from .._compile import device_array
-from .._errors import DDGInputError, first_indices, is_traced
+from .._errors import DDGInputError, check_vertex_indices, is_traced
 from .._options import check_solver
 from .._results import RESULTS, first_failure, is_failure, raise_if_failed
 from ..mesh import Mesh, require_mesh
@@ -284,21 +284,7 @@ def _fixed_indices(fixed_vertices, nv: int, *, given_values: bool) -> np.ndarray
         if given_values:
             raise DDGInputError("fixed_values: given without fixed_vertices; pass both or neither")
         return np.zeros(0, np.int64)
-    if is_traced(fixed_vertices):
-        raise DDGInputError("fixed_vertices: the unknowns are the other vertices, so pass them as host data (NumPy), not traced")
-    fixed = np.asarray(fixed_vertices)
-    if fixed.ndim != 1 or not (fixed.size == 0 or np.issubdtype(fixed.dtype, np.integer)):
-        raise DDGInputError(
-            f"fixed_vertices: expected a 1-d integer array of vertex indices, got shape {fixed.shape} dtype {fixed.dtype}"
-        )
-    fixed = fixed.astype(np.int64)
-    outside = (fixed < 0) | (fixed >= nv)
-    if outside.any():
-        raise DDGInputError(
-            f"fixed_vertices: vertex indices must lie in [0, {nv}); out of range at positions {first_indices(outside)}"
-        )
-    if np.unique(fixed).size != fixed.size:
-        raise DDGInputError("fixed_vertices: expected distinct vertices, got repeated ones")
+    fixed = check_vertex_indices("fixed_vertices", fixed_vertices, nv)
     if fixed.size == nv:
         raise DDGInputError("fixed_vertices: every vertex is fixed; nothing is left to minimise over")
     return fixed

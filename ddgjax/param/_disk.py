@@ -22,7 +22,7 @@ import weakref
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, Float, Int
 
 from .._compile import device_array
 from .._errors import DDGInputError, check_float_shape, is_traced
@@ -180,19 +180,3 @@ def boundary_values(name: str, values, disk: DiskTopology, trailing: tuple[int, 
         raise DDGInputError(f"{name}: expected finite values, got NaN/inf")
     values = jnp.asarray(values)
     return values if jnp.issubdtype(values.dtype, jnp.floating) else values.astype(float)
-
-
-def vertex_indices(name: str, values: Int[ArrayLike, " n"], n_vertices: int) -> np.ndarray:
-    """Concrete, distinct, in-range vertex indices as an int64 NumPy array, or `DDGInputError` naming `name`."""
-    if is_traced(values):
-        raise DDGInputError(f"{name}: vertex indices decide the system's structure and must be concrete, not traced")
-    array = np.asarray(values)
-    if array.ndim != 1 or not np.issubdtype(array.dtype, np.integer):
-        raise DDGInputError(
-            f"{name}: expected a 1-d integer array of vertex indices, got shape {array.shape} dtype {array.dtype}"
-        )
-    if ((array < 0) | (array >= n_vertices)).any():
-        raise DDGInputError(f"{name}: vertex indices must lie in [0, {n_vertices}), got {array.tolist()}")
-    if np.unique(array).size != array.size:
-        raise DDGInputError(f"{name}: expected distinct vertices, got {array.tolist()}")
-    return array.astype(np.int64)

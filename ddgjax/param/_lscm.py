@@ -52,7 +52,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array, kernel
-from .._errors import DDGInputError, check_choice, check_positive, is_traced
+from .._errors import DDGInputError, check_choice, check_positive, check_vertex_indices, is_traced
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import cross2, safe_div, safe_norm, safe_sqrt
 from .._options import check_solver
@@ -68,7 +68,6 @@ from ._disk import (
     cached_plan,
     on_device,
     require_disk,
-    vertex_indices,
 )
 from ._tutte import solves_outcome
 
@@ -181,7 +180,7 @@ def _pins(disk: DiskTopology, mesh: Mesh, vertices, positions) -> tuple[np.ndarr
             raise DDGInputError("fixed_values: given without fixed_vertices; pass both, or fixed_vertices alone")
         loop = disk.loop
         return np.array([loop[0], loop[loop.size // 2]], dtype=np.int64), None
-    pins = vertex_indices("fixed_vertices", vertices, disk.n_vertices)
+    pins = check_vertex_indices("fixed_vertices", vertices, disk.n_vertices)
     if pins.size < 2:
         raise DDGInputError(
             f"fixed_vertices: expected at least two vertices, got {pins.size}: with fewer the conformal energy does "

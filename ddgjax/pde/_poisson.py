@@ -45,7 +45,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._compile import device_array, kernel
-from .._errors import DDGInputError
+from .._errors import DDGInputError, check_vertex_indices
 from .._options import check_mass, check_solver
 from .._results import RESULTS, Solution, outcome
 from ..internal import resolve_robust, vertex_plan
@@ -244,17 +244,7 @@ class DirichletData:
             if values is not None:
                 raise DDGInputError("fixed_values: given without fixed_vertices; pass both or neither")
             vertices = np.zeros(0, dtype=np.int64)
-        vertices = np.asarray(vertices)
-        if vertices.ndim != 1 or not (np.issubdtype(vertices.dtype, np.integer) or vertices.size == 0):
-            raise DDGInputError(
-                f"fixed_vertices: expected a 1-d integer array of vertex indices, got shape {vertices.shape} dtype {vertices.dtype}"
-            )
-        vertices = vertices.astype(np.int64)
-        outside = (vertices < 0) | (vertices >= n)
-        if outside.any():
-            raise DDGInputError(f"fixed_vertices: vertex indices must lie in [0, {n}), got {vertices[outside][:5].tolist()}")
-        if np.unique(vertices).size != vertices.size:
-            raise DDGInputError("fixed_vertices: expected distinct vertices, got repeated ones")
+        vertices = check_vertex_indices("fixed_vertices", vertices, n)
         if values is None:
             values = np.zeros((vertices.size,) + trailing)
         values = device_array(values)  # host data moved without an eager program (`ddgjax._compile.device_array`)
