@@ -14,6 +14,9 @@ How it runs: the host checks the edges and builds, once per edge list (the last 
 vertex-vertex `SparsityPattern` (`SparsityPattern.from_edges`: the diagonal first, then both
 directions of every distinct edge) and the map from listed edges to distinct ones; the values are then
 one compiled segment-sum and gather of the edge weights, differentiable in them.
+
+Reference: F. R. K. Chung, *Spectral Graph Theory* (AMS, 1997), ch. 1 (the combinatorial Laplacian);
+U. von Luxburg, "A tutorial on spectral clustering" (2007), section 3.1.
 """
 
 from __future__ import annotations

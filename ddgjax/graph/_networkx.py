@@ -1,4 +1,4 @@
-"""networkx interop: a `networkx.Graph` to edges, edge_weights and a vertex count, and back.
+"""networkx interop: a `networkx.Graph` to edges, edge weights and a vertex count, and back (networkx.org).
 
 networkx is not a dependency of ddgjax: it is imported inside these two functions, and a missing
 networkx is an `ImportError` saying how to install it.
