@@ -98,10 +98,15 @@ def check_count(name: str, value, minimum: int = 1) -> int:
 
 
 def check_positive(name: str, value) -> float:
-    """A finite real number `> 0` as a `float`, else `DDGInputError` naming the argument."""
-    if not (np.isscalar(value) and np.isreal(value) and np.isfinite(value) and value > 0) or isinstance(value, (bool, np.bool_)):
+    """A finite real number `> 0` (a Python or NumPy number, or a concrete 0-d array) as a `float`, else
+    `DDGInputError` naming the argument."""
+    try:
+        number = np.asarray(value) if not isinstance(value, (str, bytes)) else np.asarray(None)
+    except (TypeError, ValueError):  # a ragged sequence
+        number = np.asarray(None)
+    if not (number.ndim == 0 and number.dtype.kind in "iuf" and np.isfinite(number) and number > 0):
         raise DDGInputError(f"{name}: expected a finite number > 0, got {value!r}")
-    return float(value)
+    return float(number)
 
 
 def check_choice(name: str, value, choices) -> object:

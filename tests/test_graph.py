@@ -215,6 +215,18 @@ def test_gaussian_weights_gradient_in_points_against_finite_differences():
     check_grads(loss, (points, 0.7), order=1, modes=("rev",), eps=1e-6)
 
 
+def test_gaussian_weights_take_sigma_as_a_concrete_jax_scalar_and_refuse_a_bad_one():
+    """A 0-d JAX array (what a user differentiating in sigma holds between steps) works eagerly as a float does."""
+    points = np.random.default_rng(10).normal(size=(12, 2))
+    edges, _ = knn_graph(points, n_neighbors=3)
+    np.testing.assert_array_equal(
+        gaussian_weights(points, edges, sigma=jnp.asarray(0.4)), gaussian_weights(points, edges, sigma=0.4)
+    )
+    for bad in (0.0, -1.0, jnp.asarray(jnp.nan), jnp.ones(2), True):
+        with pytest.raises((ddgjax.DDGInputError, TypeCheckError), match="sigma"):
+            gaussian_weights(points, edges, sigma=bad)
+
+
 # ---------------------------------------------------------------------------------------------- learning
 
 
