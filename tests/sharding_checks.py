@@ -22,8 +22,16 @@ from ddgjax import DDGInputError  # noqa: E402
 from ddgjax.laplacian import cotan_laplacian, dirichlet_energy, laplacian_apply, mass_matrix  # noqa: E402
 from ddgjax.mesh import icosphere, torus  # noqa: E402
 from ddgjax.pde import mean_curvature_flow  # noqa: E402
-from ddgjax.sharding import batch_sharding, partition_vertices, shard_batch, sharded_cg, sharded_laplacian_apply  # noqa: E402
-from ddgjax.solve import linear_solve  # noqa: E402
+from ddgjax.sharding import (  # noqa: E402
+    batch_sharding,
+    partition_amg,
+    partition_vertices,
+    shard_batch,
+    sharded_amg_hierarchy,
+    sharded_cg,
+    sharded_laplacian_apply,
+)
+from ddgjax.solve import amg_hierarchy, linear_solve  # noqa: E402
 
 SPHERE = icosphere(2)
 
@@ -109,6 +117,60 @@ def big_mesh_checks(mesh, n_devices) -> dict:
     }
 
 
+def amg_checks(mesh) -> dict:
+    """The AMG-preconditioned partitioned CG against SciPy's `spsolve`, Jacobi, and the unsharded AMG-preconditioned CG."""
+    shift = 2.0
+    matrix = cotan_laplacian(mesh) + shift * mass_matrix(mesh)
+    system = matrix.to_scipy().tocsc()
+    hierarchy = amg_hierarchy(matrix)
+    rng = np.random.default_rng(2)
+    u, c = rng.standard_normal(mesh.n_vertices), rng.standard_normal(mesh.n_vertices)
+    expected = spla.spsolve(system, u)
+    scale = float(np.abs(expected).max())
+    partition = partition_vertices(mesh, n_devices=8)
+    b = partition.shard(u)
+    results = {"levels": list(hierarchy.sizes)}
+    for name, preconditioner in {"jacobi": "jacobi", "amg": "amg", "hierarchy": hierarchy}.items():
+        solution = sharded_cg(partition, b, shift=shift, preconditioner=preconditioner)
+        results[name] = {
+            "relative_difference": difference(partition.unshard(solution.value), expected) / scale,
+            "residual": float(solution.residual),
+            "num_steps": int(solution.num_steps),
+            **describe(solution.value),
+        }
+    # d/db of <c, x(b)> = A^{-1} c, through the AMG-preconditioned CG (the hierarchy a constant).
+    prepared = sharded_amg_hierarchy(partition, shift=shift)
+    sharded_c = partition.shard(c)
+    gradient = jax.jit(
+        jax.grad(lambda b: jnp.sum(sharded_c * sharded_cg(partition, b, shift=shift, preconditioner=prepared).value))
+    )(b)
+    expected_gradient = spla.spsolve(system, c)
+    results["b_gradient"] = difference(partition.unshard(gradient), expected_gradient) / np.abs(expected_gradient).max()
+    # A ShardedAMG is a pytree: an argument of a jitted solve, as any array.
+    solve = jax.jit(lambda b, preconditioner: sharded_cg(partition, b, shift=shift, preconditioner=preconditioner).num_steps)
+    results["jit_argument_steps"] = int(solve(b, prepared))
+    # One device: the same hierarchy, permuted to the locality order, is the preconditioner of linear_solve's CG.
+    single = partition_vertices(mesh, n_devices=1)
+    one = sharded_cg(single, single.shard(u), shift=shift, preconditioner=partition_amg(single, hierarchy))
+    unsharded = linear_solve(matrix, jnp.asarray(u), method="cg", preconditioner=hierarchy)
+    results["one_device"] = {"sharded_steps": int(one.num_steps), "unsharded_steps": int(unsharded.num_steps)}
+    errors = {}
+    small = amg_hierarchy(cotan_laplacian(icosphere(2)) + shift * mass_matrix(icosphere(2)))
+    for name, call in {
+        "wrong_size": lambda: sharded_cg(partition, b, shift=shift, preconditioner=small),
+        "traced_shift": lambda: jax.jit(lambda s: sharded_cg(partition, b, shift=s, preconditioner="amg").value)(shift),
+        "other_partition": lambda: sharded_cg(partition, b, shift=shift, preconditioner=partition_amg(single, hierarchy)),
+        "unknown": lambda: sharded_cg(partition, b, shift=shift, preconditioner="ilu"),
+    }.items():
+        try:
+            call()
+            errors[name] = None
+        except DDGInputError as error:
+            errors[name] = str(error)
+    results["errors"] = errors
+    return results
+
+
 if __name__ == "__main__":
     print(
         json.dumps(
@@ -117,6 +179,7 @@ if __name__ == "__main__":
                 "batch": batch_checks(),
                 "sphere_8": big_mesh_checks(icosphere(3), 8),
                 "torus_3": big_mesh_checks(torus(n_major=40, n_minor=13), 3),
+                "amg": amg_checks(icosphere(4)),
             }
         )
     )

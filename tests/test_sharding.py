@@ -92,6 +92,35 @@ def test_the_partitioned_cg_converges_to_scipy_spsolve(case):
     assert _report()[case]["cg_b_gradient"] < 1e-8
 
 
+def test_the_amg_preconditioned_partitioned_cg_converges_in_far_fewer_steps():
+    report = _report()["amg"]
+    assert len(report["levels"]) >= 2
+    for name in ("jacobi", "amg", "hierarchy"):
+        # CG stops at a relative residual of 1e-10 whatever the preconditioner.
+        assert report[name]["residual"] < 1e-10
+        assert report[name]["relative_difference"] < 1e-8
+        assert report[name]["spec"] == VERTICES
+        assert report[name]["shards"] == 8
+    for name in ("amg", "hierarchy"):
+        assert report[name]["num_steps"] <= report["jacobi"]["num_steps"] / 3
+    assert report["b_gradient"] < 1e-8
+    assert report["jit_argument_steps"] == report["amg"]["num_steps"]
+
+
+def test_on_one_device_the_sharded_amg_is_linear_solves_amg():
+    steps = _report()["amg"]["one_device"]
+    # The same V-cycle up to a permutation of the vertices: equal up to round-off in the stopping step.
+    assert abs(steps["sharded_steps"] - steps["unsharded_steps"]) <= 2
+
+
+def test_a_bad_amg_preconditioner_is_refused():
+    errors = _report()["amg"]["errors"]
+    assert "shape (2562, 2562)" in errors["wrong_size"] and "(162, 162)" in errors["wrong_size"]
+    assert errors["traced_shift"] is not None and errors["traced_shift"].startswith("shift:")
+    assert errors["other_partition"] is not None and "partition_amg" in errors["other_partition"]
+    assert errors["unknown"] is not None and "'ilu'" in errors["unknown"]
+
+
 def test_on_one_device_the_partition_is_the_whole_mesh():
     mesh = icosphere(1)
     partition = partition_vertices(mesh)
@@ -100,6 +129,8 @@ def test_on_one_device_the_partition_is_the_whole_mesh():
     np.testing.assert_array_equal(partition.unshard(partition.shard(u)), u)
     assert sharded_laplacian_apply(partition, partition.shard(u)).shape == (mesh.n_vertices,)
     assert sharded_cg(partition, partition.shard(u), shift=1.0).residual < 1e-10
+    # icosphere(1) is below amg_hierarchy's max_coarse: a single level, P_0 = I, B = A^{-1}: one step.
+    assert sharded_cg(partition, partition.shard(u), shift=1.0, preconditioner="amg").num_steps <= 2
 
 
 def test_bad_input_is_refused(without_type_checker):

@@ -12,7 +12,8 @@ the convention of DESIGN.md (`L` positive semidefinite, `L == -igl.cotmatrix(V, 
 JAX function: `jit`, `grad` (in `u` and in the vertex positions), `vmap`.
 
 `sharded_cg` solves `(L + shift M) x = b` (`M` the lumped mass, `shift >= 0`) with
-`ddgjax.solve`'s pure-JAX Jacobi-preconditioned conjugate gradient: the products are the
+`ddgjax.solve`'s pure-JAX preconditioned conjugate gradient, Jacobi or algebraic multigrid (a
+sharded finest level over a replicated coarse V-cycle, `ddgjax.sharding._amg`): the products are the
 `shard_map` above, the vectors stay sharded `P("vertices")` through the `lax.while_loop`, and each
 inner product is one all-reduce of a scalar that XLA inserts. The padding vertices of the layout
 carry the identity (so the system stays definite) and a zero right-hand side, so their solution is 0.
@@ -29,21 +30,22 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
 from jax.sharding import PartitionSpec as P
 from jaxtyping import Array, ArrayLike, Float, Real
 
 from .._compile import kernel
-from .._errors import DDGInputError
+from .._errors import DDGInputError, is_traced
 from .._indexing import take_rows
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import raise_if_failed
-from ..internal import linear_solution, preconditioned_cg
+from ..internal import PRECONDITIONERS, linear_solution, preconditioned_cg
 from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
-from ..solve import LinearSolution
-from ..sparse import gather_sum
+from ..solve import AMGHierarchy, LinearSolution, amg_hierarchy
+from ..sparse import from_scipy, gather_sum
+from ._amg import ShardedAMG, check_layout, layout, local_v_cycle
 from ._partition import VERTICES, LocalPlan, VertexPartition
-
-"""The `mass=` values `sharded_cg` supports: the lumped (diagonal) ones of `ddgjax.MASS_MATRICES`."""
 
 
 def sharded_laplacian_apply(
@@ -76,8 +78,9 @@ def sharded_cg(
     max_steps: int | None = None,
     residual_tolerance: float = 1e-6,
     throw: bool = True,
+    preconditioner: str | AMGHierarchy | ShardedAMG = "jacobi",
 ) -> LinearSolution:
-    """Solve `(L + shift M) x = b` on a vertex-partitioned mesh by Jacobi-preconditioned CG (module docstring).
+    """Solve `(L + shift M) x = b` on a vertex-partitioned mesh by preconditioned CG (module docstring).
 
     `L` the cotan Laplacian, `M` a lumped mass matrix (`mass="voronoi"` or `"barycentric"`, as
     `ddgjax.laplacian.mass_matrix`; the full `"galerkin"` one is refused: each device keeps only the
@@ -93,24 +96,122 @@ def sharded_cg(
         vertices: positions in partitioned layout (default `partition.vertices`).
         rtol, max_steps, residual_tolerance, throw: as `ddgjax.solve.linear_solve` (CG stops at
             `|b - A x| <= rtol |b|`; `max_steps` defaults to `10 n_padded`).
+        preconditioner: `"jacobi"` (default, `D^{-1}`); `"amg"`, a smoothed-aggregation hierarchy of
+            `A = L + shift M` built here on the host from the partition (`sharded_amg_hierarchy`;
+            `shift` and `vertices` must be concrete, and the build costs a pyamg set-up per call);
+            an `AMGHierarchy` of the mesh's matrix in the mesh's vertex order
+            (`amg_hierarchy(cotan_laplacian(mesh) + shift * mass_matrix(mesh))`, laid out here by
+            `partition_amg`); or a `ShardedAMG` from `partition_amg` / `sharded_amg_hierarchy`,
+            built once for many solves. The AMG preconditioner is `B = ` a two-grid cycle at the
+            top (`ddgjax.sharding._amg`): `x = S(0, r)`, `r_c = psum_d P_0[d]^T (r - A x)`,
+            `z = S(x + P_0 amg_v_cycle(levels 1.., r_c), r)`, `S` the finest level's Chebyshev /
+            Jacobi polynomial smoother in `D^{-1} A` with the sharded product; SPD, so CG applies.
+            The hierarchy is a constant (`stop_gradient`): it changes the iterations, not the answer.
 
     Returns:
         `ddgjax.solve.LinearSolution` whose `value` is sharded `P("vertices")`; failures through
         `ddgjax.RESULTS` (`throw=`). SciPy: `scipy.sparse.linalg.spsolve(L + shift * M, b)`.
     """
-    if check_mass(mass) not in LUMPED_MASS_MATRICES:
-        raise DDGInputError(
-            f"mass: sharded_cg supports the lumped mass matrices {', '.join(map(repr, LUMPED_MASS_MATRICES))}, got {mass!r} "
-            "(each device keeps only the diagonal of its rows; the full Galerkin mass matrix is not partitioned)"
-        )
+    _check_mass(mass)
     b, vertices = _check(partition, b, vertices)
     if b.ndim != 1:
         raise DDGInputError(f"b: expected one right-hand side of shape ({partition.n_padded},), got {b.shape}")
     if max_steps is None:
         max_steps = 10 * partition.n_padded
+    amg = _preconditioner(partition, preconditioner, shift=shift, mass=mass, vertices=vertices)
     settings = {"mass": mass, "rtol": rtol, "max_steps": max_steps, "residual_tolerance": residual_tolerance}
-    solution = _cg(partition.plan, vertices, b, jnp.asarray(shift, b.dtype), **settings, **_sizes(partition))
+    solution = _cg(partition.plan, vertices, b, jnp.asarray(shift, b.dtype), amg, **settings, **_sizes(partition))
     return raise_if_failed(solution, solution.result, throw)
+
+
+def sharded_amg_hierarchy(
+    partition: VertexPartition,
+    *,
+    shift: float = 0.0,
+    mass: str = "voronoi",
+    vertices: Float[ArrayLike, "n_padded 3"] | None = None,
+    **options,
+) -> ShardedAMG:
+    """The AMG preconditioner of `A = L + shift M` for `sharded_cg`, built from the partition alone (host, once).
+
+    Computes the weights of `L` and the lumped masses with the same sharded kernel as `sharded_cg`,
+    gathers them to the host as the `(nv, nv)` matrix `A` in the partition's locality order (the
+    exact matrix the sharded product applies), builds `ddgjax.solve.amg_hierarchy(A, **options)` and
+    lays it out (`partition_amg`). Outside `jit`: `shift` and `vertices` must be concrete.
+
+    Args:
+        partition: from `partition_vertices(mesh)`.
+        shift: `>= 0`, concrete.
+        mass: `"voronoi"` (default) or `"barycentric"`.
+        vertices: positions in partitioned layout (default `partition.vertices`), concrete.
+        **options: passed to `amg_hierarchy` (`smoother`, `steps`, `strength`, `max_coarse`, `max_levels`).
+
+    Returns:
+        `ShardedAMG` for `sharded_cg(..., preconditioner=...)`.
+    """
+    _check_mass(mass)
+    _, vertices = _check(partition, jnp.zeros(partition.n_padded), vertices)
+    for name, value in (("shift", shift), ("vertices", vertices)):
+        if is_traced(value):
+            raise DDGInputError(
+                f"{name}: the AMG hierarchy is built on the host from concrete values; pass a concrete {name} with "
+                'preconditioner="amg", or build the preconditioner outside jit (sharded_amg_hierarchy, partition_amg) and pass it'
+            )
+    geometry = jax.jit(
+        _shard_map(functools.partial(_local_geometry, n_local=partition.n_local, mass=mass), partition.sharding.mesh, 2, 2)
+    )
+    weights, masses = (np.asarray(array) for array in geometry(partition.plan, vertices))
+    matrix = _host_matrix(partition, weights, float(shift) * masses)
+    return layout(partition, amg_hierarchy(from_scipy(matrix), **options), np.arange(partition.n_vertices))
+
+
+def _host_matrix(partition: VertexPartition, weights: np.ndarray, shift_masses: np.ndarray) -> sp.csr_matrix:
+    """`L + shift M` in locality order from each device's ELL weights, its local columns mapped back to global ones.
+
+    Device `d`'s local column `c < n_local` is its vertex `d n_local + c`; `n_local + e n_halo + t` is
+    the `t`-th vertex device `e` sends it, `e n_local + send_index[e, d, t]` (`ddgjax.sharding._partition`).
+    """
+    n, n_local, n_halo, n_dev = partition.n_vertices, partition.n_local, partition.n_halo, partition.n_devices
+    neighbours = np.asarray(partition.plan.neighbours).astype(np.int64)
+    sends = np.asarray(partition.plan.send_index).astype(np.int64).reshape(n_dev, n_dev, n_halo)
+    device = np.repeat(np.arange(n_dev), n_local)[:, None]
+    halo = np.maximum(neighbours - n_local, 0)
+    source = halo // n_halo
+    columns = np.where(
+        neighbours < n_local, device * n_local + neighbours, source * n_local + sends[source, device, halo % n_halo]
+    )
+    rows = np.broadcast_to(np.arange(partition.n_padded)[:, None], columns.shape)
+    keep = (rows < n) & (columns != rows) & (weights != 0)
+    off = sp.coo_matrix((weights[keep], (rows[keep], columns[keep])), shape=(n, n)).tocsr()
+    diagonal = -weights[:n].sum(axis=1) + shift_masses[:n]
+    matrix = off + sp.diags(diagonal)
+    # The two devices holding a boundary face compute its cotangents alike; the mean removes any round-off asymmetry.
+    return sp.csr_matrix((matrix + matrix.T) / 2)
+
+
+def _check_mass(mass: str) -> None:
+    if check_mass(mass) not in LUMPED_MASS_MATRICES:
+        raise DDGInputError(
+            f"mass: sharded_cg supports the lumped mass matrices {', '.join(map(repr, LUMPED_MASS_MATRICES))}, got {mass!r} "
+            "(each device keeps only the diagonal of its rows; the full Galerkin mass matrix is not partitioned)"
+        )
+
+
+def _preconditioner(partition: VertexPartition, preconditioner, *, shift, mass, vertices) -> ShardedAMG | None:
+    """`None` for Jacobi, else the `ShardedAMG` that `preconditioner` names or holds."""
+    if isinstance(preconditioner, ShardedAMG):
+        check_layout(preconditioner, partition)
+        return preconditioner
+    if isinstance(preconditioner, AMGHierarchy):
+        return layout(partition, preconditioner, np.asarray(partition.order))
+    if isinstance(preconditioner, str) and preconditioner in PRECONDITIONERS:
+        if preconditioner == "jacobi":
+            return None
+        return sharded_amg_hierarchy(partition, shift=shift, mass=mass, vertices=vertices)
+    raise DDGInputError(
+        f"preconditioner: expected 'jacobi', 'amg', an AMGHierarchy (ddgjax.solve.amg_hierarchy) or a ShardedAMG "
+        f"(partition_amg, sharded_amg_hierarchy), got {preconditioner!r}"
+    )
 
 
 def _check(partition: VertexPartition, u, vertices):
@@ -161,6 +262,7 @@ def _local_apply(plan: LocalPlan, weights, u):
 
 
 def _shard_map(function, device_mesh, n_in: int, n_out: int):
+    """`jax.shard_map` with every input and output split `P("vertices")`."""
     spec = P(VERTICES)
     outs = spec if n_out == 1 else (spec,) * n_out
     return jax.shard_map(function, mesh=device_mesh, in_specs=(spec,) * n_in, out_specs=outs)
@@ -176,7 +278,7 @@ def _apply(plan: LocalPlan, vertices, u, *, device_mesh, n_local: int):
 
 
 @kernel(static_argnames=("device_mesh", "n_local", "mass", "rtol", "max_steps", "residual_tolerance"))
-def _cg(plan: LocalPlan, vertices, b, shift, *, device_mesh, n_local, mass, rtol, max_steps, residual_tolerance):
+def _cg(plan: LocalPlan, vertices, b, shift, amg, *, device_mesh, n_local, mass, rtol, max_steps, residual_tolerance):
     geometry = _shard_map(functools.partial(_local_geometry, n_local=n_local, mass=mass), device_mesh, 2, 2)
     apply = _shard_map(_local_apply, device_mesh, 3, 1)
     weights, masses = geometry(plan, vertices)
@@ -189,9 +291,30 @@ def _cg(plan: LocalPlan, vertices, b, shift, *, device_mesh, n_local, mass, rtol
     diagonal = -jnp.sum(weights, axis=1) + diagonal_shift
     fixed = jax.lax.stop_gradient(diagonal)
     inverse = jnp.where(fixed > 0, 1.0 / jnp.where(fixed > 0, fixed, 1.0), 1.0)
+    if amg is None:
+        precondition = lambda r: inverse * r
+    else:
+        precondition = _amg_cycle(
+            plan, jax.lax.stop_gradient(weights), jax.lax.stop_gradient(diagonal_shift), inverse, amg, device_mesh
+        )
 
     def solve(operator, rhs):
-        return preconditioned_cg(operator, rhs, lambda r: inverse * r, rtol, max_steps)
+        return preconditioned_cg(operator, rhs, precondition, rtol, max_steps)
 
     x, (num_steps, converged) = jax.lax.custom_linear_solve(matvec, b, solve, symmetric=True, has_aux=True)
     return linear_solution(matvec, b, x, (num_steps, converged, True), "cg", residual_tolerance)
+
+
+def _amg_cycle(plan: LocalPlan, weights, diagonal_shift, inverse, amg: ShardedAMG, device_mesh):
+    """`r -> B r`, the AMG cycle of `ddgjax.sharding._amg`, in one `shard_map`: the finest level split, the coarse replicated."""
+    amg = jax.lax.stop_gradient(amg)
+
+    def local(plan, weights, diagonal_shift, inverse, columns, values, smoothing, coarse, r):
+        def matvec(x):
+            return _local_apply(plan, weights, x) + diagonal_shift * x
+
+        return local_v_cycle(matvec, inverse, columns, values, smoothing, coarse, r)
+
+    split = P(VERTICES)
+    cycle = jax.shard_map(local, mesh=device_mesh, in_specs=(split,) * 6 + (P(), P(), split), out_specs=split)
+    return lambda r: cycle(plan, weights, diagonal_shift, inverse, amg.columns, amg.values, amg.weights, amg.coarse, r)

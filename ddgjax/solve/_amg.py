@@ -145,7 +145,7 @@ def amg_hierarchy(
     *,
     smoother: str = "chebyshev",
     steps: int = 1,
-    strength="evolution",
+    strength="auto",
     max_coarse: int = 500,
     max_levels: int = 10,
     refreshable: bool = False,
@@ -164,17 +164,19 @@ def amg_hierarchy(
     that size, only a weaker one as the matrix moves away from `A`; `amg_refresh` updates it to new
     values of the same pattern inside `jit`.
 
-    Defaults, measured (benchmarks/README.md): `"evolution"` strength of connection needs 3-4x fewer
+    Defaults, measured (benchmarks/README.md): the `"evolution"` strength of connection needs 3-4x fewer
     iterations than pyamg's default `"symmetric"` one on meshes with obtuse triangles (camelhead,
-    beetle, armadillo), and no more elsewhere; one smoothing step (`steps=1`) is the fastest per solve
-    on CPU.
+    beetle, armadillo) and as many on M-matrices (graph Laplacians, meshes without obtuse angle sums),
+    where `"symmetric"` builds 2-4x faster: `"auto"` picks by the sign of the off-diagonal entries;
+    one smoothing step (`steps=1`) is the fastest per solve on CPU.
 
     Args:
         A: `(n, n)` symmetric positive (semi)definite real `SparseMatrix` (e.g. a free-free Dirichlet
             block of `cotan_laplacian`, `M + t * L`), with concrete values.
         smoother: `"chebyshev"` (default) or `"jacobi"` (module docstring).
         steps: smoothing steps `s >= 1` before and after each coarse correction (the Chebyshev degree).
-        strength: pyamg's strength of connection, passed through: `"evolution"` (default; Olson,
+        strength: pyamg's strength of connection: `"auto"` (default: `"symmetric"` when no off-diagonal
+            entry of `A` is positive, else `"evolution"`), or passed through: `"evolution"` (Olson,
             Schroder & Tuminaro 2010), `"symmetric"` (`|a_ij| >= theta sqrt(a_ii a_jj)`, `theta = 0`;
             pyamg's default), `("symmetric", {"theta": 0.08})`, ...
         max_coarse: the coarsest level has at most this many unknowns (inverted densely).
@@ -304,11 +306,16 @@ def _cycle(levels, coarse_inverse, r):
 
 
 def _smooth(level: AMGLevel, x, r):
-    """`s` weighted-Jacobi steps `x <- x + w_k D^{-1} (r - A x)`; `x = None` stands for zero (no product)."""
     scale = level.inverse_diagonal.reshape(level.inverse_diagonal.shape + (1,) * (r.ndim - 1))
-    for k in range(level.weights.shape[0]):
-        residual = r if x is None else r - level.A @ x
-        step = level.weights[k] * scale * residual
+    return jacobi_steps(level.A.__matmul__, scale, level.weights, x, r)
+
+
+def jacobi_steps(matvec, inverse_diagonal, weights, x, r):
+    """The smoother: `len(weights)` weighted-Jacobi steps `x <- x + w_k D^{-1} (r - A x)`, `matvec(x) = A x`,
+    `inverse_diagonal = D^{-1}` (broadcast against `r`); `x = None` stands for zero (no product)."""
+    for k in range(weights.shape[0]):
+        residual = r if x is None else r - matvec(x)
+        step = weights[k] * inverse_diagonal * residual
         x = step if x is None else x + step
     return x
 
@@ -409,30 +416,50 @@ def _ones(matrix: _HostSparse) -> sp.csr_matrix:
     return sp.csr_matrix((np.ones(matrix.nnz), matrix.indices, matrix.indptr), shape=matrix.shape)
 
 
-def pyamg_solver(matrix: _HostSparse, strength="evolution", max_coarse: int = 500, max_levels: int = 10):
+def pyamg_solver(matrix: _HostSparse, strength="symmetric", max_coarse: int = 500, max_levels: int = 10):
     """pyamg's smoothed-aggregation solver, in float64 (some of pyamg's kernels exist for no other real
     type), made deterministic.
 
-    pyamg draws Lanczos start vectors from NumPy's global generator (spectral radii for the
-    prolongation smoother and the evolution strength); a fixed seed makes the hierarchy the same on
-    every build, and the caller's generator state is put back.
+    `strength`: `"symmetric"` (pyamg's default; the `"pyamg"` backend's, whose hierarchy serves one
+    solve or a few), `"evolution"` (Olson, Schroder & Tuminaro 2010), or `"auto"`: `"symmetric"` for an
+    M-matrix (no positive off-diagonal entry: every graph Laplacian, the cotan Laplacian of a mesh
+    without obtuse angle sums, `M + t L` of those) and `"evolution"` otherwise, `amg_hierarchy`'s
+    default: on meshes with obtuse triangles (camelhead, beetle) evolution strength needs 3-4x fewer
+    CG iterations, for a set-up 2-4x slower, which pays only over many solves. The prolongator's Jacobi
+    smoothing step is weighted locally (`weighting="local"`, a Gershgorin bound per row) rather than by
+    an Arnoldi estimate of the spectral radius: the same iteration counts on every mesh measured,
+    without the Arnoldi's share of the set-up (benchmarks/README.md, "Laplacian systems at scale").
+
+    pyamg draws Lanczos start vectors from NumPy's global generator (the evolution strength's
+    spectral radius); a fixed seed makes the hierarchy the same on every build, and the caller's
+    generator state is put back.
     """
     import pyamg
 
+    matrix = sp.csr_matrix(matrix, dtype=np.float64)
+    if strength == "auto":
+        strength = "symmetric" if is_m_matrix(matrix) else "evolution"
     # pyamg reads the legacy global generator, so that is the one to seed (NPY002).
     state = np.random.get_state()  # noqa: NPY002
     np.random.seed(0)  # noqa: NPY002
     try:
         return pyamg.smoothed_aggregation_solver(
-            sp.csr_matrix(matrix, dtype=np.float64),
+            matrix,
             symmetry="hermitian",
             strength=strength,
+            smooth=("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
             max_coarse=max_coarse,
             max_levels=max_levels,
             keep=False,
         )
     finally:
         np.random.set_state(state)  # noqa: NPY002
+
+
+def is_m_matrix(matrix: _HostSparse) -> bool:
+    """Whether no off-diagonal entry is positive (the sign pattern of an M-matrix; definiteness is not checked)."""
+    coo = sp.coo_matrix(matrix)
+    return not np.any(coo.data[coo.row != coo.col] > 0)
 
 
 def _host_matrix(A) -> sp.csr_matrix:
