@@ -211,8 +211,10 @@ def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead):
     # Pure-JAX CG with that V-cycle (under jit: one compiled program instead of op-by-op dispatch on
     # camelhead's levels), and pyamg's CG on the host.
     solve = jax.jit(lambda A, b, hierarchy: linear_solve(A, b, rtol=1e-10, method="cg", preconditioner=hierarchy))
-    for solution, most_steps in ((solve(A, b, built), 40), (linear_solve(A, b, rtol=1e-10, method="pyamg"), 40)):
-        assert solution.residual <= 1e-10 and 0 < int(solution.num_steps) <= most_steps  # measured: 28 and 18
+    # measured: 28 (the JAX V-cycle, evolution strength on camelhead's obtuse triangles) and 64 (the host
+    # backend: pyamg's symmetric strength, 3-4x the iterations here for a 2-4x faster set-up)
+    for solution, most_steps in ((solve(A, b, built), 40), (linear_solve(A, b, rtol=1e-10, method="pyamg"), 90)):
+        assert solution.residual <= 1e-10 and 0 < int(solution.num_steps) <= most_steps
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 

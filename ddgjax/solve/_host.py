@@ -135,18 +135,17 @@ def host_solve(method: str, pattern: SparsityPattern, values, token, rhs, rtol: 
     return x, (steps, converged, factored)
 
 
-def _host_matrix(rows, cols, values, n: int) -> sp.csc_matrix:
+def _host_matrix(rows, cols, values, n: int, layout: type = sp.csc_matrix) -> sp.csc_matrix | sp.csr_matrix:
     # Repeated positions (ELL padding holds zeros) are summed by the conversion.
-    return sp.csc_matrix((np.asarray(values, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
+    return layout((np.asarray(values, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
 
 
 def _make(method: str, rows, cols, values, n: int):
     """The SuperLU factors or the pyamg hierarchy of the matrix; `None` when SuperLU finds it singular."""
-    matrix = _host_matrix(rows, cols, values, n)
-    if method == "pyamg":
-        return pyamg_solver(matrix)
+    if method == "pyamg":  # in the layout each library works in, so neither converts it again
+        return pyamg_solver(_host_matrix(rows, cols, values, n, sp.csr_matrix))
     try:
-        return spla.splu(matrix)
+        return spla.splu(_host_matrix(rows, cols, values, n))
     except RuntimeError:  # "Factor is exactly singular"
         return None
 

@@ -23,7 +23,12 @@ a problem-level function passes its `solver=` here):
 `"auto"` takes `"cholesky"` on a CPU backend where `sparsax` is installed (and float64 is on); on
 other CPU setups `"superlu"` up to 50,000 unknowns and `"pyamg"` above (`SUPERLU_LIMIT`, measured);
 and `"cg"` on an accelerator, with the AMG preconditioner when the matrix values are concrete (the
-hierarchy is built on the host) and Jacobi inside a trace.
+hierarchy is built on the host) and Jacobi inside a trace. One solve (`linear_solve`) of more than
+500,000 unknowns on a CPU takes `"pyamg"` whatever is installed (`ITERATIVE_LIMIT`), and of more than
+20,000 when `A` has more than 10 stored entries per row, as 3-D graphs and volume meshes do
+(`VOLUME_ITERATIVE_LIMIT`): a factorisation's fill makes its cost grow like `n^1.4` on surfaces and like
+`n^2` in volumes, pyamg's set-up and CG like `n^1.1`; a kept factorisation (`factorize`) stays direct,
+its cost spread over its many faster solves.
 
 Every backend is differentiable with respect to `b` and to the matrix values by implicit
 differentiation (`jax.lax.custom_linear_solve`): with `x = A^{-1} b`, the tangent is
@@ -101,6 +106,20 @@ PRECONDITIONERS = ("jacobi", "amg")
 # Above this many unknowns `"auto"` without CHOLMOD prefers pyamg's CG to SuperLU: on mesh Laplacians
 # SuperLU's factor + solve takes ~1 s at 41k and ~8 s at 164k, pyamg's setup + CG 0.4 s and 0.9 s.
 SUPERLU_LIMIT = 50_000
+
+# Above this many unknowns one solve (`linear_solve`) with `"auto"` runs pyamg's CG rather than a factorisation.
+# CHOLMOD's fill makes its cost grow like n^1.4 on surfaces (faster on 3-D graphs), pyamg's set-up + CG like
+# n^1.1; where they cross depends on the mesh (icosphere: below 41k; armadillo: above 700k), and from here
+# on the first is ~5x faster where it wins, the second at most ~1.3x (benchmarks/README.md, "Laplacian
+# systems at scale"). Kept factorisations (`factorize`) stay direct: many solves share their cost.
+ITERATIVE_LIMIT = 500_000
+
+# A matrix with more stored entries per row than this is taken for a volume (a triangle mesh's rows hold
+# ~7, a 3-D neighbourhood graph's or a tetrahedral mesh's 12-16), whose factor fills in like n^(4/3) and
+# whose factorisation costs like n^2: one solve turns to pyamg's CG from `VOLUME_ITERATIVE_LIMIT`
+# unknowns (10-NN graph in the unit cube, 40k unknowns: CHOLMOD 1.2 s, pyamg 0.22 s).
+VOLUME_ENTRIES_PER_ROW = 10
+VOLUME_ITERATIVE_LIMIT = 20_000
 
 # Kept CHOLMOD factorisations up to this many unknowns are analysed simplicial (`cholmod_analysis`): up to
 # here a simplicial factorisation costs little more than a supernodal one and its solves are faster; above
@@ -183,13 +202,14 @@ def linear_solve(
     _check_matrix(A)
     _check_rhs(A, b)
     with cholmod_analysis("auto"):  # one solve: CHOLMOD's choice factors fastest (`cholmod_analysis`)
-        factorization = factorize(
+        factorization = _factorize(
             A,
             method=method,
             preconditioner=preconditioner,
             rtol=rtol,
             max_steps=max_steps,
             residual_tolerance=residual_tolerance,
+            one_shot=True,
         )
     return factorization.solve(b, throw=throw)
 
@@ -295,10 +315,24 @@ def factorize(
     solves are faster than those of the supernodal one `linear_solve` gets (`cholmod_analysis`).
     SciPy: `scipy.sparse.linalg.splu(A).solve`; cholespy: `CholeskySolverD(...).solve`.
     """
+    return _factorize(
+        A,
+        method=method,
+        preconditioner=preconditioner,
+        rtol=rtol,
+        max_steps=max_steps,
+        residual_tolerance=residual_tolerance,
+        one_shot=False,
+    )
+
+
+def _factorize(A, *, method, preconditioner, rtol, max_steps, residual_tolerance, one_shot: bool) -> Factorization:
+    """`factorize`; `one_shot` (`linear_solve`'s single solve) lets `"auto"` choose by size (`auto_method`)."""
     _check_matrix(A)
     complex_dtype = A.values.dtype if jnp.iscomplexobj(A.values) else None
     system = _real_form(A) if complex_dtype is not None else A
-    method, preconditioner = _choose(method, preconditioner, system)
+    entries = A.pattern.n_entries if A.pattern.n_entries is not None else A.pattern.nnz
+    method, preconditioner = _choose(method, preconditioner, system, one_shot=one_shot, entries_per_row=entries / A.shape[0])
     if max_steps is None:
         max_steps = 10 * A.shape[0]
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
@@ -379,13 +413,15 @@ def _check_rhs_shape(n: int, b) -> Inexact[Array, "n *k"]:
     return device_array(b)
 
 
-def _choose(method, preconditioner, system: SparseMatrix) -> tuple[str, str | AMGHierarchy | None]:
+def _choose(
+    method, preconditioner, system: SparseMatrix, *, one_shot: bool, entries_per_row: float = 7.0
+) -> tuple[str, str | AMGHierarchy | None]:
     """The backend and the CG preconditioner that run, `"auto"` resolved (module docstring), or `DDGInputError`."""
     check_choice("method", method, LINEAR_SOLVERS)
     if preconditioner is not None and not isinstance(preconditioner, AMGHierarchy):
         check_choice("preconditioner", preconditioner, PRECONDITIONERS)
     if method == "auto":
-        method = auto_method(system.shape[0], preconditioner is not None)
+        method = auto_method(system.shape[0], preconditioner is not None, one_shot=one_shot, entries_per_row=entries_per_row)
         if method == "cg" and preconditioner is None:
             preconditioner = "jacobi" if is_traced(system.values) else "amg"
     if method != "cg" and preconditioner is not None:
@@ -410,12 +446,17 @@ def _choose(method, preconditioner, system: SparseMatrix) -> tuple[str, str | AM
     return method, "jacobi" if method == "cg" and preconditioner is None else preconditioner
 
 
-def auto_method(n: int, preconditioned: bool = False) -> str:
+def auto_method(n: int, preconditioned: bool = False, *, one_shot: bool = False, entries_per_row: float = 7.0) -> str:
     """The backend `method="auto"` runs for `n` unknowns (module docstring): `"cg"` when a preconditioner is
-    given or on an accelerator, else `"cholesky"` where `sparsax` is installed and float64 is on, else
-    `"superlu"` up to `SUPERLU_LIMIT` unknowns and `"pyamg"` above."""
+    given or on an accelerator; for one solve (`linear_solve`, `one_shot`) of more than `ITERATIVE_LIMIT`
+    unknowns, or of more than `VOLUME_ITERATIVE_LIMIT` with more than `VOLUME_ENTRIES_PER_ROW` stored entries
+    per row of `A` (a complex `A`'s own rows), `"pyamg"`; else `"cholesky"` where `sparsax` is installed
+    and float64 is on, else `"superlu"` up to `SUPERLU_LIMIT` unknowns and `"pyamg"` above."""
     if preconditioned or jax.default_backend() != "cpu":
         return "cg"
+    volume_like = entries_per_row > VOLUME_ENTRIES_PER_ROW
+    if one_shot and n > (VOLUME_ITERATIVE_LIMIT if volume_like else ITERATIVE_LIMIT):
+        return "pyamg"
     if _has_sparsax() and jax.config.jax_enable_x64:
         return "cholesky"
     return "superlu" if n <= SUPERLU_LIMIT else "pyamg"
