@@ -70,26 +70,27 @@ DIRECT = ("ddgjax cholesky", "ddgjax superlu", "sparsax CHOLMOD", "cholespy CHOL
 # --- systems ---------------------------------------------------------------------------------------
 
 
-def mesh_system(level: int, rng) -> tuple[sp.csr_matrix, np.ndarray]:
-    """`(A, b)`: the heat step `M + 0.01 L` of `icosphere(level)` and `M r`."""
-    mesh = icosphere(level)
+def heat_step_system(mesh, rng) -> tuple[sp.csr_matrix, np.ndarray]:
+    """`(A, b)`: the heat step `M + 0.01 L` of `mesh` (cotan `L`, Voronoi `M`) and `M r` for a random `r`."""
     L = cotan_laplacian(mesh).to_scipy().tocsr()
     M = mass_matrix(mesh, mass="voronoi").to_scipy().tocsr()
     return (M + 0.01 * L).tocsr(), M @ rng.standard_normal(L.shape[0])
 
 
+def mesh_system(level: int, rng) -> tuple[sp.csr_matrix, np.ndarray]:
+    """`heat_step_system` of `icosphere(level)`."""
+    return heat_step_system(icosphere(level), rng)
+
+
 def jittered_mesh_system(level: int, rng, amplitude: float = 0.4) -> tuple[sp.csr_matrix, np.ndarray]:
-    """`(A, b)` of `mesh_system` on `icosphere(level)` with every vertex moved by `amplitude` times the mean
-    edge length in a uniform random direction: obtuse triangles, so `L` has positive off-diagonal entries
-    (not an M-matrix, as on most scanned meshes)."""
+    """`heat_step_system` of `icosphere(level)` with every vertex moved by `amplitude` times the mean edge length
+    in a uniform random direction: obtuse triangles, so `L` has positive off-diagonal entries (not an M-matrix,
+    as on most scanned meshes)."""
     mesh = icosphere(level)
     V, E = np.asarray(mesh.vertices), np.asarray(mesh.edges)
     h = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1).mean()
     step = rng.standard_normal(V.shape)
-    mesh = mesh.with_vertices(V + amplitude * h * step / np.linalg.norm(step, axis=1, keepdims=True))
-    L = cotan_laplacian(mesh).to_scipy().tocsr()
-    M = mass_matrix(mesh, mass="voronoi").to_scipy().tocsr()
-    return (M + 0.01 * L).tocsr(), M @ rng.standard_normal(L.shape[0])
+    return heat_step_system(mesh.with_vertices(V + amplitude * h * step / np.linalg.norm(step, axis=1, keepdims=True)), rng)
 
 
 def graph_system(n: int, rng) -> tuple[sp.csr_matrix, np.ndarray]:

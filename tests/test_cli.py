@@ -4,10 +4,12 @@ the options shared by the subcommands, and the command line kept apart from the 
 from __future__ import annotations
 
 import ast
+import contextlib
 import pathlib
 
 import jax
 import pytest
+from jax.experimental.compilation_cache import compilation_cache
 
 import ddgjax
 from ddgjax._cli import CACHE_VARIABLE, cache_directory
@@ -19,14 +21,27 @@ OUTSIDE_MATHEMATICS = {"__init__.py", "cli.py", "io.py", "plot", "_cli"}
 FORBIDDEN = ("ddgjax.io", "ddgjax._cli", "ddgjax.cli", "ddgjax.plot", "matplotlib", "argparse")
 
 
+@contextlib.contextmanager
+def jax_cache_directory(directory: str | None):
+    """JAX's persistent-cache directory set to `directory` for the block (a `JAX_COMPILATION_CACHE_DIR` of the
+    environment included), then put back as it was."""
+    configured = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", directory)
+    compilation_cache.reset_cache()
+    try:
+        yield
+    finally:
+        jax.config.update("jax_compilation_cache_dir", configured)
+        compilation_cache.reset_cache()
+
+
 @pytest.fixture
 def user_cache(tmp_path, monkeypatch):
     """An empty `XDG_CACHE_HOME`, the cache switched on, and no cache directory configured in JAX."""
-    if jax.config.jax_compilation_cache_dir:
-        pytest.skip("JAX already has a compilation cache directory (JAX_COMPILATION_CACHE_DIR); the CLI keeps it")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     monkeypatch.delenv(CACHE_VARIABLE, raising=False)
-    return tmp_path / "ddgjax" / "jax"
+    with jax_cache_directory(None):
+        yield tmp_path / "ddgjax" / "jax"
 
 
 def _compile_requests(argv) -> tuple[int, int]:
@@ -70,6 +85,16 @@ def test_the_cache_can_be_switched_off(user_cache, monkeypatch, capsys, tmp_path
     assert main(argv) == 2
     assert "missing.obj" in capsys.readouterr().err
     assert user_cache.exists() == (switch is None)
+
+
+def test_a_cache_directory_configured_in_jax_is_kept(user_cache, capsys, tmp_path):
+    """With a directory already configured (e.g. by JAX_COMPILATION_CACHE_DIR), the command uses JAX's and makes none."""
+    theirs = str(tmp_path / "theirs")
+    with jax_cache_directory(theirs):
+        assert main(["info", str(tmp_path / "missing.obj")]) == 2
+        assert jax.config.jax_compilation_cache_dir == theirs
+    assert "missing.obj" in capsys.readouterr().err
+    assert not user_cache.exists()
 
 
 def test_cache_directory(monkeypatch, tmp_path):

@@ -143,6 +143,8 @@ def test_bad_input_is_refused(without_type_checker):
         sharded_cg(partition, np.zeros(42), mass="galerkin")
     with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric', 'galerkin'"):
         sharded_cg(partition, np.zeros(42), mass="lumped")
+    with pytest.raises(DDGInputError, match="shift: expected a number >= 0"):
+        sharded_cg(partition, np.zeros(42), shift=-1.0, preconditioner="amg")
     with pytest.raises(DDGInputError, match="n_devices"):
         batch_sharding(n_devices=2)
     with pytest.raises(DDGInputError, match="leading"):

@@ -157,15 +157,17 @@ def sharded_amg_hierarchy(
                 f"{name}: the AMG hierarchy is built on the host from concrete values; pass a concrete {name} with "
                 'preconditioner="amg", or build the preconditioner outside jit (sharded_amg_hierarchy, partition_amg) and pass it'
             )
+    if not float(shift) >= 0:
+        raise DDGInputError(f"shift: expected a number >= 0 (L + shift M must be positive semidefinite), got {shift!r}")
     geometry = jax.jit(
         _shard_map(functools.partial(_local_geometry, n_local=partition.n_local, mass=mass), partition.sharding.mesh, 2, 2)
     )
     weights, masses = (np.asarray(array) for array in geometry(partition.plan, vertices))
-    matrix = _host_matrix(partition, weights, float(shift) * masses)
+    matrix = _gathered_matrix(partition, weights, float(shift) * masses)
     return layout(partition, amg_hierarchy(from_scipy(matrix), **options), np.arange(partition.n_vertices))
 
 
-def _host_matrix(partition: VertexPartition, weights: np.ndarray, shift_masses: np.ndarray) -> sp.csr_matrix:
+def _gathered_matrix(partition: VertexPartition, weights: np.ndarray, shift_masses: np.ndarray) -> sp.csr_matrix:
     """`L + shift M` in locality order from each device's ELL weights, its local columns mapped back to global ones.
 
     Device `d`'s local column `c < n_local` is its vertex `d n_local + c`; `n_local + e n_halo + t` is
