@@ -147,8 +147,6 @@ def cases() -> list[Case]:
         Case("pde.mean_curvature_flow (3 steps)", lambda m: pde.mean_curvature_flow(m, tau=1e-4, steps=3)),
         # spectral
         Case("spectral.eigenpairs (k=8)", lambda m: spectral.eigenpairs(m, 8)),
-        Case("spectral.shape_operators (k=8)", lambda m: spectral.shape_operators(m, 8)),
-        Case("spectral.gradient_operator", spectral.gradient_operator),
         # geodesics
         Case("geodesics.heat_distance", lambda m: geodesics.heat_distance(m, _sources(m))),
         # param
@@ -237,6 +235,7 @@ def cases() -> list[Case]:
         # dec
         Case("dec.d0 / d1", lambda m: (dec.d0(m), dec.d1(m))),
         Case("dec.hodge1", dec.hodge1),
+        Case("dec.gradient_matrix", dec.gradient_matrix),
         Case("dec.gradient + divergence", lambda m, u: dec.divergence(m, dec.gradient(m, u)), _vertex_values),
         Case(
             "dec.hodge_laplacian1",

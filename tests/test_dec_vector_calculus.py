@@ -239,3 +239,25 @@ def test_degenerate_faces_and_derivatives():
     batch = jnp.stack([tet.vertices, 2.0 * tet.vertices])
     batched = jax.jit(jax.vmap(lambda V: dec.gradient(tet.with_vertices(V), u[:4])))(batch)
     np.testing.assert_allclose(batched[1], 0.5 * batched[0], rtol=1e-14)
+
+
+def test_gradient_matrix_is_libigls_grad_eagerly_and_under_jit_one_program_per_size():
+    from ddgjax.dec._gradient_matrix import _gradient_values
+    from ddgjax.mesh import icosphere
+
+    mesh = icosphere(2)
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    nf = mesh.n_faces
+    # igl.grad stacks all x rows, then y, then z: our row 3 f + c is its row c nf + f.
+    rows = (np.arange(3)[None, :] * nf + np.arange(nf)[:, None]).ravel()
+    expected = igl.grad(V, F).toarray()[rows]
+    np.testing.assert_allclose(dec.gradient_matrix(mesh).to_scipy().toarray(), expected, atol=1e-12)
+    jitted = jax.jit(lambda m: dec.gradient_matrix(m))(mesh)
+    np.testing.assert_allclose(jitted.to_scipy().toarray(), expected, atol=1e-12)
+    # Another connectivity of the same size: its own pattern (host, cached), the same compiled program.
+    permutation = np.random.default_rng(0).permutation(V.shape[0])
+    V2, F2 = V[permutation], np.argsort(permutation)[F]
+    programs = _gradient_values._cache_size()
+    ours = dec.gradient_matrix(Mesh.from_arrays(V2, F2)).to_scipy().toarray()
+    np.testing.assert_allclose(ours, igl.grad(V2, F2).toarray()[rows], atol=1e-12)
+    assert _gradient_values._cache_size() == programs

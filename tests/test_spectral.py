@@ -269,52 +269,6 @@ def test_subspace_iteration_with_a_multigrid_hierarchy_passed_into_jit_different
         )
 
 
-def test_gradient_operator_is_libigls_grad_eagerly_and_under_jit_one_program_per_size():
-    import igl
-
-    from ddgjax.mesh import Mesh
-    from ddgjax.spectral import gradient_operator
-    from ddgjax.spectral._operators import _gradient_values
-
-    mesh = icosphere(2)
-    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    nf = mesh.n_faces
-    # igl.grad stacks all x rows, then y, then z: our row 3 f + c is its row c nf + f.
-    rows = (np.arange(3)[None, :] * nf + np.arange(nf)[:, None]).ravel()
-    expected = igl.grad(V, F).toarray()[rows]
-    np.testing.assert_allclose(gradient_operator(mesh).to_scipy().toarray(), expected, atol=1e-12)
-    jitted = jax.jit(lambda m: gradient_operator(m))(mesh)
-    np.testing.assert_allclose(jitted.to_scipy().toarray(), expected, atol=1e-12)
-    # Another connectivity of the same size: its own pattern (host, cached), the same compiled program.
-    permutation = np.random.default_rng(0).permutation(V.shape[0])
-    V2, F2 = V[permutation], np.argsort(permutation)[F]
-    programs = _gradient_values._cache_size()
-    ours = gradient_operator(Mesh.from_arrays(V2, F2)).to_scipy().toarray()
-    np.testing.assert_allclose(ours, igl.grad(V2, F2).toarray()[rows], atol=1e-12)
-    assert _gradient_values._cache_size() == programs
-
-
-@pytest.mark.slow
-def test_shape_operators_for_a_folder_of_meshes(tmp_path):
-    from ddgjax.dec import gradient
-    from ddgjax.io import load_mesh, save_mesh
-    from ddgjax.spectral import shape_operators, shape_operators_of_meshes
-
-    meshes = {"a.obj": icosphere(1), "b.off": disk(4)}
-    for name, mesh in meshes.items():
-        save_mesh(tmp_path / name, mesh)
-    operators = shape_operators_of_meshes((load_mesh(tmp_path / name) for name in sorted(meshes)), 5, progress=False)
-    assert len(operators) == 2
-    for ops, mesh in zip(operators, meshes.values()):
-        u = jnp.asarray(np.random.default_rng(0).standard_normal(mesh.n_vertices))
-        np.testing.assert_allclose((ops.gradient @ u).reshape(-1, 3), gradient(mesh, u), atol=1e-12)
-        np.testing.assert_allclose(ops.mass, mass_matrix(mesh).diagonal(), atol=1e-15)
-        np.testing.assert_allclose(ops.values, eigenpairs(mesh, 5)[0], atol=1e-10)
-        assert ops.vectors.shape == (mesh.n_vertices, 5)
-    with pytest.raises(DDGInputError, match="mass: expected one of 'voronoi', 'barycentric', got 'galerkin'"):
-        shape_operators(icosphere(1), 3, mass="galerkin")
-
-
 @pytest.mark.slow
 def test_robust_eigenpairs_are_those_of_robust_laplacian():
     import robust_laplacian
@@ -342,7 +296,6 @@ def test_a_degenerate_mesh_is_refused_or_reported_never_a_wrong_spectrum():
     import robust_laplacian
 
     from ddgjax import RESULTS, MeshDataError
-    from ddgjax.spectral import shape_operators
 
     mesh = icosphere(2)
     V, F = np.asarray(mesh.vertices).copy(), np.asarray(mesh.faces)
@@ -352,14 +305,11 @@ def test_a_degenerate_mesh_is_refused_or_reported_never_a_wrong_spectrum():
     degenerate = mesh.with_vertices(V)
     with pytest.raises(MeshDataError, match=r"faces \[0\] \(1 in all\) have zero or near-zero area.*robust=True"):
         eigenpairs(degenerate, 5)
-    with pytest.raises(MeshDataError, match="robust=True"):
-        shape_operators(degenerate, 3)
     L, M = robust_laplacian.mesh_laplacian(V, F.astype(np.int64))  # mollify_factor=1e-5
     expected = np.sort(spla.eigsh(L.tocsc(), k=5, M=M.tocsc(), sigma=-1e-6, which="LM")[0])
     values = eigenpairs(degenerate, 5, mass="barycentric", robust=True)[0]
     np.testing.assert_allclose(values, expected, rtol=1e-9, atol=1e-10)
     assert values[0] > -1e-12 and values[1] > 1.9  # one component: one zero eigenvalue
-    np.testing.assert_allclose(shape_operators(degenerate, 3, mass="barycentric", robust=True).values, expected[:3], atol=1e-10)
     # The plain operators, assembled regardless: no method returns their pairs as a success.
     L, M = cotan_laplacian(degenerate), mass_matrix(degenerate)
     for method in ("arpack", "subspace"):

@@ -10,7 +10,7 @@ Which mesh each operator accepts (`MeshDataError` otherwise, naming the operator
 offending edges):
 
 - any triangle mesh (non-manifold, non-orientable, with unreferenced vertices): `d0`, `hodge0`,
-  `hodge1`, `integrate_0form`, `integrate_1form`, `flat`, `sharp`, `gradient`, `divergence`,
+  `hodge1`, `integrate_0form`, `integrate_1form`, `flat`, `sharp`, `gradient` (assembled: `gradient_matrix`), `divergence`,
   `codifferential(degree=1)`, `hodge_laplacian0`. These only use edges with
   their global low -> high orientation, or per-face quantities that do not depend on the face order.
 - consistently oriented faces (edge-manifold, every interior edge run in opposite directions by its
@@ -49,6 +49,7 @@ from ._forms import integrate_0form as integrate_0form
 from ._forms import integrate_1form as integrate_1form
 from ._forms import integrate_2form as integrate_2form
 from ._forms import sharp as sharp
+from ._gradient_matrix import gradient_matrix as gradient_matrix
 from ._hodge import edge_dual_length_ratios as edge_dual_length_ratios
 from ._hodge import hodge0 as hodge0
 from ._hodge import hodge1 as hodge1

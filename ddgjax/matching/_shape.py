@@ -13,9 +13,9 @@ from jaxtyping import Array, Float
 from .._errors import DDGInputError
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import Solution, outcome
-from ..laplacian import IntrinsicTriangulation
+from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, require_mesh
-from ..spectral import shape_operators
+from ..spectral import smallest_eigenpairs
 
 
 class SpectralShape(eqx.Module):
@@ -42,7 +42,7 @@ class SpectralShape(eqx.Module):
 def spectral_shape(
     mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False, throw: bool = True
 ) -> SpectralShape | Solution:
-    """`SpectralShape` of a mesh: its lumped mass and `k` eigenpairs (`ddgjax.spectral.shape_operators`).
+    """`SpectralShape` of a mesh: its lumped mass and `k` eigenpairs (`ddgjax.spectral.eigenpairs`).
 
     `mass`: `"voronoi"` (default) or `"barycentric"` (lumped: point maps and descriptors weigh vertices
     by their areas). `robust=True` uses the intrinsic Delaunay Laplacian and mass (meshes with
@@ -52,9 +52,10 @@ def spectral_shape(
     """
     mesh = require_mesh("mesh", mesh)
     check_mass(mass, LUMPED_MASS_MATRICES)
-    solution = shape_operators(mesh, k, mass=mass, robust=robust, throw=False)
-    operators = solution.value
-    shape = SpectralShape(mesh=mesh, mass=operators.mass, values=operators.values, vectors=operators.vectors)
+    L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
+    solution = smallest_eigenpairs(L, M, k, throw=False)
+    values, vectors = solution.value
+    shape = SpectralShape(mesh=mesh, mass=M.diagonal(), values=values, vectors=vectors)
     return outcome(shape, solution.result, throw, solution.stats)
 
 

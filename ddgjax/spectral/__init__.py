@@ -8,8 +8,6 @@
   in both matrices' values: eigenvalues always, eigenvectors away from clusters of equal
   eigenvalues, and every function invariant within a cluster. A failed eigensolve is
   `ddgjax.RESULTS.eigensolver_failed` (`throw=False` returns a `ddgjax.Solution`).
-- `shape_operators(mesh, k)` / `shape_operators_of_meshes(meshes, k)`: what a learning pipeline
-  precomputes per shape (lumped mass, eigenpairs, `L`, the face gradient operator `gradient_operator`).
 - On an eigenbasis: `spectral_coefficients`, `spectral_reconstruction`, `spectral_filter(..., response=)`,
   `heat_kernel(values, vectors, sources, t=)`, `heat_kernel_signature(values, vectors, t=)`,
   `wave_kernel_signature(values, vectors, n_energies=100)` (Aubry et al. 2011, pyFM's `auto_WKS`).
@@ -25,7 +23,3 @@ from ._laplacian import spectral_coefficients as spectral_coefficients
 from ._laplacian import spectral_filter as spectral_filter
 from ._laplacian import spectral_reconstruction as spectral_reconstruction
 from ._laplacian import wave_kernel_signature as wave_kernel_signature
-from ._operators import ShapeOperators as ShapeOperators
-from ._operators import gradient_operator as gradient_operator
-from ._operators import shape_operators as shape_operators
-from ._operators import shape_operators_of_meshes as shape_operators_of_meshes
