@@ -8,8 +8,10 @@ algebra: differentiable solves, CG, AMG), `ddgjax.pde` (Poisson / harmonic probl
 decomposition, mean curvature flow, energies), `ddgjax.spectral` (Laplacian eigenpairs),
 `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields`
 (direction fields), `ddgjax.optim` (shape optimisation), `ddgjax.deform` (k-harmonic and ARAP
-deformation from handles), `ddgjax.matching` (shape correspondence by functional maps), `ddgjax.sharding` (several devices),
-`ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
+deformation from handles), `ddgjax.matching` (shape correspondence by functional maps), `ddgjax.fluids`
+(incompressible flow on surfaces), `ddgjax.pointcloud` (Laplacians and geodesics of point clouds), `ddgjax.graph`
+(graph Laplacians), `ddgjax.batch` (padded batches of meshes of different sizes), `ddgjax.learn` (operators for
+learning on meshes, a DiffusionNet), `ddgjax.sharding` (several devices), `ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
 their values, outcomes) is the table in docs/conventions.md.
 
 Failures that depend on values inside `jit` (a flow that self-intersects, a solve that does not
@@ -34,6 +36,7 @@ from ._errors import MeshDataError as MeshDataError
 # Subpackages and names load on first use (PEP 562, as SciPy does): `import ddgjax` costs little more
 # than importing JAX, and `ddgjax.pde` pulls in only what Poisson problems need.
 _SUBPACKAGES = (
+    "batch",
     "curves",
     "dec",
     "deform",
@@ -43,6 +46,7 @@ _SUBPACKAGES = (
     "graph",
     "io",
     "laplacian",
+    "learn",
     "matching",
     "mesh",
     "optim",
@@ -70,6 +74,7 @@ _NAMES = {
 }
 
 if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__ below does the same lazily
+    from . import batch as batch
     from . import curves as curves
     from . import dec as dec
     from . import deform as deform
@@ -79,6 +84,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import graph as graph
     from . import io as io
     from . import laplacian as laplacian
+    from . import learn as learn
     from . import matching as matching
     from . import mesh as mesh
     from . import optim as optim

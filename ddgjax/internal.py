@@ -17,6 +17,10 @@ _NAMES = {
     # degenerate geometry: faces of (near-)zero area, found once per Mesh object (ddgjax.mesh)
     "degenerate_faces": "ddgjax.mesh._check",
     "require_nondegenerate": "ddgjax.mesh._check",
+    # per-face edge coordinates, squared lengths and areas from gathered corner positions (ddgjax.mesh)
+    "face_geometry_from_corners": "ddgjax.mesh._geometry",
+    # the Dirichlet energy's derivatives in each face's squared edge lengths (ddgjax.laplacian)
+    "dirichlet_energy_length_weights": "ddgjax.laplacian._cotan",
     # Dirichlet bookkeeping of a Poisson problem: fixed and pinned vertices, components (ddgjax.pde)
     "DirichletData": "ddgjax.pde._poisson",
     # linear algebra (ddgjax.solve)

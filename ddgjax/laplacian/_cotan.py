@@ -32,8 +32,8 @@ from jaxtyping import Array, Float
 from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows
-from .._numerics import safe_div, safe_sqrt
-from ..internal import degenerate_faces
+from .._numerics import safe_div
+from ..internal import degenerate_faces, face_geometry_from_corners
 from ..mesh import Mesh, corner_cotangents_from_lengths_sq, face_areas, face_edge_lengths_sq, require_mesh
 from ..sparse import SparseMatrix, gather_sum
 from ._lengths import laplacian_values, off_diagonal_entries, psd_matrix
@@ -262,25 +262,23 @@ def _corner_weights(vertices: Float[Array, "nv 3"], u: Float[Array, "nv *k"], fa
     Coordinate by coordinate on `(nf,)` arrays from one `V[F]` gather, as `face_edge_lengths_sq` and
     `face_areas` compute them (XLA:CPU does not vectorise reductions over a size-3 axis).
     """
-    corners = take_rows(vertices, faces)
-    edges = [[corners[:, (k + 2) % 3, c] - corners[:, (k + 1) % 3, c] for c in range(3)] for k in range(3)]
-    lengths_sq = jnp.stack([_dot(edges[k], edges[k]) for k in range(3)], axis=1)
-    normal = _cross(edges[1], edges[2])
-    areas = 0.5 * safe_sqrt(_dot(normal, normal))
+    _, lengths_sq, areas = face_geometry_from_corners(take_rows(vertices, faces))
+    return dirichlet_energy_length_weights(lengths_sq, areas, take_rows(u, faces))
+
+
+def dirichlet_energy_length_weights(
+    lengths_sq: Float[Array, "nf 3"], areas: Float[Array, " nf"], corner_values: Float[Array, "nf 3 *k"]
+) -> Float[Array, "nf 3"]:
+    """`-2 dE_f / d l_m^2` of each face's Dirichlet energy, per corner `m` (`_vertex_gradient` derives it).
+
+    With `d_k = u_{k+1} - u_{k+2}`, `D = sum_k d_k^2`, `S = sum_k cot_k d_k^2`: `(cot_m S + 2 d_m^2 - D) / (8 A)`;
+    0 on a zero-area face, with finite derivatives. Columns of `corner_values` `(nf, 3, k)` add up.
+    Shared with `ddgjax.batch` through `ddgjax.internal`.
+    """
     cotangents = corner_cotangents_from_lengths_sq(lengths_sq, areas=areas)
-    values = take_rows(u, faces)  # (nf, 3) or (nf, 3, columns)
-    differences = [values[:, (k + 1) % 3] - values[:, (k + 2) % 3] for k in range(3)]
-    squares = [d * d if u.ndim == 1 else jnp.sum(d * d, axis=-1) for d in differences]  # columns add up
+    differences = [corner_values[:, (k + 1) % 3] - corner_values[:, (k + 2) % 3] for k in range(3)]
+    squares = [d * d if corner_values.ndim == 2 else jnp.sum(d * d, axis=-1) for d in differences]  # columns add up
     total = squares[0] + squares[1] + squares[2]
     weighted = cotangents[:, 0] * squares[0] + cotangents[:, 1] * squares[1] + cotangents[:, 2] * squares[2]
     eight_areas = 8.0 * areas
     return jnp.stack([safe_div(cotangents[:, m] * weighted + 2.0 * squares[m] - total, eight_areas) for m in range(3)], axis=1)
-
-
-def _dot(a, b):
-    """Dot product of 3-vectors given as coordinate lists."""
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _cross(a, b):
-    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]

@@ -48,27 +48,34 @@ def face_edge_vectors(mesh: Mesh) -> Float[Array, "nf 3 3"]:
     return jnp.roll(corners, -2, axis=1) - jnp.roll(corners, -1, axis=1)
 
 
-def _edge_coordinates(mesh: Mesh) -> list[list[Float[Array, " nf"]]]:
-    """`e[k][c]`: coordinate `c` of the edge vector opposite corner `k` of each face, from one `V[F]` gather.
-
-    Coordinate by coordinate on `(nf,)` arrays: XLA:CPU does not vectorise reductions over a size-3
-    axis, and written as those the lengths and areas of the cotan Laplacian (`ddgjax.laplacian`)
-    compile into one kernel with its per-corner values instead of several that write out
-    `(nf, 3, 3)` intermediates (benchmarks/laplacian.py).
-    """
-    corners = face_vertex_positions(mesh)
-    return [[corners[:, (k + 2) % 3, c] - corners[:, (k + 1) % 3, c] for c in range(3)] for k in range(3)]
-
-
 def _dot(a: list, b: list) -> Float[Array, " nf"]:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def face_geometry_from_corners(
+    corners: Float[Array, "nf 3 3"],
+) -> tuple[list[list[Float[Array, " nf"]]], Float[Array, "nf 3"], Float[Array, " nf"]]:
+    """`(e, lengths_sq, areas)` of faces given by their corner positions `(nf, 3, 3)` (a `V[F]` gather).
+
+    `e[k][c]` is coordinate `c` of the edge opposite corner `k`, `lengths_sq[:, k] = |e_k|^2` and
+    `areas = |e_1 x e_2| / 2` (0, with a finite gradient, on a degenerate face). Coordinate by
+    coordinate on `(nf,)` arrays: XLA:CPU does not vectorise reductions over a size-3 axis, and written
+    as those the lengths and areas of the cotan Laplacian (`ddgjax.laplacian`) compile into one kernel
+    with its per-corner values instead of several that write out `(nf, 3, 3)` intermediates
+    (benchmarks/laplacian.py). The kernels that gather their corners themselves (the Dirichlet
+    energy's gradient, `ddgjax.batch`) share it through `ddgjax.internal`.
+    """
+    edges = [[corners[:, (k + 2) % 3, c] - corners[:, (k + 1) % 3, c] for c in range(3)] for k in range(3)]
+    lengths_sq = jnp.stack([_dot(edges[k], edges[k]) for k in range(3)], axis=1)
+    (x1, y1, z1), (x2, y2, z2) = edges[1], edges[2]
+    normal = [y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2]
+    return edges, lengths_sq, 0.5 * safe_sqrt(_dot(normal, normal))
 
 
 @kernel
 def face_edge_lengths_sq(mesh: Mesh) -> Float[Array, "nf 3"]:
     """Squared length of the edge opposite each corner, `(nf, 3)` (libigl `squared_edge_lengths`)."""
-    edges = _edge_coordinates(mesh)
-    return jnp.stack([_dot(edges[k], edges[k]) for k in range(3)], axis=1)
+    return face_geometry_from_corners(face_vertex_positions(mesh))[1]
 
 
 @kernel
@@ -124,10 +131,7 @@ def face_areas(mesh: Mesh) -> Float[Array, " nf"]:
     (2020). Equivalents: libigl `igl.doublearea(V, F) / 2`;
     gpytoolbox `doublearea(V, F) / 2`; trimesh `Trimesh.area_faces`.
     """
-    # |e_1 x e_2| = |(p1 - p0) x (p2 - p0)|, from the edge coordinates (`_edge_coordinates` says why).
-    _, (x1, y1, z1), (x2, y2, z2) = _edge_coordinates(mesh)
-    normal = [y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2]
-    return 0.5 * safe_sqrt(_dot(normal, normal))
+    return face_geometry_from_corners(face_vertex_positions(mesh))[2]
 
 
 @kernel

@@ -1,0 +1,354 @@
+"""`MeshBatch`: triangle meshes of different sizes padded to bucketed shapes, one pytree of `(B, ...)` arrays.
+
+A learning pipeline feeds many meshes of different sizes through one program. XLA compiles one
+program per array shape, so the batch pads every mesh's vertices to `nvp = bucket(max nv)` and its
+faces to `nfp = bucket(max nf)` (`ddgjax.batch.bucket`), and every array of the batch, the per-mesh
+counts and the index plan of the batched operators included, has the batch axis first. Two batches
+in one bucket then have the same tree structure, shapes and dtypes: one compiled program serves
+both, and `jax.jit`, `jax.vmap` and sharding along axis 0 (`ddgjax.sharding.shard_batch`) apply
+as to any pytree of arrays. PyTorch3D's `Meshes` keeps the same padded and packed views (it pads to
+the exact maximum size); jraph's `pad_with_graphs` rounds up as here.
+
+Padding: padded vertices sit at the origin and belong to no face; padded faces read their corners
+from an out-of-range index (a gather of zeros), so they are degenerate at the origin and every
+operator gives them exactly zero, with finite values and gradients (`ddgjax.batch._operators`).
+
+The index plan is built on the host from the faces alone (DESIGN.md, two phases): `vertex_corners`
+lists the corners `3 f + k` at each vertex (ELL, padded with `3 nfp`), and its transpose is the
+faces themselves, so both the corner -> vertex sum and the vertex -> corner gather are
+`ddgjax.sparse.gather_sum` calls whose derivatives are fixed gathers (no scatter-add); the
+Laplacian's directed-edge slots (`vertex_neighbors`, `slot_corners`, `corner_slots`) come from each
+mesh's edges, as `ddgjax.laplacian`'s storage plan does for one mesh.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from .._compile import device_array
+from .._errors import DDGInputError, check_count, check_float_array, is_traced
+from ..mesh import Mesh
+from ._bucket import bucket
+
+#: The smallest padded width of the vertex -> corner lists (the bucket ladder from 4: 4, 5, 6, 7, 8, 10, ...).
+_MIN_CORNERS_PER_VERTEX = 4
+
+
+class PackedMeshes(NamedTuple):
+    """The packed view of a batch (PyTorch3D's `verts_packed`, `faces_packed`, `verts_packed_to_mesh_idx`, ...).
+
+    Attributes:
+        vertices: `(sum nv, 3)` the meshes' vertices, one after the other.
+        faces: `(sum nf, 3)` their faces, indices into the packed `vertices`.
+        vertex_meshes: `(sum nv,)` the mesh of each packed vertex.
+        face_meshes: `(sum nf,)` the mesh of each packed face.
+    """
+
+    vertices: Float[np.ndarray, "n 3"]
+    faces: Int[np.ndarray, "m 3"]
+    vertex_meshes: Int[np.ndarray, " n"]
+    face_meshes: Int[np.ndarray, " m"]
+
+
+class MeshBatch(eqx.Module):
+    """`B` triangle meshes of different sizes, padded to bucketed sizes (module docstring).
+
+    Make one with `MeshBatch.from_meshes(meshes)`; differentiate with
+    `jax.grad(lambda V: loss(batch.with_vertices(V)))(batch.vertices)`. Every field is an array with
+    the batch axis first (no static data), so batches of one bucket share one compiled program.
+
+    Attributes:
+        vertices: `(B, nvp, 3)` positions; mesh `b`'s in rows `[0, n_vertices[b])`, zeros after.
+        faces: `(B, nfp, 3)` int32 vertex indices; padding faces are `(0, 0, 0)` (and masked).
+        vertex_mask: `(B, nvp)` True on a mesh's own vertices.
+        face_mask: `(B, nfp)` True on a mesh's own faces.
+        n_vertices: `(B,)` int32 vertex count of each mesh (arrays, not static ints: the tree structure
+            stays the same across a bucket).
+        n_faces: `(B,)` int32 face count of each mesh.
+        vertex_corners: `(B, nvp, w)` int32 the corners `3 f + k` of each vertex, padded with `3 nfp`
+            (`w = bucket(largest number of corners at a vertex, minimum=4)`).
+        vertex_neighbors: `(B, nvp, d)` int32 the vertices joined to each vertex by an edge, padded
+            with `nvp` (`d = bucket(largest degree, minimum=4)`): the directed edge `i -> j` of slot
+            `(i, s)` is slot `i d + s`.
+        slot_corners: `(B, nvp d, m)` int32 the corners opposite the edge of each slot, padded with
+            `3 nfp` (`m`: the most faces at an edge, 2 on manifold meshes).
+        corner_slots: `(B, 3 nfp, 2)` int32 its transpose: the two slots (`i -> j`, `j -> i`) of each
+            corner's opposite edge, `nvp d` on padding faces.
+    """
+
+    vertices: Float[Array, "B nvp 3"]
+    faces: Int[Array, "B nfp 3"]
+    vertex_mask: Bool[Array, "B nvp"]
+    face_mask: Bool[Array, "B nfp"]
+    n_vertices: Int[Array, " B"]
+    n_faces: Int[Array, " B"]
+    vertex_corners: Int[Array, "B nvp w"]
+    vertex_neighbors: Int[Array, "B nvp d"]
+    slot_corners: Int[Array, "B n_slots m"]
+    corner_slots: Int[Array, "B n_corners 2"]
+
+    # `meshes` is annotated loosely on purpose: a wrong element gets this method's `DDGInputError` naming
+    # its index rather than a run-time type-checker's message.
+    @classmethod
+    def from_meshes(cls, meshes: Sequence, *, n_vertices: int | None = None, n_faces: int | None = None) -> "MeshBatch":
+        """Pad `meshes` (a non-empty sequence of `ddgjax.Mesh`, or `(vertices, faces)` pairs) into one batch.
+
+        Args:
+            meshes: the meshes, in batch order; a `(vertices, faces)` pair is built with `Mesh.from_arrays`.
+            n_vertices: the padded vertex count `nvp` (default `bucket(max nv)`); at least the largest `nv`.
+            n_faces: the padded face count `nfp` (default `bucket(max nf)`); at least the largest `nf`.
+
+        Returns:
+            `MeshBatch`, its vertices in the meshes' common floating dtype.
+
+        Raises `DDGInputError` for an empty sequence, an element that is not a mesh, or a padded size
+        smaller than a mesh. PyTorch3D: `Meshes(verts=list, faces=list)` (padded to the exact maximum).
+        """
+        items = _as_meshes(meshes)
+        largest_nv = max(mesh.n_vertices for mesh in items)
+        largest_nf = max(mesh.n_faces for mesh in items)
+        nvp = bucket(largest_nv) if n_vertices is None else check_count("n_vertices", n_vertices)
+        nfp = bucket(largest_nf) if n_faces is None else check_count("n_faces", n_faces)
+        if nvp < largest_nv:
+            raise DDGInputError(f"n_vertices: expected at least {largest_nv} (the largest mesh's vertex count), got {nvp}")
+        if nfp < largest_nf:
+            raise DDGInputError(f"n_faces: expected at least {largest_nf} (the largest mesh's face count), got {nfp}")
+        dtype = jnp.result_type(*(mesh.vertices.dtype for mesh in items))
+        size = len(items)
+        vertices = np.zeros((size, nvp, 3), dtype)
+        faces = np.zeros((size, nfp, 3), np.int32)
+        counts = np.array([[mesh.n_vertices, mesh.n_faces] for mesh in items], np.int32)
+        host_faces = [np.asarray(mesh.faces) for mesh in items]
+        for b, mesh in enumerate(items):
+            vertices[b, : mesh.n_vertices] = np.asarray(mesh.vertices)
+            faces[b, : mesh.n_faces] = host_faces[b]
+        vertex_mask = np.arange(nvp)[None, :] < counts[:, :1]
+        face_mask = np.arange(nfp)[None, :] < counts[:, 1:]
+        vertex_corners = _vertex_corners(host_faces, nvp, nfp)
+        vertex_neighbors, slot_corners, corner_slots = _edge_slots(items, nvp, nfp)
+        arrays = jax.device_put(
+            {
+                "vertices": vertices,
+                "faces": faces,
+                "vertex_mask": vertex_mask,
+                "face_mask": face_mask,
+                "n_vertices": counts[:, 0],
+                "n_faces": counts[:, 1],
+                "vertex_corners": vertex_corners,
+                "vertex_neighbors": vertex_neighbors,
+                "slot_corners": slot_corners,
+                "corner_slots": corner_slots,
+            }
+        )
+        return cls(**arrays)
+
+    @property
+    def batch_size(self) -> int:
+        """Number of meshes `B`."""
+        return self.vertices.shape[0]
+
+    @property
+    def n_padded_vertices(self) -> int:
+        """The padded vertex count `nvp` (a static int: the array shape)."""
+        return self.vertices.shape[1]
+
+    @property
+    def n_padded_faces(self) -> int:
+        """The padded face count `nfp` (a static int: the array shape)."""
+        return self.faces.shape[1]
+
+    # `vertices` is annotated unshaped on purpose: a bad shape gets this method's own `DDGInputError`.
+    def with_vertices(self, vertices: ArrayLike) -> "MeshBatch":
+        """The same batch with new padded positions `(B, nvp, 3)` (as `Mesh.with_vertices`; jit, grad, vmap).
+
+        Values in padded rows are never read by an operator (their gradient is 0).
+        """
+        expected = self.vertices.shape
+        if np.shape(vertices) != expected:
+            raise DDGInputError(f"vertices: expected shape {expected} (the batch's padded positions), got {np.shape(vertices)}")
+        if not is_traced(vertices):
+            check_float_array("vertices", np.asarray(vertices).reshape(-1, 3), (3,))
+        array = device_array(vertices)
+        if not jnp.issubdtype(array.dtype, jnp.floating):
+            array = array.astype(self.vertices.dtype)
+        return eqx.tree_at(lambda batch: batch.vertices, self, array)
+
+    def packed(self) -> PackedMeshes:
+        """The packed view (`PackedMeshes`): every mesh's vertices and faces concatenated, faces globally indexed (host)."""
+        nv, nf = self._counts()
+        vertices, faces = np.asarray(self.vertices), np.asarray(self.faces)
+        offsets = np.concatenate([[0], np.cumsum(nv)[:-1]])
+        return PackedMeshes(
+            vertices=np.concatenate([vertices[b, : nv[b]] for b in range(nv.size)]),
+            faces=np.concatenate([faces[b, : nf[b]] + offsets[b] for b in range(nv.size)]),
+            vertex_meshes=np.repeat(np.arange(nv.size), nv),
+            face_meshes=np.repeat(np.arange(nv.size), nf),
+        )
+
+    def meshes(self) -> list[Mesh]:
+        """The meshes of the batch, each rebuilt with `Mesh.from_arrays` from its unpadded rows (host)."""
+        nv, nf = self._counts()
+        vertices, faces = np.asarray(self.vertices), np.asarray(self.faces)
+        return [Mesh.from_arrays(vertices[b, : nv[b]], faces[b, : nf[b]]) for b in range(nv.size)]
+
+    def unpad(self, values: ArrayLike, *, at: str = "vertices") -> list[np.ndarray]:
+        """`unpad(self, values, at=at)`."""
+        return unpad(self, values, at=at)
+
+    def _counts(self) -> tuple[np.ndarray, np.ndarray]:
+        if is_traced(self.n_vertices) or is_traced(self.n_faces):
+            raise DDGInputError("batch: unpadding reads the per-mesh counts on the host; call it outside jit")
+        return np.asarray(self.n_vertices), np.asarray(self.n_faces)
+
+
+def require_batch(name: str, value) -> MeshBatch:
+    """`value` if it is a `MeshBatch`, else `DDGInputError` naming the argument and saying how to make one."""
+    if isinstance(value, MeshBatch):
+        return value
+    hint = (
+        "; for a single mesh use the function of the same name in ddgjax.mesh / ddgjax.laplacian"
+        if isinstance(value, Mesh)
+        else ""
+    )
+    raise DDGInputError(
+        f"{name}: expected a ddgjax.batch.MeshBatch, got {type(value).__name__}; build one with "
+        f"MeshBatch.from_meshes([mesh, ...]){hint}"
+    )
+
+
+def pad_vertex_values(values: Sequence, *, n_vertices: int | None = None) -> Float[Array, "B nvp *rest"]:
+    """Stack per-mesh vertex values `(nv_i, *rest)` into one `(B, nvp, *rest)` array, zeros in the padded rows.
+
+    Args:
+        values: a non-empty sequence of arrays with one trailing shape `rest` and one dtype kind.
+        n_vertices: the padded count `nvp` (default `bucket(max nv_i)`, what `MeshBatch.from_meshes`
+            pads to; pass `batch.n_padded_vertices` to match a batch made with another size).
+
+    Returns:
+        `(B, nvp, *rest)`. PyTorch3D: `list_to_padded`.
+
+    Raises `DDGInputError` for an empty sequence, a 0-d array, mismatched trailing shapes or a
+    `nvp` smaller than an array.
+    """
+    if isinstance(values, (np.ndarray, jax.Array)) or not isinstance(values, Sequence) or len(values) == 0:
+        raise DDGInputError(f"values: expected a non-empty list of (nv_i, ...) arrays, got {type(values).__name__}")
+    hosts = [np.asarray(value) for value in values]
+    if any(host.ndim == 0 for host in hosts):
+        raise DDGInputError("values: expected arrays of shape (nv_i, ...), got a 0-d value")
+    rest = hosts[0].shape[1:]
+    mismatched = [i for i, host in enumerate(hosts) if host.shape[1:] != rest]
+    if mismatched:
+        raise DDGInputError(
+            f"values: expected one trailing shape {rest} for every array, got {hosts[mismatched[0]].shape} at index {mismatched[0]}"
+        )
+    largest = max(host.shape[0] for host in hosts)
+    nvp = bucket(largest) if n_vertices is None else check_count("n_vertices", n_vertices)
+    if nvp < largest:
+        raise DDGInputError(f"n_vertices: expected at least {largest} (the longest array), got {nvp}")
+    padded = np.zeros((len(hosts), nvp, *rest), np.result_type(*hosts))
+    for b, host in enumerate(hosts):
+        padded[b, : host.shape[0]] = host
+    return device_array(padded)
+
+
+def unpad(batch: object, values: ArrayLike, *, at: str = "vertices") -> list[np.ndarray]:
+    """Split padded per-vertex (or per-face) values `(B, nvp, ...)` into the list of each mesh's `(nv_b, ...)` (host).
+
+    Args:
+        batch: the `MeshBatch` the values belong to.
+        values: `(B, nvp, ...)` for `at="vertices"` (default), `(B, nfp, ...)` for `at="faces"`.
+        at: `"vertices"` or `"faces"` (keyword-only; the `at=` of `ddgjax.dec.sharp` and `ddgjax.fluids`).
+
+    Returns:
+        A list of `B` NumPy arrays. PyTorch3D: `padded_to_list(x, split_size=num_verts_per_mesh())`.
+    """
+    batch = require_batch("batch", batch)
+    if at not in ("vertices", "faces"):
+        raise DDGInputError(f"at: expected one of 'vertices', 'faces', got {at!r}")
+    nv, nf = batch._counts()
+    counts, padded = (nv, batch.n_padded_vertices) if at == "vertices" else (nf, batch.n_padded_faces)
+    if is_traced(values):
+        raise DDGInputError("values: unpad returns host arrays; call it outside jit")
+    host = np.asarray(values)
+    if host.ndim < 2 or host.shape[:2] != (batch.batch_size, padded):
+        raise DDGInputError(f"values: expected shape ({batch.batch_size}, {padded}, ...) per {at[:-1]}, got {host.shape}")
+    return [host[b, : counts[b]] for b in range(counts.size)]
+
+
+def _as_meshes(meshes) -> list[Mesh]:
+    if isinstance(meshes, Mesh) or not isinstance(meshes, Sequence) or isinstance(meshes, str):
+        raise DDGInputError(f"meshes: expected a non-empty sequence of ddgjax Meshes, got {type(meshes).__name__}")
+    if len(meshes) == 0:
+        raise DDGInputError("meshes: expected a non-empty sequence of ddgjax Meshes, got an empty one")
+    items = []
+    for i, mesh in enumerate(meshes):
+        if isinstance(mesh, tuple) and len(mesh) == 2:
+            mesh = Mesh.from_arrays(*mesh)
+        if not isinstance(mesh, Mesh):
+            raise DDGInputError(
+                f"meshes[{i}]: expected a ddgjax Mesh or a (vertices, faces) pair, got {type(mesh).__name__}; "
+                "build one with ddgjax.Mesh.from_arrays(vertices, faces)"
+            )
+        if mesh.topology is None:
+            raise DDGInputError(f"meshes[{i}]: expected a mesh with its topology (made by Mesh.from_arrays), got one without")
+        if is_traced(mesh.vertices):
+            raise DDGInputError(f"meshes[{i}]: MeshBatch.from_meshes pads on the host; inside jit use batch.with_vertices(V)")
+        items.append(mesh)
+    return items
+
+
+def _vertex_corners(faces: list[np.ndarray], nvp: int, nfp: int) -> np.ndarray:
+    """`(B, nvp, w)` the corners `3 f + k` at each vertex in increasing order, padded with `3 nfp` (one stable sort per mesh)."""
+    orders, valences = [], []
+    for host in faces:
+        corner_vertex = host.reshape(-1)
+        order = np.argsort(corner_vertex, kind="stable")
+        orders.append((corner_vertex[order], order))
+        valences.append(np.bincount(corner_vertex, minlength=nvp))
+    width = bucket(max(int(v.max(initial=0)) for v in valences), minimum=_MIN_CORNERS_PER_VERTEX)
+    table = np.full((len(faces), nvp, width), 3 * nfp, np.int32)
+    for b, ((sorted_vertices, order), valence) in enumerate(zip(orders, valences)):
+        starts = np.concatenate([[0], np.cumsum(valence)[:-1]])
+        table[b, sorted_vertices, np.arange(order.size) - starts[sorted_vertices]] = order
+    return table
+
+
+def _edge_slots(meshes: list[Mesh], nvp: int, nfp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(vertex_neighbors, slot_corners, corner_slots)` of `MeshBatch` from each mesh's edges (one stable sort per mesh)."""
+    directed = []
+    for mesh in meshes:
+        topology = mesh.topology
+        edges = np.asarray(topology.edges, np.int64)
+        tails, heads = np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate([edges[:, 1], edges[:, 0]])
+        degrees = np.bincount(tails, minlength=nvp)
+        directed.append((tails, heads, degrees))
+    width = bucket(max(int(degrees.max(initial=0)) for _, _, degrees in directed), minimum=_MIN_CORNERS_PER_VERTEX)
+    faces_per_edge = max(2, *(mesh.topology.edge_faces.shape[1] for mesh in meshes))
+    n_slots = nvp * width
+    neighbors = np.full((len(meshes), nvp, width), nvp, np.int32)
+    slot_corners = np.full((len(meshes), n_slots, faces_per_edge), 3 * nfp, np.int32)
+    corner_slots = np.full((len(meshes), 3 * nfp, 2), n_slots, np.int32)
+    for b, (mesh, (tails, heads, degrees)) in enumerate(zip(meshes, directed)):
+        topology = mesh.topology
+        order = np.argsort(tails, kind="stable")
+        starts = np.concatenate([[0], np.cumsum(degrees)[:-1]])
+        slots = np.empty(tails.size, np.int64)
+        slots[order] = tails[order] * width + np.arange(order.size) - starts[tails[order]]
+        neighbors[b].reshape(-1)[slots] = heads
+        ne = topology.edges.shape[0]
+        corners = np.where(
+            topology.edge_faces >= 0, 3 * topology.edge_faces.astype(np.int64) + topology.edge_face_corners, 3 * nfp
+        )
+        m = corners.shape[1]
+        slot_corners[b, slots[:ne], :m] = corners
+        slot_corners[b, slots[ne:], :m] = corners
+        edge_slots = np.stack([slots[:ne], slots[ne:]], axis=1)
+        corner_slots[b, : 3 * mesh.n_faces] = edge_slots[np.asarray(topology.face_edges).reshape(-1)]
+    return neighbors, slot_corners, corner_slots
