@@ -1,4 +1,8 @@
-"""Operators for learning: DiffusionNet's per-shape precompute, ddgjax against robust_laplacian + SciPy.
+"""Learning on meshes: DiffusionNet's per-shape precompute against robust_laplacian + SciPy; batched Laplacian throughput.
+
+Three sections (`--sections precompute,dataset,batch`, all by default):
+
+**precompute** (per mesh, warm):
 
 What every training shape of a diffusion network needs once (Sharp et al. 2022, `get_operators`):
 the lumped mass, the `k` smallest eigenpairs of `L phi = lambda M phi` (`k = 128`, DiffusionNet's
@@ -22,18 +26,26 @@ difference). Where it is large the reference is the one that is wrong: on the ic
 eigenvalues come in symmetric clusters, shift-invert `eigsh` with SciPy's random start returns a set
 that misses cluster members at the cut (level 4, k = 32: 3e-3 from dense `scipy.linalg.eigh`, ddgjax 3e-13).
 
-Run: `python benchmarks/learning.py` (about 10 minutes on 2 cores); `--k 32,128`, `--repeats 3`,
+**dataset**: what preprocessing a dataset costs, where every mesh has a size of its own:
+`--dataset-meshes` random convex meshes (trimesh's hull of points on a sphere) of distinct sizes
+from 1,000 to 8,000 vertices, one `diffusion_operators` call each (every call meets a new size, so
+its kernels compile: JAX compiles a program per array shape), against the reference on the same
+meshes. Total seconds and the ratio.
+
+**batch**: `ddgjax.batch.laplacian_apply` on a padded batch against a Python loop of single-mesh
+calls (`throughput` below).
+
+Run: `python benchmarks/learning.py` (about 15 minutes on 2 cores); `--k 32,128`, `--repeats 3`,
 `--meshes disk.obj,beetle.off`; `--profile` splits ddgjax's time into its parts on each mesh
-(intrinsic Delaunay `L` and `M`, eigensolve, gradient fit).
+(intrinsic Delaunay `L` and `M`, eigensolve, gradient fit); `--sections batch --batch 16`.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import pathlib
-import platform
 import statistics
+import sys
 import time
 
 import jax
@@ -45,12 +57,18 @@ import numpy as np  # noqa: E402
 import robust_laplacian  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spla  # noqa: E402
+import trimesh  # noqa: E402
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+from solve import fmt, jit, run_sections, timed_interleaved  # noqa: E402
+
+from ddgjax import Mesh, cpu_compiler_options  # noqa: E402
+from ddgjax import batch as batched  # noqa: E402
 from ddgjax.io import load_mesh  # noqa: E402
-from ddgjax.laplacian import laplacian_and_mass  # noqa: E402
+from ddgjax.laplacian import dirichlet_energy, laplacian_and_mass, laplacian_apply  # noqa: E402
 from ddgjax.learn import diffusion_operators  # noqa: E402
 from ddgjax.learn._gradient import gradient_frames_and_weights, neighbor_table  # noqa: E402
-from ddgjax.mesh import icosphere  # noqa: E402
+from ddgjax.mesh import grid, icosphere, torus  # noqa: E402
 from ddgjax.spectral import smallest_eigenpairs  # noqa: E402
 
 SHARED = pathlib.Path(__file__).resolve().parents[2] / "shared" / "meshes"
@@ -159,17 +177,8 @@ def run(name: str, mesh, k: int, repeats: int, show_profile: bool) -> dict:
     return row
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--k", default="32,128", help="numbers of eigenpairs, comma separated")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--meshes", default=",".join(MESHES), help="shared meshes, comma separated (icosphere always)")
-    parser.add_argument("--profile", action="store_true", help="split ddgjax's time into its parts")
-    args = parser.parse_args()
-    print(
-        f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, jax {jax.__version__} on {jax.default_backend()}"
-    )
-    meshes = [(name, load_mesh(SHARED / name)) for name in args.meshes.split(",") if name]
+def precompute(args) -> None:
+    meshes = [(name, load_mesh(SHARED / name)) for name in args.meshes if name]
     meshes.append(("icosphere(5)", icosphere(5)))
     print(
         "| mesh | nv | k | ddgjax first s | ddgjax min / median s | reference min / median s | ratio (medians) | ratio (min) | eig rel diff |"
@@ -178,6 +187,139 @@ def main() -> None:
     for k in map(int, args.k.split(",")):
         for name, mesh in meshes:
             run(name, mesh, k, args.repeats, args.profile)
+
+
+def random_convex_mesh(n: int, rng: np.random.Generator) -> Mesh:
+    """The convex hull of `n` random points on the unit sphere, consistently oriented (trimesh)."""
+    points = rng.normal(size=(n, 3))
+    hull = trimesh.convex.convex_hull(points / np.linalg.norm(points, axis=1, keepdims=True))
+    return Mesh.from_arrays(np.asarray(hull.vertices), np.asarray(hull.faces))
+
+
+def dataset(args) -> None:
+    rng = np.random.default_rng(0)
+    sizes = np.linspace(1000, 8000, args.dataset_meshes).astype(int)
+    meshes = [random_convex_mesh(int(n), rng) for n in sizes]
+    k = int(args.k.split(",")[0])
+    ours(random_convex_mesh(500, rng), k)  # the process's first compilations (tracing machinery) out of the way
+    seconds = {"ddgjax": 0.0, "reference": 0.0}
+    for mesh in meshes:
+        V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        seconds["ddgjax"] += timed(lambda mesh=mesh: ours(mesh, k))[0]
+        seconds["reference"] += timed(lambda V=V, F=F: reference(V, F, k))[0]
+    print(
+        f"# dataset: {len(meshes)} meshes of distinct sizes {sizes[0]}..{sizes[-1]} vertices, k = {k}: "
+        f"ddgjax {seconds['ddgjax']:.1f} s, reference {seconds['reference']:.1f} s, "
+        f"ratio {seconds['ddgjax'] / seconds['reference']:.2f}x"
+    )
+
+
+def make_meshes(count: int, low: int, high: int, seed: int = 0) -> list:
+    """`count` tori and grids with vertex counts spread over `[low, high]`, positions jittered."""
+    rng = np.random.default_rng(seed)
+    meshes = []
+    for i, target in enumerate(np.linspace(low, high, count)):
+        side = int(round(np.sqrt(target)))
+        if i % 2 == 0:
+            mesh = torus(n_major=max(3, int(round(target / max(3, side // 2)))), n_minor=max(3, side // 2))
+        else:
+            mesh = grid(side - 1, max(1, int(round(target / side)) - 1))
+        edge = float(np.sqrt(np.sum(np.asarray(mesh.vertices[mesh.edges[0, 1]] - mesh.vertices[mesh.edges[0, 0]]) ** 2)))
+        meshes.append(mesh.with_vertices(np.asarray(mesh.vertices) + 0.1 * edge * rng.uniform(-1, 1, (mesh.n_vertices, 3))))
+    return meshes
+
+
+def throughput(args) -> None:
+    meshes = make_meshes(args.batch, args.min_vertices, args.max_vertices)
+    rng = np.random.default_rng(1)
+    shape = (lambda nv: (nv,)) if args.columns == 1 else (lambda nv: (nv, args.columns))
+    values = [jnp.asarray(rng.standard_normal(shape(mesh.n_vertices))) for mesh in meshes]
+    batch = batched.MeshBatch.from_meshes(meshes)
+    u = batched.pad_vertex_values(values, n_vertices=batch.n_padded_vertices)
+    total = sum(mesh.n_vertices for mesh in meshes)
+    print(
+        f"# {len(meshes)} meshes, {min(m.n_vertices for m in meshes)}..{max(m.n_vertices for m in meshes)} vertices "
+        f"({total} in all), padded to B x nvp = {batch.batch_size} x {batch.n_padded_vertices}, "
+        f"nfp = {batch.n_padded_faces}, corners per vertex w = {batch.vertex_corners.shape[2]}, columns = {args.columns}"
+    )
+
+    single_apply = jit(laplacian_apply)  # a user's jit keeps every size's program (the eager kernel keeps 8)
+
+    def loop_apply(us):
+        return [single_apply(mesh, x) for mesh, x in zip(meshes, us)]
+
+    def loop_eager(us):
+        return [laplacian_apply(mesh, x) for mesh, x in zip(meshes, us)]
+
+    def loop_grad(us):
+        return [energy_grad(mesh, x) for mesh, x in zip(meshes, us)]
+
+    def energy_grad(mesh, x):
+        return single_grad(mesh.vertices, mesh, x)
+
+    single_grad = jax.jit(
+        jax.grad(lambda V, mesh, x: dirichlet_energy(mesh.with_vertices(V), x)),
+        compiler_options=cpu_compiler_options() or None,
+    )
+    batch_grad = jit(jax.grad(lambda V, b, x: jnp.sum(batched.dirichlet_energy(b.with_vertices(V), x))))
+    user_jit = jit(batched.laplacian_apply)
+
+    start = time.perf_counter()
+    jax.block_until_ready(batched.laplacian_apply(batch, u))
+    first = time.perf_counter() - start
+    start = time.perf_counter()
+    jax.block_until_ready(batched.laplacian_apply(batch, u))
+    steady = time.perf_counter() - start
+    start = time.perf_counter()
+    jax.block_until_ready(loop_apply(values))
+    loop_first = time.perf_counter() - start
+    print(
+        f"# compile: batched {1e3 * (first - steady):.0f} ms (one program); loop first calls {1e3 * loop_first:.0f} ms "
+        f"({len({m.n_vertices for m in meshes})} programs)"
+    )
+
+    result = batched.unpad(batch, batched.laplacian_apply(batch, u))
+    error = max(float(np.max(np.abs(r - np.asarray(s)))) for r, s in zip(result, loop_apply(values)))
+    print(f"# max |batched - loop| = {error:.1e}")
+
+    calls = {
+        "batched laplacian_apply (eager call)": (batched.laplacian_apply, (batch, u)),
+        "batched laplacian_apply in user jit": (user_jit, (batch, u)),
+        "loop of jitted laplacian_apply (16 calls)": (loop_apply, (values,)),
+        "loop of eager laplacian_apply (16 calls)": (loop_eager, (values,)),
+        "batched grad_V sum Dirichlet energies": (batch_grad, (batch.vertices, batch, u)),
+        "loop of grad_V Dirichlet energy": (loop_grad, (values,)),
+    }
+    calls = {name.replace("16", str(len(meshes))): call for name, call in calls.items()}
+    for fn, call_args in calls.values():
+        jax.block_until_ready(fn(*call_args))
+    times, _ = timed_interleaved(calls, 5 * args.repeats, budget_s=args.budget)
+    width = max(map(len, times))
+    print(f"{'':{width}}  {'min / median ms':>18}  {'Mvertices/s (min)':>17}")
+    for name, t in times.items():
+        print(f"{name:{width}}  {fmt(t, 5 * args.repeats):>18}  {total / t[0] / 1e3:17.1f}")
+    names = list(times)
+    print(
+        f"# ratio loop / batched (min): apply {times[names[2]][0] / times[names[0]][0]:.2f}x "
+        f"(in user jit {times[names[2]][0] / times[names[1]][0]:.2f}x; eager loop {times[names[3]][0] / times[names[0]][0]:.2f}x), "
+        f"gradient {times[names[5]][0] / times[names[4]][0]:.2f}x"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sections", default="precompute,dataset,batch")
+    parser.add_argument("--k", default="32,128", help="numbers of eigenpairs, comma separated (dataset: the first)")
+    parser.add_argument("--repeats", type=int, default=3, help="rounds per mesh (precompute) or call (batch: 5 times as many)")
+    parser.add_argument("--meshes", default=",".join(MESHES), help="shared meshes, comma separated (icosphere always)")
+    parser.add_argument("--profile", action="store_true", help="split ddgjax's time into its parts")
+    parser.add_argument("--dataset-meshes", type=int, default=12)
+    parser.add_argument("--batch", type=int, default=16)
+    parser.add_argument("--min-vertices", type=int, default=2000)
+    parser.add_argument("--max-vertices", type=int, default=20000)
+    parser.add_argument("--columns", type=int, default=1)
+    parser.add_argument("--budget", type=float, default=20.0, help="seconds of timed runs per batched call at most")
+    run_sections({"precompute": precompute, "dataset": dataset, "batch": throughput}, parser.parse_args())
 
 
 if __name__ == "__main__":

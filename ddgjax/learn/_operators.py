@@ -20,12 +20,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import RESULTS, Solution, outcome
 from ..fields import TangentBases
+from ..internal import resolve_robust
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, require_mesh
+from ..sparse import SparseMatrix
 from ..spectral import smallest_eigenpairs
 from ._gradient import gradient_frames_and_weights, neighbor_table
 
@@ -122,11 +125,32 @@ def diffusion_operators(
 
 
 def _compute(mesh: Mesh, k: int, *, mass: str, robust: bool | IntrinsicTriangulation) -> tuple[DiffusionOperators, RESULTS, dict]:
-    """The operators of `mesh` with the outcome and statistics of their eigensolve."""
-    L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
+    """The operators of `mesh` with the outcome and statistics of their eigensolve.
+
+    The host work first (the degenerate-face check or the intrinsic flips, the neighbour table), then
+    one compiled program for the rest: a dataset meets a new mesh size at almost every mesh, and one
+    program compiles faster than the separate kernels it replaces (benchmarks/README.md). The plain
+    operators need the mesh's storage plan, which a compiled program does not see: they are built first.
+    """
+    triangulation = resolve_robust(mesh, robust, mass=mass)
+    matrices = laplacian_and_mass(mesh, mass=mass) if triangulation is None else None
+    neighbors = device_array(neighbor_table(mesh.topology))
+    return _operators_program(mesh, triangulation, matrices, neighbors, k=k, mass=mass)
+
+
+@kernel(static_argnames=("k", "mass"))
+def _operators_program(
+    mesh: Mesh,
+    triangulation: IntrinsicTriangulation | None,
+    matrices: tuple[SparseMatrix, SparseMatrix] | None,
+    neighbors: Int[Array, "nv d"],
+    *,
+    k: int,
+    mass: str,
+) -> tuple[DiffusionOperators, RESULTS, dict]:
+    L, M = matrices if triangulation is None else laplacian_and_mass(mesh, mass=mass, robust=triangulation)
     solution = smallest_eigenpairs(L, M, k, throw=False)
     values, vectors = solution.value
-    neighbors = jnp.asarray(neighbor_table(mesh.topology))
     frames, weights = gradient_frames_and_weights(mesh, neighbors)
     operators = DiffusionOperators(
         mass=M.diagonal(),
