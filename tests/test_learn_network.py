@@ -53,7 +53,11 @@ def test_a_block_is_its_definition(meshes_and_operators):
     expected = np.asarray(x) + hidden @ np.asarray(last.weight).T + np.asarray(last.bias)
     np.testing.assert_allclose(block(x, operators), expected, atol=1e-12)
     # The learned times start at 0 and are used clamped at MIN_TIME, so diffusion starts as (almost) the identity on the basis.
-    assert np.all(np.asarray(DiffusionNetBlock(4, key=jax.random.PRNGKey(1)).times) == 0.0)
+    fresh = DiffusionNetBlock(6, key=jax.random.PRNGKey(1))
+    assert np.all(np.asarray(fresh.times) == 0.0)
+    # ... and they learn from there: the clamp passes the derivative (DiffusionNet clamps the parameter itself).
+    d_times = eqx.filter_grad(lambda b: jnp.sum(b(x, operators) ** 2))(fresh).times
+    assert np.all(np.abs(np.asarray(d_times)) > 0), d_times
 
 
 def test_a_padded_batch_of_meshes_of_different_sizes_equals_each_mesh_alone(meshes_and_operators):

@@ -18,7 +18,7 @@ never reach real vertices; their outputs are to be masked out of a loss.
 
 The original is in PyTorch (`diffusion_net.layers.DiffusionNetBlock`); this one uses its defaults where
 they matter: times start at 0 and are clamped at `1e-8` (a negative time would make diffusion
-explode), the MLP has two hidden layers of the block's width, ReLU; no dropout (add `eqx.nn.Dropout`
+explode; the clamp passes the derivative through, so times starting at 0 learn), the MLP has two hidden layers of the block's width, ReLU; no dropout (add `eqx.nn.Dropout`
 in a copy of the block where a task needs it).
 """
 
@@ -41,7 +41,8 @@ class DiffusionNetBlock(eqx.Module):
     """One DiffusionNet block on `width` channels (module docstring): diffusion, gradient features, MLP, residual.
 
     Attributes:
-        times: `(width,)` the learned diffusion time of each channel (starts at 0; used clamped at `MIN_TIME`).
+        times: `(width,)` the learned diffusion time of each channel (starts at 0; used clamped at `MIN_TIME`,
+            with the derivative of the unclamped time).
         gradient_real, gradient_imag: `(width, width)` the learned complex matrix `A` of the gradient features.
         mlp: the per-vertex MLP from `3 width` features (input, diffused, gradient features) to `width`.
     """
@@ -63,7 +64,10 @@ class DiffusionNetBlock(eqx.Module):
 
     def __call__(self, x: Float[Array, "nv width"], operators: DiffusionOperators) -> Float[Array, "nv width"]:
         """`x + MLP([x, h, tanh Re(conj(grad h) A grad h)])` with `h` the diffusion of `x` for the learned times."""
-        diffused = spectral_diffusion(x, operators, jnp.maximum(self.times, MIN_TIME))
+        # Clamped in value, the identity in derivative: DiffusionNet clamps the parameter itself after each
+        # step, so its gradient is taken at the clamped time; a plain maximum would stop times at 0 from learning.
+        times = self.times + jax.lax.stop_gradient(jnp.maximum(self.times, MIN_TIME) - self.times)
+        diffused = spectral_diffusion(x, operators, times)
         features = spatial_gradient_features(spatial_gradients(diffused, operators), self.gradient_real, self.gradient_imag)
         return x + jax.vmap(self.mlp)(jnp.concatenate([x, diffused, features], axis=-1))
 
