@@ -14,6 +14,9 @@ _NAMES = {
     "vertex_plan": "ddgjax.laplacian._plan",
     "dec_plan": "ddgjax.laplacian._plan",
     "resolve_robust": "ddgjax.laplacian._operators",
+    # the tufted cover of any triangles, flipped to intrinsic Delaunay on the host, and the JAX replay of flips (ddgjax.laplacian)
+    "tufted_delaunay": "ddgjax.laplacian._tufted",
+    "replayed_lengths_sq": "ddgjax.laplacian._intrinsic",
     # degenerate geometry: faces of (near-)zero area, found once per Mesh object (ddgjax.mesh)
     "degenerate_faces": "ddgjax.mesh._check",
     "require_nondegenerate": "ddgjax.mesh._check",

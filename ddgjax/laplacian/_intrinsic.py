@@ -47,18 +47,24 @@ exactly Delaunay-critical (its opposite angles sum to exactly `pi`), a small mot
 flips, and the gradient is exact. At a critical edge the operator is still continuous (a co-circular
 quad has cotan weight 0 on either diagonal), so one-sided derivatives exist but may differ.
 
-Input: an edge-manifold, consistently oriented mesh of any genus, with or without boundary
-(vertex non-manifold "bow ties" are fine); a non-manifold edge or inconsistent orientation is a
-`MeshDataError`. The flipped triangulation may join two vertices by several edges or contain a face
-that repeats a vertex (an intrinsic triangulation is a Delta-complex); the operators handle both.
+Input: any triangle mesh. An edge-manifold, consistently oriented one (any genus, with or without
+boundary; vertex non-manifold "bow ties" are fine) is flipped as it is. One with a non-manifold edge
+(three or more faces) or inconsistent orientation (a Moebius strip, flipped faces) is replaced by its
+*tufted cover* (`ddgjax.laplacian._tufted`, Sharp & Crane 2020): every face twice, once per
+orientation, glued around each edge in angular order, a closed oriented surface, whose flips are
+replayed the same way and whose operators are halved (`IntrinsicTriangulation.sheets`), as
+robust_laplacian's `mesh_laplacian` on every mesh. The flipped triangulation may join two vertices by
+several edges or contain a face that repeats a vertex (an intrinsic triangulation is a
+Delta-complex); the operators handle both.
 
 References: A. I. Bobenko, B. A. Springborn, "A discrete Laplace-Beltrami operator for simplicial
 surfaces" (2007); M. Fisher, B. Springborn, P. Schroeder, A. I. Bobenko, "An algorithm for the
 construction of intrinsic Delaunay triangulations with applications to digital geometry processing"
 (2007); N. Sharp, Y. Soliman, K. Crane, "Navigating intrinsic triangulations" (2019); N. Sharp, K.
 Crane, "A Laplacian for nonmanifold triangle meshes" (2020) (mollification). libigl
-`intrinsic_delaunay_triangulation`, `intrinsic_delaunay_cotmatrix`; robust_laplacian (whose tufted
-cover also flips boundary edges: the same operator on closed meshes).
+`intrinsic_delaunay_triangulation`, `intrinsic_delaunay_cotmatrix`; robust_laplacian (which uses the
+tufted cover on every mesh, and so also flips boundary edges: the same operator on closed meshes, and
+on non-manifold or non-oriented ones, where the cover is used here too).
 """
 
 from __future__ import annotations
@@ -105,6 +111,9 @@ class IntrinsicTriangulation(eqx.Module):
         n_rounds: number of rounds of independent flips on the host (static).
         mollify_factor: the mollification margin relative to the mean edge length (static; module
             docstring), applied to the mesh's lengths before the flips, on the host and in the replay.
+        sheets: how many times the triangulation covers the mesh (static): 1 on an edge-manifold,
+            consistently oriented mesh (its faces, flipped); 2 for the tufted cover of any other mesh
+            (`2 nf` faces, every face once per orientation), whose operators are divided by 2.
     """
 
     plan: TriangulationPlan
@@ -114,10 +123,11 @@ class IntrinsicTriangulation(eqx.Module):
     n_flips: int = eqx.field(static=True)
     n_rounds: int = eqx.field(static=True)
     mollify_factor: float = eqx.field(static=True)
+    sheets: int = eqx.field(static=True, default=1)
 
     @property
     def faces(self) -> Int[Array, "nf 3"]:
-        """`(nf, 3)` the faces after the flips (counterclockwise where the mesh's are)."""
+        """`(nf, 3)` the faces after the flips (counterclockwise where the mesh's are; `(2 nf, 3)` for a tufted cover)."""
         return self.plan.faces
 
     def face_lengths_sq(self, mesh: Mesh) -> Float[Array, "nf 3"]:
@@ -129,7 +139,7 @@ class IntrinsicTriangulation(eqx.Module):
         `intrinsic_delaunay_cotmatrix`, squared (which does not mollify).
         """
         mesh = _check_fits(self, mesh)
-        return _replayed_lengths_sq(
+        return replayed_lengths_sq(
             mesh.vertices,
             mesh.edges,
             mesh.face_edges,
@@ -159,8 +169,12 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
     of independent flips (module docstring), recorded for the JAX replay. Once per vertex positions:
     pass the result as `triangulation=` to the operators to reuse it (inside jit too).
 
+    A mesh with a non-manifold edge or inconsistently oriented faces is replaced by its tufted cover
+    (module docstring; `sheets=2`), which is then mollified and flipped the same way (boundary edges
+    included: the cover has none), as robust_laplacian's `mesh_laplacian`.
+
     Args:
-        mesh: an edge-manifold, consistently oriented mesh with concrete (not traced) vertices.
+        mesh: a triangle mesh with concrete (not traced) vertices.
         mollify_factor: the mollification margin relative to the mean edge length, `>= 0`
             (keyword-only; robust_laplacian's `mollify_factor`, default `1e-5` as there).
 
@@ -168,12 +182,11 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
         `IntrinsicTriangulation`.
 
     Raises `DDGInputError` for traced vertices, a non-mesh or a bad `mollify_factor`,
-    `MeshDataError` for non-manifold edges, inconsistent orientation, or every vertex at one point
-    (no length to mollify with).
+    `MeshDataError` for every vertex at one point (no length to mollify with).
 
     References: Bobenko & Springborn (2007); Fisher et al. (2007); Sharp & Crane (2020). libigl
-    `intrinsic_delaunay_triangulation` (one flip at a time from a queue, no mollification);
-    geometry-central `mollifyIntrinsic` then `flipToDelaunay`.
+    `intrinsic_delaunay_triangulation` (one flip at a time from a queue, no mollification; manifold
+    meshes only); geometry-central `mollifyIntrinsic` then `flipToDelaunay` (`buildIntrinsicTuftedCover` first).
     """
     mesh = require_mesh("mesh", mesh)
     if not (
@@ -191,7 +204,6 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
     topology = mesh.topology
     if topology is None:
         raise DDGInputError("mesh: intrinsic_delaunay needs the mesh's topology (a mesh made by Mesh.from_arrays or load_mesh)")
-    topology.require_oriented("intrinsic_delaunay")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     edges = topology.edges
     lengths_sq = np.sum((vertices[edges[:, 1]] - vertices[edges[:, 0]]) ** 2, axis=1)
@@ -200,6 +212,8 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
             "mesh: every vertex lies at one point (all edges have zero length): there is no metric to mollify "
             "or to build operators from"
         )
+    if not topology.is_oriented:
+        return _tufted_intrinsic_delaunay(vertices, topology, mollify_factor)
     lengths_sq = _mollified(lengths_sq, topology.face_edges, mollify_factor, np, np.sqrt, np.take)
     faces, face_edges, rounds = _flip_to_delaunay(topology, lengths_sq)
     # Without flips the triangulation is the mesh's: share the cached plan (and pattern) of `cotan_laplacian(mesh)`.
@@ -213,6 +227,26 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
         n_flips=sum(quads.shape[0] for quads in rounds),
         n_rounds=len(rounds),
         mollify_factor=mollify_factor,
+    )
+
+
+def _tufted_intrinsic_delaunay(vertices: np.ndarray, topology: MeshTopology, mollify_factor: float) -> IntrinsicTriangulation:
+    """`intrinsic_delaunay` of a non-manifold or non-oriented mesh: its flipped tufted cover (`sheets=2`)."""
+    from ._tufted import tufted_delaunay  # (here, not at the top: `_tufted` builds on this module's flips)
+
+    cover = tufted_delaunay(vertices, topology.faces, mollify_factor)
+    # The cover's distinct edges are the mesh's (both the sorted distinct vertex pairs), so the replay reads mesh.edges.
+    if not (np.array_equal(cover.edges, topology.edges) and np.array_equal(cover.face_edges, topology.face_edges)):
+        raise RuntimeError("intrinsic_delaunay: the tufted cover's edges differ from the mesh's (please report this mesh)")
+    return IntrinsicTriangulation(
+        plan=triangulation_plan(cover.faces, topology.n_vertices),
+        face_length_slots=device_array(cover.face_length_slots),
+        flip_slots=device_array(cover.flip_slots),
+        topology=topology,
+        n_flips=cover.n_flips,
+        n_rounds=cover.n_rounds,
+        mollify_factor=mollify_factor,
+        sheets=2,
     )
 
 
@@ -236,7 +270,7 @@ def intrinsic_delaunay_laplacian(mesh: Mesh, *, triangulation: IntrinsicTriangul
     vertices (`intrinsic_delaunay(mesh)`); a traced mesh then raises `DDGInputError`.
 
     Args:
-        mesh: an edge-manifold, consistently oriented mesh.
+        mesh: a triangle mesh (non-manifold and non-oriented ones: the tufted cover, `intrinsic_delaunay`).
         triangulation: `intrinsic_delaunay(mesh)` for this connectivity (keyword-only), or `None`.
 
     Returns:
@@ -245,10 +279,12 @@ def intrinsic_delaunay_laplacian(mesh: Mesh, *, triangulation: IntrinsicTriangul
     References: Bobenko & Springborn (2007); Fisher et al. (2007); Sharp & Crane (2020). libigl
     `intrinsic_delaunay_cotmatrix` (negated; no mollification, so equal where `delta = 0`);
     `robust_laplacian.mesh_laplacian(V, F, mollify_factor=...)` with the triangulation's
-    `mollify_factor` (default `1e-5` in both) on closed meshes.
+    `mollify_factor` (default `1e-5` in both) on closed meshes and on non-manifold or non-oriented ones
+    (both use the tufted cover there, halved).
     """
     triangulation = _triangulation_for(mesh, triangulation)
-    return cotan_laplacian_from_lengths_sq(triangulation.face_lengths_sq(mesh), triangulation.plan)
+    L = cotan_laplacian_from_lengths_sq(triangulation.face_lengths_sq(mesh), triangulation.plan)
+    return L if triangulation.sheets == 1 else L / triangulation.sheets
 
 
 def intrinsic_delaunay_mass_matrix(
@@ -269,7 +305,7 @@ def intrinsic_delaunay_mass_matrix(
     Laplacian is.
 
     Args:
-        mesh: an edge-manifold, consistently oriented mesh.
+        mesh: a triangle mesh (non-manifold and non-oriented ones: the tufted cover, `intrinsic_delaunay`).
         triangulation: `intrinsic_delaunay(mesh)` (keyword-only), or `None` to compute it here.
         mass: `"voronoi"`, `"barycentric"` or `"galerkin"` (keyword-only).
 
@@ -280,7 +316,8 @@ def intrinsic_delaunay_mass_matrix(
     """
     check_mass(mass)  # before any flips
     triangulation = _triangulation_for(mesh, triangulation)
-    return mass_matrix_from_lengths_sq(triangulation.face_lengths_sq(mesh), triangulation.plan, mass=mass)
+    M = mass_matrix_from_lengths_sq(triangulation.face_lengths_sq(mesh), triangulation.plan, mass=mass)
+    return M if triangulation.sheets == 1 else M / triangulation.sheets
 
 
 def _triangulation_for(mesh: Mesh, triangulation) -> IntrinsicTriangulation:
@@ -338,16 +375,19 @@ def _diagonal_after_flip(quad_lengths_sq, face_areas, divide, stack):
 
 
 @kernel(static_argnames=("mollify_factor",))
-def _replayed_lengths_sq(
+def replayed_lengths_sq(
     vertices: Float[Array, "nv 3"],
     edges: Int[Array, "ne 2"],
     face_edges: Int[Array, "nf 3"],
     flip_slots: Int[Array, "n_steps 5 width"],
-    face_length_slots: Int[Array, "nf 3"],
+    face_length_slots: Int[Array, "n_out 3"],
     *,
     mollify_factor: float,
-) -> Float[Array, "nf 3"]:
-    """The mesh's squared edge lengths, mollified, then one scan step per block of flips (`IntrinsicTriangulation`)."""
+) -> Float[Array, "n_out 3"]:
+    """The mesh's squared edge lengths, mollified, then one scan step per block of flips (`IntrinsicTriangulation`).
+
+    `face_edges` are the input's faces (mollification), `face_length_slots` the flipped faces (twice as many for a
+    tufted cover, `ddgjax.laplacian._tufted`)."""
     vectors = take_rows(vertices, edges[:, 1]) - take_rows(vertices, edges[:, 0])
     mesh_lengths_sq = _mollified(jnp.sum(vectors * vectors, axis=-1), face_edges, mollify_factor, jnp, safe_sqrt, take_rows)
     n_steps, _, width = flip_slots.shape

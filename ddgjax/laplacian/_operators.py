@@ -14,7 +14,11 @@ infinite or undefined cotangents, and rounding then makes the plain cotan Laplac
 triangulation first mollifies the metric (every edge lengthened by the smallest amount that gives
 each triangle a strict triangle inequality with margin `1e-5` of the mean edge length, Sharp & Crane
 2020), so every triangle has a positive area, then flips to Delaunay: a positive semidefinite
-Laplacian, `robust_laplacian.mesh_laplacian(V, F, mollify_factor=1e-5)` on closed meshes.
+Laplacian, `robust_laplacian.mesh_laplacian(V, F, mollify_factor=1e-5)` on closed meshes. It also
+handles every connectivity: a mesh with a non-manifold edge or inconsistently oriented faces (a
+Moebius strip) gets the operators of its tufted cover, halved (`intrinsic_delaunay`), as
+robust_laplacian does on every mesh; `robust=False` refuses none of those (the cotan Laplacian is
+defined face by face).
 """
 
 from __future__ import annotations
@@ -49,8 +53,8 @@ def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | Intr
     `robust=False`: `cotan_laplacian(mesh)` and `mass_matrix(mesh, mass=mass)`, refused
     (`MeshDataError`) on concrete positions with faces of zero or near-zero area; otherwise
     `intrinsic_delaunay_laplacian` and `intrinsic_delaunay_mass_matrix` of one (mollified)
-    triangulation, which work on every mesh (module docstring). `-M^{-1} L` is the pointwise
-    Laplace-Beltrami operator.
+    triangulation, which work on every mesh, non-manifold and non-oriented ones included (the tufted
+    cover; module docstring). `-M^{-1} L` is the pointwise Laplace-Beltrami operator.
 
     Args:
         mesh: the mesh.

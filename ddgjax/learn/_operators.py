@@ -83,7 +83,8 @@ def diffusion_operators(
             `mass="barycentric"` (robust_laplacian's mass).
         robust: `True` (default): `L` and `M` of the mollified intrinsic Delaunay triangulation
             (Sharp & Crane 2020, `mollify_factor=1e-5`, as robust_laplacian and DiffusionNet), which
-            works on meshes with degenerate faces, as learning datasets have; `False`: the mesh's own
+            works on meshes with degenerate faces and, through its tufted cover, on non-manifold and
+            non-oriented meshes, as learning datasets have; `False`: the mesh's own
             cotan operators, refused (`MeshDataError`) on such meshes; or an `IntrinsicTriangulation`
             (`ddgjax.laplacian.intrinsic_delaunay(mesh)`, built outside `jit`): its operators at the
             given positions, the way to differentiate the robust operators in the vertex positions

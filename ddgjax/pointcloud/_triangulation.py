@@ -26,7 +26,8 @@ Sharp & Crane 2020 (section 5.7), robust_laplacian's `point_cloud_laplacian`, in
    *tufted cover* is built: two copies of every triangle, one per orientation, glued around each
    edge in the angular order of the triangles about it (geometry-central
    `buildIntrinsicTuftedCover`), a closed oriented surface; then intrinsic Delaunay edge flips
-   (`ddgjax.laplacian._intrinsic`'s rounds of independent flips). Around an edge, triangles at the
+   (`ddgjax.laplacian._intrinsic`'s rounds of independent flips). Steps 4's cover and flips are
+   `ddgjax.laplacian._tufted`'s, which also serves `intrinsic_delaunay` on non-manifold meshes. Around an edge, triangles at the
    same angle (copies of one triangle) are glued in list order; geometry-central's order there is
    its sort's, so near coincident points, where such ties and flips interact, the two covers may
    differ (both intrinsic Delaunay: every weight `>= 0`; 10% of the entries of `L` on 2,000 uniform
@@ -55,33 +56,14 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array
 from .._errors import DDGInputError, check_count, check_finite, check_float_shape, is_traced
+from ..internal import replayed_lengths_sq, tufted_delaunay
 from ..laplacian import TriangulationPlan, triangulation_plan
-from ..laplacian._intrinsic import _flip_to_delaunay, _mollified, _replay_layout, _replayed_lengths_sq
-from ..mesh import MeshTopology
 
 # robust_laplacian's thresholds, relative to the neighbourhood radius (its farthest neighbour): a
 # neighbour this close to the centre is pushed out to it, and two neighbours within this angle
 # (seen from the centre, radians) form no triangle.
 _COINCIDENT = 1e-7
 _COLLINEAR = 1e-5
-
-
-class _CoverTopology(MeshTopology):
-    """The corner tables of the tufted cover that `_flip_to_delaunay` reads (those fields of a `MeshTopology`).
-
-    A subclass only so that the mesh flips' annotated helper accepts it: the cover is no `Mesh` (two
-    vertices may be joined by several edges), and nothing else of `MeshTopology` is used.
-    """
-
-    def __init__(self, faces, face_edges, edge_faces, edge_face_corners, edge_face_counts):
-        for name, value in (
-            ("faces", faces),
-            ("face_edges", face_edges),
-            ("edge_faces", edge_faces),
-            ("edge_face_corners", edge_face_corners),
-            ("edge_face_counts", edge_face_counts),
-        ):
-            object.__setattr__(self, name, value)
 
 
 class PointCloudTriangulation(eqx.Module):
@@ -94,8 +76,8 @@ class PointCloudTriangulation(eqx.Module):
         neighbors: `(n, k)` each point's `k` nearest neighbours, nearest first.
         plan: the flipped cover's faces `(n_cover, 3)` and the storage plan of their operators.
         edges: `(ne, 2)` the distinct point pairs joined by a local triangle's edge.
-        face_edges: `(n_cover, 3)` the distinct edge opposite each corner of the unflipped cover's faces
-            (each local triangle and its reversed copy; what the mollification reads).
+        face_edges: `(nf, 3)` the distinct edge opposite each corner of the local triangles (what the
+            mollification reads).
         flip_slots: `(n_steps, 5, width)` the replay's flips (`ddgjax.laplacian.IntrinsicTriangulation`).
         face_length_slots: `(n_cover, 3)` where the replay keeps the length of each cover face's edges.
         n_points: the number of points (static).
@@ -105,7 +87,7 @@ class PointCloudTriangulation(eqx.Module):
     neighbors: Int[Array, "n k"]
     plan: TriangulationPlan
     edges: Int[Array, "ne 2"]
-    face_edges: Int[Array, "n_cover 3"]
+    face_edges: Int[Array, "nf 3"]
     flip_slots: Int[Array, "n_steps 5 width"]
     face_length_slots: Int[Array, "n_cover 3"]
     n_points: int = eqx.field(static=True)
@@ -128,7 +110,7 @@ class PointCloudTriangulation(eqx.Module):
                 f"points: the triangulation was built for {self.n_points} points, got {points.shape[0]}; "
                 "build it with point_cloud_triangulation(points) for this cloud"
             )
-        return _replayed_lengths_sq(
+        return replayed_lengths_sq(
             points, self.edges, self.face_edges, self.flip_slots, self.face_length_slots, mollify_factor=self.mollify_factor
         )
 
@@ -249,64 +231,6 @@ def local_triangles(points: np.ndarray, neighbors: np.ndarray) -> np.ndarray:
     )
 
 
-def _tufted_cover(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, _CoverTopology, np.ndarray]:
-    """`(edges, face_edges, cover, cover_edge_of)`: the local triangles' distinct edges, and their tufted cover.
-
-    Cover face `f` is triangle `f`, face `nf + f` its reversed copy `(a, c, b)`; around each edge
-    (its triangles sorted by the angle of their third corner about it, as geometry-central) the
-    copy running the edge backwards in one triangle is glued to the copy running it forwards in the
-    next, cyclically. `cover_edge_of[e]` is the distinct edge of cover edge `e`.
-    """
-    nf = faces.shape[0]
-    n = points.shape[0]
-    tails, heads = faces[:, [1, 2, 0]].reshape(-1).astype(np.int64), faces[:, [2, 0, 1]].reshape(-1).astype(np.int64)
-    low, high = np.minimum(tails, heads), np.maximum(tails, heads)
-    keys = low * n + high
-    opposite = faces.reshape(-1)  # the corner opposite each half-edge
-    # The angle of each triangle about its edge, in a basis orthogonal to the edge.
-    edge_vectors = points[high] - points[low]
-    helper = np.where(
-        np.abs(edge_vectors[:, :1]) < 0.9 * np.linalg.norm(edge_vectors, axis=1, keepdims=True), [[1.0, 0, 0]], [[0, 1.0, 0]]
-    )
-    b1 = np.cross(edge_vectors, helper)
-    b2 = np.cross(edge_vectors, b1)
-    out = points[opposite] - points[low]
-    angles = np.arctan2(
-        np.einsum("ij,ij->i", b2, out) * np.linalg.norm(b1, axis=1), np.einsum("ij,ij->i", b1, out) * np.linalg.norm(b2, axis=1)
-    )
-    # Clockwise about the edge (low -> high): the copy running it forwards faces the next triangle that way.
-    order = np.lexsort((-angles, keys))
-    sorted_keys = keys[order]
-    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
-    sizes = np.diff(np.r_[starts, sorted_keys.size])
-    edge_of_sorted = np.repeat(np.arange(starts.size), sizes)
-    edges = np.stack([sorted_keys[starts] // n, sorted_keys[starts] % n], axis=1).astype(np.int32)
-    face_edges = np.empty(3 * nf, dtype=np.int32)
-    face_edges[order] = edge_of_sorted
-    # Corner c = 3 f + k of the triangle; its reversed copy holds that vertex at position (0, 2, 1)[k].
-    front = order
-    back = 3 * nf + 3 * (order // 3) + np.array([0, 2, 1])[order % 3]
-    forwards = tails[order] == low[order]
-    plus = np.where(forwards, front, back)  # the copy running the edge low -> high
-    minus = np.where(forwards, back, front)
-    position = np.arange(order.size)
-    next_in_fan = np.where(position + 1 < np.repeat(starts + sizes, sizes), position + 1, np.repeat(starts, sizes))
-    corners_a, corners_b = minus, plus[next_in_fan]  # cover edge i glues these two corners
-    cover_faces = np.concatenate([faces, faces[:, [0, 2, 1]]]).astype(np.int32)
-    n_cover_edges = order.size
-    cover_face_edges = np.empty(2 * 3 * nf, dtype=np.int32)
-    cover_face_edges[corners_a] = position
-    cover_face_edges[corners_b] = position
-    cover = _CoverTopology(
-        faces=cover_faces,
-        face_edges=cover_face_edges.reshape(-1, 3),
-        edge_faces=np.stack([corners_a // 3, corners_b // 3], axis=1),
-        edge_face_corners=np.stack([corners_a % 3, corners_b % 3], axis=1),
-        edge_face_counts=np.full(n_cover_edges, 2, dtype=np.int32),
-    )
-    return edges, face_edges.reshape(-1, 3), cover, edge_of_sorted.astype(np.int32)
-
-
 def point_cloud_triangulation(
     points: ArrayLike, *, n_neighbors: int = 30, mollify_factor: float = 1e-5
 ) -> PointCloudTriangulation:
@@ -343,24 +267,14 @@ def point_cloud_triangulation(
     faces = local_triangles(host, neighbors)
     if faces.shape[0] == 0:
         raise DDGInputError("points: the cloud has no local triangle (every neighbourhood is degenerate: coincident points?)")
-    edges, face_edges, cover, cover_edge_of = _tufted_cover(host, faces)
-    edge_lengths_sq = np.sum((host[edges[:, 1]] - host[edges[:, 0]]) ** 2, axis=1)
-    edge_lengths_sq = _mollified(edge_lengths_sq, face_edges, float(mollify_factor), np, np.sqrt, np.take)
-    lengths_sq = edge_lengths_sq[cover_edge_of]
-    cover_faces, cover_face_edges, rounds = _flip_to_delaunay(cover, lengths_sq)
-    flip_slots, face_length_slots = _replay_layout(rounds, cover_face_edges, cover_edge_of.size)
-    # Cover edges start at their distinct edge's length; the replay's new diagonals follow the distinct edges.
-    shift = np.int32(cover_edge_of.size - edges.shape[0])
-    remap = lambda slots: np.where(
-        slots < cover_edge_of.size, cover_edge_of[np.minimum(slots, cover_edge_of.size - 1)], slots - shift
-    )
+    cover = tufted_delaunay(host, faces, float(mollify_factor))
     return PointCloudTriangulation(
         neighbors=device_array(neighbors),
-        plan=triangulation_plan(cover_faces.astype(np.int32), n),
-        edges=device_array(edges),
-        face_edges=device_array(np.concatenate([face_edges, face_edges[:, [0, 2, 1]]])),
-        flip_slots=device_array(remap(flip_slots).astype(np.int32)),
-        face_length_slots=device_array(remap(face_length_slots).astype(np.int32)),
+        plan=triangulation_plan(cover.faces, n),
+        edges=device_array(cover.edges),
+        face_edges=device_array(cover.face_edges),
+        flip_slots=device_array(cover.flip_slots),
+        face_length_slots=device_array(cover.face_length_slots),
         n_points=n,
         mollify_factor=float(mollify_factor),
     )
