@@ -7,7 +7,7 @@ from collections.abc import Sequence
 import jax.numpy as jnp
 
 from .._errors import DDGInputError, check_count
-from ..batch._bucket import bucket
+from ..batch import bucket
 from ..fields import TangentBases
 from ._operators import DiffusionOperators
 
