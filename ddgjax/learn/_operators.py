@@ -237,9 +237,8 @@ def diffusion_operators_of_meshes(
     A folder of files: `diffusion_operators_of_meshes(map(ddgjax.io.load_mesh, sorted(folder.glob("*.obj"))), k,
     cache_dir=folder / "operators")`. A host loop; batch the results with `stack_diffusion_operators`.
     """
-    from tqdm.auto import tqdm
+    if progress:  # imported only when asked for: tqdm.auto warns in a Jupyter kernel without ipywidgets
+        from tqdm.auto import tqdm
 
-    return [
-        diffusion_operators(mesh, k, mass=mass, robust=robust, cache_dir=cache_dir, throw=throw)
-        for mesh in tqdm(meshes, disable=not progress, desc="diffusion operators")
-    ]
+        meshes = tqdm(meshes, desc="diffusion operators")
+    return [diffusion_operators(mesh, k, mass=mass, robust=robust, cache_dir=cache_dir, throw=throw) for mesh in meshes]
