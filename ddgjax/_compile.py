@@ -94,7 +94,7 @@ def kernel(
 
     - Static arguments are named (`static_argnames`), never numbered.
     - The argument types are checked before tracing: a first parameter named `mesh` must be a
-      `ddgjax.Mesh`, one named `curve` a `ddgjax.curves.Curve` (`DDGInputError` saying what to call
+      `ddgjax.Mesh`, one named `tet_mesh` a `ddgjax.volume.TetMesh`, one named `curve` a `ddgjax.curves.Curve` (`DDGInputError` saying what to call
       otherwise, rather than an `AttributeError` from inside the trace).
     - Options are keyword-only: too many positional arguments get Python's `TypeError` naming them.
     - Every `Mesh` argument is passed as `mesh.without_topology()`: its static connectivity is not
@@ -211,7 +211,13 @@ def _require_curve(name: str, value):
     return require_curve(name, value)
 
 
-_REQUIRED = {"mesh": _require_mesh, "curve": _require_curve}
+def _require_tet_mesh(name: str, value):
+    from .volume import require_tet_mesh
+
+    return require_tet_mesh(name, value)
+
+
+_REQUIRED = {"mesh": _require_mesh, "curve": _require_curve, "tet_mesh": _require_tet_mesh}
 
 
 def _prepare(argument, requires_orientation: str | None):

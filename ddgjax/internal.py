@@ -13,10 +13,15 @@ _NAMES = {
     # storage plans of vertex-vertex operators (ddgjax.laplacian; the type is ddgjax.laplacian.TriangulationPlan)
     "vertex_plan": "ddgjax.laplacian._plan",
     "dec_plan": "ddgjax.laplacian._plan",
+    "edge_slot_maps": "ddgjax.laplacian._plan",
+    "apply_slot_weights": "ddgjax.laplacian._cotan",
     "resolve_robust": "ddgjax.laplacian._operators",
     # the tufted cover of any triangles, flipped to intrinsic Delaunay on the host, and the JAX replay of flips (ddgjax.laplacian)
     "tufted_delaunay": "ddgjax.laplacian._tufted",
     "replayed_lengths_sq": "ddgjax.laplacian._intrinsic",
+    # vertex positions as a float array, and the surface topology builder (ddgjax.mesh; ddgjax.volume's boundary surface)
+    "as_float_vertices": "ddgjax.mesh._mesh",
+    "build_topology": "ddgjax.mesh._topology",
     # degenerate geometry: faces of (near-)zero area, found once per Mesh object (ddgjax.mesh)
     "degenerate_faces": "ddgjax.mesh._check",
     "require_nondegenerate": "ddgjax.mesh._check",

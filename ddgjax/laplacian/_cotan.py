@@ -23,6 +23,7 @@ corner -> pattern gather is `ddgjax.sparse.gather_sum`, whose transpose is a fix
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -127,13 +128,14 @@ def _vertex_values(mesh: Mesh, u) -> Float[Array, "nv *k"]:
 def _apply_laplacian(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
     """`laplacian_apply` without the input check (see there)."""
     # L_ij on the off-diagonal slots nv.. (row i, column j): the entries `cotan_laplacian` assembles.
-    return _apply_slot_weights(off_diagonal_entries(face_edge_lengths_sq(mesh), plan, face_areas(mesh)), plan, u)
+    return apply_slot_weights(off_diagonal_entries(face_edge_lengths_sq(mesh), plan, face_areas(mesh)), plan, u)
 
 
-def _apply_slot_weights(
-    weights: Float[Array, " n_off"], plan: TriangulationPlan, u: Float[Array, "nv *k"]
-) -> Float[Array, "nv *k"]:
-    """`sum_j W_ij (u_j - u_i)` per vertex `i`, `W` given on the off-diagonal slots of `plan.pattern` (ELL, then the COO tail)."""
+def apply_slot_weights(weights: Float[Array, " n_off"], plan: eqx.Module, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
+    """`sum_j W_ij (u_j - u_i)` per vertex `i`, `W` given on the off-diagonal slots of `plan.pattern` (ELL, then the COO tail).
+
+    `plan` is any plan with a vertex `pattern` and `n_vertices` (a `TriangulationPlan`, `ddgjax.volume`'s
+    tet plan, through `ddgjax.internal`)."""
     n = plan.n_vertices
     shape = jnp.shape(u)
     columns = u.reshape(n, -1)
@@ -253,11 +255,11 @@ def _vertex_gradient(mesh: Mesh, plan: TriangulationPlan, u: Float[Array, "nv *k
         if split < faces.shape[0]:
             weights = jnp.concatenate([weights, _corner_weights(vertices, u, faces[split:])])
     slot_weights = gather_sum(weights.reshape(-1), plan.slot_corners, plan.corner_slots)
-    return _apply_slot_weights(slot_weights, plan, vertices)
+    return apply_slot_weights(slot_weights, plan, vertices)
 
 
 def _corner_weights(vertices: Float[Array, "nv 3"], u: Float[Array, "nv *k"], faces) -> Float[Array, "nf 3"]:
-    """`-2 dE_f / d l_m^2` per face and corner `m` (`_vertex_gradient`): the slot weight `W_ij` of `_apply_slot_weights`.
+    """`-2 dE_f / d l_m^2` per face and corner `m` (`_vertex_gradient`): the slot weight `W_ij` of `apply_slot_weights`.
 
     Coordinate by coordinate on `(nf,)` arrays from one `V[F]` gather, as `face_edge_lengths_sq` and
     `face_areas` compute them (XLA:CPU does not vectorise reductions over a size-3 axis).

@@ -184,22 +184,7 @@ def _build(
         pair_corners: `(n_pairs, m)` the corners opposite the edges of each pair, padded with `3 nf`.
         corner_pairs: `(3 nf,)` the pair of each corner's opposite edge, `-1` for a loop.
     """
-    n_corners = faces.size
-    n_pairs = pairs.shape[0]
-    pattern, source = SparsityPattern.from_edges(pairs, nv)
-    # int32 throughout: every index here is below nv + 2 n_pairs + 3 nf.
-    off_source = source[nv:].astype(np.int32) - np.int32(nv)  # [low->high | high->low | 2 n_pairs: padding]
-    n_off = off_source.size
-    pair_of_slot = np.where(off_source >= n_pairs, off_source - n_pairs, off_source)  # padding -> n_pairs, a row of pads
-    padded = np.concatenate([pair_corners.astype(np.int32), np.full((1, pair_corners.shape[1]), n_corners, np.int32)])
-    slot_corners = np.take(padded, pair_of_slot, axis=0)
-    # The slot of each pair low->high and high->low, then n_off: what a loop corner (pair -1) reads.
-    slot_of_source = np.empty(2 * n_pairs + 1, dtype=np.int32)
-    slot_of_source[off_source] = np.arange(n_off, dtype=np.int32)
-    corner_slots = np.empty((n_corners, 2), dtype=np.int32)
-    for column, first in enumerate((0, n_pairs)):
-        slots = np.append(slot_of_source[first : first + n_pairs], np.int32(n_off))
-        np.take(slots, corner_pairs, out=corner_slots[:, column])
+    pattern, source, slot_corners, corner_slots = edge_slot_maps(nv, pairs, pair_corners, corner_pairs)
     loop_corners = np.flatnonzero(corner_pairs < 0).astype(np.int32)
     face, k = np.divmod(loop_corners, 3)
     loop_vertices = faces[face, (k + 1) % 3].astype(np.int32)
@@ -213,3 +198,32 @@ def _build(
         }
     )
     return TriangulationPlan(faces=device_array(faces, np.int32), pattern=pattern, **arrays)
+
+
+def edge_slot_maps(
+    nv: int, pairs: np.ndarray, pair_corners: np.ndarray, corner_pairs: np.ndarray
+) -> tuple[SparsityPattern, np.ndarray, np.ndarray, np.ndarray]:
+    """`(pattern, source, slot_corners, corner_slots)`: where per-element edge values land in the vertex pattern.
+
+    A "corner" is any per-element edge slot: the corner opposite an edge of a triangle here, a local
+    edge `6 t + k` of a tet in `ddgjax.volume` (shared through `ddgjax.internal`). Arguments as
+    `_build`'s (`pair_corners` padded with the number of corners, `corner_pairs` `-1` for none);
+    the results are `TriangulationPlan`'s fields of the same names, on the host.
+    """
+    n_corners = corner_pairs.size
+    n_pairs = pairs.shape[0]
+    pattern, source = SparsityPattern.from_edges(pairs, nv)
+    # int32 throughout: every index here is below nv + 2 n_pairs + n_corners.
+    off_source = source[nv:].astype(np.int32) - np.int32(nv)  # [low->high | high->low | 2 n_pairs: padding]
+    n_off = off_source.size
+    pair_of_slot = np.where(off_source >= n_pairs, off_source - n_pairs, off_source)  # padding -> n_pairs, a row of pads
+    padded = np.concatenate([pair_corners.astype(np.int32), np.full((1, pair_corners.shape[1]), n_corners, np.int32)])
+    slot_corners = np.take(padded, pair_of_slot, axis=0)
+    # The slot of each pair low->high and high->low, then n_off: what a corner without a pair (-1) reads.
+    slot_of_source = np.empty(2 * n_pairs + 1, dtype=np.int32)
+    slot_of_source[off_source] = np.arange(n_off, dtype=np.int32)
+    corner_slots = np.empty((n_corners, 2), dtype=np.int32)
+    for column, first in enumerate((0, n_pairs)):
+        slots = np.append(slot_of_source[first : first + n_pairs], np.int32(n_off))
+        np.take(slots, corner_pairs, out=corner_slots[:, column])
+    return pattern, source, slot_corners, corner_slots

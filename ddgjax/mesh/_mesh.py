@@ -74,7 +74,7 @@ class Mesh(eqx.Module):
             )
         host_vertices = check_float_array("vertices", vertices, (3,))
         topology = build_topology(validate_faces(faces, host_vertices.shape[0]), host_vertices.shape[0])
-        return cls.from_topology(_as_float_array(vertices), topology)
+        return cls.from_topology(as_float_vertices(vertices), topology)
 
     @classmethod
     def from_topology(cls, vertices: Float[Array, "nv 3"], topology: MeshTopology) -> "Mesh":
@@ -107,9 +107,9 @@ class Mesh(eqx.Module):
             raise DDGInputError(f"vertices: expected shape ({self.n_vertices}, 3), got {np.shape(vertices)}")
         if is_traced(vertices):
             check_float_shape("vertices", vertices, (3,))
-            return eqx.tree_at(lambda mesh: mesh.vertices, self, _as_float_array(vertices))
+            return eqx.tree_at(lambda mesh: mesh.vertices, self, as_float_vertices(vertices))
         check_float_array("vertices", vertices, (3,))
-        return eqx.tree_at(lambda mesh: mesh.vertices, self, _as_float_array(vertices))
+        return eqx.tree_at(lambda mesh: mesh.vertices, self, as_float_vertices(vertices))
 
     @property
     def n_vertices(self) -> int:
@@ -156,7 +156,8 @@ def require_mesh(name: str, value) -> Mesh:
     raise DDGInputError(f"{name}: expected a ddgjax Mesh, got {type(value).__name__}; {hint}")
 
 
-def _as_float_array(vertices) -> Float[Array, "nv 3"]:
+def as_float_vertices(vertices) -> Float[Array, "nv 3"]:
+    """Vertex positions as a float JAX array (integers become JAX's default float), moved without an eager program."""
     if not isinstance(vertices, jax.Array) and not np.issubdtype(np.asarray(vertices).dtype, np.floating):
         vertices = np.asarray(vertices, dtype=float)  # converted on the host: nothing compiled per size
     array = device_array(vertices)

@@ -1,0 +1,40 @@
+"""Tetrahedral meshes: the volume counterpart of `ddgjax.mesh`, `ddgjax.laplacian` and `ddgjax.dec`.
+
+- `TetMesh`, `TetTopology`: vertex positions (differentiable) plus tetrahedral connectivity built
+  once in NumPy; `tet_mesh.boundary_mesh()` is the boundary surface as a `ddgjax.Mesh`.
+- geometry: `tet_signed_volumes`, `tet_volumes`, `tet_edge_lengths_sq`, `edge_lengths`,
+  `triangle_areas`, `dihedral_angles`, `tet_cotan_weights`, `tet_hat_gradients`, and the intrinsic
+  core from the six squared edge lengths (`*_from_lengths_sq`).
+- operators: `cotan_laplacian` (`== -igl.cotmatrix(V, T)`), `mass_matrix(mass=)` (libigl's three),
+  `laplacian_apply`, `dirichlet_energy`, `vertex_dual_volumes`.
+
+Conventions (docs/conventions.md): local edge order `TET_EDGES` (libigl's), triangle `k` of a tet
+opposite vertex `k` and oriented outward (`TET_TRIANGLES`), tets positively oriented
+(`det(b - a, c - a, d - a) > 0`), global edges low -> high, global triangles sorted triples.
+"""
+
+from ._dual import TET_DUALS as TET_DUALS
+from ._dual import vertex_dual_volumes as vertex_dual_volumes
+from ._geometry import dihedral_angles as dihedral_angles
+from ._geometry import dihedral_angles_from_lengths_sq as dihedral_angles_from_lengths_sq
+from ._geometry import edge_lengths as edge_lengths
+from ._geometry import tet_corner_positions as tet_corner_positions
+from ._geometry import tet_cotan_weights as tet_cotan_weights
+from ._geometry import tet_cotan_weights_from_lengths_sq as tet_cotan_weights_from_lengths_sq
+from ._geometry import tet_edge_lengths_sq as tet_edge_lengths_sq
+from ._geometry import tet_hat_gradients as tet_hat_gradients
+from ._geometry import tet_signed_volumes as tet_signed_volumes
+from ._geometry import tet_volumes as tet_volumes
+from ._geometry import tet_volumes_from_lengths_sq as tet_volumes_from_lengths_sq
+from ._geometry import triangle_areas as triangle_areas
+from ._laplacian import TetPlan as TetPlan
+from ._laplacian import cotan_laplacian as cotan_laplacian
+from ._laplacian import dirichlet_energy as dirichlet_energy
+from ._laplacian import laplacian_apply as laplacian_apply
+from ._laplacian import mass_matrix as mass_matrix
+from ._laplacian import tet_plan as tet_plan
+from ._tet_mesh import TetMesh as TetMesh
+from ._tet_mesh import require_tet_mesh as require_tet_mesh
+from ._topology import TET_EDGES as TET_EDGES
+from ._topology import TET_TRIANGLES as TET_TRIANGLES
+from ._topology import TetTopology as TetTopology
