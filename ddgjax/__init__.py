@@ -11,7 +11,8 @@ decomposition, mean curvature flow, energies), `ddgjax.spectral` (Laplacian eige
 deformation from handles), `ddgjax.matching` (shape correspondence by functional maps), `ddgjax.fluids`
 (incompressible flow on surfaces), `ddgjax.pointcloud` (Laplacians and geodesics of point clouds), `ddgjax.graph`
 (graph Laplacians), `ddgjax.batch` (padded batches of meshes of different sizes), `ddgjax.learn` (operators for
-learning on meshes, a DiffusionNet), `ddgjax.sharding` (several devices), `ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
+learning on meshes, a DiffusionNet), `ddgjax.volume` (tetrahedral meshes: their
+Laplacian, mass matrices and DEC), `ddgjax.sharding` (several devices), `ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
 their values, outcomes) is the table in docs/conventions.md.
 
 Failures that depend on values inside `jit` (a flow that self-intersects, a solve that does not
@@ -58,6 +59,7 @@ _SUBPACKAGES = (
     "solve",
     "sparse",
     "spectral",
+    "volume",
 )
 _NAMES = {
     "Curve": "curves",
@@ -96,6 +98,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import solve as solve
     from . import sparse as sparse
     from . import spectral as spectral
+    from . import volume as volume
     from ._compile import cpu_compiler_options as cpu_compiler_options
     from ._options import BOUNDARY_CONDITIONS as BOUNDARY_CONDITIONS
     from ._options import DUAL_CELLS as DUAL_CELLS
