@@ -139,3 +139,33 @@ def test_the_mathematics_imports_no_command_line_files_or_figures():
     for path in modules:
         bad = {name for name in _imported_modules(path) if name.startswith(FORBIDDEN)}
         assert not bad, f"{path.relative_to(PACKAGE)} imports {sorted(bad)}"
+
+
+# ---------------------------------------------------------------- ddgjax info on a tet mesh
+
+
+def test_info_reads_a_tet_mesh(tmp_path, capsys):
+    from ddgjax.volume import save_tet_mesh, tet_ball
+
+    path = tmp_path / "ball.msh"
+    save_tet_mesh(path, tet_ball(2))
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert f"tet mesh: {path}" in out and "tets 160" in out and "Euler characteristic 1  components 1" in out
+    assert "boundary: 80 triangles, 42 vertices, 1 components" in out and "degenerate tets" in out
+    # The boundary surface encloses what the tets fill (outward normals), up to rounding.
+    assert abs(float(out.split("sum of tet volumes minus it:")[1].split(")")[0])) < 1e-12
+    assert "dihedral angle (degrees)" in out
+
+
+def test_info_on_a_tet_mesh_refuses_what_it_cannot_do(tmp_path, capsys):
+    from ddgjax.volume import save_tet_mesh, tet_box
+
+    path = tmp_path / "box.vtu"
+    save_tet_mesh(path, tet_box(1))
+    assert main(["info", str(path), "--output", str(tmp_path / "figure.png")]) == 2
+    assert "--output: figures are drawn for triangle meshes only" in capsys.readouterr().err
+    (tmp_path / "points.xyz").write_text("0 0 0\n")
+    assert main(["info", str(tmp_path / "points.xyz")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown tet mesh format '.xyz'" in err and ".msh" in err and ".obj" in err

@@ -185,3 +185,25 @@ def test_bad_arguments_name_themselves(tet_mesh, without_type_checker):
 
     with pytest.raises(DDGInputError, match="triangle Mesh"):
         volume.cotan_laplacian(icosphere(1))
+
+
+def test_plane_section_restricts_a_linear_function_exactly(tet_mesh):
+    """The cut of the jittered cube at z = 0.1: every section vertex on the plane, a linear function restricted
+    exactly, the cut's area that of the (convex) Delaunay solid's convex section, one oriented sheet along the normal."""
+    from ddgjax.mesh import check_mesh, face_normals, total_area
+
+    coefficients = np.array([1.0, -2.0, 3.0])
+    u = np.asarray(tet_mesh.vertices) @ coefficients
+    section, values = volume.plane_section(tet_mesh, u, point=(0.0, 0.0, 0.1))
+    points = np.asarray(section.vertices)
+    np.testing.assert_allclose(points[:, 2], 0.1, atol=1e-15)
+    np.testing.assert_allclose(values, points @ coefficients, atol=1e-13)
+    # Delaunay tets fill the convex hull, whose section is the convex hull of the section's points.
+    assert float(total_area(section)) == pytest.approx(scipy.spatial.ConvexHull(points[:, :2]).volume, rel=1e-12)
+    report = check_mesh(section)
+    assert report.inconsistent_edges.size == 0 and report.n_components == 1
+    assert (np.asarray(face_normals(section))[:, 2] > 0).mean() > 0.99  # zero-area triangles have no normal
+    with pytest.raises(DDGInputError, match="plane"):
+        volume.plane_section(tet_mesh, u, point=(0.0, 0.0, 5.0))
+    with pytest.raises(DDGInputError, match="normal"):
+        volume.plane_section(tet_mesh, u, normal=(0.0, 0.0, 0.0))

@@ -1,5 +1,9 @@
 """`ddgjax info [MESH]`: topology report, area, volume, Gauss-Bonnet check and curvature statistics.
 
+A tetrahedral mesh file (gmsh `.msh`, `.vtk`, `.vtu`, medit `.mesh` / `.meshb`, TetGen `.ele` /
+`.node`: `ddgjax.volume.load_tet_mesh`) gets the tet report instead: `check_tet_mesh`, the volume, the
+boundary surface's area and enclosed volume, and the spread of tet volumes and dihedral angles.
+
 With `--output FILE` it also draws the pointwise Gaussian curvature and, on an oriented mesh, the mean
 curvature on the mesh (`ddgjax.plot.plot_mesh_function`, diverging colours centred on 0).
 """
@@ -7,6 +11,7 @@ curvature on the mesh (`ddgjax.plot.plot_mesh_function`, diverging colours centr
 from __future__ import annotations
 
 import argparse
+import pathlib
 import sys
 
 import jax
@@ -28,9 +33,19 @@ from ..mesh import (
     vertex_pointwise_mean_curvatures,
     vertex_principal_curvatures,
 )
+from ..volume import (
+    TetMesh,
+    TetMeshReport,
+    check_tet_mesh,
+    dihedral_angles,
+    load_tet_mesh,
+    tet_signed_volumes,
+)
 from ._common import write_figure
 
 _DEFAULT_SHAPE = "built-in torus(major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16)"
+#: Triangle mesh files (`ddgjax.load_mesh`); any other file is read as a tet mesh (`ddgjax.volume.load_tet_mesh`).
+_SURFACE_SUFFIXES = (".obj", ".off", ".ply", ".stl")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,7 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "mesh",
         nargs="?",
         default=None,
-        help=f"mesh file (.obj, .off, .ply, .stl); default: the {_DEFAULT_SHAPE}",
+        help=f"mesh file: triangles (.obj, .off, .ply, .stl) or tets (.msh, .vtk, .vtu, .mesh, .meshb, .ele, .node); "
+        f"default: the {_DEFAULT_SHAPE}",
     )
     parser.add_argument(
         "--area-tol",
@@ -47,7 +63,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1e-12,
         help="relative tolerance for zero-area faces: area <= tol * (longest edge)^2 (default 1e-12)",
     )
-    parser.add_argument("--output", default=None, help="also draw the Gaussian and mean curvature to this figure file")
+    parser.add_argument(
+        "--volume-tol",
+        type=float,
+        default=1e-12,
+        help="tet meshes: relative tolerance for degenerate tets: |volume| <= tol * (longest edge)^3 (default 1e-12)",
+    )
+    parser.add_argument(
+        "--output", default=None, help="also draw the Gaussian and mean curvature to this figure file (triangle meshes)"
+    )
     parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the axis that points up in the figure")
     parser.set_defaults(run=run_info)
 
@@ -74,6 +98,8 @@ def _statistics(mesh: Mesh, *, oriented: bool) -> dict:
 
 def run_info(args: argparse.Namespace) -> int:
     """Print the report of `args.mesh` (or the default shape); exit code 2 with a message on bad input."""
+    if args.mesh is not None and pathlib.Path(args.mesh).suffix.lower() not in _SURFACE_SUFFIXES:
+        return _run_tet_info(args)
     try:
         if args.mesh is None:
             name, mesh = _DEFAULT_SHAPE, torus(major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16, dtype=jnp.float64)
@@ -159,4 +185,48 @@ def format_info(name: str, report: MeshReport, stats: dict) -> str:
             "  mean curvature H, principal curvatures k1, k2: undefined (their sign needs consistently "
             f"oriented faces; this mesh has {problem})"
         )
+    return "\n".join(lines)
+
+
+@kernel
+def _tet_statistics(tet_mesh: TetMesh, boundary: Mesh | None) -> dict:
+    """The numbers of the tet report, in one compiled call (`boundary`: the boundary surface, `None` when there is none)."""
+    stats = {"volumes": tet_signed_volumes(tet_mesh), "dihedral": dihedral_angles(tet_mesh)}
+    if boundary is not None:
+        stats["area"] = total_area(boundary)
+        stats["enclosed"] = enclosed_volume(boundary)
+    return stats
+
+
+def _run_tet_info(args: argparse.Namespace) -> int:
+    """`ddgjax info` on a tet mesh file: the report of `check_tet_mesh` and the statistics of `format_tet_info`."""
+    try:
+        if args.output is not None:
+            raise DDGInputError(f"--output: figures are drawn for triangle meshes only; {args.mesh!r} is read as a tet mesh")
+        tet_mesh = load_tet_mesh(args.mesh, dtype=jnp.float64)
+        report = check_tet_mesh(tet_mesh, volume_tol=args.volume_tol)
+    except (OSError, DDGInputError) as error:
+        surfaces = " (triangle meshes: .obj, .off, .ply, .stl)" if "unknown tet mesh format" in str(error) else ""
+        print(f"ddgjax info: error: {error}{surfaces}", file=sys.stderr)
+        return 2
+    boundary = tet_mesh.boundary_mesh() if report.n_boundary_triangles else None
+    stats = jax.tree_util.tree_map(np.asarray, _tet_statistics(tet_mesh, boundary))
+    print(format_tet_info(args.mesh, report, stats))
+    return 0
+
+
+def format_tet_info(name: str, report: TetMeshReport, stats: dict) -> str:
+    """The text of `ddgjax info` on a tet mesh from a `TetMeshReport` and the computed statistics."""
+    lines = [f"tet mesh: {name}", str(report), ""]
+    if "area" in stats:
+        enclosed = float(stats["enclosed"])
+        lines += [
+            f"boundary surface: area {float(stats['area']):.10g}, enclosed volume {enclosed:.10g} "
+            f"(sum of tet volumes minus it: {report.volume - enclosed:.3e})",
+            "",
+        ]
+    degrees = np.degrees(stats["dihedral"])
+    lines.append("per tet                                   min          median       max")
+    for label, values in (("signed volume", stats["volumes"]), ("dihedral angle (degrees)", degrees)):
+        lines.append(f"  {label:<36s} {np.min(values):>12.5g} {np.median(values):>12.5g} {np.max(values):>12.5g}")
     return "\n".join(lines)
