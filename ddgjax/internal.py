@@ -22,6 +22,8 @@ _NAMES = {
     # vertex positions as a float array, and the surface topology builder (ddgjax.mesh; ddgjax.volume's boundary surface)
     "as_float_vertices": "ddgjax.mesh._mesh",
     "build_topology": "ddgjax.mesh._topology",
+    # degenerate tets refused by the problem layer on a TetMesh (ddgjax.volume)
+    "require_nondegenerate_tets": "ddgjax.volume._check",
     # degenerate geometry: faces of (near-)zero area, found once per Mesh object (ddgjax.mesh)
     "degenerate_faces": "ddgjax.mesh._check",
     "require_nondegenerate": "ddgjax.mesh._check",
@@ -36,7 +38,8 @@ _NAMES = {
     "auto_method": "ddgjax.solve._linear",
     "preconditioned_cg": "ddgjax.solve._linear",
     "linear_solution": "ddgjax.solve._linear",
-    # sparse patterns (ddgjax.sparse)
+    # sparse patterns (ddgjax.sparse); DEC's signed incidence matrices (ddgjax.dec, ddgjax.volume)
+    "incidence_matrix": "ddgjax.sparse._matrix",
     "stable_order": "ddgjax.sparse._pattern",
 }
 

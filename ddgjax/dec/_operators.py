@@ -4,29 +4,17 @@ Both are `SparseMatrix`es with constant +-1 values whose patterns are read strai
 integer leaves (`mesh.edges`, `mesh.face_edges`), already in CSR order: the rows of `d0` are the
 edges, whose columns `tail < head` are sorted by construction; the rows of `d1` are the faces, whose
 three edge columns are put in increasing order by a comparison rank (three distinct integers per row),
-not by a sort. Nothing is rebuilt on the host per call and nothing large is baked into a jit trace,
+not by a sort (`incidence_matrix`, shared with `ddgjax.volume`). Nothing is rebuilt on the host per call and nothing large is baked into a jit trace,
 so these stay cheap to trace and compile on meshes with millions of faces.
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
 
+from ..internal import incidence_matrix
 from ..mesh import Mesh, require_mesh
-from ..sparse import SparseMatrix, SparsityPattern
-
-
-def _row_blocks(cols: Int[Array, "n k"], values: Float[Array, "n k"], n_cols: int) -> SparseMatrix:
-    """Matrix whose row `i` holds exactly `k` entries `values[i]` at sorted distinct columns `cols[i]`."""
-    n_rows, per_row = cols.shape
-    pattern = SparsityPattern(
-        rows=jnp.repeat(jnp.arange(n_rows, dtype=cols.dtype), per_row),
-        cols=cols.reshape(-1),
-        indptr=jnp.arange(0, n_rows * per_row + 1, per_row, dtype=cols.dtype),
-        shape=(n_rows, n_cols),
-    )
-    return SparseMatrix(values=values.reshape(-1), pattern=pattern)
+from ..sparse import SparseMatrix
 
 
 def d0(mesh: Mesh) -> SparseMatrix:
@@ -41,7 +29,7 @@ def d0(mesh: Mesh) -> SparseMatrix:
     """
     mesh = require_mesh("mesh", mesh)
     values = jnp.broadcast_to(jnp.asarray([-1.0, 1.0], mesh.vertices.dtype), mesh.edges.shape)
-    return _row_blocks(mesh.edges, values, mesh.n_vertices)
+    return incidence_matrix(mesh.edges, values, mesh.n_vertices)
 
 
 def d1(mesh: Mesh) -> SparseMatrix:
@@ -56,12 +44,4 @@ def d1(mesh: Mesh) -> SparseMatrix:
     """
     mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.dec.d1")
-    edges = mesh.face_edges
-    signs = mesh.face_edge_signs.astype(mesh.vertices.dtype)
-    # Rank of each of the three distinct edge indices within its face; the sorted row is the entry of
-    # each rank (a select, no sort inside jit).
-    rank = jnp.sum(edges[:, None, :] < edges[:, :, None], axis=-1)
-    which = rank[:, None, :] == jnp.arange(3)[None, :, None]
-    sorted_edges = jnp.sum(jnp.where(which, edges[:, None, :], 0), axis=-1).astype(edges.dtype)
-    sorted_signs = jnp.sum(jnp.where(which, signs[:, None, :], 0), axis=-1)
-    return _row_blocks(sorted_edges, sorted_signs, mesh.n_edges)
+    return incidence_matrix(mesh.face_edges, mesh.face_edge_signs.astype(mesh.vertices.dtype), mesh.n_edges)

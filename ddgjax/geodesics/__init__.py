@@ -1,5 +1,8 @@
 """The geodesic toolkit on triangle meshes: distance, transport, log map, centroids, signed distance, differentiable.
 
+`heat_distance` and `heat_distance_solver` take a tetrahedral `ddgjax.volume.TetMesh` too (distance in a
+solid from vertex sources, the heat method in 3-D as in Crane et al. 2013).
+
 - `heat_distance(mesh, sources, *, t_coef=1.0, boundary="average", solver="auto", throw=True, ...)`:
   the heat method (Crane, Weischedel & Wardetzky 2013): a short heat flow from the sources, its
   normalised gradient, a Poisson solve. Works on every triangle mesh (strips, single triangles, obtuse

@@ -25,6 +25,13 @@ vertices all lie on the boundary (a strip, a single triangle) the Dirichlet heat
 held at `u = 0` and `phi = 0` (they belong to no face). The result approximates the geodesic
 distance to first order in `h` (the smoothing by `t ~ h^2` is part of the method).
 
+In a solid (`ddgjax.volume.TetMesh`, the paper's volumetric case) the same steps run on tets: `L`
+and `M` of `ddgjax.volume`, `X` per tet from the hat-function gradients (`tet_hat_gradients`), the
+integrated divergence `-sum_t V_t grad phi_i . X_t` (so `div grad u = -L u`, as on faces), `h` the
+mean edge length of the tet mesh and the boundary the boundary surface's vertices; the distance
+approximates the Euclidean one in a convex solid (the distance inside the solid in general). Sources
+are vertices there (no points inside tets).
+
 `HeatDistanceSolver` keeps the factorisations of `M + t L` (and of its Dirichlet block) and of the
 pinned `L`, and the component of each vertex, so each query is three sparse solves and two sweeps over the faces;
 `heat_distance(mesh, sources)` builds one and queries it, differentiably in the vertex positions
@@ -49,13 +56,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .. import volume
 from .._compile import at_top_level, kernel
 from .._errors import DDGInputError, check_choice, first_indices
 from .._indexing import take_rows
 from .._numerics import safe_norm
-from .._options import BOUNDARY_CONDITIONS, check_mass, check_solver
+from .._options import BOUNDARY_CONDITIONS, check_mass, check_solver, check_tet_robust
 from .._results import RESULTS, Solution, first_failure, outcome
-from ..internal import DirichletData, resolve_robust
+from ..internal import DirichletData, require_nondegenerate_tets, resolve_robust
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import (
     Mesh,
@@ -64,11 +72,11 @@ from ..mesh import (
     face_areas,
     face_hat_gradients,
     require_mesh,
-    scatter_corners_to_vertices,
 )
 from ..solve import Factorization, LinearSolution, factorize
 from ..solve._linear import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
+from ..volume import TetMesh, TetTopology
 
 HEAT_BOUNDARY_CONDITIONS = ("average", *BOUNDARY_CONDITIONS)
 """`boundary=` of the heat method: `BOUNDARY_CONDITIONS` and their mean, `"average"` (module docstring)."""
@@ -79,7 +87,7 @@ class HeatMethodSteps(eqx.Module):
 
     Attributes:
         heat: `(nv,)` `u`, the heat after time `t`.
-        field: `(nf, 3)` `X = -grad u / |grad u|` per face.
+        field: `(nf, 3)` `X = -grad u / |grad u|` per face (`(nt, 3)` per tet on a `TetMesh`).
         divergence: `(nv,)` the integrated divergence of `X` (`ddgjax.dec.divergence`; the DDG
             exercises' `div` is its negative).
         distance: `(nv,)` `phi` shifted per connected component (module docstring, step 4): `>= 0`,
@@ -87,7 +95,7 @@ class HeatMethodSteps(eqx.Module):
     """
 
     heat: Float[Array, " nv"]
-    field: Float[Array, "nf 3"]
+    field: Float[Array, "nc 3"]
     divergence: Float[Array, " nv"]
     distance: Float[Array, " nv"]
 
@@ -99,7 +107,7 @@ class HeatDistanceSolver(eqx.Module):
     `vmap` over sources of one shape).
 
     Attributes:
-        mesh: the mesh.
+        mesh: the mesh (a triangle mesh or a `TetMesh`).
         t: the heat flow's time `t_coef * h^2`.
         heat: factorisation of `M + t L` for the Neumann heat flow (of its free-free block, with the
             unreferenced vertices held at 0, when there are any); `None` with `boundary="dirichlet"`
@@ -116,9 +124,10 @@ class HeatDistanceSolver(eqx.Module):
         area_gradients: `(nf, 3, 3)` each face's area times the gradient of each corner's hat
             function, `A_f grad phi_k` (`ddgjax.mesh.face_hat_gradients`): a query's two sweeps over
             the faces, the field `X` and its divergence `-sum_f A_f grad phi_i . X_f`, read only these.
+            On a `TetMesh` `(nt, 4, 3)`, `V_t grad phi_k` (`ddgjax.volume.tet_hat_gradients`).
     """
 
-    mesh: Mesh
+    mesh: Mesh | TetMesh
     t: Float[Array, ""]
     heat: Factorization | None
     heat_plan: DirichletPlan | None
@@ -127,7 +136,7 @@ class HeatDistanceSolver(eqx.Module):
     poisson: Factorization
     poisson_plan: DirichletPlan
     components: Int[Array, " nv"]
-    area_gradients: Float[Array, "nf 3 3"]
+    area_gradients: Float[Array, "nc k 3"]
 
     @property
     def n_pinned(self) -> int:
@@ -140,7 +149,7 @@ class HeatDistanceSolver(eqx.Module):
         Args:
             sources: vertex indices, `(m,)` integers (or one integer); or points inside faces, a pair
                 `(faces (m,), barycentric (m, 3))` (the barycentric coordinates of each point in its
-                face, in the face's vertex order, summing to 1).
+                face, in the face's vertex order, summing to 1; triangle meshes only).
             throw: raise when a solve fails (default), or return a `ddgjax.Solution` (module docstring).
         """
         return self._run(sources, throw, lambda steps: steps.distance)
@@ -176,7 +185,7 @@ class _Factors(eqx.Module):
     poisson: Factorization
     poisson_plan: DirichletPlan
     components: Int[Array, " nv"]
-    area_gradients: Float[Array, "nf 3 3"]
+    area_gradients: Float[Array, "nc k 3"]
 
 
 class _Plans(eqx.Module):
@@ -191,10 +200,10 @@ class _Plans(eqx.Module):
     neumann: bool = eqx.field(static=True)
 
 
-_PLANS: "weakref.WeakKeyDictionary[MeshTopology, dict]" = weakref.WeakKeyDictionary()
+_PLANS: "weakref.WeakKeyDictionary[MeshTopology | TetTopology, dict]" = weakref.WeakKeyDictionary()
 
 
-def _plans(mesh: Mesh, boundary: str, pattern: SparsityPattern, cached: bool) -> _Plans:
+def _plans(mesh: Mesh | TetMesh, boundary: str, pattern: SparsityPattern, cached: bool) -> _Plans:
     """`_Plans` on the Laplacian's `pattern`: the mesh's own (`cached` per connectivity) or its intrinsic
     triangulation's (the same vertices and components, so the mesh's pins serve it too)."""
     if not cached:
@@ -205,7 +214,7 @@ def _plans(mesh: Mesh, boundary: str, pattern: SparsityPattern, cached: bool) ->
     return cache[boundary]
 
 
-def _build_plans(mesh: Mesh, boundary: str, pattern: SparsityPattern) -> _Plans:
+def _build_plans(mesh: Mesh | TetMesh, boundary: str, pattern: SparsityPattern) -> _Plans:
     topology = mesh.topology
     unreferenced = topology.unreferenced_vertices
     # The Dirichlet heat flow holds u = 0 on the boundary and on the vertices of no face.
@@ -237,20 +246,26 @@ def check_t_coef(t_coef) -> float:
     return float(t_coef)
 
 
-def _operators(mesh: Mesh, t_coef, mass: str, boundary: str, robust, solver: str):
+def _operators(mesh: Mesh | TetMesh, t_coef, mass: str, boundary: str, robust, solver: str):
     """Checked options, then `(L, M, plans, t_coef)`: what the kernels below take (host work and plans here)."""
     check_choice("boundary", boundary, HEAT_BOUNDARY_CONDITIONS)
     check_mass(mass)
     check_solver(solver)
     check_t_coef(t_coef)
-    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="heat_distance")
-    L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
+    if isinstance(mesh, TetMesh):
+        check_tet_robust(robust)
+        require_nondegenerate_tets(mesh)
+        triangulation = None
+        L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
+    else:
+        triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="heat_distance")
+        L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
     plans = _plans(mesh, boundary, L.pattern, cached=triangulation is None)
     return L, M, plans, jnp.asarray(float(t_coef), L.values.dtype)
 
 
 def heat_distance_solver(
-    mesh: Mesh,
+    mesh: Mesh | TetMesh,
     *,
     t_coef: float = 1.0,
     mass: str = "voronoi",
@@ -261,7 +276,8 @@ def heat_distance_solver(
     """Factor the heat method's systems for `mesh` once (module docstring); query with `.distance(sources)`.
 
     Args:
-        mesh: a triangle mesh (several components, boundaries, any genus, unreferenced vertices).
+        mesh: a triangle mesh (several components, boundaries, any genus, unreferenced vertices), or a
+            `ddgjax.volume.TetMesh` (module docstring).
         t_coef: the heat flow's time in units of the squared mean edge length (1 in the paper).
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         boundary: the heat flow's boundary condition on a mesh with boundary: `"average"` (default:
@@ -269,7 +285,8 @@ def heat_distance_solver(
             on a mesh with no interior vertex, and its queries refuse sources on the boundary).
         robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
             `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`): accurate on
-            meshes with obtuse triangles, as potpourri3d's default `use_robust=True`.
+            meshes with obtuse triangles, as potpourri3d's default `use_robust=True`. Triangle meshes
+            only (a `TetMesh` takes `False`).
         solver: the backend of the kept factorisations (`ddgjax.LINEAR_SOLVERS`, `ddgjax.solve.factorize`).
 
     Returns:
@@ -278,7 +295,7 @@ def heat_distance_solver(
     potpourri3d: `MeshHeatMethodDistanceSolver(V, F, t_coef=1.0)` (defaults compared in `heat_distance`);
     libigl: `igl.heat_geodesics_precompute(V, F, t, data)`.
     """
-    mesh = require_mesh("mesh", mesh)
+    mesh = _require_mesh(mesh)
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
         t, factors = _factor(mesh, L, M, plans, t_coef, solver=solver)
@@ -299,7 +316,7 @@ def heat_distance_solver(
 
 
 def heat_distance(
-    mesh: Mesh,
+    mesh: Mesh | TetMesh,
     sources,
     *,
     t_coef: float = 1.0,
@@ -339,9 +356,9 @@ def heat_distance(
     `heat_distance_solver(mesh, ...).distance(sources)`.
 
     Args:
-        mesh: a triangle mesh.
+        mesh: a triangle mesh, or a `ddgjax.volume.TetMesh` (distance inside the solid, module docstring).
         sources: vertex indices, `(m,)` integers (or one integer); or points inside faces, a pair
-            `(faces (m,), barycentric (m, 3))`.
+            `(faces (m,), barycentric (m, 3))` (triangle meshes only).
         t_coef: the heat flow's time in units of `h^2` (default 1, the paper's).
         mass: `M`, one of `ddgjax.MASS_MATRICES` (default `"voronoi"`).
         boundary: `"average"` (default), `"neumann"` or `"dirichlet"` (the heat flow's boundary condition).
@@ -376,7 +393,7 @@ def heat_distance(
     Reference: K. Crane, C. Weischedel, M. Wardetzky, "Geodesics in heat" (2013), sections 3.1-3.2 and
     (boundary conditions) 3.4; "The heat method for distance computation" (2017).
     """
-    mesh = require_mesh("mesh", mesh)
+    mesh = _require_mesh(mesh)
     _source_points(mesh, sources)  # refuse malformed sources before building the Laplacian
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
     corners, weights = _sources(mesh, sources, dirichlet=not plans.neumann)
@@ -384,9 +401,26 @@ def heat_distance(
     return outcome(distance, result, throw, stats)
 
 
-def _factorizations(mesh: Mesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, solver: str):
+def _require_mesh(mesh) -> Mesh | TetMesh:
+    return mesh if isinstance(mesh, TetMesh) else require_mesh("mesh", mesh)
+
+
+def _cells(mesh: Mesh | TetMesh) -> Int[Array, "nc k"]:
+    """The cells the heat method's field lives on: the faces of a triangle mesh, the tets of a tet mesh."""
+    return mesh.tets if isinstance(mesh, TetMesh) else mesh.faces
+
+
+def _measure_gradients(mesh: Mesh | TetMesh) -> Float[Array, "nc k 3"]:
+    """`A_f grad phi_k` per face and corner, or `V_t grad phi_k` per tet and vertex (`HeatDistanceSolver.area_gradients`)."""
+    if isinstance(mesh, TetMesh):
+        return volume.tet_volumes(mesh)[:, None, None] * volume.tet_hat_gradients(mesh)
+    return face_areas(mesh)[:, None, None] * face_hat_gradients(mesh)
+
+
+def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, solver: str):
     """`(t, _Factors)`: the factorisations of `M + t L`, its Dirichlet block and the pinned `L` (module docstring)."""
-    t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
+    lengths = volume.edge_lengths(mesh) if isinstance(mesh, TetMesh) else edge_lengths(mesh)
+    t = t_coef * jnp.mean(lengths) ** 2
     heat_matrix = M + t * L
     return t, _Factors(
         heat=_factor_held(heat_matrix, plans.heat, solver) if plans.neumann else None,
@@ -396,7 +430,7 @@ def _factorizations(mesh: Mesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans,
         poisson=_factor_held(L, plans.poisson, solver),
         poisson_plan=plans.poisson,
         components=plans.components,
-        area_gradients=face_areas(mesh)[:, None, None] * face_hat_gradients(mesh),
+        area_gradients=_measure_gradients(mesh),
     )
 
 
@@ -414,17 +448,19 @@ def _solve_held(factor: Factorization, plan: DirichletPlan | None, rhs) -> tuple
     return solution, plan.join(solution.value, jnp.zeros(plan.fixed.shape[0], rhs.dtype))
 
 
-def _heat_method(mesh: Mesh, factors: _Factors, corners, weights) -> tuple[HeatMethodSteps, RESULTS, dict]:
+def _heat_method(mesh: Mesh | TetMesh, factors: _Factors, corners, weights) -> tuple[HeatMethodSteps, RESULTS, dict]:
     """The four steps (module docstring) with kept factorisations: `(steps, result, stats)`."""
     delta = jnp.zeros(mesh.n_vertices, weights.dtype).at[corners.ravel()].add(weights.ravel())
     flows = ((factors.heat, factors.heat_plan), (factors.heat_dirichlet, factors.heat_dirichlet_plan))
     heats = [_solve_held(factor, plan, delta) for factor, plan in flows if factor is not None]
     u = sum(heat for _, heat in heats) / len(heats)  # the Neumann and / or the Dirichlet heat flow; their mean
     # `A_f grad u` has the direction of `grad u` (`ddgjax.dec.gradient`); the divergence is `ddgjax.dec.divergence`'s weak form.
-    g = jnp.einsum("fk,fkd->fd", take_rows(u, mesh.faces), factors.area_gradients)
+    cells = _cells(mesh)
+    g = jnp.einsum("fk,fkd->fd", take_rows(u, cells), factors.area_gradients)
     norm = safe_norm(g, keepdims=True)
     field = jnp.where(norm > 0, -g / jnp.where(norm > 0, norm, 1.0), 0.0)
-    div = -scatter_corners_to_vertices(mesh, jnp.einsum("fkd,fd->fk", factors.area_gradients, field))
+    corner_divergence = jnp.einsum("fkd,fd->fk", factors.area_gradients, field)
+    div = -jax.ops.segment_sum(corner_divergence.reshape(-1), cells.reshape(-1), num_segments=mesh.n_vertices)
     poisson, phi = _solve_held(factors.poisson, factors.poisson_plan, -div)
     steps = HeatMethodSteps(heat=u, field=field, divergence=div, distance=_shift(mesh, phi, factors.components, corners, weights))
     solutions = [solution for solution, _ in heats] + [poisson]
@@ -435,7 +471,7 @@ def _heat_method(mesh: Mesh, factors: _Factors, corners, weights) -> tuple[HeatM
     return steps, first_failure(*(solution.result for solution in solutions)), stats
 
 
-def _shift(mesh: Mesh, phi, components, corners, weights) -> Float[Array, " nv"]:
+def _shift(mesh: Mesh | TetMesh, phi, components, corners, weights) -> Float[Array, " nv"]:
     """Step 4 (module docstring): each component holding a source shifted down to its minimum or to its
     sources' level, whichever is lower (so never below 0), and `inf` on every other component."""
     n = phi.shape[0]
@@ -452,25 +488,27 @@ def _shift(mesh: Mesh, phi, components, corners, weights) -> Float[Array, " nv"]
     return jnp.where(reached[components], phi - shift[components], jnp.inf)
 
 
+# The kernels' first parameter is `domain`: one named `mesh` would be checked to be a triangle mesh
+# (`ddgjax._compile.kernel`), and these serve tet meshes too.
 @kernel(static_argnames=("solver",))
-def _factor(mesh: Mesh, L, M, plans: _Plans, t_coef, *, solver: str):
-    return _factorizations(mesh, L, M, plans, t_coef, solver)
+def _factor(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef, *, solver: str):
+    return _factorizations(domain, L, M, plans, t_coef, solver)
 
 
 @kernel
-def _query(mesh: Mesh, factors: _Factors, corners, weights):
-    return _heat_method(mesh, factors, corners, weights)
+def _query(domain: Mesh | TetMesh, factors: _Factors, corners, weights):
+    return _heat_method(domain, factors, corners, weights)
 
 
 # Factorisations and one query in one compiled program per mesh size and source count.
 @kernel(static_argnames=("solver",))
-def _build_and_query(mesh: Mesh, L, M, plans: _Plans, t_coef, corners, weights, *, solver: str):
-    _, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
-    steps, result, stats = _heat_method(mesh, factors, corners, weights)
+def _build_and_query(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef, corners, weights, *, solver: str):
+    _, factors = _factorizations(domain, L, M, plans, t_coef, solver)
+    steps, result, stats = _heat_method(domain, factors, corners, weights)
     return steps.distance, result, stats
 
 
-def _sources(mesh: Mesh, sources, *, dirichlet: bool) -> tuple[np.ndarray, Float[ArrayLike, "m 3"]]:
+def _sources(mesh: Mesh | TetMesh, sources, *, dirichlet: bool) -> tuple[np.ndarray, Float[ArrayLike, "m 3"]]:
     """`(corners (m, 3), weights (m, 3))`: each source point as hat-function weights on a face's corners
     (a source vertex `v` is the corners `(v, v, v)` with weights `(1, 0, 0)`), after refusing sources
     that cannot emit heat: unreferenced vertices, and (`dirichlet`: only the Dirichlet heat flow is
@@ -480,8 +518,8 @@ def _sources(mesh: Mesh, sources, *, dirichlet: bool) -> tuple[np.ndarray, Float
     unreferenced = np.isin(corners[:, 0], topology.unreferenced_vertices)
     if unreferenced.any():
         raise DDGInputError(
-            f"sources: vertices {np.unique(corners[unreferenced, 0])[:5].tolist()} belong to no face (unreferenced), "
-            "so no distance spreads from them; pass vertices of the mesh's faces"
+            f"sources: vertices {np.unique(corners[unreferenced, 0])[:5].tolist()} belong to no face or tet "
+            "(unreferenced), so no distance spreads from them; pass vertices of the mesh's faces or tets"
         )
     if dirichlet:
         silent = np.isin(corners, topology.boundary_vertices).all(axis=1)
@@ -494,9 +532,14 @@ def _sources(mesh: Mesh, sources, *, dirichlet: bool) -> tuple[np.ndarray, Float
     return corners, weights
 
 
-def _source_points(mesh: Mesh, sources) -> tuple[np.ndarray, Float[ArrayLike, "m 3"]]:
+def _source_points(mesh: Mesh | TetMesh, sources) -> tuple[np.ndarray, Float[ArrayLike, "m 3"]]:
     """`_sources` before the checks of what the sources emit."""
     n = mesh.n_vertices
+    if isinstance(sources, tuple) and isinstance(mesh, TetMesh):
+        raise DDGInputError(
+            "sources: a TetMesh takes source vertices (a 1-d integer array), not (faces, barycentric) points; "
+            "to start from a point inside the solid, add it as a vertex of the tet mesh"
+        )
     if isinstance(sources, tuple):
         if len(sources) != 2:
             raise DDGInputError("sources: a pair (faces (m,), barycentric (m, 3)) for points inside faces")

@@ -1,5 +1,8 @@
 """Geometry problems on triangle meshes, solved exactly and differentiably: Poisson, harmonic, Hodge, flows.
 
+`solve_poisson` and `harmonic_interpolation` take a tetrahedral `ddgjax.volume.TetMesh` too (the same
+problem in a solid, with its cotan Laplacian and mass matrix; `robust=False` only).
+
 - Energies as plain scalar JAX functions of the unknowns and the mesh (`dirichlet_energy`,
   `screened_dirichlet_energy`, `poisson_energy`, the report's `gradient_fitting_energy` `E_X`),
   differentiable in the unknowns and the vertex positions. Sign convention: the report's Poisson

@@ -1,4 +1,4 @@
-"""The Poisson problem and harmonic interpolation on a triangle mesh, solved exactly and differentiably.
+"""The Poisson problem and harmonic interpolation on a triangle or tetrahedral mesh, solved exactly and differentiably.
 
 Sign convention (the reading report, `ddgjax.pde._energies`): the Poisson problem is
 `Delta phi = rho` with the pointwise Laplace-Beltrami operator `Delta = -M^{-1} L`, so the discrete
@@ -18,6 +18,11 @@ exact, not a regularisation: one vertex per such component is pinned to 0, the r
 definite system is solved, and the constant is fixed afterwards. Unreferenced vertices (empty rows)
 are set to 0.
 
+A `ddgjax.volume.TetMesh` is solved the same way with its own operators (`ddgjax.volume.cotan_laplacian`,
+`ddgjax.volume.mass_matrix`; "area" above reads volume, faces read tets): `-Delta u = 1` in the unit
+ball with `u = 0` on the sphere is `(1 - r^2) / 6` to second order in the mean edge length (tests).
+`robust=` has no tetrahedral meaning and is refused there.
+
 `robust=True` (or an `IntrinsicTriangulation`) solves with the intrinsic Delaunay Laplacian and
 mass matrix (`ddgjax.laplacian.laplacian_and_mass`): non-negative interior weights, so a harmonic
 interpolant obeys the maximum principle on meshes with obtuse triangles too.
@@ -26,7 +31,7 @@ How it runs: the bookkeeping that depends on the connectivity (components, pins,
 `ddgjax.sparse.dirichlet_plan`) is host work before one compiled program, which assembles `L` and `M`
 from the squared edge lengths (the intrinsic core of `ddgjax.laplacian`, on the mesh's own lengths or
 the intrinsic Delaunay ones) and solves the free-free block with `ddgjax.solve.linear_solve` (the
-backend is `solver=`). `phi` is differentiable with respect to `rho`, the fixed values and the
+backend is `solver=`); a tet mesh's `L` and `M` come from `ddgjax.volume` and enter the same solve. `phi` is differentiable with respect to `rho`, the fixed values and the
 vertex positions (forward and reverse mode), under `jit` and `vmap`. A failed solve is an outcome
 (`ddgjax.RESULTS`, `throw=`): with `throw=False` the answer is a `ddgjax.Solution` whose `stats` are
 the linear solve's relative `residual` and `num_steps`.
@@ -44,11 +49,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from .. import volume
 from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_vertex_indices
-from .._options import check_mass, check_solver
+from .._options import check_mass, check_solver, check_tet_robust
 from .._results import RESULTS, Solution, outcome
-from ..internal import resolve_robust, vertex_plan
+from ..internal import require_nondegenerate_tets, resolve_robust, vertex_plan
 from ..laplacian import (
     IntrinsicTriangulation,
     TriangulationPlan,
@@ -57,11 +63,12 @@ from ..laplacian import (
 )
 from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
 from ..solve import linear_solve
-from ..sparse import DirichletPlan, SparsityPattern, dirichlet_blocks, dirichlet_plan
+from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
+from ..volume import TetMesh, TetTopology
 
 
 def solve_poisson(
-    mesh: Mesh,
+    mesh: Mesh | TetMesh,
     rho: Float[ArrayLike, "nv *k"],
     *,
     fixed_vertices: Int[ArrayLike, " n_fixed"] | None = None,
@@ -81,7 +88,8 @@ def solve_poisson(
     connectivity and size.
 
     Args:
-        mesh: any triangle mesh (closed, with boundary, several components).
+        mesh: any triangle mesh (closed, with boundary, several components), or a
+            `ddgjax.volume.TetMesh` (a solid: its own cotan Laplacian and mass matrix).
         rho: `(nv,)` or `(nv, k)` pointwise right-hand side at the vertices (`k` problems at once).
         fixed_vertices: `(n_fixed,)` distinct vertex indices whose values are prescribed (concrete,
             host data). Default: none (Neumann everywhere).
@@ -89,7 +97,8 @@ def solve_poisson(
         mass: the mass matrix `M`, one of `ddgjax.MASS_MATRICES`: `"voronoi"` (default),
             `"barycentric"` or `"galerkin"`.
         robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
-            `IntrinsicTriangulation` from `intrinsic_delaunay(mesh)` inside `jit` / `grad`).
+            `IntrinsicTriangulation` from `intrinsic_delaunay(mesh)` inside `jit` / `grad`); triangle
+            meshes only (a `TetMesh` takes `False`).
         solver: the backend of the linear solve, one of `ddgjax.LINEAR_SOLVERS` (`"auto"`,
             `"cholesky"`, `"superlu"`, `"cg"`, `"pyamg"`; `ddgjax.solve.linear_solve`'s `method`).
         throw: raise on a failed solve (default), or return the outcome.
@@ -100,34 +109,34 @@ def solve_poisson(
         `{"residual": |A x - b| / |b|, "num_steps": CG iterations}` of the free-free system.
 
     Reference: the reading report, "The Poisson problem"; Crane's DDG notes, ch. 6.
-    libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix(V, F)`;
-    gpytoolbox: `min_quad_with_fixed(L, c=M @ rho, k=known, y=values)`.
+    libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix(V, F)`
+    (`V, T` for tets); gpytoolbox: `min_quad_with_fixed(L, c=M @ rho, k=known, y=values)`.
     """
-    mesh = require_mesh("mesh", mesh)
+    tet = isinstance(mesh, TetMesh)
+    mesh = mesh if tet else require_mesh("mesh", mesh)
     check_mass(mass)
     check_solver(solver)
-    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="solve_poisson")
+    if tet:
+        check_tet_robust(robust)
+        require_nondegenerate_tets(mesh)
+        triangulation, plan = None, volume.tet_plan(mesh)
+    else:
+        triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="solve_poisson")
+        plan = vertex_plan(mesh) if triangulation is None else triangulation.plan
     rho = _vertex_values("rho", mesh, rho)
-    plan = vertex_plan(mesh) if triangulation is None else triangulation.plan
     dirichlet = DirichletData(mesh, fixed_vertices, fixed_values, rho.shape[1:], plan.pattern)
     if dirichlet.plan is None:  # every vertex prescribed: nothing to solve
         phi = jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
         stats = {"residual": jnp.zeros((), rho.dtype), "num_steps": jnp.zeros((), jnp.int32)}
         return outcome(phi, RESULTS.successful, throw, stats)
-    phi, result, stats = _solve(
-        mesh,
-        triangulation,
-        plan,
-        rho,
-        dirichlet.values,
-        dirichlet.plan,
-        dirichlet.labels,
-        dirichlet.floating,
-        n_pinned=dirichlet.n_pinned,
-        n_components=dirichlet.n_components,
-        mass=mass,
-        solver=solver,
-    )
+    problem = (rho, dirichlet.values, dirichlet.plan, dirichlet.labels, dirichlet.floating)
+    options = {"n_pinned": dirichlet.n_pinned, "n_components": dirichlet.n_components, "solver": solver}
+    if tet:  # the solid's operators, assembled by ddgjax.volume (each its own compiled program)
+        phi, result, stats = _solve_assembled(
+            volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass), *problem, **options
+        )
+    else:
+        phi, result, stats = _solve(mesh, triangulation, plan, *problem, mass=mass, **options)
     return outcome(phi, result, throw, stats)
 
 
@@ -149,12 +158,41 @@ def _solve(
     mass: str,
     solver: str,
 ) -> tuple[Float[Array, "nv *k"], RESULTS, dict[str, Array]]:
-    """`(phi, result, stats)` of `solve_poisson` (module docstring). `mesh` comes without its topology:
-    everything that needs it (`plan`, `blocks`, the component `labels` and `floating` mask) is passed in."""
-    fixed_values = jnp.concatenate([values.astype(rho.dtype), jnp.zeros((n_pinned,) + rho.shape[1:], rho.dtype)])
+    """`(phi, result, stats)` of `solve_poisson` on a triangle mesh (module docstring). `mesh` comes without
+    its topology: everything that needs it (`plan`, `blocks`, the component `labels` and `floating` mask)
+    is passed in."""
     lengths_sq = face_edge_lengths_sq(mesh) if triangulation is None else triangulation.face_lengths_sq(mesh)
     laplacian = cotan_laplacian_from_lengths_sq(lengths_sq, plan)
     mass_matrix_ = mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
+    return _solve_system(
+        laplacian,
+        mass_matrix_,
+        rho,
+        values,
+        blocks,
+        labels,
+        floating,
+        n_pinned=n_pinned,
+        n_components=n_components,
+        solver=solver,
+    )
+
+
+def _solve_system(
+    laplacian: SparseMatrix,
+    mass_matrix_: SparseMatrix,
+    rho: Float[Array, "nv *k"],
+    values: Float[Array, " n_fixed *k"],
+    blocks: DirichletPlan,
+    labels: Int[Array, " nv"],
+    floating: Bool[Array, " nv"],
+    *,
+    n_pinned: int,
+    n_components: int,
+    solver: str,
+) -> tuple[Float[Array, "nv *k"], RESULTS, dict[str, Array]]:
+    """`(phi, result, stats)` of `L phi = -M rho` with the Dirichlet data and pins (module docstring), given `L` and `M`."""
+    fixed_values = jnp.concatenate([values.astype(rho.dtype), jnp.zeros((n_pinned,) + rho.shape[1:], rho.dtype)])
     areas = mass_matrix_.row_sums()  # M 1: the area of each vertex (Galerkin rows sum to it too)
     component_area = jax.ops.segment_sum(areas, labels, n_components)
 
@@ -172,8 +210,12 @@ def _solve(
     return phi, solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
 
 
+# A tet mesh's `L` and `M` are assembled by `ddgjax.volume` before this program (module docstring).
+_solve_assembled = kernel(_solve_system, static_argnames=("n_pinned", "n_components", "solver"))
+
+
 def harmonic_interpolation(
-    mesh: Mesh,
+    mesh: Mesh | TetMesh,
     *,
     fixed_vertices: Int[ArrayLike, " n_fixed"],
     fixed_values: Float[ArrayLike, " n_fixed *k"],
@@ -189,11 +231,12 @@ def harmonic_interpolation(
     Differentiable in `fixed_values` and the vertex positions.
 
     Args:
-        mesh: any triangle mesh.
+        mesh: any triangle mesh, or a `ddgjax.volume.TetMesh`.
         fixed_vertices: `(n_fixed,)` distinct vertex indices, at least one (concrete, host data).
         fixed_values: `(n_fixed,)` or `(n_fixed, k)` values at them (e.g. `(n_fixed, 3)` positions).
         robust: the intrinsic Delaunay Laplacian (`solve_poisson`): with it the interpolant lies
-            between the smallest and largest values (the maximum principle) on any mesh.
+            between the smallest and largest values (the maximum principle) on any triangle mesh
+            (a `TetMesh` takes `False`).
         solver: the backend of the linear solve, one of `ddgjax.LINEAR_SOLVERS`.
         throw: raise on a failed solve (default), or return the outcome.
 
@@ -204,7 +247,7 @@ def harmonic_interpolation(
     `igl.harmonic(V, F, fixed_vertices, fixed_values, 1)`; gpytoolbox: `min_quad_with_fixed` with
     `L` and no linear term.
     """
-    mesh = require_mesh("mesh", mesh)
+    mesh = mesh if isinstance(mesh, TetMesh) else require_mesh("mesh", mesh)
     if fixed_vertices is None or np.size(fixed_vertices) == 0:
         raise DDGInputError("fixed_vertices: expected at least one vertex to interpolate from, got none")
     fixed_values = jnp.asarray(fixed_values)
@@ -223,7 +266,7 @@ class DirichletData:
     Built from the mesh's topology (outside every kernel) and checked: `vertices` and `values` are a
     caller's `fixed_vertices` / `fixed_values` (`None`, `None` for none), `trailing` the trailing shape
     of the right-hand side, `pattern` the Laplacian's sparsity pattern the plan is of (default: the
-    mesh's own). Shared with the other solvers that pin one vertex per free component
+    mesh's own). A `TetMesh` works the same, its tets in place of faces. Shared with the other solvers that pin one vertex per free component
     (`ddgjax.internal.DirichletData`).
 
     Attributes:
@@ -233,11 +276,11 @@ class DirichletData:
         plan: the `DirichletPlan` of `fixed` on `pattern`, or `None` when every vertex is fixed.
         n_pinned: how many indices `fixed` adds to `vertices` (all held at 0).
         labels: `(nv,)` the component of each vertex (unreferenced vertices: `n_components - 1`).
-        n_components: the number of labels (the face components, plus one for unreferenced vertices).
+        n_components: the number of labels (the face (tet) components, plus one for unreferenced vertices).
         floating: `(nv,)` whether each vertex's component has no fixed vertex (re-centred to zero mean).
     """
 
-    def __init__(self, mesh: Mesh, vertices, values, trailing: tuple[int, ...], pattern=None):
+    def __init__(self, mesh: Mesh | TetMesh, vertices, values, trailing: tuple[int, ...], pattern=None):
         topology = mesh.topology
         n = mesh.n_vertices
         if vertices is None:
@@ -256,7 +299,7 @@ class DirichletData:
         self.vertices = vertices
         self.values = values
         if pattern is None:
-            pattern = vertex_plan(mesh).pattern
+            pattern = (volume.tet_plan(mesh) if isinstance(mesh, TetMesh) else vertex_plan(mesh)).pattern
         self.fixed, self.plan, self.n_pinned, self.labels, self.n_components, self.floating = _pins(topology, vertices, pattern)
 
     def fixed_values(self, dtype) -> Float[Array, " n_fixed *k"]:
@@ -267,11 +310,11 @@ class DirichletData:
 
 # The host bookkeeping of the last few problems per connectivity: solving again with the same fixed
 # vertices (new values, a new right-hand side, moved vertices) skips it.
-_PINS: "weakref.WeakKeyDictionary[MeshTopology, dict]" = weakref.WeakKeyDictionary()
+_PINS: "weakref.WeakKeyDictionary[MeshTopology | TetTopology, dict]" = weakref.WeakKeyDictionary()
 _PINS_KEPT = 8
 
 
-def _pins(topology: MeshTopology, vertices: np.ndarray, pattern: SparsityPattern) -> tuple:
+def _pins(topology: MeshTopology | TetTopology, vertices: np.ndarray, pattern: SparsityPattern) -> tuple:
     """`DirichletData`'s `(fixed, plan, n_pinned, labels, n_components, floating)` for these fixed vertices (cached)."""
     kept = _PINS.setdefault(topology, {})
     key = (vertices.tobytes(), id(pattern))
@@ -279,14 +322,18 @@ def _pins(topology: MeshTopology, vertices: np.ndarray, pattern: SparsityPattern
     if entry is not None and entry[0] is pattern:
         return entry[1]
     n = topology.n_vertices
-    # Component of each vertex (unreferenced vertices: their own label, past the face components).
+    # Component of each vertex (unreferenced vertices: their own label, past the components of the cells).
+    if isinstance(topology, TetTopology):
+        cells, cell_components = topology.tets, topology.tet_components
+    else:
+        cells, cell_components = topology.faces, topology.face_components
     labels = np.full(n, topology.n_components, dtype=np.int32)
-    labels[topology.faces.ravel()] = np.repeat(topology.face_components, 3)
+    labels[cells.ravel()] = np.repeat(cell_components, cells.shape[1])
     constrained = np.zeros(topology.n_components + 1, dtype=bool)
     constrained[labels[vertices]] = True
     floating = ~constrained
     floating[-1] = False  # unreferenced vertices are fixed to 0, not re-centred
-    # Pin the lowest vertex of each floating component (components are numbered by first face).
+    # Pin the lowest vertex of each floating component (components are numbered by first cell).
     first_vertex = np.full(topology.n_components, n, dtype=np.int64)
     np.minimum.at(first_vertex, labels[labels < topology.n_components], np.flatnonzero(labels < topology.n_components))
     pins = first_vertex[floating[:-1]]
@@ -310,7 +357,7 @@ def _pins(topology: MeshTopology, vertices: np.ndarray, pattern: SparsityPattern
     return pinned
 
 
-def _vertex_values(name: str, mesh: Mesh, values) -> Float[Array, "nv *k"]:
+def _vertex_values(name: str, mesh: Mesh | TetMesh, values) -> Float[Array, "nv *k"]:
     n = mesh.n_vertices
     if np.ndim(values) not in (1, 2) or np.shape(values)[0] != n:
         raise DDGInputError(f"{name}: expected shape ({n},) or ({n}, k), got {np.shape(values)}")

@@ -663,3 +663,25 @@ def _is_jax_sparse(x) -> bool:
     """Whether `x` is a `jax.experimental.sparse` array (never, unless the caller has imported that module)."""
     jsparse = sys.modules.get("jax.experimental.sparse")
     return jsparse is not None and isinstance(x, jsparse.JAXSparse)
+
+
+def incidence_matrix(cols: Int[Array, "n k"], values: Float[Array, "n k"], n_cols: int) -> SparseMatrix:
+    """The `(n, n_cols)` matrix whose row `i` holds `values[i]` at the `k` distinct columns `cols[i]`, in any order.
+
+    The signed incidence matrices of DEC (`ddgjax.dec.d0`, `d1`; `ddgjax.volume.d0`, `d1`, `d2`). Each row's
+    columns are put in increasing order by their rank among the row's `k` (a comparison, not a sort:
+    cheap to trace and compile on millions of rows), so the pattern is CSR with `k` entries per row,
+    built from the arrays alone inside jit. Shared through `ddgjax.internal`.
+    """
+    n_rows, per_row = cols.shape
+    rank = jnp.sum(cols[:, None, :] < cols[:, :, None], axis=-1)
+    which = rank[:, None, :] == jnp.arange(per_row)[None, :, None]
+    cols = jnp.sum(jnp.where(which, cols[:, None, :], 0), axis=-1).astype(cols.dtype)
+    values = jnp.sum(jnp.where(which, values[:, None, :], 0), axis=-1)
+    pattern = SparsityPattern(
+        rows=jnp.repeat(jnp.arange(n_rows, dtype=cols.dtype), per_row),
+        cols=cols.reshape(-1),
+        indptr=jnp.arange(0, n_rows * per_row + 1, per_row, dtype=cols.dtype),
+        shape=(n_rows, n_cols),
+    )
+    return SparseMatrix(values=values.reshape(-1), pattern=pattern)

@@ -1,5 +1,8 @@
 """Spectral geometry: the smallest eigenpairs of the Laplacian, differentiable in the vertex positions.
 
+`eigenpairs` takes a tetrahedral `ddgjax.volume.TetMesh` too (the spectrum of a solid; `boundary="dirichlet"`
+holds its boundary surface's vertices at 0).
+
 - `eigenpairs(mesh, k, *, mass="voronoi", boundary="neumann" | "dirichlet", throw=True)`: the `k`
   smallest eigenpairs of `L phi = lambda M phi` (the discrete `-Delta phi = lambda phi`),
   M-orthonormal, with a deterministic sign, as `Eigenpairs(values, vectors)` (a named tuple).

@@ -5,7 +5,10 @@ the discrete counterpart of `-Delta phi = lambda phi`, so the unit sphere gives 
 multiplicity `2 l + 1`. Eigenvectors are M-orthonormal, `Phi^T M Phi = I`: the discrete
 `int phi_i phi_j dA = delta_ij`. With `boundary="dirichlet"` the boundary vertices are held at 0
 (the problem is solved on the interior vertices and the eigenvectors are 0 on the boundary); with
-`"neumann"` (default) nothing is held, the natural boundary condition of the weak form.
+`"neumann"` (default) nothing is held, the natural boundary condition of the weak form. A solid
+(`ddgjax.volume.TetMesh`) works the same with its own `L` and `M` (`ddgjax.volume.cotan_laplacian`,
+`mass_matrix`): the unit ball's Dirichlet spectrum is the squared zeros of the spherical Bessel
+functions, `pi^2` then `4.4934^2` (three times), its first nonzero Neumann eigenvalue `2.0816^2` (tests).
 
 On top of an eigenbasis: `spectral_coefficients` (`c = Phi^T M f`), `spectral_reconstruction`
 (`Phi c`), `spectral_filter` (`Phi g(Lambda) Phi^T M f`), `heat_kernel` (`k_t(x, y) = sum_i
@@ -29,18 +32,21 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .. import volume
 from .._errors import DDGInputError, check_choice
-from .._options import BOUNDARY_CONDITIONS, check_mass
+from .._options import BOUNDARY_CONDITIONS, check_mass, check_tet_robust
 from .._results import Solution, outcome
+from ..internal import require_nondegenerate_tets
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, require_mesh
 from ..solve import AMGHierarchy
 from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
+from ..volume import TetMesh
 from ._generalized import Eigenpairs, smallest_eigenpairs
 
 
 def eigenpairs(
-    mesh: Mesh,
+    mesh: Mesh | TetMesh,
     k: int,
     *,
     mass: str = "voronoi",
@@ -54,14 +60,15 @@ def eigenpairs(
     """The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
 
     Args:
-        mesh: a triangle mesh.
+        mesh: a triangle mesh, or a `ddgjax.volume.TetMesh` (a solid: `ddgjax.volume.cotan_laplacian`
+            and `mass_matrix`; Dirichlet holds its boundary surface's vertices at 0).
         k: number of eigenpairs (fewer than the unknowns).
         mass: the mass matrix `M`: `"voronoi"` (default), `"barycentric"` or `"galerkin"`.
         boundary: `"neumann"` (default) or `"dirichlet"` (zero on the boundary; needs a boundary).
         robust: the intrinsic Delaunay Laplacian and mass instead of the mesh's (`True`, or an
             `IntrinsicTriangulation` inside `jit`; `ddgjax.laplacian.laplacian_and_mass`): mollified,
             they work on meshes with faces of zero or near-zero area, which `robust=False` refuses
-            (`MeshDataError`) on concrete positions.
+            (`MeshDataError`) on concrete positions. Triangle meshes only (a `TetMesh` takes `False`).
         method, solver, preconditioner: the eigensolver (`"arpack"` on the host, `"subspace"` in JAX,
             `"auto"`), the backend of its solves and their CG preconditioner
             (`ddgjax.spectral.smallest_eigenpairs`; with Dirichlet conditions a hierarchy is of the
@@ -78,12 +85,18 @@ def eigenpairs(
         (`ddgjax.spectral.smallest_eigenpairs`: eigenvalues always; eigenvectors away from clusters
         of equal eigenvalues; any function invariant within a cluster), under `jit` and `vmap`.
 
-    libigl (C++ only): `igl::eigs(-cotmatrix, massmatrix, k, igl::EIGS_TYPE_SM, U, D)`.
+    libigl (C++ only): `igl::eigs(-cotmatrix, massmatrix, k, igl::EIGS_TYPE_SM, U, D)` (on `V, F` or `V, T`).
     """
-    mesh = require_mesh("mesh", mesh)
+    tet = isinstance(mesh, TetMesh)
+    mesh = mesh if tet else require_mesh("mesh", mesh)
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
     check_mass(mass)
-    L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
+    if tet:
+        check_tet_robust(robust)
+        require_nondegenerate_tets(mesh)
+        L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
+    else:
+        L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
     if boundary == "neumann":
         return smallest_eigenpairs(L, M, k, method=method, solver=solver, preconditioner=preconditioner, throw=throw)
     fixed = mesh.topology.boundary_vertices
@@ -92,7 +105,7 @@ def eigenpairs(
     if fixed.size == mesh.n_vertices:
         raise DDGInputError(
             f"boundary: 'dirichlet' holds the boundary at 0, and all {fixed.size} vertices of this mesh lie on its "
-            "boundary (a strip, a single triangle), so no eigenfunction is left (use 'neumann')"
+            "boundary (a strip, a single triangle or tet), so no eigenfunction is left (use 'neumann')"
         )
     plan = dirichlet_plan(L, fixed)
     L_ff, _ = dirichlet_blocks(L, plan)

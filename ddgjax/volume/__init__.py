@@ -13,7 +13,19 @@ opposite vertex `k` and oriented outward (`TET_TRIANGLES`), tets positively orie
 (`det(b - a, c - a, d - a) > 0`), global edges low -> high, global triangles sorted triples.
 """
 
+from ._check import TetMeshReport as TetMeshReport
+from ._check import check_tet_mesh as check_tet_mesh
+from ._dec import d0 as d0
+from ._dec import d1 as d1
+from ._dec import d2 as d2
+from ._dec import hodge0 as hodge0
+from ._dec import hodge1 as hodge1
+from ._dec import hodge2 as hodge2
+from ._dec import hodge3 as hodge3
+from ._dec import hodge_star_entries as hodge_star_entries
 from ._dual import TET_DUALS as TET_DUALS
+from ._dual import tet_edge_dual_volumes_from_lengths_sq as tet_edge_dual_volumes_from_lengths_sq
+from ._dual import tet_vertex_dual_volumes_from_lengths_sq as tet_vertex_dual_volumes_from_lengths_sq
 from ._dual import vertex_dual_volumes as vertex_dual_volumes
 from ._geometry import dihedral_angles as dihedral_angles
 from ._geometry import dihedral_angles_from_lengths_sq as dihedral_angles_from_lengths_sq
@@ -27,14 +39,27 @@ from ._geometry import tet_signed_volumes as tet_signed_volumes
 from ._geometry import tet_volumes as tet_volumes
 from ._geometry import tet_volumes_from_lengths_sq as tet_volumes_from_lengths_sq
 from ._geometry import triangle_areas as triangle_areas
+from ._io import load_tet_mesh as load_tet_mesh
+from ._io import save_tet_mesh as save_tet_mesh
 from ._laplacian import TetPlan as TetPlan
 from ._laplacian import cotan_laplacian as cotan_laplacian
 from ._laplacian import dirichlet_energy as dirichlet_energy
 from ._laplacian import laplacian_apply as laplacian_apply
 from ._laplacian import mass_matrix as mass_matrix
 from ._laplacian import tet_plan as tet_plan
+from ._meshing import tetrahedralize as tetrahedralize
+from ._section import PlaneSection as PlaneSection
+from ._section import plane_section as plane_section
+from ._shapes import tet_ball as tet_ball
+from ._shapes import tet_box as tet_box
+from ._shapes import tet_shell as tet_shell
+from ._shapes import tet_solid_torus as tet_solid_torus
 from ._tet_mesh import TetMesh as TetMesh
 from ._tet_mesh import require_tet_mesh as require_tet_mesh
 from ._topology import TET_EDGES as TET_EDGES
 from ._topology import TET_TRIANGLES as TET_TRIANGLES
 from ._topology import TetTopology as TetTopology
+from ._vector_calculus import codifferential as codifferential
+from ._vector_calculus import divergence as divergence
+from ._vector_calculus import gradient as gradient
+from ._vector_calculus import hodge_laplacian as hodge_laplacian

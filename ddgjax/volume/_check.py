@@ -13,7 +13,7 @@ import dataclasses
 
 import numpy as np
 
-from .._errors import DDGInputError, first_indices, is_traced
+from .._errors import DDGInputError, MeshDataError, first_indices, is_traced
 from ._tet_mesh import TetMesh, require_tet_mesh
 
 
@@ -190,3 +190,32 @@ def _first(indices: np.ndarray) -> str:
     mask = np.zeros(int(indices.max()) + 1, dtype=bool)
     mask[indices] = True
     return first_indices(mask)
+
+
+def require_nondegenerate_tets(tet_mesh: TetMesh) -> None:
+    """`MeshDataError` naming the degenerate tets of `tet_mesh` at its positions, if there are any.
+
+    The problem-level functions (`solve_poisson`, `eigenpairs`, `heat_distance` on a `TetMesh`) call
+    it first: a tet of near-zero volume has near-infinite cotan weights, so its Laplacian's rounding
+    makes the solve fail or lie, and tets have no `robust=` remedy (no intrinsic Delaunay in 3-D).
+    Measured once per `TetMesh` object, on the host, with `check_tet_mesh`'s test; nothing is checked
+    under `jit` (traced positions), where values and gradients stay finite.
+    """
+    if is_traced(tet_mesh.vertices) or tet_mesh.topology is None:
+        return
+    found = tet_mesh.__dict__.get("_degenerate_tets")
+    if found is None:
+        signed, longest, _ = _unit_signed_volumes_and_longest_edges(
+            np.asarray(tet_mesh.vertices, dtype=np.float64), tet_mesh.topology.tets
+        )
+        found = np.flatnonzero(np.abs(signed) <= default_volume_tol(tet_mesh.vertices.dtype) * longest**3)
+        object.__setattr__(tet_mesh, "_degenerate_tets", found)  # a cache beside the pytree's fields
+    if found.size:
+        mask = np.zeros(tet_mesh.n_tets, dtype=bool)
+        mask[found] = True
+        raise MeshDataError(
+            f"tet_mesh: tets {first_indices(mask)} have zero or near-zero volume (|volume| <= "
+            f"{default_volume_tol(tet_mesh.vertices.dtype):g} * longest edge^3: coplanar or coincident corners), where "
+            "the cotan weights are infinite or undefined; remove or repair them (ddgjax.volume.check_tet_mesh lists them; "
+            "re-mesh with ddgjax.volume.tetrahedralize)"
+        )

@@ -80,7 +80,7 @@ def tet_plan(tet_mesh: TetMesh) -> TetPlan:
     return plan
 
 
-def _slot_values(per_edge: Float[Array, "nt 6"], plan: TetPlan) -> Float[Array, " n_off"]:
+def slot_values(per_edge: Float[Array, "nt 6"], plan: TetPlan) -> Float[Array, " n_off"]:
     """Per-tet edge values summed onto the off-diagonal storage slots of `plan.pattern` (one fixed gather)."""
     return gather_sum(per_edge.reshape(-1), plan.slot_edges, plan.edge_slots)
 
@@ -89,15 +89,16 @@ def _with_diagonal(diagonal: Float[Array, " nv"], off_diagonal: Float[Array, " n
     return jnp.concatenate([diagonal, off_diagonal])
 
 
-def _row_sums(off_diagonal: Float[Array, " n_off"], plan: TetPlan) -> Float[Array, " nv"]:
+def row_sums(off_diagonal: Float[Array, " n_off"], plan: TetPlan) -> Float[Array, " nv"]:
+    """Row sums of the symmetric matrix on `plan.pattern` with these off-diagonal values and a zero diagonal."""
     zeros = jnp.zeros(plan.n_vertices, off_diagonal.dtype)
     return SparseMatrix(_with_diagonal(zeros, off_diagonal), plan.pattern, symmetric=True).row_sums()
 
 
 def laplacian_values_from_weights(weights: Float[Array, "nt 6"], plan: TetPlan) -> Float[Array, " nnz"]:
     """Values of the Laplacian on `plan.pattern` from per-tet edge weights `w` (`L_ij = -sum w`, `L 1 = 0` exactly)."""
-    off_diagonal = _slot_values(-weights, plan)
-    return _with_diagonal(-_row_sums(off_diagonal, plan), off_diagonal)
+    off_diagonal = slot_values(-weights, plan)
+    return _with_diagonal(-row_sums(off_diagonal, plan), off_diagonal)
 
 
 @kernel
@@ -131,9 +132,9 @@ def cotan_laplacian(tet_mesh: TetMesh) -> SparseMatrix:
 @kernel
 def _galerkin_values(tet_mesh: TetMesh, plan: TetPlan) -> Float[Array, " nnz"]:
     volumes = tet_volumes(tet_mesh)
-    off_diagonal = _slot_values(jnp.broadcast_to(volumes[:, None] / 20.0, (volumes.shape[0], 6)), plan)
+    off_diagonal = slot_values(jnp.broadcast_to(volumes[:, None] / 20.0, (volumes.shape[0], 6)), plan)
     # Each vertex has three edges per tet: the row sum of V / 20 is 3 V / 20, the diagonal V / 10 = 2/3 of it.
-    return _with_diagonal(_row_sums(off_diagonal, plan) * (2.0 / 3.0), off_diagonal)
+    return _with_diagonal(row_sums(off_diagonal, plan) * (2.0 / 3.0), off_diagonal)
 
 
 def mass_matrix(tet_mesh: TetMesh, *, mass: str = "voronoi") -> SparseMatrix:
@@ -170,12 +171,6 @@ def mass_matrix(tet_mesh: TetMesh, *, mass: str = "voronoi") -> SparseMatrix:
     return SparseMatrix(_galerkin_values(tet_mesh, plan), plan.pattern, symmetric=True, positive_semidefinite=True)
 
 
-def barycentric_volumes(tet_mesh: TetMesh, plan: TetPlan) -> Float[Array, " nv"]:
-    """`(nv,)` a quarter of the volume of each incident tet: the row sums of `V / 12` on each tet edge (three per vertex)."""
-    volumes = tet_volumes(tet_mesh)
-    return _row_sums(_slot_values(jnp.broadcast_to(volumes[:, None] / 12.0, (volumes.shape[0], 6)), plan), plan)
-
-
 def laplacian_apply(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"]) -> Float[Array, "nv *k"]:
     """Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (the convention of `cotan_laplacian`).
 
@@ -188,7 +183,7 @@ def laplacian_apply(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"]) -> Float[Ar
 
 @kernel
 def _apply(tet_mesh: TetMesh, plan: TetPlan, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
-    return apply_slot_weights(_slot_values(-tet_cotan_weights(tet_mesh), plan), plan, u)
+    return apply_slot_weights(slot_values(-tet_cotan_weights(tet_mesh), plan), plan, u)
 
 
 def dirichlet_energy(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"]) -> Float[Array, ""]:
