@@ -12,8 +12,8 @@ On Kuhn-subdivided cubes (`ddgjax.volume.tet_box(n)`: `6 n^3` congruent tets; n 
   and `igl.massmatrix(V, T, type)` (answers compared).
 - **solve**: `-Delta u = 1` with `u = 0` on the boundary: `ddgjax.pde.solve_poisson(tet_mesh, -1,
   fixed_vertices=boundary)` (its default solver choice) against libigl's matrices solved by SciPy's
-  `spsolve` on the free block (the route a libigl user takes in Python), the matrices' build included
-  in both; and the gradient of `sum(u)` in the vertex positions (implicit differentiation), which no
+  `spsolve` on the free block, and libigl's own `min_quad_with_fixed` (a sparse Cholesky of the free
+  block), the matrices' build included in all three; and the gradient of `sum(u)` in the vertex positions (implicit differentiation), which no
   peer offers.
 
 Times: min / median ms over interleaved repeats (`benchmarks/solve.py`'s `timed_interleaved`). Run:
@@ -103,7 +103,7 @@ def _assembly_on(tet_mesh, mass, igl_type, args):
         L_igl, M_igl = results["libigl"]
         ratio = times["ddgjax (jit, new positions)"][0] / times["libigl"][0]
         line += (
-            f"; ratio {ratio:.2f}x; max rel diff L {abs(L - L_igl).max() / abs(L_igl).max():.1e}, "
+            f"; ratio {ratio:.3g}x; max rel diff L {abs(L - L_igl).max() / abs(L_igl).max():.1e}, "
             f"M {abs(M - M_igl).max() / abs(M_igl).max():.1e}"
         )
     print(line)
@@ -132,16 +132,26 @@ def _solve_on(tet_mesh, args):
         u[free] = spla.spsolve(L[free][:, free].tocsc(), M.diagonal()[free])
         return u
 
+    def igl_solve(V):
+        L = (-igl.cotmatrix(V, T)).tocsc()
+        M = igl.massmatrix(V, T, igl.MASSMATRIX_TYPE_VORONOI)
+        linear = -M.diagonal()[:, None]  # minimises u^T L u / 2 - u^T M 1: L u = M 1
+        return igl.min_quad_with_fixed(L, linear, boundary.astype(np.int64), np.zeros((boundary.size, 1)))[:, 0]
+
     calls = {"ddgjax solve_poisson": (ddgjax_solve, (tet_mesh.vertices,))}
     if igl is not None:
         calls["libigl + scipy spsolve"] = (scipy_solve, (V,))
+        calls["libigl min_quad_with_fixed"] = (igl_solve, (V,))
     times, results = timed_interleaved(calls, args.repeats, args.budget)
     for call, t in times.items():
         print(f"  {call:28s} {fmt(t, args.repeats)}")
     if igl is not None:
         ratio = times["ddgjax solve_poisson"][0] / times["libigl + scipy spsolve"][0]
         difference = rel_err(results["ddgjax solve_poisson"], results["libigl + scipy spsolve"])
-        print(f"  ratio {ratio:.2f}x; relative difference {difference:.1e}")
+        print(f"  ratio {ratio:.3g}x; relative difference {difference:.1e}")
+        ratio = times["ddgjax solve_poisson"][0] / times["libigl min_quad_with_fixed"][0]
+        difference = rel_err(results["ddgjax solve_poisson"], results["libigl min_quad_with_fixed"])
+        print(f"  against min_quad_with_fixed: ratio {ratio:.3g}x; relative difference {difference:.1e}")
     gradient = jax.grad(lambda vertices: jnp.sum(ddgjax_solve(vertices)))
     gradient_times, _ = timed_interleaved({"gradient": (gradient, (tet_mesh.vertices,))}, args.repeats, args.budget)
     print(f"  gradient of sum(u) in the positions: {fmt(gradient_times['gradient'], args.repeats)}")

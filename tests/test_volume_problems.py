@@ -86,7 +86,8 @@ def test_harmonic_interpolation_reproduces_a_linear_function():
     linear = V @ np.array([[1.0, -0.5], [2.0, 0.25], [-3.0, 1.0]]) + np.array([0.5, -1.0])
     fixed = tet_mesh.topology.boundary_vertices
     phi = np.asarray(harmonic_interpolation(tet_mesh, fixed_vertices=fixed, fixed_values=linear[fixed]))
-    np.testing.assert_allclose(phi, linear, rtol=0, atol=1e-12)
+    # 1e-12 with a direct solve (CPU); the CG a GPU defaults to stops at a relative residual of 1e-10.
+    np.testing.assert_allclose(phi, linear, rtol=0, atol=1e-12 if jax.default_backend() == "cpu" else 1e-9)
 
 
 def _ball_poisson_error(n_layers: int) -> float:
