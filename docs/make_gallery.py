@@ -59,6 +59,13 @@ GALLERY = (
         "`ddgjax.pde.solve_poisson`.",
     ),
     Entry(
+        "poisson_ball",
+        "Poisson in a solid",
+        ("poisson", "ball"),
+        "`-Delta phi = 1` in the unit ball (a tet mesh) with `phi = 0` on its sphere, drawn on the slice `z = 0` beside "
+        "its error against `(1 - r^2) / 6`. `ddgjax.pde.solve_poisson` on a `ddgjax.volume.TetMesh`.",
+    ),
+    Entry(
         "harmonic",
         "Harmonic interpolation",
         ("poisson", "--harmonic"),

@@ -14,20 +14,12 @@ import pytest
 import scipy.sparse
 import scipy.spatial
 from jax.test_util import check_grads
+from tet_meshes import jittered_grid_tets
 
 from ddgjax import volume
 from ddgjax._errors import DDGInputError
 
 jax.config.update("jax_enable_x64", True)
-
-
-def jittered_grid_tets(n: int = 5, jitter: float = 0.05, seed: int = 0) -> volume.TetMesh:
-    """Delaunay tets of a jittered `n^3` grid in [-1, 1]^3 (well shaped: libigl's formulas stay accurate)."""
-    rng = np.random.default_rng(seed)
-    axis = np.linspace(-1.0, 1.0, n)
-    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
-    points = points + jitter * rng.uniform(-1, 1, size=points.shape)
-    return volume.TetMesh.from_arrays(points, scipy.spatial.Delaunay(points).simplices)
 
 
 def kuhn_tets(cells: np.ndarray) -> volume.TetMesh:

@@ -1,10 +1,11 @@
-"""What the mesh commands share: reading the MESH argument and writing the figure."""
+"""What the mesh commands share: reading the MESH argument (a triangle or a tet mesh file) and writing the figure."""
 
 from __future__ import annotations
 
 import argparse
 import math
 import os
+import pathlib
 import sys
 
 import jax.numpy as jnp
@@ -12,16 +13,35 @@ import jax.numpy as jnp
 from .._errors import DDGInputError, MeshDataError
 from ..io import load_mesh
 from ..mesh import Mesh
+from ..volume import TetMesh, load_tet_mesh
+
+#: Triangle mesh files (`ddgjax.load_mesh`); a command that takes solids reads any other file as a tet mesh.
+SURFACE_SUFFIXES = (".obj", ".off", ".ply", ".stl")
 
 
-def load_cli_mesh(path: str) -> tuple[str, Mesh]:
-    """`(file name, mesh)` of the MESH argument in float64; `DDGInputError` / `MeshDataError` naming the file."""
+def is_tet_file(path: str) -> bool:
+    """Whether `path` is read as a tet mesh (`ddgjax.volume.load_tet_mesh`): its suffix is not one of `SURFACE_SUFFIXES`.
+
+    Every other suffix goes to the tet reader, so an unknown one is reported with the tet formats and
+    the triangle ones (`load_cli_mesh`).
+    """
+    return pathlib.Path(path).suffix.lower() not in SURFACE_SUFFIXES
+
+
+def load_cli_mesh(path: str, *, solids: bool = False) -> tuple[str, Mesh | TetMesh]:
+    """`(file name, mesh)` of the MESH argument in float64; `DDGInputError` / `MeshDataError` naming the file.
+
+    With `solids=True` a tet mesh file (`is_tet_file`) gives a `ddgjax.volume.TetMesh`; otherwise
+    every file is read as a triangle mesh.
+    """
     if not os.path.isfile(path):
         raise DDGInputError(f"MESH: expected an existing mesh file, got {path!r}")
+    solid = solids and is_tet_file(path)
     try:
-        return os.path.basename(path), load_mesh(path, dtype=jnp.float64)
+        return os.path.basename(path), (load_tet_mesh if solid else load_mesh)(path, dtype=jnp.float64)
     except (DDGInputError, MeshDataError) as error:
-        raise type(error)(f"{path}: {error}") from error
+        read_as = f" (read as a tet mesh: triangle meshes are {', '.join(SURFACE_SUFFIXES)} files)" if solid else ""
+        raise type(error)(f"{path}: {error}{read_as}") from error
 
 
 def write_figure(figure, output: str, command: str) -> bool:

@@ -11,7 +11,6 @@ curvature on the mesh (`ddgjax.plot.plot_mesh_function`, diverging colours centr
 from __future__ import annotations
 
 import argparse
-import pathlib
 import sys
 
 import jax
@@ -41,11 +40,9 @@ from ..volume import (
     load_tet_mesh,
     tet_signed_volumes,
 )
-from ._common import write_figure
+from ._common import is_tet_file, write_figure
 
 _DEFAULT_SHAPE = "built-in torus(major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16)"
-#: Triangle mesh files (`ddgjax.load_mesh`); any other file is read as a tet mesh (`ddgjax.volume.load_tet_mesh`).
-_SURFACE_SUFFIXES = (".obj", ".off", ".ply", ".stl")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -98,7 +95,7 @@ def _statistics(mesh: Mesh, *, oriented: bool) -> dict:
 
 def run_info(args: argparse.Namespace) -> int:
     """Print the report of `args.mesh` (or the default shape); exit code 2 with a message on bad input."""
-    if args.mesh is not None and pathlib.Path(args.mesh).suffix.lower() not in _SURFACE_SUFFIXES:
+    if args.mesh is not None and is_tet_file(args.mesh):
         return _run_tet_info(args)
     try:
         if args.mesh is None:

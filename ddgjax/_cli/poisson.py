@@ -8,6 +8,15 @@ vertices). The built-in shapes need no file: `disk` (the unit disk, with a bound
 where one is known. The figure shows the solution coloured on the mesh (with isolines on a flat
 mesh) beside its error, or the right-hand side when no exact solution is known, drawn with
 `ddgjax.plot.plot_mesh_function` on the Agg canvas (no pyplot, no display).
+
+Solids: the built-in `ball` (the unit ball, `ddgjax.volume.tet_ball`) and tet mesh files
+(`ddgjax.volume.load_tet_mesh`; a file is a tet mesh unless it is a triangle mesh's `.obj`, `.off`,
+`.ply` or `.stl`) are solved the same way with the solid's `L` and `M` (`ddgjax.volume`), the
+boundary being the boundary surface's vertices. `--rho one` in the unit ball is exact at
+`(1 - r^2) / 6`; `--harmonic` prescribes the same `(a^2 - b^2) / R^2`, which is harmonic in 3-D, so
+it is its own exact extension in every solid. A solid's figure is drawn on the slice through the
+middle of its bounding box across the `--up` axis (`ddgjax.volume.plane_section`), beside the
+error on the same slice or, with no exact solution, the boundary surface coloured by the solution.
 """
 
 from __future__ import annotations
@@ -23,18 +32,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import laplacian as surface_operators
+from .. import volume
 from .._compile import kernel
 from .._errors import DDGInputError, MeshDataError
 from .._options import BOUNDARY_CONDITIONS, MASS_MATRICES
 from .._results import RESULTS, Solution
 from ..internal import auto_method
-from ..laplacian import laplacian_and_mass, mass_matrix
 from ..mesh import Mesh, disk, icosphere
-from ..pde import dirichlet_energy, poisson_energy, solve_poisson
-from ._common import load_cli_mesh, write_figure
+from ..pde import solve_poisson
+from ..volume import TetMesh, tet_ball
+from ._common import SURFACE_SUFFIXES, load_cli_mesh, write_figure
 
-SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)"}
-DEFAULT_RESOLUTION = {"disk": 24, "sphere": 4}
+SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)", "ball": "unit ball (a solid: tets)"}
+DEFAULT_RESOLUTION = {"disk": 24, "sphere": 4, "ball": 8}
 RHOS = ("auto", "one", "y2", "source")
 SOLVERS = {
     "cholesky": "cholesky (CHOLMOD through sparsax)",
@@ -43,7 +54,7 @@ SOLVERS = {
     "pyamg": "pyamg (SciPy's conjugate gradient with pyamg's V-cycle)",
 }
 RHO_HELP = {
-    "one": "rho = -1, i.e. -Delta phi = 1 (torsion problem; exact (1 - r^2)/4 on the unit disk)",
+    "one": "rho = -1, i.e. -Delta phi = 1 (torsion problem; exact (1 - r^2)/4 on the unit disk, (1 - r^2)/6 in the unit ball)",
     "y2": "rho = P2(cos theta) = (3 cos^2 theta - 1)/2 of the direction from the bounding-box centre, a degree-2 "
     "spherical harmonic (exact phi = -rho/6 on the unit sphere)",
     "source": "a unit point source at the free vertex nearest the bounding-box centre (rho = 1/area there, 0 "
@@ -81,15 +92,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "mesh",
         nargs="?",
         default="disk",
-        help="built-in shape: " + ", ".join(f"{name} ({what})" for name, what in SHAPES.items()) + "; or a mesh file "
-        "(.obj, .off, .ply, .stl)",
+        help="built-in shape: " + ", ".join(f"{name} ({what})" for name, what in SHAPES.items()) + "; or a mesh file: "
+        f"triangles ({', '.join(SURFACE_SUFFIXES)}) or tets (.msh, .vtk, .vtu, .mesh, .meshb, .ele, .node)",
     )
     parser.add_argument(
         "--resolution",
         type=_at_least(1),
         default=None,
         help="size of the built-in shape: rings of the disk (default 24: 1,801 vertices), subdivisions of the "
-        "icosphere (default 4: 2,562 vertices)",
+        "icosphere (default 4: 2,562 vertices), layers of the ball (default 8: 2,057 vertices)",
     )
     problem = parser.add_mutually_exclusive_group()
     problem.add_argument(
@@ -105,8 +116,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="harmonic interpolation instead (rho = 0): on a mesh with boundary, the boundary takes the values "
         "(a^2 - b^2) / R^2 of the two longest bounding-box coordinates a, b about its centre (x^2 - y^2 on the "
-        "unit disk, whose harmonic extension is exact); on a closed mesh, the extreme vertices along the longest "
-        "bounding-box axis take 0 and 1",
+        "unit disk, whose harmonic extension is exact; in a solid, where it is harmonic, exact too); on a closed "
+        "mesh, the extreme vertices along the longest bounding-box axis take 0 and 1",
     )
     parser.add_argument(
         "--boundary",
@@ -129,9 +140,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=_view,
         default=None,
         metavar="AZIMUTH,ELEVATION",
-        help="camera angles of the figure in degrees; default: from above for a mesh flat in z, else -60,20",
+        help="camera angles of the figure in degrees; default: from above for a mesh flat in z and for a solid's "
+        "slice, else -60,20",
     )
-    parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the mesh's up axis in the figure (y for spot.obj)")
+    parser.add_argument(
+        "--up",
+        choices=("x", "y", "z"),
+        default="z",
+        help="the mesh's up axis in the figure (y for spot.obj); a solid is sliced across it",
+    )
     parser.add_argument("--output", "-o", default="ddgjax_poisson.png", help="PNG file to write the figure to")
     parser.add_argument("--no-plot", action="store_true", help="print the table only, write no figure")
     parser.set_defaults(run=run_poisson)
@@ -141,7 +158,7 @@ class Problem(NamedTuple):
     """What is solved: the mesh, the right-hand side, the Dirichlet data, and how to describe them."""
 
     name: str  # the mesh, for the table and the title
-    mesh: Mesh
+    mesh: Mesh | TetMesh  # a surface, or a solid
     rho: np.ndarray  # (nv,) pointwise right-hand side (zeros for --harmonic)
     fixed: np.ndarray  # (n_fixed,) Dirichlet vertices
     values: np.ndarray  # (n_fixed,) their values
@@ -151,33 +168,43 @@ class Problem(NamedTuple):
     source: int | None = None  # the vertex of a point source (--rho source)
 
 
-def _mesh(args) -> tuple[str, Mesh, str | None]:
+def _mesh(args) -> tuple[str, Mesh | TetMesh, str | None]:
     """The mesh named by the positional argument: (description, mesh, built-in shape name or None)."""
     if args.mesh in SHAPES:
         resolution = args.resolution or DEFAULT_RESOLUTION[args.mesh]
         if args.mesh == "disk":
             return f"built-in disk(n_rings={resolution})", disk(resolution, dtype=jnp.float64), "disk"
+        if args.mesh == "ball":
+            return f"built-in tet_ball(n_layers={resolution})", tet_ball(resolution, dtype=jnp.float64), "ball"
         return f"built-in icosphere(subdivisions={resolution})", icosphere(resolution, dtype=jnp.float64), "sphere"
     if args.resolution is not None:
         raise DDGInputError(f"--resolution: applies to the built-in shapes ({', '.join(SHAPES)}), not to the file {args.mesh!r}")
     if not os.path.isfile(args.mesh):
         raise DDGInputError(f"MESH: expected one of {', '.join(SHAPES)} or an existing mesh file, got {args.mesh!r}")
-    return *load_cli_mesh(args.mesh), None
+    return *load_cli_mesh(args.mesh, solids=True), None
 
 
-def _frame(vertices: np.ndarray, referenced: np.ndarray):
-    """Centre of the bounding box of the referenced vertices and its axes, longest first."""
+def _operators(mesh: Mesh | TetMesh):
+    """The package whose `cotan_laplacian`, `mass_matrix(mass=)` and `dirichlet_energy` act on `mesh`:
+    `ddgjax.laplacian` for a surface, `ddgjax.volume` for a solid."""
+    return volume if isinstance(mesh, TetMesh) else surface_operators
+
+
+def _frame(mesh: Mesh | TetMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(referenced, centre, axes)`: the mask of the vertices the faces or tets use, the centre of their
+    bounding box and its axes, longest first."""
+    vertices = np.asarray(mesh.vertices)
+    referenced = np.ones(mesh.n_vertices, dtype=bool)
+    referenced[mesh.topology.unreferenced_vertices] = False
     low, high = vertices[referenced].min(axis=0), vertices[referenced].max(axis=0)
-    return (low + high) / 2, np.argsort(-(high - low), kind="stable")
+    return referenced, (low + high) / 2, np.argsort(-(high - low), kind="stable")
 
 
 def _problem(args) -> Problem:
     name, mesh, shape = _mesh(args)
     topology = mesh.topology
     vertices = np.asarray(mesh.vertices)
-    referenced = np.ones(mesh.n_vertices, dtype=bool)
-    referenced[topology.unreferenced_vertices] = False
-    centre, axes = _frame(vertices, referenced)
+    referenced, centre, axes = _frame(mesh)
     boundary = np.asarray(topology.boundary_vertices, dtype=np.int64)
     zeros = np.zeros(mesh.n_vertices)
     if args.harmonic:
@@ -188,8 +215,9 @@ def _problem(args) -> Problem:
             data = (a**2 - b**2) / np.max(a[boundary] ** 2 + b[boundary] ** 2)
             coordinates = "xyz"[axes[0]] + "^2 - " + "xyz"[axes[1]] + "^2"
             statement = f"harmonic: L phi = 0 inside, phi = ({coordinates}) / R^2 on the {boundary.size} boundary vertices"
-            exact = data if shape == "disk" else None
-            return Problem(name, mesh, zeros, boundary, data[boundary], statement, exact, "(x^2 - y^2)")
+            # a^2 - b^2 is harmonic in the plane and in space, not on a curved surface.
+            exact = data if shape == "disk" or isinstance(mesh, TetMesh) else None
+            return Problem(name, mesh, zeros, boundary, data[boundary], statement, exact, f"({coordinates})")
         along = np.where(referenced, vertices[:, axes[0]], np.nan)
         ends = np.array([np.nanargmin(along), np.nanargmax(along)])
         statement = f"harmonic: L phi = 0 except phi = 0, 1 at vertices {ends[0]}, {ends[1]} (extremes along {'xyz'[axes[0]]})"
@@ -207,8 +235,9 @@ def _problem(args) -> Problem:
     exact, exact_name = None, ""
     if rho_kind == "one":
         rho, equation = -np.ones(mesh.n_vertices), "-Delta phi = 1 (rho = -1)"
-        if shape == "disk" and fixed.size:
-            exact, exact_name = (1 - np.sum(vertices[:, :2] ** 2, axis=1)) / 4, "(1 - r^2)/4"
+        if shape in ("disk", "ball") and fixed.size:  # -Delta (1 - r^2) = 2 d in d dimensions (the disk lies in z = 0)
+            dimension = 3 if shape == "ball" else 2
+            exact, exact_name = (1 - np.sum(vertices**2, axis=1)) / (2 * dimension), f"(1 - r^2)/{2 * dimension}"
     elif rho_kind == "y2":
         offsets = vertices - centre
         norms = np.linalg.norm(offsets, axis=1)
@@ -223,7 +252,7 @@ def _problem(args) -> Problem:
             raise DDGInputError("--rho source: every vertex is a Dirichlet vertex; there is nowhere to put the source")
         distances = np.where(free, np.linalg.norm(vertices - centre, axis=1), np.inf)
         source = int(np.argmin(distances))
-        area = float(mass_matrix(mesh, mass=args.mass).row_sums()[source])
+        area = float(_operators(mesh).mass_matrix(mesh, mass=args.mass).row_sums()[source])
         rho = np.where(np.arange(mesh.n_vertices) == source, 1.0 / area, 0.0)
         statement = f"Delta phi = delta at vertex {source}, {condition}"
         return Problem(name, mesh, rho, fixed, np.zeros(fixed.size), statement, None, "", source)
@@ -251,20 +280,24 @@ def _measures(problem: Problem, phi, mass: str) -> dict:
     side there (`M rho~` and the fixed values' contribution `L phi_D`), with `rho~` the compatible
     right-hand side, restated here from the mesh's components (each without a fixed vertex loses the
     area-weighted mean of `rho`) so that the residual checks the library's answer instead of
-    repeating its computation. The energies are the library's (`poisson_energy`, `dirichlet_energy`).
+    repeating its computation. The Dirichlet energy is the library's (`dirichlet_energy` of the mesh's
+    package); the energy adds `phi^T M rho~` to it (`ddgjax.pde.poisson_energy` on a surface).
     """
     mesh, fixed = problem.mesh, problem.fixed
-    topology = mesh.topology
-    laplacian, mass_matrix_ = laplacian_and_mass(mesh, mass=mass)
+    topology, operators = mesh.topology, _operators(mesh)
+    laplacian, mass_matrix_ = operators.cotan_laplacian(mesh), operators.mass_matrix(mesh, mass=mass)
+    cells, components = (
+        (topology.tets, topology.tet_components) if isinstance(mesh, TetMesh) else (topology.faces, topology.face_components)
+    )
     labels = np.full(mesh.n_vertices, topology.n_components, dtype=np.int64)  # unreferenced: a label of their own
-    labels[topology.faces.ravel()] = np.repeat(topology.face_components, 3)
+    labels[cells.ravel()] = np.repeat(components, cells.shape[1])
     floating = np.ones(topology.n_components + 1, dtype=bool)
     floating[labels[fixed]] = False
     floating[-1] = False
     free = np.ones(mesh.n_vertices, dtype=bool)
     free[fixed] = False
     free[topology.unreferenced_vertices] = False
-    compatible, residual = _residual(
+    compatible, residual, linear = _residual(
         laplacian,
         mass_matrix_,
         phi,
@@ -276,24 +309,21 @@ def _measures(problem: Problem, phi, mass: str) -> dict:
         fixed,
         n_labels=topology.n_components + 1,
     )
-    return {
-        "rho": compatible,
-        "residual": residual,
-        "energy": poisson_energy(mesh, phi, compatible, mass=mass),
-        "dirichlet": dirichlet_energy(mesh, phi),
-    }
+    dirichlet = operators.dirichlet_energy(mesh, phi)
+    return {"rho": compatible, "residual": residual, "energy": dirichlet + linear, "dirichlet": dirichlet}
 
 
 @kernel(static_argnames=("n_labels",))
 def _residual(laplacian, mass_matrix_, phi, rho, values, labels, floating, free, fixed, *, n_labels: int):
-    """`(rho~, residual)` of `_measures`, in one compiled program."""
+    """`(rho~, residual, phi^T M rho~)` of `_measures`, in one compiled program."""
     integral = jax.ops.segment_sum(mass_matrix_ @ rho, labels, n_labels)
     area = jax.ops.segment_sum(mass_matrix_.row_sums(), labels, n_labels)
     compatible = rho - jnp.where(floating, (integral / jnp.where(area > 0, area, 1.0))[labels], 0.0)
     lift = jnp.zeros_like(phi).at[fixed].set(values)
-    residual = (laplacian @ phi + mass_matrix_ @ compatible)[free]
-    scale = jnp.linalg.norm((mass_matrix_ @ compatible - laplacian @ lift)[free])
-    return compatible, jnp.linalg.norm(residual) / jnp.where(scale > 0, scale, 1.0)
+    load = mass_matrix_ @ compatible
+    residual = (laplacian @ phi + load)[free]
+    scale = jnp.linalg.norm((load - laplacian @ lift)[free])
+    return compatible, jnp.linalg.norm(residual) / jnp.where(scale > 0, scale, 1.0), jnp.sum(phi * load)
 
 
 def _solve_timed(problem: Problem, args) -> tuple[Solution, float, float]:
@@ -319,9 +349,13 @@ def _solver_name(solver: str, n: int) -> str:
 def format_table(problem: Problem, outputs: dict, first: float, second: float, args) -> str:
     """The text `ddgjax poisson` prints: the mesh, the problem and the numbers of its solution."""
     mesh, phi = problem.mesh, outputs["phi"]
-    loops = len(mesh.topology.boundary_loops)
+    if isinstance(mesh, TetMesh):
+        cells = f"{mesh.n_tets} tets, {mesh.topology.boundary_triangles.size} boundary triangles"
+    else:
+        loops = len(mesh.topology.boundary_loops)
+        cells = f"{mesh.n_faces} faces, {loops} boundary loop{'s' * (loops != 1)}"
     rows = [
-        ("mesh", f"{problem.name}: {mesh.n_vertices} vertices, {mesh.n_faces} faces, {loops} boundary loop{'s' * (loops != 1)}"),
+        ("mesh", f"{problem.name}: {mesh.n_vertices} vertices, {cells}"),
         ("problem", problem.statement),
         ("solver", f"{_solver_name(args.solver, _unknowns(problem))}, {args.mass} mass matrix"),
         ("time", f"{first:.3g} s first call (compilation included), {second * 1e3:.3g} ms again"),
@@ -337,36 +371,85 @@ def format_table(problem: Problem, outputs: dict, first: float, second: float, a
     return "\n".join(f"{label:<{width}}{text}" for label, text in rows)
 
 
+class Panel(NamedTuple):
+    """One picture of the figure: `values` at the vertices of `mesh`, drawn from `view` (None: the default)."""
+
+    title: str
+    mesh: Mesh
+    values: np.ndarray
+    cmap: str
+    vmin: float | None
+    vmax: float | None
+    view: tuple[float, float] | None
+
+
+def _panels(problem: Problem, phi: np.ndarray, rho: np.ndarray, args) -> list[Panel]:
+    """The solution beside its error; with no exact solution, beside the right-hand side on a surface and
+    the boundary surface coloured by the solution on a solid (whose solution is drawn on a slice)."""
+    from ..plot import TOP_VIEW  # imported here as in `_figure`: ddgjax.plot imports matplotlib
+
+    mesh = problem.mesh
+    # A point source's solution has a logarithmic spike at the source: colour the rest of it.
+    low = np.percentile(phi, 2) if problem.source is not None else None
+    clipped = "" if low is None else " (colours clipped below its 2nd percentile)"
+    error = None if problem.exact is None else phi - problem.exact
+    error_title = f"error $|\\phi - {problem.exact_name}|$"
+    if not isinstance(mesh, TetMesh):
+        panels = [Panel("solution $\\phi$" + clipped, mesh, phi, "viridis", low, None, args.view)]
+        if error is not None:
+            panels.append(Panel(error_title, mesh, np.abs(error), "magma", None, None, args.view))
+        elif problem.source is None and np.any(rho):
+            limit = np.abs(rho).max()
+            panels.append(Panel("right-hand side $\\rho$ (made compatible)", mesh, rho, "RdBu_r", -limit, limit, args.view))
+        return panels
+    # The slice through the middle of the bounding box, across the up axis, seen along its normal
+    # (TOP_VIEW looks down the up axis once plot_mesh_function has turned it to z).
+    _, centre, _ = _frame(mesh)
+    axis = "xyz".index(args.up)
+    on_slice = np.column_stack([phi] + ([] if error is None else [error]))
+    section, values = volume.plane_section(mesh, on_slice, point=centre, normal=np.eye(3)[axis])
+    where = f"on the slice {args.up} = {centre[axis]:.3g}"
+    # Both pictures of the solution share its colours (the slice holds only part of its range).
+    vmin, vmax = (phi.min() if low is None else low), phi.max()
+    panels = [Panel(f"solution $\\phi$ {where}{clipped}", section, values[:, 0], "viridis", vmin, vmax, args.view or TOP_VIEW)]
+    if error is not None:
+        panels.append(Panel(f"{error_title} {where}", section, np.abs(values[:, 1]), "magma", None, None, args.view or TOP_VIEW))
+    else:
+        panels.append(
+            Panel(
+                f"solution $\\phi$ on the boundary surface{clipped}", mesh.boundary_mesh(), phi, "viridis", vmin, vmax, args.view
+            )
+        )
+    return panels
+
+
 def _figure(problem: Problem, outputs: dict, args):
-    """The solution on the mesh, beside its error (or the right-hand side, when no exact solution is known)."""
+    """The panels of `_panels` side by side, with isolines on the first where it is seen flat from above."""
     # Imported here: matplotlib is only needed when a figure is written (not for --no-plot or --help).
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     from ..plot import is_flat, plot_mesh_function
 
-    mesh, phi = problem.mesh, outputs["phi"]
-    # A point source's solution has a logarithmic spike at the source: colour the rest of it.
-    low = np.percentile(phi, 2) if problem.source is not None else None
-    title = "solution $\\phi$" + ("" if low is None else " (colours clipped below its 2nd percentile)")
-    panels = [(title, phi, "viridis", low, None)]
-    if problem.exact is not None:
-        panels.append((f"error $|\\phi - {problem.exact_name}|$", np.abs(phi - problem.exact), "magma", None, None))
-    elif problem.source is None and np.any(outputs["rho"]):
-        limit = np.abs(outputs["rho"]).max()
-        panels.append(("right-hand side $\\rho$ (made compatible)", outputs["rho"], "RdBu_r", -limit, limit))
+    panels = _panels(problem, outputs["phi"], outputs["rho"], args)
     figure = Figure(figsize=(5.6 * len(panels) + 1.0, 5.4), layout="constrained")
     FigureCanvasAgg(figure)
-    isolines = args.view is None and args.up == "z" and is_flat(mesh)  # seen from above: the plane's own coordinates
-    for index, (title, values, cmap, vmin, vmax) in enumerate(panels):
+    for index, panel in enumerate(panels):
         axes = figure.add_subplot(1, len(panels), index + 1)
-        collection = plot_mesh_function(axes, mesh, values, view=args.view, up=args.up, cmap=cmap, vmin=vmin, vmax=vmax)
-        if index == 0 and isolines:
-            x, y = np.asarray(mesh.vertices)[:, :2].T
-            levels = np.linspace(low if low is not None else values.min(), values.max(), 14)[1:-1]
-            axes.tricontour(x, y, np.asarray(mesh.faces), values, levels=levels, colors="k", linewidths=0.5, linestyles="solid")
-        axes.set_title(title, fontsize=10)
-        figure.colorbar(collection, ax=axes, shrink=0.8, extend="min" if vmin is not None and cmap == "viridis" else "neither")
+        collection = plot_mesh_function(
+            axes, panel.mesh, panel.values, view=panel.view, up=args.up, cmap=panel.cmap, vmin=panel.vmin, vmax=panel.vmax
+        )
+        # Seen from above, the screen shows the plane's own coordinates x, y.
+        if index == 0 and args.view is None and args.up == "z" and is_flat(panel.mesh):
+            x, y = np.asarray(panel.mesh.vertices)[:, :2].T
+            low = panel.vmin if panel.vmin is not None else panel.values.min()
+            levels = np.linspace(low, panel.values.max(), 14)[1:-1]
+            axes.tricontour(
+                x, y, np.asarray(panel.mesh.faces), panel.values, levels=levels, colors="k", linewidths=0.5, linestyles="solid"
+            )
+        axes.set_title(panel.title, fontsize=10)
+        extend = "min" if problem.source is not None and panel.cmap == "viridis" else "neither"
+        figure.colorbar(collection, ax=axes, shrink=0.8, extend=extend)
     figure.suptitle(f"{problem.name}\n{problem.statement}", fontsize=10)
     return figure
 
@@ -383,7 +466,8 @@ def _failed(reason: str, problem: Problem, args) -> int:
     other = "cg" if _solver_name(args.solver, _unknowns(problem)).startswith(("cholesky", "superlu")) else "superlu"
     print(
         f"ddgjax poisson: error: the solve failed: {reason}\n"
-        f"(try --solver {other}, or look for degenerate faces with `ddgjax info`)",
+        f"(try --solver {other}, or look for degenerate {'tets' if isinstance(problem.mesh, TetMesh) else 'faces'} "
+        "with `ddgjax info`)",
         file=sys.stderr,
     )
     return 1
