@@ -5,8 +5,14 @@
 - geometry: `tet_signed_volumes`, `tet_volumes`, `tet_edge_lengths_sq`, `edge_lengths`,
   `triangle_areas`, `dihedral_angles`, `tet_cotan_weights`, `tet_hat_gradients`, and the intrinsic
   core from the six squared edge lengths (`*_from_lengths_sq`).
+- built-in solids and files: `tet_ball`, `tet_box`, `tet_solid_torus`, `tet_shell`; `load_tet_mesh`,
+  `save_tet_mesh` (meshio formats); `tetrahedralize` (fTetWild, the `tetmesh` extra); `check_tet_mesh`.
 - operators: `cotan_laplacian` (`== -igl.cotmatrix(V, T)`), `mass_matrix(mass=)` (libigl's three),
   `laplacian_apply`, `dirichlet_energy`, `vertex_dual_volumes`.
+- DEC: `d0`, `d1`, `d2`, Hodge stars `hodge0..3` on the `dual=` cells, `gradient`, `divergence`,
+  `codifferential`, `hodge_laplacian`; `plane_section` cuts a solid for drawing slices.
+- The problem layer takes a `TetMesh` where it takes a `Mesh`: `ddgjax.pde.solve_poisson`,
+  `harmonic_interpolation`, `ddgjax.spectral.eigenpairs`, `ddgjax.geodesics.heat_distance`.
 
 Conventions (docs/conventions.md): local edge order `TET_EDGES` (libigl's), triangle `k` of a tet
 opposite vertex `k` and oriented outward (`TET_TRIANGLES`), tets positively oriented

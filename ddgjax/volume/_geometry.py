@@ -16,6 +16,9 @@ so the cotan weight of edge `ij`, `w_ij = -V grad phi_i . grad phi_j = l_kl cot(
 `36 V`, and `theta_kl = atan2(6 V l_kl, 36 V w_ij)` needs no division at all. Degenerate tets (zero
 volume) give zero weights and finite values and gradients (`safe_div`).
 
+The `TetMesh` functions are compiled kernels (`ddgjax._compile.kernel`): called eagerly they run one
+program per mesh size, as `ddgjax.mesh`'s geometry does, instead of dozens of small dispatches.
+
 Reference: Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), the cotan
 formula in 3-D; Jacobson, "Algorithms and interfaces for real-time deformation of 2D and 3D shapes"
 (2013), the tet cotangent weights; libigl `cotmatrix_entries`, `dihedral_angles`, `volume`.
@@ -26,18 +29,21 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .._compile import kernel
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_div, safe_norm, safe_sqrt
 from ._tet_mesh import TetMesh, require_tet_mesh
 from ._topology import TET_EDGES, TET_TRIANGLES
 
 
+@kernel
 def tet_corner_positions(tet_mesh: TetMesh) -> Float[Array, "nt 4 3"]:
     """`(nt, 4, 3)` the positions of each tet's four vertices (libigl `V[T]`)."""
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     return take_rows(tet_mesh.vertices, tet_mesh.tets)
 
 
+@kernel
 def tet_signed_volumes(tet_mesh: TetMesh) -> Float[Array, " nt"]:
     """`(nt,)` signed volumes `det(b - a, c - a, d - a) / 6`: positive for the orientation `from_arrays` gives.
 
@@ -49,11 +55,13 @@ def tet_signed_volumes(tet_mesh: TetMesh) -> Float[Array, " nt"]:
     return jnp.sum(e1 * jnp.cross(e2, e3), axis=-1) / 6.0
 
 
+@kernel
 def tet_volumes(tet_mesh: TetMesh) -> Float[Array, " nt"]:
     """`(nt,)` unsigned tet volumes `|det(b - a, c - a, d - a)| / 6`; `sum` is the solid's volume."""
     return jnp.abs(tet_signed_volumes(tet_mesh))
 
 
+@kernel
 def tet_edge_lengths_sq(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
     """`(nt, 6)` squared lengths of each tet's edges in the local order `TET_EDGES` (libigl `edge_lengths(V, T)**2`)."""
     p = tet_corner_positions(tet_mesh)
@@ -61,6 +69,7 @@ def tet_edge_lengths_sq(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
     return jnp.sum(vectors * vectors, axis=-1)
 
 
+@kernel
 def edge_lengths(tet_mesh: TetMesh) -> Float[Array, " ne"]:
     """`(ne,)` lengths of the global edges `tet_mesh.edges`."""
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
@@ -68,6 +77,7 @@ def edge_lengths(tet_mesh: TetMesh) -> Float[Array, " ne"]:
     return safe_norm(vectors)
 
 
+@kernel
 def triangle_areas(tet_mesh: TetMesh) -> Float[Array, " ntri"]:
     """`(ntri,)` areas of the global triangles `tet_mesh.triangles` (interior and boundary)."""
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
@@ -114,6 +124,7 @@ def tet_cotan_weights_from_lengths_sq(
     return safe_div(numerators, 36.0 * volumes[:, None])
 
 
+@kernel
 def tet_cotan_weights(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
     """`(nt, 6)` `tet_cotan_weights_from_lengths_sq` on the embedding (volumes `tet_volumes`, as libigl takes them)."""
     return tet_cotan_weights_from_lengths_sq(tet_edge_lengths_sq(tet_mesh), volumes=tet_volumes(tet_mesh))
@@ -132,11 +143,13 @@ def dihedral_angles_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Float[A
     return safe_atan2(6.0 * volumes[:, None] * safe_sqrt(lengths_sq), opposite)
 
 
+@kernel
 def dihedral_angles(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
     """`(nt, 6)` interior dihedral angle at each local edge of each tet (`dihedral_angles_from_lengths_sq`)."""
     return dihedral_angles_from_lengths_sq(tet_edge_lengths_sq(tet_mesh))
 
 
+@kernel
 def tet_hat_gradients(tet_mesh: TetMesh) -> Float[Array, "nt 4 3"]:
     """`(nt, 4, 3)` the constant gradient of each vertex's hat function in each tet: `grad phi_k = -N_k / (6 V)`.
 
