@@ -248,6 +248,7 @@ def test_a_batch_sharded_over_two_devices_gives_the_same_answer():
     assert report["gradient"] < 1e-12
 
 
+@pytest.mark.slow
 def test_zero_area_faces_give_zero_and_finite_gradients(meshes):
     # Face 0 is collinear (zero area): it adds nothing, and every derivative stays finite (DESIGN.md, Numerics).
     degenerate = Mesh.from_arrays(np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2], [0, 1, 3]]))

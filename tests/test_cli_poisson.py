@@ -227,7 +227,7 @@ def _without_mesh_and_time(rows: dict[str, str]) -> dict[str, str]:
     return {label: text for label, text in rows.items() if label not in ("mesh", "time")}
 
 
-@pytest.mark.parametrize("suffix", [".msh", ".vtu", ".mesh", ".ele"])
+@pytest.mark.parametrize("suffix", [".msh", *(pytest.param(s, marks=pytest.mark.slow) for s in (".vtu", ".mesh", ".ele"))])
 def test_a_tet_mesh_file_round_trip(tmp_path, suffix):
     ball = tet_ball(3)
     path = tmp_path / f"ball{suffix}"

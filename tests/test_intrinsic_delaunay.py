@@ -562,6 +562,7 @@ def test_eigenpairs_of_the_moebius_strip_match_scipy_on_robust_laplacian():
     assert abs(residual).max() < 1e-12 * abs(L_robust).max()  # measured 4e-17
 
 
+@pytest.mark.slow
 def test_tufted_operators_differentiate_for_fixed_flips():
     """The tufted cover's flips replay in JAX: the energy's gradient against central differences."""
     mesh = _fins()

@@ -95,6 +95,7 @@ def test_eigenpairs_match_robust_laplacian_on_a_mesh_with_slivers():
     _check_against_robust_laplacian(load_mesh(data_path("meshes", "camelhead.off")), 16)  # near-degenerate triangles
 
 
+@pytest.mark.slow
 def test_derivatives_in_the_times_and_the_features_match_finite_differences():
     mesh = _bumpy_sphere(1)
     ops = diffusion_operators(mesh, 8)
@@ -155,6 +156,7 @@ def test_gradient_features_do_not_depend_on_the_frames():
         np.testing.assert_allclose(spatial_gradient_features(rotated, a_real, a_imag), features, atol=1e-14)
 
 
+@pytest.mark.slow
 def test_the_cache_hits_recomputes_corrupt_files_and_separates_settings(tmp_path, monkeypatch):
     import ddgjax.learn._operators as module
 
@@ -182,6 +184,7 @@ def test_the_cache_hits_recomputes_corrupt_files_and_separates_settings(tmp_path
     assert sorted(p.suffix for p in tmp_path.iterdir()) == [".npz"] * 4  # no temporary file left
 
 
+@pytest.mark.slow
 def test_stacked_operators_under_vmap_equal_each_mesh():
     meshes = [_bumpy_sphere(1), disk(4), _bumpy_sphere(1, seed=3)]
     ops = [diffusion_operators(mesh, 6) for mesh in meshes]
@@ -221,6 +224,7 @@ def test_bad_input_is_refused_naming_the_argument():
         diffusion_operators(mesh, 4, mass="galerkin")
 
 
+@pytest.mark.slow
 def test_a_folder_of_meshes_with_a_degenerate_one(tmp_path, capsys):
     mesh = icosphere(2)
     V = np.asarray(mesh.vertices).copy()

@@ -38,6 +38,7 @@ def meshes_and_operators():
     return meshes, [diffusion_operators(mesh, 12) for mesh in meshes]
 
 
+@pytest.mark.slow
 def test_a_block_is_its_definition(meshes_and_operators):
     """`x + MLP([x, h, tanh Re(conj(grad h) A grad h)])`, `h` the diffusion for the clamped learned times."""
     (mesh, *_), (operators, *_) = meshes_and_operators
@@ -60,6 +61,7 @@ def test_a_block_is_its_definition(meshes_and_operators):
     assert np.all(np.abs(np.asarray(d_times)) > 0), d_times
 
 
+@pytest.mark.slow
 def test_a_padded_batch_of_meshes_of_different_sizes_equals_each_mesh_alone(meshes_and_operators):
     meshes, operators = meshes_and_operators
     model = DiffusionNet(3, 2, width=8, n_blocks=2, key=jax.random.PRNGKey(0))

@@ -250,6 +250,7 @@ def test_betti_numbers_from_the_hodge_laplacians(name):
     assert tuple(kernels) == betti
 
 
+@pytest.mark.slow
 def test_hodge_laplacian_and_codifferential_conventions(tet_mesh):
     u = jnp.asarray(np.random.default_rng(5).normal(size=tet_mesh.n_vertices))
     Lu = volume.cotan_laplacian(tet_mesh) @ u
@@ -314,6 +315,7 @@ def two_tet_stars():
     return mesh, _all_stars(mesh, jnp.asarray(np.random.default_rng(8).normal(size=(2, 3))))
 
 
+@pytest.mark.slow
 def test_flat_tets_keep_values_and_gradients_finite():
     mesh, stars = two_tet_stars()
     values, pullback = jax.vjp(stars, mesh.vertices)

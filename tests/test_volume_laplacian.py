@@ -140,6 +140,7 @@ def test_derivatives_in_the_vertex_positions_match_finite_differences():
     check_grads(dual, (small.vertices,), order=1, modes=("rev",), eps=1e-5)
 
 
+@pytest.mark.slow
 def test_flat_tets_keep_values_and_gradients_finite():
     points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.3, 0.3, 0.0], [0.2, 0.2, 1.0]])
     tet_mesh = volume.TetMesh.from_arrays(points, np.array([[0, 1, 2, 3], [0, 1, 2, 4]]))  # tet 0 is flat

@@ -112,6 +112,7 @@ def test_poisson_in_the_ball_converges_at_second_order():
     assert _rate(1.0 / layers, errors) > 1.75, errors
 
 
+@pytest.mark.slow
 def test_poisson_gradients_match_finite_differences():
     """`J = sum w phi` of a Dirichlet problem: its gradient in the vertex positions and in `rho`, against central differences."""
     tet_mesh = tet_ball(4)  # as in the closed-form test: the same compiled programs
@@ -227,6 +228,7 @@ def _ball_distance_error(n_layers: int) -> float:
     return float(np.abs(distance - _radii(tet_mesh)).max())
 
 
+@pytest.mark.slow
 def test_heat_distance_from_the_centre_of_the_ball():
     tet_mesh = tet_ball(4)
     solver = heat_distance_solver(tet_mesh)
@@ -252,6 +254,7 @@ def test_heat_distance_in_the_ball_converges():
     assert errors[0] > errors[1] > errors[2] and _rate(1.0 / layers, errors) > 0.8, errors
 
 
+@pytest.mark.slow
 def test_heat_distance_gradient_matches_finite_differences():
     tet_mesh = tet_ball(4)  # as in the test above: the same compiled programs
     V0 = np.asarray(tet_mesh.vertices)
