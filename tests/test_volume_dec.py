@@ -327,6 +327,7 @@ def test_flat_tets_keep_values_and_gradients_finite():
     assert np.isfinite(np.asarray(pullback(jnp.ones_like(values))[0])).all()
 
 
+@pytest.mark.slow
 def test_derivatives_in_the_vertex_positions_match_finite_differences():
     mesh, stars = two_tet_stars()
     lifted = FLAT_POINTS + np.array([[0, 0, 0], [0, 0, 0.1], [0, 0, -0.1], [0, 0, -0.8], [0, 0, 0]])  # tet 0 below face 012
