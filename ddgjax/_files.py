@@ -10,6 +10,23 @@ import stat
 import tempfile
 from collections.abc import Callable
 
+import numpy as np
+
+from ._errors import DDGInputError, first_indices
+
+
+def finite_host_vertices(name: str, vertices, path: pathlib.Path, hint: str = "") -> np.ndarray:
+    """`vertices` as a float64 host array, or `DDGInputError` naming `name`, the non-finite rows and the
+    untouched `path` (a save refuses before writing anything); `hint` is added to the remedy."""
+    host = np.asarray(vertices, dtype=np.float64)
+    bad = ~np.isfinite(host).all(axis=1)
+    if bad.any():
+        raise DDGInputError(
+            f"{name}: {int(bad.sum())} of its {host.shape[0]} vertices have NaN or inf coordinates (vertices "
+            f"{first_indices(bad)}), so nothing was written to {str(path)!r}; give them finite positions first{hint}"
+        )
+    return host
+
 
 def write_atomically(target: pathlib.Path, write: Callable[[io.BufferedIOBase], None]) -> None:
     """Run `write` on a temporary file beside `target`, flush it to disk and rename it over `target`;

@@ -30,8 +30,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ._errors import DDGInputError, first_indices
-from ._files import write_atomically
+from ._errors import DDGInputError
+from ._files import finite_host_vertices, write_atomically
 from .mesh import Mesh, require_mesh
 
 # The public API; everything else here (the imports, the readers) is an implementation detail.
@@ -102,15 +102,13 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh) -> None:
     mesh = require_mesh("mesh", mesh)
     path = pathlib.Path(path)
     fmt = _format_of(path)
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    vertices = finite_host_vertices(
+        "mesh",
+        mesh.vertices,
+        path,
+        " (mesh.with_vertices(V) with finite V; a flow that produced them has diverged: check its result)",
+    )
     faces = np.asarray(mesh.faces, dtype=np.int64)
-    bad = ~np.isfinite(vertices).all(axis=1)
-    if bad.any():
-        raise DDGInputError(
-            f"mesh: {int(bad.sum())} of its {vertices.shape[0]} vertices have NaN or inf coordinates (vertices "
-            f"{first_indices(bad)}), so nothing was written to {str(path)!r}; give them finite positions first "
-            "(mesh.with_vertices(V) with finite V; a flow that produced them has diverged: check its result)"
-        )
     write_atomically(pathlib.Path(os.path.realpath(path)), lambda handle: _WRITERS[fmt](handle, vertices, faces))
 
 

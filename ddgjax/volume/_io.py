@@ -22,8 +22,8 @@ import tempfile
 
 import numpy as np
 
-from .._errors import DDGInputError, first_indices
-from .._files import write_atomically
+from .._errors import DDGInputError
+from .._files import finite_host_vertices, write_atomically
 from ._tet_mesh import TetMesh, require_tet_mesh
 
 #: File extension -> meshio's format (and the name of its reader / writer module, `meshio.gmsh`, ...).
@@ -106,13 +106,7 @@ def save_tet_mesh(path: str | os.PathLike, tet_mesh: TetMesh) -> None:
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     path = pathlib.Path(path)
     fmt = _format_of(path)
-    vertices = np.asarray(tet_mesh.vertices, dtype=np.float64)
-    bad = ~np.isfinite(vertices).all(axis=1)
-    if bad.any():
-        raise DDGInputError(
-            f"tet_mesh: {int(bad.sum())} of its {vertices.shape[0]} vertices have NaN or inf coordinates (vertices "
-            f"{first_indices(bad)}), so nothing was written to {str(path)!r}; give them finite positions first"
-        )
+    vertices = finite_host_vertices("tet_mesh", tet_mesh.vertices, path)
     import meshio
 
     data = meshio.Mesh(vertices, [("tetra", np.asarray(tet_mesh.tets, dtype=np.int64))])
