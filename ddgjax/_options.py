@@ -8,7 +8,7 @@ for `mass="galerkin"`) says so in its docstring and refuses it with `check_choic
 
 from __future__ import annotations
 
-from ._errors import DDGInputError, check_choice
+from ._errors import check_choice
 
 MASS_MATRICES = ("voronoi", "barycentric", "galerkin")
 """`mass=`: the mass matrix. Lumped mixed-Voronoi (Meyer et al. 2003, libigl's default), lumped
@@ -46,18 +46,3 @@ def check_weights(weights: str) -> str:
 def check_solver(solver: str) -> str:
     """`solver` if it is one of `LINEAR_SOLVERS`, else `DDGInputError`."""
     return check_choice("solver", solver, LINEAR_SOLVERS)
-
-
-def check_tet_robust(robust: object) -> None:
-    """`robust=` given with a `ddgjax.volume.TetMesh`: only `False`, else `DDGInputError` naming `robust`.
-
-    The robust operators are the intrinsic Delaunay retriangulation of a surface (Sharp & Crane 2020);
-    edge flips to a Delaunay tetrahedralisation do not exist intrinsically in 3-D, so a tet mesh has
-    only its own cotan Laplacian.
-    """
-    if robust is not False:
-        raise DDGInputError(
-            f"robust: the intrinsic Delaunay operators are a triangle-mesh construction with no tetrahedral "
-            f"counterpart (no intrinsic Delaunay retriangulation in 3-D), so a TetMesh takes only robust=False, "
-            f"got {robust!r}"
-        )

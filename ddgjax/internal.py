@@ -19,11 +19,13 @@ _NAMES = {
     # the tufted cover of any triangles, flipped to intrinsic Delaunay on the host, and the JAX replay of flips (ddgjax.laplacian)
     "tufted_delaunay": "ddgjax.laplacian._tufted",
     "replayed_lengths_sq": "ddgjax.laplacian._intrinsic",
-    # vertex positions as a float array, and the surface topology builder (ddgjax.mesh; ddgjax.volume's boundary surface)
+    # vertex positions checked and as a float array, simplex lists checked, and the surface topology builder (ddgjax.mesh; ddgjax.volume's boundary surface)
     "as_float_vertices": "ddgjax.mesh._mesh",
+    "checked_vertices": "ddgjax.mesh._mesh",
     "build_topology": "ddgjax.mesh._topology",
-    # degenerate tets refused by the problem layer on a TetMesh (ddgjax.volume)
-    "require_nondegenerate_tets": "ddgjax.volume._check",
+    "validate_simplices": "ddgjax.mesh._topology",
+    # the problem layer's checks of a TetMesh: robust=False only, no degenerate tets (ddgjax.volume)
+    "require_tet_problem": "ddgjax.volume._check",
     # degenerate geometry: faces of (near-)zero area, found once per Mesh object (ddgjax.mesh)
     "degenerate_faces": "ddgjax.mesh._check",
     "require_nondegenerate": "ddgjax.mesh._check",

@@ -61,9 +61,9 @@ from .._compile import at_top_level, kernel
 from .._errors import DDGInputError, check_choice, first_indices
 from .._indexing import take_rows
 from .._numerics import safe_norm
-from .._options import BOUNDARY_CONDITIONS, check_mass, check_solver, check_tet_robust
+from .._options import BOUNDARY_CONDITIONS, check_mass, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
-from ..internal import DirichletData, require_nondegenerate_tets, resolve_robust
+from ..internal import DirichletData, require_tet_problem, resolve_robust
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import (
     Mesh,
@@ -253,8 +253,7 @@ def _operators(mesh: Mesh | TetMesh, t_coef, mass: str, boundary: str, robust, s
     check_solver(solver)
     check_t_coef(t_coef)
     if isinstance(mesh, TetMesh):
-        check_tet_robust(robust)
-        require_nondegenerate_tets(mesh)
+        require_tet_problem(mesh, robust)
         triangulation = None
         L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
     else:

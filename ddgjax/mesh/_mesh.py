@@ -10,7 +10,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array
 from .._errors import DDGInputError, check_float_array, check_float_shape, is_traced
-from ._topology import MeshTopology, build_topology, validate_faces
+from ._topology import MeshTopology, build_topology, validate_simplices
 
 
 class Mesh(eqx.Module):
@@ -73,7 +73,7 @@ class Mesh(eqx.Module):
                 "jit use mesh.with_vertices(V) on a mesh made outside"
             )
         host_vertices = check_float_array("vertices", vertices, (3,))
-        topology = build_topology(validate_faces(faces, host_vertices.shape[0]), host_vertices.shape[0])
+        topology = build_topology(validate_simplices("faces", faces, host_vertices.shape[0], width=3), host_vertices.shape[0])
         return cls.from_topology(as_float_vertices(vertices), topology)
 
     @classmethod
@@ -103,13 +103,7 @@ class Mesh(eqx.Module):
         float dtype. Traced arrays (inside `jit`, `grad`, `vmap`) get the same shape and dtype checks;
         their values cannot be inspected.
         """
-        if np.shape(vertices) != (self.n_vertices, 3):
-            raise DDGInputError(f"vertices: expected shape ({self.n_vertices}, 3), got {np.shape(vertices)}")
-        if is_traced(vertices):
-            check_float_shape("vertices", vertices, (3,))
-            return eqx.tree_at(lambda mesh: mesh.vertices, self, as_float_vertices(vertices))
-        check_float_array("vertices", vertices, (3,))
-        return eqx.tree_at(lambda mesh: mesh.vertices, self, as_float_vertices(vertices))
+        return eqx.tree_at(lambda mesh: mesh.vertices, self, checked_vertices(vertices, self.n_vertices))
 
     @property
     def n_vertices(self) -> int:
@@ -154,6 +148,19 @@ def require_mesh(name: str, value) -> Mesh:
     else:
         hint = "build one with ddgjax.Mesh.from_arrays(vertices, faces) or ddgjax.io.load_mesh(path)"
     raise DDGInputError(f"{name}: expected a ddgjax Mesh, got {type(value).__name__}; {hint}")
+
+
+def checked_vertices(vertices, n_vertices: int) -> Float[Array, "nv 3"]:
+    """New positions for a mesh of `n_vertices` (`Mesh.with_vertices`, `ddgjax.volume.TetMesh.with_vertices`):
+    shape `(n_vertices, 3)` and a real dtype always, finite values when concrete (`DDGInputError` naming
+    `vertices`), then `as_float_vertices`."""
+    if np.shape(vertices) != (n_vertices, 3):
+        raise DDGInputError(f"vertices: expected shape ({n_vertices}, 3), got {np.shape(vertices)}")
+    if is_traced(vertices):
+        check_float_shape("vertices", vertices, (3,))
+    else:
+        check_float_array("vertices", vertices, (3,))
+    return as_float_vertices(vertices)
 
 
 def as_float_vertices(vertices) -> Float[Array, "nv 3"]:

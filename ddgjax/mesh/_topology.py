@@ -22,27 +22,35 @@ import scipy.sparse as sp
 from .._errors import DDGInputError, MeshDataError, first_indices
 from ..internal import stable_order
 
+_SIMPLICES = {3: ("nf", "triangles", "face", "triangle", "three"), 4: ("nt", "tetrahedra", "tetrahedron", "tetrahedron", "four")}
 
-def validate_faces(faces, n_vertices: int) -> np.ndarray:
-    """Host `(nf, 3)` int32 array of faces, refusing bad shape, a non-integer dtype, range or repeated corners."""
-    host = np.asarray(faces)
-    if host.ndim != 2 or host.shape[1] != 3:
-        raise DDGInputError(f"faces: expected shape (nf, 3) (triangles), got {host.shape}")
+
+def validate_simplices(name: str, simplices, n_vertices: int, *, width: int) -> np.ndarray:
+    """Host `(n, width)` int32 copy of a simplex list (`width` 3: faces, 4: tets), or `DDGInputError`
+    naming `name`: a bad shape, an empty list, a non-integer dtype, indices out of range, a simplex
+    repeating a vertex. Faces of a `Mesh`, tets of a `TetMesh` (`ddgjax.volume`, through `ddgjax.internal`)."""
+    rows, plural, element, simplex, count = _SIMPLICES[width]
+    host = np.asarray(simplices)
+    if host.ndim != 2 or host.shape[1] != width:
+        raise DDGInputError(f"{name}: expected shape ({rows}, {width}) ({plural}), got {host.shape}")
     if host.shape[0] == 0:
-        raise DDGInputError("faces: expected at least one face, got an empty array")
+        raise DDGInputError(f"{name}: expected at least one {element}, got an empty array")
     if not np.issubdtype(host.dtype, np.integer):
-        # Floats are refused even when they hold whole numbers: a float face array is almost always a
+        # Floats are refused even when they hold whole numbers: a float index array is almost always a
         # mix-up (vertices passed as faces, or indices that went through float arithmetic).
-        raise DDGInputError(f"faces: expected an integer array of vertex indices (e.g. int32 or int64), got dtype {host.dtype}")
+        raise DDGInputError(f"{name}: expected an integer array of vertex indices (e.g. int32 or int64), got dtype {host.dtype}")
     out_of_range = (host < 0) | (host >= n_vertices)
     if out_of_range.any():
         raise DDGInputError(
-            f"faces: vertex indices must lie in [0, {n_vertices}), got out-of-range entries in faces "
+            f"{name}: vertex indices must lie in [0, {n_vertices}), got out-of-range entries in {name} "
             f"{first_indices(out_of_range)}"
         )
-    repeated = (host[:, 0] == host[:, 1]) | (host[:, 1] == host[:, 2]) | (host[:, 2] == host[:, 0])
+    ordered = np.sort(host, axis=1)
+    repeated = (ordered[:, 1:] == ordered[:, :-1]).any(axis=1)
     if repeated.any():
-        raise DDGInputError(f"faces: a triangle must have three distinct vertices; faces {first_indices(repeated)} repeat one")
+        raise DDGInputError(
+            f"{name}: a {simplex} must have {count} distinct vertices; {name} {first_indices(repeated)} repeat one"
+        )
     return np.array(host, dtype=np.int32, order="C")  # a copy: the topology makes its arrays read-only
 
 

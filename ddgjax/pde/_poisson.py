@@ -52,9 +52,9 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 from .. import volume
 from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_vertex_indices
-from .._options import check_mass, check_solver, check_tet_robust
+from .._options import check_mass, check_solver
 from .._results import RESULTS, Solution, outcome
-from ..internal import require_nondegenerate_tets, resolve_robust, vertex_plan
+from ..internal import require_tet_problem, resolve_robust, vertex_plan
 from ..laplacian import (
     IntrinsicTriangulation,
     TriangulationPlan,
@@ -117,8 +117,7 @@ def solve_poisson(
     check_mass(mass)
     check_solver(solver)
     if tet:
-        check_tet_robust(robust)
-        require_nondegenerate_tets(mesh)
+        require_tet_problem(mesh, robust)
         triangulation, plan = None, volume.tet_plan(mesh)
     else:
         triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="solve_poisson")

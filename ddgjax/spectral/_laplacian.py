@@ -34,9 +34,9 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .. import volume
 from .._errors import DDGInputError, check_choice
-from .._options import BOUNDARY_CONDITIONS, check_mass, check_tet_robust
+from .._options import BOUNDARY_CONDITIONS, check_mass
 from .._results import Solution, outcome
-from ..internal import require_nondegenerate_tets
+from ..internal import require_tet_problem
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, require_mesh
 from ..solve import AMGHierarchy
@@ -92,8 +92,7 @@ def eigenpairs(
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
     check_mass(mass)
     if tet:
-        check_tet_robust(robust)
-        require_nondegenerate_tets(mesh)
+        require_tet_problem(mesh, robust)
         L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
     else:
         L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)

@@ -192,15 +192,23 @@ def _first(indices: np.ndarray) -> str:
     return first_indices(mask)
 
 
-def require_nondegenerate_tets(tet_mesh: TetMesh) -> None:
-    """`MeshDataError` naming the degenerate tets of `tet_mesh` at its positions, if there are any.
+def require_tet_problem(tet_mesh: TetMesh, robust: object) -> None:
+    """What the problem layer (`solve_poisson`, `eigenpairs`, `heat_distance` on a `TetMesh`) checks first,
+    as `ddgjax.laplacian`'s `resolve_robust` does for a triangle mesh.
 
-    The problem-level functions (`solve_poisson`, `eigenpairs`, `heat_distance` on a `TetMesh`) call
-    it first: a tet of near-zero volume has near-infinite cotan weights, so its Laplacian's rounding
-    makes the solve fail or lie, and tets have no `robust=` remedy (no intrinsic Delaunay in 3-D).
-    Measured once per `TetMesh` object, on the host, with `check_tet_mesh`'s test; nothing is checked
-    under `jit` (traced positions), where values and gradients stay finite.
+    - `robust=` must be `False` (`DDGInputError` naming it): the robust operators are the intrinsic
+      Delaunay retriangulation of a surface (Sharp & Crane 2020), which has no tetrahedral counterpart.
+    - No degenerate tets at concrete positions (`MeshDataError` naming them): a tet of near-zero volume
+      has near-infinite cotan weights, so its Laplacian's rounding makes the solve fail or lie, and tets
+      have no `robust=` remedy. Measured once per `TetMesh` object, on the host, with `check_tet_mesh`'s
+      test; nothing is checked under `jit` (traced positions), where values and gradients stay finite.
     """
+    if robust is not False:
+        raise DDGInputError(
+            f"robust: the intrinsic Delaunay operators are a triangle-mesh construction with no tetrahedral "
+            f"counterpart (no intrinsic Delaunay retriangulation in 3-D), so a TetMesh takes only robust=False, "
+            f"got {robust!r}"
+        )
     if is_traced(tet_mesh.vertices) or tet_mesh.topology is None:
         return
     found = tet_mesh.__dict__.get("_degenerate_tets")

@@ -157,6 +157,8 @@ def d0(tet_mesh: TetMesh) -> SparseMatrix:
     """Exterior derivative on 0-forms, `(ne, nv)`: `(d0 u)_e = u[head] - u[tail]` for edge `(tail, head)`, low -> high.
 
     Values `-1, +1` in the vertex dtype. The same matrix as `ddgjax.dec.d0` on a surface's edges.
+    Reference: Crane et al., *Digital Geometry Processing with Discrete Exterior Calculus* (2013),
+    section 3.6 (the signed incidence matrices). libigl: the edges of `igl.edges(T)` (no `d0`).
     """
     return exterior_derivative(tet_mesh, 0)
 
@@ -165,6 +167,7 @@ def d1(tet_mesh: TetMesh) -> SparseMatrix:
     """Exterior derivative on 1-forms, `(ntri, ne)`: the circulation around each triangle `i < j < k` run `i -> j -> k`.
 
     `(d1 a)_f = a_ij + a_jk - a_ik` (edges low -> high; `TRIANGLE_EDGE_SIGNS`). `d1 @ d0 == 0` exactly.
+    Reference: Crane et al. (2013), section 3.6; Desbrun et al., *Discrete Exterior Calculus* (2005).
     """
     return exterior_derivative(tet_mesh, 1)
 
@@ -173,7 +176,8 @@ def d2(tet_mesh: TetMesh) -> SparseMatrix:
     """Exterior derivative on 2-forms, `(nt, ntri)`: the flux out of each tet, `(d2 b)_t = sum_k s_tk b[tet_triangles[t, k]]`.
 
     `s_tk = tet_triangle_signs[t, k]`, +1 where the outward orientation of the tet's triangle `k` is
-    the global one. `d2 @ d1 == 0` exactly.
+    the global one. `d2 @ d1 == 0` exactly. Reference: Desbrun et al., *Discrete Exterior Calculus*
+    (2005), section 3 (the coboundary of a simplicial 3-complex).
     """
     return exterior_derivative(tet_mesh, 2)
 
@@ -213,7 +217,10 @@ def hodge_star_entries(tet_mesh: TetMesh, *, degree: int, dual: str = "voronoi",
     `(ne,)`, dual edge length over triangle area `(ntri,)`, `1 / volume` `(nt,)` (module docstring).
     `dual` (`TET_DUALS`): `"voronoi"` (default), `"circumcentric"`, `"barycentric"`; `*3` does not
     depend on it, and `"voronoi"` differs from `"circumcentric"` in `*0` only. Zero entries invert
-    to zero. Differentiable in the vertex positions.
+    to zero. Differentiable in the vertex positions. The surface counterpart is
+    `ddgjax.dec.hodge_star_entries`. Reference: Desbrun, Hirani, Leok, Marsden, *Discrete Exterior
+    Calculus* (2005), section 4; libigl has no tet Hodge stars (its `massmatrix` is `*0`, `-cotmatrix`
+    is `d0^T *1 d0`).
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     check_choice("dual", dual, TET_DUALS)
@@ -255,6 +262,7 @@ def hodge2(tet_mesh: TetMesh, *, dual: str = "voronoi", inverse: bool = False) -
 
     Voronoi (default) and circumcentric: signed circumcentre-to-circumcentre distances; barycentric:
     centroid distances (module docstring). `inverse=True`: `*2^{-1}`, zero entries staying zero.
+    Reference: Desbrun et al., *Discrete Exterior Calculus* (2005), section 4.
     """
     return diagonal_matrix(hodge_star_entries(tet_mesh, degree=2, dual=dual, inverse=inverse))
 
@@ -262,6 +270,6 @@ def hodge2(tet_mesh: TetMesh, *, dual: str = "voronoi", inverse: bool = False) -
 def hodge3(tet_mesh: TetMesh, *, inverse: bool = False) -> SparseMatrix:
     """Hodge star on 3-forms, diagonal `(nt, nt)`: `1 / volume` (a tet's dual is a point); `inverse=True` the volumes.
 
-    Zero-volume tets get 0 (pseudo-inverse).
+    Zero-volume tets get 0 (pseudo-inverse). Reference: Desbrun et al., *Discrete Exterior Calculus* (2005).
     """
     return diagonal_matrix(hodge_star_entries(tet_mesh, degree=3, inverse=inverse))

@@ -117,7 +117,9 @@ def tet_edge_dual_volumes_from_lengths_sq(
     `x_ij = V / 2 (beta_k gamma_k[l] + beta_l gamma_l[k])` (module docstring, `dual` picks the
     centres); the dual volume of local vertex `i` in the tet is `sum_{j != i} x_ij`
     (`tet_vertex_dual_volumes_from_lengths_sq`), the four summing to `V`. Edges in the local order
-    `TET_EDGES`. `volumes` default to the lengths' own (`tet_volumes_from_lengths_sq`).
+    `TET_EDGES`. `volumes` default to the lengths' own (`tet_volumes_from_lengths_sq`). Reference:
+    Desbrun et al., *Discrete Exterior Calculus* (2005) (circumcentric dual); libigl `voronoi_mass`
+    (the snapped centres of `"voronoi"`).
     """
     check_choice("dual", dual, TET_DUALS)
     if volumes is None:

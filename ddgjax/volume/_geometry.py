@@ -57,7 +57,10 @@ def tet_signed_volumes(tet_mesh: TetMesh) -> Float[Array, " nt"]:
 
 @kernel
 def tet_volumes(tet_mesh: TetMesh) -> Float[Array, " nt"]:
-    """`(nt,)` unsigned tet volumes `|det(b - a, c - a, d - a)| / 6`; `sum` is the solid's volume."""
+    """`(nt,)` unsigned tet volumes `|det(b - a, c - a, d - a)| / 6`; `sum` is the solid's volume.
+
+    libigl: `abs(igl.volume(V, T))`. Zero for a flat tet (finite gradients: the derivative of `|x|` at 0 is taken as 0).
+    """
     return jnp.abs(tet_signed_volumes(tet_mesh))
 
 
@@ -71,7 +74,11 @@ def tet_edge_lengths_sq(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
 
 @kernel
 def edge_lengths(tet_mesh: TetMesh) -> Float[Array, " ne"]:
-    """`(ne,)` lengths of the global edges `tet_mesh.edges`."""
+    """`(ne,)` lengths `|p_head - p_tail|` of the global edges `tet_mesh.edges` (low -> high, sorted).
+
+    Zero-length edges have zero gradient (`safe_norm`). libigl: `igl.edge_lengths` per tet; per global edge,
+    `np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)` with `E = igl.edges(T)`.
+    """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     vectors = take_rows(tet_mesh.vertices, tet_mesh.edges[:, 1]) - take_rows(tet_mesh.vertices, tet_mesh.edges[:, 0])
     return safe_norm(vectors)
@@ -79,7 +86,11 @@ def edge_lengths(tet_mesh: TetMesh) -> Float[Array, " ne"]:
 
 @kernel
 def triangle_areas(tet_mesh: TetMesh) -> Float[Array, " ntri"]:
-    """`(ntri,)` areas of the global triangles `tet_mesh.triangles` (interior and boundary)."""
+    """`(ntri,)` areas `|(q - p) x (r - p)| / 2` of the global triangles `tet_mesh.triangles` (interior and boundary).
+
+    Finite gradients on collinear triangles (`safe_norm`). libigl: `igl.face_areas(V, T)` per tet
+    (its four faces), `igl.doublearea(V, F) / 2` on a triangle list.
+    """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     p = take_rows(tet_mesh.vertices, tet_mesh.triangles)
     return 0.5 * safe_norm(jnp.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]))
@@ -101,7 +112,13 @@ def _gram_adjugate(lengths_sq: Float[Array, "nt 6"]) -> tuple[Float[Array, " nt"
 
 
 def tet_volumes_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Float[Array, " nt"]:
-    """`(nt,)` volumes from the six squared edge lengths (Cayley-Menger: `V = sqrt(det G) / 6`; 0 where no tet exists)."""
+    """`(nt,)` volumes from the six squared edge lengths (Cayley-Menger: `V = sqrt(det G) / 6`; 0 where no tet exists).
+
+    `G` is the Gram matrix of the edge vectors from local vertex 0 (module docstring); lengths that no
+    Euclidean tet has (`det G < 0`) give 0, with finite gradients. Reference: L. M. Blumenthal, *Theory
+    and Applications of Distance Geometry* (1953), the Cayley-Menger determinant. libigl: the C++
+    `igl::volume(L, vol)` overload from edge lengths (not in the Python bindings).
+    """
     determinant, _ = _gram_adjugate(lengths_sq)
     return safe_sqrt(jnp.maximum(determinant, 0.0)) / 6.0
 
@@ -145,7 +162,12 @@ def dihedral_angles_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Float[A
 
 @kernel
 def dihedral_angles(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
-    """`(nt, 6)` interior dihedral angle at each local edge of each tet (`dihedral_angles_from_lengths_sq`)."""
+    """`(nt, 6)` interior dihedral angle at each local edge of each tet, in `[0, pi]`.
+
+    `dihedral_angles_from_lengths_sq` on the embedding's squared edge lengths (local order `TET_EDGES`):
+    `theta_m = atan2(6 V l_m, 36 V w_k)`, finite with finite gradients on flat tets. libigl:
+    `igl.dihedral_angles(V, T)[0]` (the same order; tests).
+    """
     return dihedral_angles_from_lengths_sq(tet_edge_lengths_sq(tet_mesh))
 
 

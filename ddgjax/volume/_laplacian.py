@@ -63,7 +63,13 @@ _PLANS: "weakref.WeakKeyDictionary[TetTopology, TetPlan]" = weakref.WeakKeyDicti
 
 
 def tet_plan(tet_mesh: TetMesh) -> TetPlan:
-    """The `TetPlan` of `tet_mesh`'s connectivity (built on the host on first use, then cached)."""
+    """The `TetPlan` of `tet_mesh`'s connectivity (built on the host on first use, then cached).
+
+    The vertex pattern of `ddgjax.sparse.SparsityPattern.from_edges` and the slot maps of
+    `ddgjax.laplacian`'s plans (`edge_slot_maps`), with the local tet edges `6 t + k` as the
+    "corners"; cached per `TetTopology` (weakly: it goes with the last mesh of that connectivity).
+    libigl and gpytoolbox build their matrices from triplets on every call and have no plan.
+    """
     topology = require_tet_mesh("tet_mesh", tet_mesh).topology
     if topology is None:
         raise DDGInputError("tet_mesh: a storage plan needs the topology, which a compiled kernel does not see; build it before")

@@ -59,7 +59,8 @@ def tet_shell(n_layers=8, *, inner_radius=0.5, radius=1.0, dtype=None) -> TetMes
     spheres hold their vertices exactly (no stretch when `inner_radius / radius = k0 / n_layers`).
     `n_layers - k0` layers through the thickness; Betti numbers `(1, 0, 1, 0)`, Euler characteristic
     2; two boundary components. `inner_radius`, `radius` and `dtype` (as for `tet_ball`) are
-    keyword-only; `0 < inner_radius < radius`.
+    keyword-only; `0 < inner_radius < radius`. Reference: as `tet_ball`. No libigl equivalent
+    (TetGen / fTetWild mesh a shell from its two spheres: `tetrahedralize`).
     """
     n = check_count("n_layers", n_layers, 2)
     check_positive("inner_radius", inner_radius)

@@ -7,10 +7,10 @@ import jax
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .._errors import DDGInputError, check_float_array, check_float_shape, is_traced
-from ..internal import as_float_vertices, build_topology
+from .._errors import DDGInputError, check_float_array, is_traced
+from ..internal import as_float_vertices, build_topology, checked_vertices, validate_simplices
 from ..mesh import Mesh, MeshTopology
-from ._topology import TetTopology, build_tet_topology, validate_tets
+from ._topology import TetTopology, build_tet_topology
 
 
 class TetMesh(eqx.Module):
@@ -74,7 +74,7 @@ class TetMesh(eqx.Module):
                 "tet_mesh.with_vertices(V) on a tet mesh made outside"
             )
         host_vertices = check_float_array("vertices", vertices, (3,))
-        host_tets = validate_tets(tets, host_vertices.shape[0])
+        host_tets = validate_simplices("tets", tets, host_vertices.shape[0], width=4)
         corners = host_vertices[host_tets].astype(np.float64)
         volumes = np.einsum(
             "ij,ij->i", corners[:, 1] - corners[:, 0], np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 0])
@@ -107,13 +107,7 @@ class TetMesh(eqx.Module):
         concrete (`DDGInputError` naming `vertices`). The tets keep their orientation: a move that
         inverts a tet gives it a negative signed volume (`tet_signed_volumes`), it is not re-oriented.
         """
-        if np.shape(vertices) != (self.n_vertices, 3):
-            raise DDGInputError(f"vertices: expected shape ({self.n_vertices}, 3), got {np.shape(vertices)}")
-        if is_traced(vertices):
-            check_float_shape("vertices", vertices, (3,))
-        else:
-            check_float_array("vertices", vertices, (3,))
-        return eqx.tree_at(lambda tet_mesh: tet_mesh.vertices, self, as_float_vertices(vertices))
+        return eqx.tree_at(lambda tet_mesh: tet_mesh.vertices, self, checked_vertices(vertices, self.n_vertices))
 
     @property
     def n_vertices(self) -> int:

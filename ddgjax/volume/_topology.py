@@ -27,34 +27,12 @@ import hashlib
 import numpy as np
 import scipy.sparse as sp
 
-from .._errors import DDGInputError, first_indices
 from ..internal import stable_order
 
 #: Local vertex pairs of the six edges of a tet (libigl `edge_lengths` order); edge `k` is opposite `k + 3 (mod 6)`.
 TET_EDGES = np.array([[3, 0], [3, 1], [3, 2], [1, 2], [2, 0], [0, 1]], dtype=np.int32)
 #: Local triangle `k`: the vertices opposite vertex `k`, ordered so that its normal points out of a positive tet.
 TET_TRIANGLES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int32)
-
-
-def validate_tets(tets, n_vertices: int) -> np.ndarray:
-    """Host `(nt, 4)` int32 array of tets, refusing a bad shape or dtype, indices out of range, repeated vertices."""
-    host = np.asarray(tets)
-    if host.ndim != 2 or host.shape[1] != 4:
-        raise DDGInputError(f"tets: expected shape (nt, 4) (tetrahedra: four vertex indices each), got {host.shape}")
-    if host.shape[0] == 0:
-        raise DDGInputError("tets: expected at least one tetrahedron, got an empty array")
-    if not np.issubdtype(host.dtype, np.integer):
-        raise DDGInputError(f"tets: expected an integer array of vertex indices (e.g. int32 or int64), got dtype {host.dtype}")
-    out_of_range = (host < 0) | (host >= n_vertices)
-    if out_of_range.any():
-        raise DDGInputError(
-            f"tets: vertex indices must lie in [0, {n_vertices}), got out-of-range entries in tets {first_indices(out_of_range)}"
-        )
-    ordered = np.sort(host, axis=1)
-    repeated = (ordered[:, 1:] == ordered[:, :-1]).any(axis=1)
-    if repeated.any():
-        raise DDGInputError(f"tets: a tetrahedron must have four distinct vertices; tets {first_indices(repeated)} repeat one")
-    return np.array(host, dtype=np.int32, order="C")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
