@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.extend.core import find_top_trace
 
+from . import _program_store
 from ._errors import DDGInputError
 
 #: Options for every kernel compiled on CPU (module docstring).
@@ -143,19 +144,43 @@ def kernel(
             return plain(*args, **kwargs)
         on_cpu = jax.default_backend() == "cpu"
         extra = tuple(sorted(extra_cpu_options(*args, **kwargs).items())) if extra_cpu_options and on_cpu else ()
-        key = (_signature(args, kwargs, static_positions), extra)
+        signature, dynamic = _signature(args, kwargs, static_positions)
+        key = (signature, extra)
         program = programs.get(key)
         if program is None:
             options = cpu_compiler_options(dict(extra)) if on_cpu else {}
-            program = programs[key] = jax.jit(_fresh(function), static_argnames=static_argnames, compiler_options=options or None)
+            program = programs[key] = _program(function, static_positions, options, key, args, kwargs, dynamic)
             if len(programs) > PROGRAMS_PER_KERNEL:
                 programs.popitem(last=False)
         else:
             programs.move_to_end(key)
-        return program(*args, **kwargs)
+        return program(*dynamic[0], **dynamic[1])
 
-    call._cache_size = lambda: plain._cache_size() + sum(program._cache_size() for program in programs.values())
+    call._cache_size = lambda: plain._cache_size() + len(programs)
     return call
+
+
+def _program(function: Callable, static_positions, options: dict[str, str], key: tuple, args, kwargs, dynamic) -> Callable:
+    """The compiled program of `function` for one argument signature, called with the dynamic arguments only.
+
+    Read from ddgjax's program store when it holds one (no tracing, lowering or compiling), else
+    compiled ahead of time here and written there (`ddgjax._program_store`). In a process with
+    several devices it is a `jax.jit` of its own, which places committed arguments as JAX does.
+    """
+    jitted = jax.jit(_fresh(function), static_argnames=tuple(static_positions), compiler_options=options or None)
+    if jax.device_count() != 1:
+        return _with_static_arguments(jitted, args, kwargs, static_positions)
+    name = f"{function.__module__}.{function.__qualname__}"
+    entry = _program_store.entry_key(name, key, options) if _program_store.switched_on() else None
+    if entry is not None:
+        stored = _program_store.load(entry, jax.tree_util.tree_structure(dynamic))
+        if stored is not None:
+            return stored
+    lowered = jitted.lower(*args, **kwargs)
+    compiled = lowered.compile()
+    if entry is not None:
+        _program_store.save(entry, lowered, compiled)
+    return compiled
 
 
 def device_array(x, dtype=None) -> jax.Array:
@@ -173,6 +198,20 @@ def device_array(x, dtype=None) -> jax.Array:
     return jax.device_put(host.astype(jax.dtypes.canonicalize_dtype(host.dtype), copy=False))
 
 
+def _with_static_arguments(jitted: Callable, args: tuple, kwargs: dict, static_positions: dict[str, int | None]) -> Callable:
+    """`jitted` called with the dynamic arguments only, the static ones of `args` / `kwargs` put back in place."""
+    positions = sorted(position for position in static_positions.values() if position is not None and position < len(args))
+    static_keywords = {name: kwargs[name] for name in static_positions if name in kwargs}
+
+    def program(*dynamic_args, **dynamic_kwargs):
+        full = list(dynamic_args)
+        for position in positions:
+            full.insert(position, args[position])
+        return jitted(*full, **static_keywords, **dynamic_kwargs)
+
+    return program
+
+
 def _fresh(function: Callable) -> Callable:
     """A new function object calling `function`: the weak key under which JAX caches one program (module docstring)."""
 
@@ -183,8 +222,9 @@ def _fresh(function: Callable) -> Callable:
     return program
 
 
-def _signature(args: tuple, kwargs: dict, static_positions: dict[str, int | None]) -> tuple:
-    """What selects a compiled program: the argument tree, each leaf's shape and dtype, the static values."""
+def _signature(args: tuple, kwargs: dict, static_positions: dict[str, int | None]) -> tuple[tuple, tuple]:
+    """What selects a compiled program (the argument tree, each leaf's shape, dtype and weak type, the static
+    values), and the dynamic arguments `(args, kwargs)` without the static ones: what a compiled program takes."""
     static = tuple(
         (name, kwargs[name] if name in kwargs else args[position])
         for name, position in static_positions.items()
@@ -196,7 +236,8 @@ def _signature(args: tuple, kwargs: dict, static_positions: dict[str, int | None
         {name: value for name, value in kwargs.items() if name not in static_positions},
     )
     leaves, tree = jax.tree_util.tree_flatten(dynamic)
-    return tree, static, tuple((getattr(leaf, "shape", None), getattr(leaf, "dtype", type(leaf))) for leaf in leaves)
+    avals = tuple((getattr(leaf, "shape", None), getattr(leaf, "dtype", type(leaf)), getattr(leaf, "weak_type", False)) for leaf in leaves)
+    return (tree, static, avals), dynamic
 
 
 def _require_mesh(name: str, value):

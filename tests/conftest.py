@@ -71,9 +71,12 @@ def _unpacked_root() -> pathlib.Path:
 
 
 def pytest_unconfigure(config):
-    """Remove the folder `data_path` unpacked into (in each xdist worker: each unpacks its own)."""
+    """Remove the folder `data_path` unpacked into (in each xdist worker: each unpacks its own), and the run's
+    cache of compiled programs (`pytest_configure`, in the process that made it)."""
     if _unpacked_root.cache_info().currsize:
         shutil.rmtree(_unpacked_root(), ignore_errors=True)
+    if getattr(config, "_ddgjax_cache", None):
+        shutil.rmtree(config._ddgjax_cache, ignore_errors=True)
 
 
 def _write_large_mesh(seed: pathlib.Path, target: pathlib.Path) -> None:
@@ -97,29 +100,31 @@ def without_type_checker():
     jaxtyping.config.update("jaxtyping_disable", False)
 
 
-@pytest.fixture(autouse=True)
-def _no_compilation_cache_in_the_home_directory(monkeypatch):
-    """CLI tests must not write JAX's persistent cache under the user's home (tests that test the
-    cache point it at a temporary directory themselves)."""
-    monkeypatch.setenv("DDGJAX_COMPILATION_CACHE", "0")
+def pytest_configure(config):
+    """One cache of compiled programs for the whole run, shared by its xdist workers (they start after this
+    hook and inherit the variable): a kernel compiled by one worker at a size is read by the others
+    (`ddgjax._program_store`). A fresh temporary folder, removed at the end, never the user's; a
+    `DDGJAX_CACHE_DIR` already set (a CI image that keeps its cache) is used as it is."""
+    if hasattr(config, "workerinput") or os.environ.get("DDGJAX_CACHE_DIR"):
+        return
+    config._ddgjax_cache = tempfile.mkdtemp(prefix="ddgjax-test-cache-")
+    os.environ["DDGJAX_CACHE_DIR"] = config._ddgjax_cache
+    os.environ.pop("DDGJAX_COMPILATION_CACHE", None)
 
 
 def run_cli(argv: list[str]) -> tuple[int, str, str]:
     """`ddgjax.cli.main(argv)` with its exit status (also from SystemExit), stdout and stderr.
 
-    Without the persistent compilation cache: a test writes nothing to the user's cache directory
+    With the run's cache directory (`pytest_configure`): a test writes nothing to the user's cache directory
     (tests/test_cli.py tests the cache).
     """
     import contextlib
     import io
-    import os
-    from unittest import mock
 
-    from ddgjax._cli import CACHE_VARIABLE
     from ddgjax.cli import main
 
     out, err = io.StringIO(), io.StringIO()
-    with mock.patch.dict(os.environ, {CACHE_VARIABLE: "0"}), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             status = main(argv)
         except SystemExit as exit_:

@@ -39,6 +39,7 @@ def jax_cache_directory(directory: str | None):
 def user_cache(tmp_path, monkeypatch):
     """An empty `XDG_CACHE_HOME`, the cache switched on, and no cache directory configured in JAX."""
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("DDGJAX_CACHE_DIR", raising=False)
     monkeypatch.delenv(CACHE_VARIABLE, raising=False)
     with jax_cache_directory(None):
         yield tmp_path / "ddgjax" / "jax"
@@ -98,6 +99,7 @@ def test_a_cache_directory_configured_in_jax_is_kept(user_cache, capsys, tmp_pat
 
 
 def test_cache_directory(monkeypatch, tmp_path):
+    monkeypatch.delenv("DDGJAX_CACHE_DIR", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert cache_directory() == str(tmp_path / "ddgjax" / "jax")
     # XDG: a relative (or empty) XDG_CACHE_HOME is ignored.

@@ -11,10 +11,12 @@ Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
 plots. The console script `ddgjax` runs `ddgjax.cli.main`, which is `main` here.
 
-Start-up: a command runs with JAX's persistent compilation cache in `$XDG_CACHE_HOME/ddgjax/jax`
-(`~/.cache/ddgjax/jax` without `XDG_CACHE_HOME`), so a second run on inputs of a size seen before
+Start-up: ddgjax's kernels are kept across processes by the library itself (`ddgjax._program_store`,
+in `$XDG_CACHE_HOME/ddgjax/programs`); a command also runs with JAX's persistent compilation cache in
+`$XDG_CACHE_HOME/ddgjax/jax` (`~/.cache/ddgjax/...` without `XDG_CACHE_HOME`, `$DDGJAX_CACHE_DIR/...`
+with it), which keeps the command's other programs, so a second run on inputs of a size seen before
 reads its compiled programs from disk instead of compiling them. `--no-compilation-cache` or
-`DDGJAX_COMPILATION_CACHE=0` turns it off; a cache directory the user already gave JAX
+`DDGJAX_COMPILATION_CACHE=0` turns both off; a cache directory the user already gave JAX
 (`JAX_COMPILATION_CACHE_DIR`) is used as it is.
 """
 
@@ -29,22 +31,19 @@ from collections.abc import Iterator
 import jax
 from jax.experimental.compilation_cache import compilation_cache
 
+from .._program_store import SWITCH_VARIABLE as CACHE_VARIABLE
+from .._program_store import cache_root, switched_on
 from . import deform, fields, flow, fluid, geodesic, info, match, optimize, param, poisson, spectral
 
-#: Environment variable that turns the persistent compilation cache off when set to one of `_OFF`.
-CACHE_VARIABLE = "DDGJAX_COMPILATION_CACHE"
-_OFF = ("0", "false", "no", "off")
 # ddgjax's kernels compile in 0.05-0.5 s each, under JAX's default threshold of 1 s for caching a
 # program: cache every program, whatever its compile time and size.
 _CACHE_SETTINGS = {"jax_persistent_cache_min_compile_time_secs": 0.0, "jax_persistent_cache_min_entry_size_bytes": -1}
 
 
 def cache_directory() -> str:
-    """`$XDG_CACHE_HOME/ddgjax/jax`, or `~/.cache/ddgjax/jax` when that variable is unset or relative."""
-    base = os.environ.get("XDG_CACHE_HOME", "")
-    if not os.path.isabs(base):
-        base = os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "ddgjax", "jax")
+    """`jax` in ddgjax's cache folder (`ddgjax._program_store.cache_root`: `$DDGJAX_CACHE_DIR`, else
+    `$XDG_CACHE_HOME/ddgjax`, `~/.cache/ddgjax` when that variable is unset or relative)."""
+    return str(cache_root() / "jax")
 
 
 @contextlib.contextmanager
@@ -203,6 +202,23 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
-    off = args.no_compilation_cache or os.environ.get(CACHE_VARIABLE, "").strip().lower() in _OFF
-    with persistent_compilation_cache(None if off else cache_directory()):
+    off = args.no_compilation_cache or not switched_on()
+    with persistent_compilation_cache(None if off else cache_directory()), _program_store_off(args.no_compilation_cache):
         return int(args.run(args) or 0)
+
+
+@contextlib.contextmanager
+def _program_store_off(off: bool) -> Iterator[None]:
+    """`--no-compilation-cache` switches ddgjax's program store off too, for the command only."""
+    if not off:
+        yield
+        return
+    previous = os.environ.get(CACHE_VARIABLE)
+    os.environ[CACHE_VARIABLE] = "0"
+    try:
+        yield
+    finally:
+        if previous is None:
+            del os.environ[CACHE_VARIABLE]
+        else:
+            os.environ[CACHE_VARIABLE] = previous
