@@ -28,6 +28,7 @@ from __future__ import annotations
 import collections
 import functools
 import inspect
+import weakref
 from collections.abc import Callable, Mapping
 
 import jax
@@ -43,6 +44,15 @@ CPU_OPTIONS: Mapping[str, str] = {"xla_cpu_experimental_ynn_fusion_type": ""}
 
 #: Compiled programs each kernel keeps, one per argument signature, least recently used dropped (module docstring).
 PROGRAMS_PER_KERNEL = 8
+
+#: Every kernel made by `kernel`, for `clear_programs`.
+_KERNELS: weakref.WeakSet = weakref.WeakSet()
+
+
+def clear_programs() -> None:
+    """Drop every kernel's compiled programs kept in memory (with `jax.clear_caches()`: a process as if new)."""
+    for wrapper in list(_KERNELS):
+        wrapper._clear_programs()
 
 
 def at_top_level() -> bool:
@@ -140,7 +150,7 @@ def kernel(
             args = (_REQUIRED[first](first, args[0]), *args[1:])
         args = tuple(_prepare(arg, requires_orientation) for arg in args)
         kwargs = {name: _prepare(arg, requires_orientation) for name, arg in kwargs.items()}
-        if not at_top_level():
+        if not at_top_level() or jax.config.jax_disable_jit:  # traced into the caller's program, or run op by op
             return plain(*args, **kwargs)
         on_cpu = jax.default_backend() == "cpu"
         extra = tuple(sorted(extra_cpu_options(*args, **kwargs).items())) if extra_cpu_options and on_cpu else ()
@@ -157,6 +167,8 @@ def kernel(
         return program(*dynamic[0], **dynamic[1])
 
     call._cache_size = lambda: plain._cache_size() + len(programs)
+    call._clear_programs = programs.clear
+    _KERNELS.add(call)
     return call
 
 

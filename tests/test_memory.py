@@ -70,7 +70,8 @@ for n in range(3, 10):  # solved and dropped
     linear_solve(*system(n), method="cholesky")
     dropped.append(sparsax.cache_size())
 A, b = system(10)
-kept = factorize(A, method="cholesky")
+# Rebuilt as a pytree (as solvers built with `eqx.tree_at` do): the first module dies, the token lives on.
+kept = jax.tree.map(lambda leaf: leaf, factorize(A, method="cholesky"))
 for n in range(11, 16):  # while `kept` is alive
     linear_solve(*system(n), method="cholesky")
 held = sparsax.cache_size()
@@ -85,7 +86,8 @@ def test_cholmod_patterns_are_released_only_while_no_factorisation_is_alive():
     """sparsax keeps every sparsity pattern's analysis and factors (~3 MB each) and can only free them
     all: ddgjax frees them once `CHOLMOD_PATTERNS` are held and no factorisation made outside `jit` is
     alive, so a stream of solved-and-dropped systems stays bounded and a kept factorisation keeps
-    answering (its token never goes stale). In a fresh process: factorisations that other tests keep
+    answering (its token never goes stale), also once a pytree operation has rebuilt it around the same
+    token. In a fresh process: factorisations that other tests keep
     alive through per-mesh caches (a heat solver of a module's mesh) rightly stop the release."""
     pytest.importorskip("sparsax")
     result = subprocess.run([sys.executable, "-c", _PATTERNS], capture_output=True, text=True, timeout=600)

@@ -35,8 +35,9 @@ are vertices there (no points inside tets).
 `HeatDistanceSolver` keeps the factorisations of `M + t L` (and of its Dirichlet block) and of the
 pinned `L`, and the component of each vertex, so each query is three sparse solves and two sweeps over the faces;
 `heat_distance(mesh, sources)` builds one and queries it, differentiably in the vertex positions
-(every step is a JAX function of them and the solves differentiate implicitly), in one compiled
-program. Each solve reports its outcome (`ddgjax.RESULTS`); a query's `result` is the first failing
+(every step is a JAX function of them and the solves differentiate implicitly). Eagerly it runs one
+compiled program for the matrices, factors them outside every program (so each program can be kept
+across processes: `ddgjax._program_store`) and one for the query. Each solve reports its outcome (`ddgjax.RESULTS`); a query's `result` is the first failing
 solve's (heat flow, its Dirichlet half, Poisson), and `throw=False` returns a `ddgjax.Solution` whose
 `stats` hold the largest relative residual of the solves and their total CG iterations.
 
@@ -48,6 +49,7 @@ libigl: `igl.heat_geodesics_precompute` / `igl.heat_geodesics_solve`.
 
 from __future__ import annotations
 
+import functools
 import weakref
 
 import equinox as eqx
@@ -297,7 +299,7 @@ def heat_distance_solver(
     mesh = _require_mesh(mesh)
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
-        t, factors = _factor(mesh, L, M, plans, t_coef, solver=solver)
+        t, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
         if at_top_level():
             jax.block_until_ready(factors)  # the factorisations run in the block
     return HeatDistanceSolver(
@@ -350,8 +352,8 @@ def heat_distance(
     is used; `"neumann"` and `"dirichlet"` use one of them (`"dirichlet"` refuses sources on the
     boundary, which would emit no heat, and meshes with no interior vertex). Several components,
     boundaries, unreferenced vertices, obtuse triangles and any genus are fine. Differentiable in the vertex positions (every step is a JAX function of them,
-    the solves by implicit differentiation), under `jit`, `grad` and `vmap`; an eager call runs one
-    compiled program after the Laplacian's. For many queries on one mesh keep the factorisations:
+    the solves by implicit differentiation), under `jit`, `grad` and `vmap`; an eager call runs two
+    compiled programs after the Laplacian's and factors between them. For many queries on one mesh keep the factorisations:
     `heat_distance_solver(mesh, ...).distance(sources)`.
 
     Args:
@@ -396,8 +398,9 @@ def heat_distance(
     _source_points(mesh, sources)  # refuse malformed sources before building the Laplacian
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
     corners, weights = _sources(mesh, sources, dirichlet=not plans.neumann)
-    distance, result, stats = _build_and_query(mesh, L, M, plans, t_coef, corners, weights, solver=solver)
-    return outcome(distance, result, throw, stats)
+    _, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
+    steps, result, stats = _query(mesh, factors, corners, weights)
+    return outcome(steps.distance, result, throw, stats)
 
 
 def _require_mesh(mesh) -> Mesh | TetMesh:
@@ -416,30 +419,59 @@ def _measure_gradients(mesh: Mesh | TetMesh) -> Float[Array, "nc k 3"]:
     return face_areas(mesh)[:, None, None] * face_hat_gradients(mesh)
 
 
-def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, solver: str):
-    """`(t, _Factors)`: the factorisations of `M + t L`, its Dirichlet block and the pinned `L` (module docstring)."""
+class _Systems(eqx.Module):
+    """The heat method's matrices before factorisation: `M + t L` on the free vertices of each heat flow
+    that runs (`None` for one that does not), the pinned `L`, and the cells' measure-weighted gradients."""
+
+    t: Float[Array, ""]
+    heat: SparseMatrix | None
+    heat_dirichlet: SparseMatrix | None
+    poisson: SparseMatrix
+    area_gradients: Float[Array, "nc k 3"]
+
+
+def _systems_of(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef) -> _Systems:
+    """`_Systems` of `M + t L`, its Dirichlet block and the pinned `L` (module docstring)."""
     lengths = volume.edge_lengths(mesh) if isinstance(mesh, TetMesh) else edge_lengths(mesh)
     t = t_coef * jnp.mean(lengths) ** 2
     heat_matrix = M + t * L
-    return t, _Factors(
-        heat=_factor_held(heat_matrix, plans.heat, solver) if plans.neumann else None,
-        heat_plan=plans.heat if plans.neumann else None,
-        heat_dirichlet=None if plans.heat_dirichlet is None else _factor_held(heat_matrix, plans.heat_dirichlet, solver),
-        heat_dirichlet_plan=plans.heat_dirichlet,
-        poisson=_factor_held(L, plans.poisson, solver),
-        poisson_plan=plans.poisson,
-        components=plans.components,
+    return _Systems(
+        t=t,
+        heat=_held_block(heat_matrix, plans.heat) if plans.neumann else None,
+        heat_dirichlet=None if plans.heat_dirichlet is None else _held_block(heat_matrix, plans.heat_dirichlet),
+        poisson=_held_block(L, plans.poisson),
         area_gradients=_measure_gradients(mesh),
     )
 
 
-def _factor_held(matrix: SparseMatrix, plan: DirichletPlan | None, solver: str) -> Factorization:
-    """The factorisation of `matrix`, or of its free-free block when `plan` holds some indices at 0."""
-    return factorize(matrix if plan is None else dirichlet_blocks(matrix, plan)[0], method=solver)
+def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, solver: str):
+    """`(t, _Factors)`: the factorisations of `M + t L`, its Dirichlet block and the pinned `L` (module docstring).
+
+    Called eagerly, the matrices come from one compiled program and are factored after it, on concrete
+    values (`ddgjax.solve.factorize`: the definiteness check on the host, outside every program), so
+    each program can be kept across processes; under a transformation everything is traced inline.
+    """
+    systems = _systems(mesh, L, M, plans, t_coef)
+    factor = functools.partial(factorize, method=solver)
+    return systems.t, _Factors(
+        heat=None if systems.heat is None else factor(systems.heat),
+        heat_plan=plans.heat if plans.neumann else None,
+        heat_dirichlet=None if systems.heat_dirichlet is None else factor(systems.heat_dirichlet),
+        heat_dirichlet_plan=plans.heat_dirichlet,
+        poisson=factor(systems.poisson),
+        poisson_plan=plans.poisson,
+        components=plans.components,
+        area_gradients=systems.area_gradients,
+    )
+
+
+def _held_block(matrix: SparseMatrix, plan: DirichletPlan | None) -> SparseMatrix:
+    """`matrix`, or its free-free block when `plan` holds some indices at 0."""
+    return matrix if plan is None else dirichlet_blocks(matrix, plan)[0]
 
 
 def _solve_held(factor: Factorization, plan: DirichletPlan | None, rhs) -> tuple[LinearSolution, Float[Array, " nv"]]:
-    """`(solution, x)`: `A x = rhs` on the free indices, `x = 0` on those `plan` holds (`_factor_held`'s)."""
+    """`(solution, x)`: `A x = rhs` on the free indices, `x = 0` on those `plan` holds (`_held_block`'s)."""
     if plan is None:
         solution = factor.solve(rhs, throw=False)
         return solution, solution.value
@@ -489,22 +521,14 @@ def _shift(mesh: Mesh | TetMesh, phi, components, corners, weights) -> Float[Arr
 
 # The kernels' first parameter is `domain`: one named `mesh` would be checked to be a triangle mesh
 # (`ddgjax._compile.kernel`), and these serve tet meshes too.
-@kernel(static_argnames=("solver",))
-def _factor(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef, *, solver: str):
-    return _factorizations(domain, L, M, plans, t_coef, solver)
+@kernel
+def _systems(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef) -> _Systems:
+    return _systems_of(domain, L, M, plans, t_coef)
 
 
 @kernel
 def _query(domain: Mesh | TetMesh, factors: _Factors, corners, weights):
     return _heat_method(domain, factors, corners, weights)
-
-
-# Factorisations and one query in one compiled program per mesh size and source count.
-@kernel(static_argnames=("solver",))
-def _build_and_query(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef, corners, weights, *, solver: str):
-    _, factors = _factorizations(domain, L, M, plans, t_coef, solver)
-    steps, result, stats = _heat_method(domain, factors, corners, weights)
-    return steps.distance, result, stats
 
 
 def _sources(mesh: Mesh | TetMesh, sources, *, dirichlet: bool) -> tuple[np.ndarray, Float[ArrayLike, "m 3"]]:

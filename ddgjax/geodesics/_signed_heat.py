@@ -127,7 +127,7 @@ class SignedHeatSolver(eqx.Module):
         """
         segments, weights, held, components = _curve_data(self.mesh, curves, level_set)
         factors = _Factors(self.heat, self.laplacian, self.diagonal_slots, self.area_gradients, self.field_plan)
-        phi, result, stats = _query(self.mesh, factors, segments, weights, held, components, solver=self.solver)
+        phi, result, stats = _signed_heat(self.mesh, factors, segments, weights, held, components, self.solver)
         return outcome(phi, result, throw, stats)
 
 
@@ -188,7 +188,7 @@ def signed_heat_solver(
     mesh = require_mesh("mesh", mesh)
     L, M, diagonal, edge_slots, field, vertex, t_coef = _operators(mesh, t_coef, mass, robust, solver)
     with cholmod_analysis(kept_analysis(2 * mesh.n_vertices)):  # kept for many queries: the faster solves
-        t, heat, area_gradients = _factor(mesh, L, M, edge_slots, field, vertex, t_coef, solver=solver)
+        t, heat, area_gradients = _heat_factor(mesh, L, M, edge_slots, field, vertex, t_coef, solver)
         if at_top_level():
             jax.block_until_ready(heat)
     return SignedHeatSolver(
@@ -257,24 +257,45 @@ def signed_heat_distance(
     mesh = require_mesh("mesh", mesh)
     segments, weights, held, components = _curve_data(mesh, curves, level_set)
     L, M, diagonal, edge_slots, field, vertex, t_coef = _operators(mesh, t_coef, mass, robust, solver)
-    phi, result, stats = _build_and_query(
-        mesh, L, M, diagonal, edge_slots, field, vertex, t_coef, segments, weights, held, components, solver=solver
-    )
+    _, heat, area_gradients = _heat_factor(mesh, L, M, edge_slots, field, vertex, t_coef, solver)
+    factors = _Factors(heat, L, diagonal, area_gradients, field)
+    phi, result, stats = _signed_heat(mesh, factors, segments, weights, held, components, solver)
     return outcome(phi, result, throw, stats)
 
 
-def _heat_factor(mesh: Mesh, L, M, edge_slots, field: FieldPlan, vertex: TriangulationPlan, t_coef, solver: str):
-    """`(t, factorisation of M + t A, A_f grad phi_k)` (module docstring, step 2)."""
+@kernel
+def _heat_system(mesh: Mesh, L, M, edge_slots, field: FieldPlan, vertex: TriangulationPlan, t_coef):
+    """`(t, M + t A, A_f grad phi_k)` (module docstring, step 2)."""
     t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
     # With `robust=`, the intrinsic Delaunay weights of the mesh's edges (module docstring).
     weights = None if edge_slots is None else -take_rows_or_zero(L.values, edge_slots)
     A = planned_connection_laplacian(mesh, field, vertex, 1.0, boundary_scaling="unscaled", edge_weights=weights)
-    heat = factorize(M + t * A, method=solver)
-    return t, heat, face_areas(mesh)[:, None, None] * face_hat_gradients(mesh)
+    return t, M + t * A, face_areas(mesh)[:, None, None] * face_hat_gradients(mesh)
+
+
+def _heat_factor(mesh: Mesh, L, M, edge_slots, field: FieldPlan, vertex: TriangulationPlan, t_coef, solver: str):
+    """`(t, factorisation of M + t A, A_f grad phi_k)`.
+
+    Called eagerly, the matrix comes from one compiled program and is factored after it, on concrete
+    values (the definiteness check on the host, outside every program), so each program can be kept
+    across processes (`ddgjax._program_store`); under a transformation everything is traced inline.
+    """
+    t, heat_matrix, area_gradients = _heat_system(mesh, L, M, edge_slots, field, vertex, t_coef)
+    return t, factorize(heat_matrix, method=solver), area_gradients
 
 
 def _signed_heat(mesh: Mesh, factors: _Factors, segments, weights, held, components, solver: str):
-    """Steps 1-4 (module docstring): `(phi, result, stats)`."""
+    """Steps 1-4 (module docstring): `(phi, result, stats)`; the Poisson matrix is factored between two
+    programs, as in `_heat_factor`."""
+    heat, rhs, constrained = _poisson_system(mesh, factors, segments, weights, held)
+    poisson = factorize(constrained, method=solver).solve(rhs, throw=False)
+    return _level_shift(mesh, heat, poisson, segments, weights, components)
+
+
+@kernel
+def _poisson_system(mesh: Mesh, factors: _Factors, segments, weights, held):
+    """Steps 1-3 and step 4's system: `(heat solution, rhs, L with the held vertices' rows and columns
+    made their diagonal)`, the rhs 0 on the held vertices."""
     n = mesh.n_vertices
     e1, e2, normal = _tangent_bases(mesh, factors.field_plan)
     x = mesh.vertices
@@ -302,10 +323,17 @@ def _signed_heat(mesh: Mesh, factors: _Factors, segments, weights, held, compone
     diagonal = L.values[factors.diagonal_slots]
     values = values.at[factors.diagonal_slots].set(jnp.where(held, jnp.where(diagonal != 0, diagonal, 1.0), diagonal))
     constrained = SparseMatrix(values, L.pattern, symmetric=True, positive_semidefinite=True)
-    poisson = factorize(constrained, method=solver).solve(jnp.where(held, 0.0, rhs), throw=False)
+    return heat, jnp.where(held, 0.0, rhs), constrained
+
+
+@kernel
+def _level_shift(mesh: Mesh, heat, poisson, segments, weights, components):
+    """`(phi, result, stats)`: each component shifted to mean 0 along its curves (length-weighted
+    midpoints; 0 already with `"zero_set"`)."""
+    n = mesh.n_vertices
+    tail, head = segments[:, 0], segments[:, 1]
     phi = poisson.value
-    # Shift each component to mean 0 along its curves (length-weighted midpoints; 0 already with "zero_set").
-    lengths = weights * safe_norm(step)
+    lengths = weights * safe_norm(take_rows(mesh.vertices, head) - take_rows(mesh.vertices, tail))
     label = components[tail]
     level = jax.ops.segment_sum(lengths * 0.5 * (phi[tail] + phi[head]), label, n)
     total = jax.ops.segment_sum(lengths, label, n)
@@ -313,26 +341,6 @@ def _signed_heat(mesh: Mesh, factors: _Factors, segments, weights, held, compone
     phi = phi - shift[components]
     stats = {"residual": jnp.maximum(heat.residual, poisson.residual), "num_steps": heat.num_steps + poisson.num_steps}
     return phi, first_failure(heat.result, poisson.result), stats
-
-
-@kernel(static_argnames=("solver",))
-def _factor(mesh: Mesh, L, M, edge_slots, field, vertex, t_coef, *, solver: str):
-    return _heat_factor(mesh, L, M, edge_slots, field, vertex, t_coef, solver)
-
-
-@kernel(static_argnames=("solver",))
-def _query(mesh: Mesh, factors: _Factors, segments, weights, held, components, *, solver: str):
-    return _signed_heat(mesh, factors, segments, weights, held, components, solver)
-
-
-# The factorisation and one query in one compiled program per mesh size and (padded) segment count.
-@kernel(static_argnames=("solver",))
-def _build_and_query(
-    mesh: Mesh, L, M, diagonal, edge_slots, field, vertex, t_coef, segments, weights, held, components, *, solver: str
-):
-    _, heat, area_gradients = _heat_factor(mesh, L, M, edge_slots, field, vertex, t_coef, solver)
-    factors = _Factors(heat, L, diagonal, area_gradients, field)
-    return _signed_heat(mesh, factors, segments, weights, held, components, solver)
 
 
 _PINS: "weakref.WeakKeyDictionary[MeshTopology, tuple[np.ndarray, np.ndarray]]" = weakref.WeakKeyDictionary()

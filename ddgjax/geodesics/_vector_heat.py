@@ -52,6 +52,8 @@ References: N. Sharp, Y. Soliman, K. Crane, "The vector heat method", ACM TOG 38
 
 from __future__ import annotations
 
+import functools
+
 from typing import NamedTuple
 
 import equinox as eqx
@@ -76,8 +78,8 @@ from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradients, face_vertex_positions, require_mesh
 from ..solve import Factorization, factorize
 from ..solve._linear import cholmod_analysis, kept_analysis
-from ..sparse import DirichletPlan
-from ._heat import _factor_held, _Factors, _heat_method, _plans, check_t_coef
+from ..sparse import DirichletPlan, SparseMatrix
+from ._heat import _Factors, _held_block, _heat_method, _plans, check_t_coef
 
 _INSIDE = 1e-9
 """How far outside a face (in barycentric coordinates) a centroid still counts as inside it."""
@@ -168,9 +170,10 @@ class _Kept(eqx.Module):
     """
 
     t: Float[Array, ""]
-    heat: Factorization
-    vector_heat: Factorization
-    poisson: Factorization
+    # Matrices between `_systems` and `_factored`, factorisations after.
+    heat: Factorization | SparseMatrix
+    vector_heat: Factorization | SparseMatrix
+    poisson: Factorization | SparseMatrix
     poisson_plan: DirichletPlan
     components: Int[Array, " nv"]
     area_gradients: Float[Array, "nf 3 3"]
@@ -214,7 +217,7 @@ def vector_heat_solver(
     mesh = require_mesh("mesh", mesh)
     L, M, A, MA, plans, field_plan, t_coef = _operators(mesh, t_coef, mass, robust, solver)
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
-        kept = _factor(mesh, L, M, A, MA, plans.poisson, plans.components, field_plan, t_coef, solver=solver)
+        kept = _factored(_systems(mesh, L, M, A, MA, plans.poisson, plans.components, field_plan, t_coef), solver)
         if at_top_level():
             jax.block_until_ready(kept)  # the factorisations run in the block
     return VectorHeatSolver(mesh=mesh, kept=kept)
@@ -376,8 +379,18 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
     return L, M, A, MA, plans, field_plan, jnp.asarray(float(t_coef), L.values.dtype)
 
 
-@kernel(static_argnames=("solver",))
-def _factor(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: FieldPlan, t_coef, *, solver: str):
+def _factored(kept: _Kept, solver: str) -> _Kept:
+    """`kept` with its three matrices factored. Called eagerly, on concrete values after `_systems`'s program
+    (the definiteness check on the host, outside every program, so each can be kept across processes)."""
+    factor = functools.partial(factorize, method=solver)
+    return eqx.tree_at(
+        lambda k: (k.heat, k.vector_heat, k.poisson), kept, (factor(kept.heat), factor(kept.vector_heat), factor(kept.poisson))
+    )
+
+
+@kernel
+def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: FieldPlan, t_coef) -> _Kept:
+    """The solver's data with the heat, vector heat and pinned Poisson matrices unfactored (`_factored`)."""
     t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
     e1, e2, normal = _tangent_bases(mesh, field_plan)
     corners = face_vertex_positions(mesh)
@@ -386,9 +399,9 @@ def _factor(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: Field
     first = connection_angles(mesh, field_plan, boundary_scaling="geodesic").corner_polar
     return _Kept(
         t=t,
-        heat=factorize(M + t * L, method=solver),
-        vector_heat=factorize(MA + t * A, method=solver),
-        poisson=_factor_held(L, poisson_plan, solver),
+        heat=M + t * L,
+        vector_heat=MA + t * A,
+        poisson=_held_block(L, poisson_plan),
         poisson_plan=poisson_plan,
         components=components,
         area_gradients=areas[:, None, None] * face_hat_gradients(mesh),

@@ -58,7 +58,7 @@ from .._options import check_solver
 from .._results import Solution, first_failure, outcome
 from ..fields import TangentBases
 from ..fields._smoothest import unit
-from ..geodesics._heat import _factor_held, _solve_held, check_t_coef
+from ..geodesics._heat import _held_block, _solve_held, check_t_coef
 from ..geodesics._vector_heat import _point_masses, _stats, _vectors
 from ..mesh import corner_cotangents_from_lengths_sq, face_areas_from_lengths_sq
 from ..solve import Factorization, LinearSolution, factorize
@@ -198,10 +198,14 @@ def point_cloud_heat_solver(
     heat_plan, poisson_plan, components = _plans(triangulation, triangulation.plan.pattern)
     parents, trees = orientation_tree(triangulation)
     with cholmod_analysis(kept_analysis(points.shape[0])):
-        factors = _factor(points, triangulation, heat_plan, poisson_plan, parents, trees, float(t_coef), solver=solver)
+        # The matrices from one compiled program, factored outside it (the definiteness check on the
+        # host), so that the program can be kept across processes (`ddgjax._program_store`).
+        t, heat, poisson, cotangents, areas, frames, vector_heat = _systems(
+            points, triangulation, heat_plan, poisson_plan, parents, trees, float(t_coef)
+        )
+        heat, poisson, vector_heat = (factorize(matrix, method=solver) for matrix in (heat, poisson, vector_heat))
         if at_top_level():
-            jax.block_until_ready(factors)
-    t, heat, poisson, cotangents, areas, frames, vector_heat = factors
+            jax.block_until_ready((heat, poisson, vector_heat))
     return PointCloudHeatSolver(
         points=points,
         triangulation=triangulation,
@@ -343,8 +347,9 @@ def _plans(triangulation: PointCloudTriangulation, pattern) -> tuple[DirichletPl
     )
 
 
-@kernel(static_argnames=("solver",))
-def _factor(points, triangulation, heat_plan, poisson_plan, parents, trees, t_coef, *, solver: str):
+@kernel
+def _systems(points, triangulation, heat_plan, poisson_plan, parents, trees, t_coef):
+    """`(t, M + t L, pinned L, cotangents, areas, frames, M + t A)`, the matrices' free blocks (module docstring)."""
     lengths_sq = triangulation.face_lengths_sq(points)
     L, M = laplacian_and_mass_from_lengths_sq(lengths_sq, triangulation)
     t = t_coef * jnp.mean(safe_sqrt(lengths_sq)) ** 2  # each cover edge is in two faces: the mean over edges
@@ -361,11 +366,10 @@ def _factor(points, triangulation, heat_plan, poisson_plan, parents, trees, t_co
         vector_heat = SparseMatrix(
             jax.lax.complex(real.values, imag.values), real.pattern, hermitian=True, positive_semidefinite=True
         )
-    vector_heat = factorize(vector_heat, method=solver)
     return (
         t,
-        _factor_held(M + t * L, heat_plan, solver),
-        _factor_held(L, poisson_plan, solver),
+        _held_block(M + t * L, heat_plan),
+        _held_block(L, poisson_plan),
         cotangents,
         areas,
         frames,

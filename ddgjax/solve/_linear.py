@@ -378,7 +378,7 @@ def _factorize(A, *, method, preconditioner, rtol, max_steps, residual_tolerance
         residual_tolerance=float(residual_tolerance),
     )
     if method == "cholesky" and eager:
-        _track_cholmod(factorization)
+        _track_cholmod(token)
     return factorization
 
 
@@ -619,11 +619,15 @@ CHOLMOD_PATTERNS = 8
 _live_cholmod_factorizations = 0
 
 
-def _track_cholmod(factorization: Factorization) -> None:
-    """Count a CHOLMOD factorisation made outside `jit` while it is alive (`_release_cholmod_patterns`)."""
+def _track_cholmod(token: Array) -> None:
+    """Count a CHOLMOD factorisation made outside `jit` while its token is alive (`_release_cholmod_patterns`).
+
+    The token array, not the `Factorization`: pytree operations (`eqx.tree_at`, `jax.tree.map`) rebuild
+    the module around the same leaves, so the module may die while a copy still holds the token.
+    """
     global _live_cholmod_factorizations
     _live_cholmod_factorizations += 1
-    weakref.finalize(factorization, _forget_cholmod)
+    weakref.finalize(token, _forget_cholmod)
 
 
 def _forget_cholmod() -> None:
