@@ -12,9 +12,13 @@ import pytest
 from jax.experimental.compilation_cache import compilation_cache
 
 import ddgjax
+from ddgjax import _program_store
 from ddgjax._cli import CACHE_VARIABLE, cache_directory
 from ddgjax._compile import clear_programs
 from ddgjax.cli import main
+from ddgjax.geodesics import heat_distance
+from ddgjax.io import load_mesh, save_mesh
+from ddgjax.mesh import disk, icosphere
 
 PACKAGE = pathlib.Path(ddgjax.__file__).parent
 #: Modules that serve the command line, files and figures; every other module is mathematics.
@@ -76,6 +80,38 @@ def test_a_second_run_compiles_nothing(user_cache, capsys):
     assert capsys.readouterr().out == first
     # JAX's settings are back as they were: nothing else in this process writes to the cache.
     assert jax.config.jax_compilation_cache_dir is None
+
+
+@pytest.mark.slow  # compiles the heat method's programs (its figures run in the full suite)
+def test_warmup_keeps_the_programs_a_later_process_reads(user_cache, tmp_path, capsys, monkeypatch):
+    """`ddgjax warmup FOLDER`: once per distinct size; a later process's first call reads every kernel from the store."""
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    save_mesh(folder / "a.obj", icosphere(2))
+    save_mesh(folder / "b.off", icosphere(2))  # the same size: warmed once
+    save_mesh(folder / "c.ply", disk(5))
+    (folder / "notes.txt").write_text("not a mesh")
+    assert main(["warmup", str(folder), "--only", "laplacian,heat"]) == 0
+    captured = capsys.readouterr()
+    assert "warmed 2 entry points for 2 mesh sizes" in captured.out
+    assert "skipped" not in captured.err
+    # A new process would start here: only the store on disk may serve it.
+    jax.clear_caches()
+    clear_programs()
+    loaded = []
+    load = _program_store.load
+    monkeypatch.setattr(_program_store, "load", lambda *args: loaded.append(load(*args)) or loaded[-1])
+    jax.block_until_ready(heat_distance(load_mesh(folder / "c.ply"), [0]))
+    assert loaded and all(program is not None for program in loaded)
+
+
+def test_warmup_refuses_what_is_not_a_mesh(capsys, tmp_path):
+    assert main(["warmup", str(tmp_path)]) == 2
+    assert "no mesh files" in capsys.readouterr().err
+    assert main(["warmup", str(tmp_path / "missing.obj")]) == 2
+    assert "expected a mesh file or a folder" in capsys.readouterr().err
+    assert main(["warmup", str(tmp_path), "--only", "laplacian,teleport"]) == 2
+    assert "unknown entry points ['teleport']" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("switch", [None, "option", "environment"])

@@ -4,8 +4,9 @@ problem solved on a mesh, with a picture of the solution), `ddgjax geodesic` (a 
 field; a log map, parallel transport, a signed distance or a point-cloud distance), `ddgjax spectrum`
 (Laplacian eigenvalues and eigenfunctions), `ddgjax param` (flattenings), `ddgjax fields` (direction
 fields), `ddgjax optimize` (shape-optimisation examples), `ddgjax deform` (ARAP and k-harmonic
-deformation from handles), `ddgjax match` (a point map between two meshes) and `ddgjax fluid`
-(incompressible Euler flow on a closed surface, frames or an animation written to disk).
+deformation from handles), `ddgjax match` (a point map between two meshes), `ddgjax fluid`
+(incompressible Euler flow on a closed surface, frames or an animation written to disk) and `ddgjax
+warmup` (the common entry points compiled into the caches for a set of meshes, ahead of time).
 
 Kept apart from the mathematics (DESIGN.md, layout): the packages `ddgjax.curves` and `ddgjax.mesh`
 know nothing of argparse, files or figures; this package parses options, reads files, prints and
@@ -33,7 +34,7 @@ from jax.experimental.compilation_cache import compilation_cache
 
 from .._program_store import SWITCH_VARIABLE as CACHE_VARIABLE
 from .._program_store import cache_root, switched_on
-from . import deform, fields, flow, fluid, geodesic, info, match, optimize, param, poisson, spectral
+from . import deform, fields, flow, fluid, geodesic, info, match, optimize, param, poisson, spectral, warmup
 
 # ddgjax's kernels compile in 0.05-0.5 s each, under JAX's default threshold of 1 s for caching a
 # program: cache every program, whatever its compile time and size.
@@ -188,6 +189,15 @@ def build_parser() -> argparse.ArgumentParser:
             "or a closed mesh file) or a Rossby-Haurwitz wave on the rotating sphere, with a passive dye; print energy and "
             "enstrophy drift (and the wave's measured rate against Haurwitz's closed form) and write a figure, one PNG "
             "per saved state or a GIF.",
+        )
+    )
+    warmup.add_arguments(
+        sub.add_parser(
+            "warmup",
+            parents=[common],
+            help="compile the common entry points for a set of meshes (files or folders) into the caches, ahead of time",
+            description="Run the Laplacian, curvatures, Poisson, heat distance, eigenpairs and log map once per distinct "
+            "mesh size, so that later processes (notebooks, training runs) read their compiled programs from disk.",
         )
     )
     return parser

@@ -131,50 +131,21 @@ def solve_poisson(
     problem = (rho, dirichlet.values, dirichlet.plan, dirichlet.labels, dirichlet.floating)
     options = {"n_pinned": dirichlet.n_pinned, "n_components": dirichlet.n_components, "solver": solver}
     if tet:  # the solid's operators, assembled by ddgjax.volume (each its own compiled program)
-        phi, result, stats = _solve_assembled(
-            volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass), *problem, **options
-        )
+        L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
     else:
-        phi, result, stats = _solve(mesh, triangulation, plan, *problem, mass=mass, **options)
+        L, M = _operators(mesh, triangulation, plan, mass=mass)
+    phi, result, stats = _solve_system(L, M, *problem, **options)
     return outcome(phi, result, throw, stats)
 
 
-# The outcome is checked outside the program (`outcome`), so it has no host callback and JAX's
-# persistent compilation cache can keep it.
-@kernel(static_argnames=("n_pinned", "n_components", "mass", "solver"))
-def _solve(
-    mesh: Mesh,
-    triangulation: IntrinsicTriangulation | None,
-    plan: TriangulationPlan,
-    rho: Float[Array, "nv *k"],
-    values: Float[Array, " n_fixed *k"],
-    blocks: DirichletPlan,
-    labels: Int[Array, " nv"],
-    floating: Bool[Array, " nv"],
-    *,
-    n_pinned: int,
-    n_components: int,
-    mass: str,
-    solver: str,
-) -> tuple[Float[Array, "nv *k"], RESULTS, dict[str, Array]]:
-    """`(phi, result, stats)` of `solve_poisson` on a triangle mesh (module docstring). `mesh` comes without
-    its topology: everything that needs it (`plan`, `blocks`, the component `labels` and `floating` mask)
-    is passed in."""
+@kernel(static_argnames=("mass",))
+def _operators(
+    mesh: Mesh, triangulation: IntrinsicTriangulation | None, plan: TriangulationPlan, *, mass: str
+) -> tuple[SparseMatrix, SparseMatrix]:
+    """`(L, M)` of a triangle mesh (the intrinsic Delaunay ones with a `triangulation`). `mesh` comes without
+    its topology: everything that needs it (`plan`) is passed in."""
     lengths_sq = face_edge_lengths_sq(mesh) if triangulation is None else triangulation.face_lengths_sq(mesh)
-    laplacian = cotan_laplacian_from_lengths_sq(lengths_sq, plan)
-    mass_matrix_ = mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
-    return _solve_system(
-        laplacian,
-        mass_matrix_,
-        rho,
-        values,
-        blocks,
-        labels,
-        floating,
-        n_pinned=n_pinned,
-        n_components=n_components,
-        solver=solver,
-    )
+    return cotan_laplacian_from_lengths_sq(lengths_sq, plan), mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
 
 
 def _solve_system(
@@ -190,27 +161,44 @@ def _solve_system(
     n_components: int,
     solver: str,
 ) -> tuple[Float[Array, "nv *k"], RESULTS, dict[str, Array]]:
-    """`(phi, result, stats)` of `L phi = -M rho` with the Dirichlet data and pins (module docstring), given `L` and `M`."""
-    fixed_values = jnp.concatenate([values.astype(rho.dtype), jnp.zeros((n_pinned,) + rho.shape[1:], rho.dtype)])
-    areas = mass_matrix_.row_sums()  # M 1: the area of each vertex (Galerkin rows sum to it too)
-    component_area = jax.ops.segment_sum(areas, labels, n_components)
+    """`(phi, result, stats)` of `L phi = -M rho` with the Dirichlet data and pins (module docstring), given `L` and `M`.
 
-    def component_mean(values):
-        """`int values / area` of each vertex's component, `(nv, ...)`."""
-        integral = jax.ops.segment_sum(mass_matrix_ @ values, labels, n_components)
-        return (integral / _broadcast(component_area, integral))[labels]
-
-    compatible = rho - jnp.where(_broadcast(floating, rho), component_mean(rho), 0.0)
-    rhs = -(mass_matrix_ @ compatible)
-    free_free, free_fixed = dirichlet_blocks(laplacian, blocks)
-    solution = linear_solve(free_free, rhs[blocks.free] - free_fixed @ fixed_values, method=solver, throw=False)
-    phi = blocks.join(solution.value, fixed_values)
-    phi = phi - jnp.where(_broadcast(floating, phi), component_mean(phi), 0.0)
+    Called eagerly: the free-free system comes from one compiled program, `linear_solve` runs its own
+    (its definiteness check and outcome on the host, outside them) and one more re-centres `phi`, so
+    every program can be kept across processes (`ddgjax._program_store`). Under `jit` / `grad` it is
+    all traced into the caller's program.
+    """
+    free_free, rhs, fixed_values = _reduced_system(
+        laplacian, mass_matrix_, rho, values, blocks, labels, floating, n_pinned=n_pinned, n_components=n_components
+    )
+    solution = linear_solve(free_free, rhs, method=solver, throw=False)
+    phi = _recentred(mass_matrix_, solution.value, fixed_values, blocks, labels, floating, n_components=n_components)
     return phi, solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
 
 
-# A tet mesh's `L` and `M` are assembled by `ddgjax.volume` before this program (module docstring).
-_solve_assembled = kernel(_solve_system, static_argnames=("n_pinned", "n_components", "solver"))
+def _component_mean(mass_matrix_: SparseMatrix, values, labels, n_components: int):
+    """`int values / area` of each vertex's component, `(nv, ...)` (areas: `M 1`; Galerkin rows sum to them too)."""
+    component_area = jax.ops.segment_sum(mass_matrix_.row_sums(), labels, n_components)
+    integral = jax.ops.segment_sum(mass_matrix_ @ values, labels, n_components)
+    return (integral / _broadcast(component_area, integral))[labels]
+
+
+@kernel(static_argnames=("n_pinned", "n_components"))
+def _reduced_system(laplacian, mass_matrix_, rho, values, blocks: DirichletPlan, labels, floating, *, n_pinned, n_components):
+    """`(L_ff, -(M rho_c)_f - L_fx x_fixed, x_fixed)`: the free-free system, `rho_c` the compatible part of
+    `rho` (zero mean on components without a fixed vertex), `x_fixed` the values then the pins' zeros."""
+    fixed_values = jnp.concatenate([values.astype(rho.dtype), jnp.zeros((n_pinned,) + rho.shape[1:], rho.dtype)])
+    compatible = rho - jnp.where(_broadcast(floating, rho), _component_mean(mass_matrix_, rho, labels, n_components), 0.0)
+    rhs = -(mass_matrix_ @ compatible)
+    free_free, free_fixed = dirichlet_blocks(laplacian, blocks)
+    return free_free, rhs[blocks.free] - free_fixed @ fixed_values, fixed_values
+
+
+@kernel(static_argnames=("n_components",))
+def _recentred(mass_matrix_, free_values, fixed_values, blocks: DirichletPlan, labels, floating, *, n_components):
+    """`phi` joined from its free and fixed values, each component without a fixed vertex shifted to zero mean."""
+    phi = blocks.join(free_values, fixed_values)
+    return phi - jnp.where(_broadcast(floating, phi), _component_mean(mass_matrix_, phi, labels, n_components), 0.0)
 
 
 def harmonic_interpolation(

@@ -462,6 +462,7 @@ def auto_method(n: int, preconditioned: bool = False, *, one_shot: bool = False,
     return "superlu" if n <= SUPERLU_LIMIT else "pyamg"
 
 
+@kernel  # eagerly one kept program, not a dozen op-by-op compilations
 def _real_form(A: SparseMatrix) -> SparseMatrix:
     """The real symmetric `(2n, 2n)` matrix `[[Re A, -Im A], [Im A, Re A]]` of a complex Hermitian `A` (module docstring).
 
@@ -600,6 +601,12 @@ def _analysed_apart(pattern: SparsityPattern, values: Float[Array, " nnz"], anal
     `(0, 0)` (summed into the diagonal: the same matrix), so `sparsax` caches its analysis apart (`cholmod_analysis`)."""
     if analysis != "simplicial":
         return pattern, values
+    return _with_zero_at_origin(pattern, values)
+
+
+@kernel  # eagerly one kept program, not four op-by-op compilations
+def _with_zero_at_origin(pattern: SparsityPattern, values: Float[Array, " nnz"]):
+    """`_analysed_apart`'s simplicial case: one explicit zero appended at `(0, 0)`."""
     zero = jnp.zeros(1, pattern.rows.dtype)
     apart = SparsityPattern(
         rows=jnp.concatenate([pattern.rows, zero]),

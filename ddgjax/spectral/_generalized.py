@@ -71,7 +71,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float
 
-from .._compile import kernel
+from .._compile import at_top_level, kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._options import check_solver
 from .._results import RESULTS, Solution, first_failure, outcome, raise_if_failed
@@ -169,9 +169,16 @@ def smallest_eigenpairs(
     # A hierarchy holds arrays (an argument of the program); a preconditioner's name is static.
     hierarchy = preconditioner if isinstance(preconditioner, AMGHierarchy) else None
     named = None if hierarchy is not None else preconditioner
-    pairs, result, residual = _solve(
-        L, M, hierarchy, k=k, method=method, solver=solver, preconditioner=named, hermitian_real_form=hermitian_real_form
-    )
+    if method == "arpack" and at_top_level() and not (is_traced(L.values) or is_traced(M.values)):
+        # Eagerly, ARPACK runs here on the host, outside every program: a program that holds its
+        # callback could not be kept across processes (`ddgjax._program_store`).
+        host = (np.asarray(a) for a in (L.pattern.rows, L.pattern.cols, L.values, M.pattern.rows, M.pattern.cols, M.values))
+        values, vectors, status = _host_eigenpairs(*host, n=n, k=k, hermitian_real_form=hermitian_real_form)
+        pairs, result, residual = _checked(L, M, values, vectors, status)
+    else:
+        pairs, result, residual = _solve(
+            L, M, hierarchy, k=k, method=method, solver=solver, preconditioner=named, hermitian_real_form=hermitian_real_form
+        )
     return outcome(pairs, result, throw, {"residual": residual})
 
 
@@ -192,6 +199,11 @@ def _solve(
     """`(pairs, result, residual)` of `smallest_eigenpairs`, after its checks."""
     options = (method, solver, preconditioner if hierarchy is None else hierarchy, hermitian_real_form)
     values, vectors, status = _eigenpairs((L.values, M.values), L.pattern, M.pattern, k, options)
+    return _checked_pairs(L, M, values, vectors, status)
+
+
+def _checked_pairs(L: SparseMatrix, M: SparseMatrix, values, vectors, status) -> tuple[Eigenpairs, RESULTS, Float[Array, ""]]:
+    """`(pairs, result, residual)`: the solver's status as an outcome, then `_verified`'s."""
     result = RESULTS.where(
         status == _CONVERGED,
         RESULTS.successful,
@@ -200,6 +212,9 @@ def _solve(
     pairs = Eigenpairs(values, vectors)
     checked, residual = _verified(L, M, jax.lax.stop_gradient(pairs))
     return pairs, first_failure(result, checked), residual
+
+
+_checked = kernel(_checked_pairs)
 
 
 def _verified(L: SparseMatrix, M: SparseMatrix, pairs: Eigenpairs) -> tuple[RESULTS, Float[Array, ""]]:
