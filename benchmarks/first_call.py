@@ -27,8 +27,6 @@ import subprocess
 import sys
 import tempfile
 
-import numpy as np
-
 SHARED_MESHES = pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 # What every ddgjax process runs before its case: imports timed, the mesh loaded, JAX's compile events
@@ -186,8 +184,7 @@ CASES: dict[str, tuple[str, str | None, dict | None]] = {
     "biharmonic_deformation": (
         "fixed = np.arange(0, len(V), max(1, len(V) // 20))\n"
         "def run(): return ddgjax.deform.biharmonic_deformation(mesh, fixed_vertices=fixed, fixed_values=V[fixed] + 0.1)",
-        "fixed = np.arange(0, len(V), max(1, len(V) // 20))\n"
-        "def run(): return igl.harmonic(V, F, fixed, V[fixed] + 0.1, 2)",
+        "fixed = np.arange(0, len(V), max(1, len(V) // 20))\ndef run(): return igl.harmonic(V, F, fixed, V[fixed] + 0.1, 2)",
         None,
     ),
     "arap": (
@@ -220,8 +217,7 @@ CASES: dict[str, tuple[str, str | None, dict | None]] = {
         None,
     ),
     "diffusion_operators (k=64)": (
-        "import tempfile\n"
-        "def run(): return ddgjax.learn.diffusion_operators(mesh, 64, cache_dir=tempfile.mkdtemp())",
+        "import tempfile\ndef run(): return ddgjax.learn.diffusion_operators(mesh, 64, cache_dir=tempfile.mkdtemp())",
         "def run():\n    L, M = robust_laplacian.mesh_laplacian(V, F)\n    return sla.eigsh(L, 64, M, sigma=-1e-8)",
         None,
     ),

@@ -113,3 +113,31 @@ def test_what_is_not_stored(monkeypatch):
     with jax.numpy_rank_promotion("raise"):
         keys.add(_program_store.entry_key("ddgjax.x.f", ((), (("k", 1),), ()), {}))
     assert len(keys) == 4
+
+
+def test_more_sizes_than_a_kernel_keeps_in_memory_compile_nothing_on_a_second_pass(tmp_path, monkeypatch):
+    """A dataset's second pass: programs dropped from a kernel's in-memory cache (`PROGRAMS_PER_KERNEL`)
+    come back from the store, so a dataset of more sizes than the cache holds compiles nothing again."""
+    from ddgjax import _compile
+    from ddgjax.laplacian import cotan_laplacian
+    from ddgjax.mesh import torus
+
+    monkeypatch.setenv("DDGJAX_CACHE_DIR", str(tmp_path))
+    monkeypatch.delenv(_program_store.SWITCH_VARIABLE, raising=False)
+    monkeypatch.setattr(_compile, "PROGRAMS_PER_KERNEL", 2)
+    meshes = [torus(n_major=n, n_minor=5) for n in (17, 19, 23, 29, 31)]  # sizes no other test uses
+    compiles = []
+
+    def listen(event, duration, **_):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiles.append(event)
+
+    first = [np.asarray(cotan_laplacian(mesh).values) for mesh in meshes]
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        second = [np.asarray(cotan_laplacian(mesh).values) for mesh in meshes]
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert not compiles
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(a, b)

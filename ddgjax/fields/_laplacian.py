@@ -119,6 +119,7 @@ def connection_mass_matrix(mesh: Mesh, *, mass: str = "voronoi") -> SparseMatrix
     return mass_matrix(mesh, mass=mass)
 
 
+@kernel  # eagerly one kept program, not one compilation per operation
 def real_form(matrix: SparseMatrix, plan: FieldPlan) -> SparseMatrix:
     """`[[Re A, -Im A], [Im A, Re A]]`, `(2 nv, 2 nv)`, real symmetric, of a Hermitian `A` on the vertex pattern.
 
@@ -132,6 +133,7 @@ def real_form(matrix: SparseMatrix, plan: FieldPlan) -> SparseMatrix:
     return SparseMatrix(real_values, plan.real_pattern, symmetric=True, positive_semidefinite=matrix.positive_semidefinite)
 
 
+@kernel
 def real_form_diagonal(diagonal: Float[Array, " nv"]) -> SparseMatrix:
     """The real form of a real diagonal matrix: the diagonal twice, `(2 nv, 2 nv)`."""
     return diagonal_matrix(jnp.concatenate([diagonal, diagonal]), positive_semidefinite=True)

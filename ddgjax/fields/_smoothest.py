@@ -47,6 +47,7 @@ from .._options import check_solver
 from .._results import Solution, outcome
 from ..mesh import Mesh, edge_dihedral_angles, edge_lengths, require_mesh
 from ..solve import linear_solve
+from ..sparse import SparseMatrix
 from ..spectral import EIGENSOLVERS, smallest_eigenpairs
 from ._connection import check_boundary_scaling, connection, plan_of
 from ._laplacian import check_degree, connection_laplacian, connection_mass_matrix, real_form, real_form_diagonal
@@ -142,22 +143,34 @@ def smoothest_field(
             hermitian_real_form=True,
             throw=False,
         )
-        values, vectors = eigensolve.value
-        nv = mesh.n_vertices
-        u = jax.lax.complex(vectors[:nv, 0], vectors[nv:, 0])
-        # The pair's mean: invariant within the cluster, so its gradient is defined.
-        energy = jnp.mean(values)
-        largest = jnp.argmax(jnp.abs(u))
-        u = jnp.conj(unit(u[largest])) * u
+        field = _eigenvector_field(*eigensolve.value)
         result, stats = eigensolve.result, eigensolve.stats
     else:
         q = _complex_field("alignment", alignment, mesh.n_vertices)
         s = check_positive("alignment_weight", alignment_weight)
         solve = linear_solve(A + s * M, s * (M @ q), method=solver, throw=False)
-        u = solve.value
-        energy = jnp.real(jnp.vdot(u, A @ u)) / jnp.real(jnp.vdot(u, M @ u))
+        field = _solved_field(A, M, solve.value)
         result, stats = solve.result, {"residual": solve.residual, "num_steps": solve.num_steps}
-    return outcome(SmoothestField(field=unit(u), solution=u, energy=energy), result, throw, stats)
+    return outcome(field, result, throw, stats)
+
+
+@kernel
+def _eigenvector_field(values: Float[Array, " 2"], vectors: Float[Array, "n2 2"]) -> SmoothestField:
+    """The `SmoothestField` of the real form's first eigenvector `[Re u; Im u]`, its phase fixed so that
+    the largest entry is real and positive (geometry-central leaves it arbitrary)."""
+    nv = vectors.shape[0] // 2
+    u = jax.lax.complex(vectors[:nv, 0], vectors[nv:, 0])
+    largest = jnp.argmax(jnp.abs(u))
+    u = jnp.conj(unit(u[largest])) * u
+    # The pair's mean: invariant within the cluster, so its gradient is defined.
+    return SmoothestField(field=unit(u), solution=u, energy=jnp.mean(values))
+
+
+@kernel
+def _solved_field(A: SparseMatrix, M: SparseMatrix, u: Complex[Array, " nv"]) -> SmoothestField:
+    """The `SmoothestField` of the aligned solve's `u`, its energy the Rayleigh quotient `u^H A u / u^H M u`."""
+    energy = jnp.real(jnp.vdot(u, A @ u)) / jnp.real(jnp.vdot(u, M @ u))
+    return SmoothestField(field=unit(u), solution=u, energy=energy)
 
 
 def unit(u: Complex[Array, "*shape"]) -> Complex[Array, "*shape"]:

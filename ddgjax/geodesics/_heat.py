@@ -262,7 +262,7 @@ def _operators(mesh: Mesh | TetMesh, t_coef, mass: str, boundary: str, robust, s
         triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="heat_distance")
         L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
     plans = _plans(mesh, boundary, L.pattern, cached=triangulation is None)
-    return L, M, plans, jnp.asarray(float(t_coef), L.values.dtype)
+    return L, M, plans, jax.device_put(np.asarray(float(t_coef), L.values.dtype))
 
 
 def heat_distance_solver(

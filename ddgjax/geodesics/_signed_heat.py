@@ -159,7 +159,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
         # With `robust`, the connection Laplacian takes the intrinsic Delaunay weights of the mesh's edges (module docstring).
         edges = mesh.topology.edges
         edge_slots = None if triangulation is None else jnp.asarray(L.pattern.slots(edges[:, 0], edges[:, 1]))
-    return L, M, diagonal, edge_slots, plan_of(mesh), vertex_plan(mesh), jnp.asarray(float(t_coef), L.values.dtype)
+    return L, M, diagonal, edge_slots, plan_of(mesh), vertex_plan(mesh), jax.device_put(np.asarray(float(t_coef), L.values.dtype))
 
 
 def signed_heat_solver(

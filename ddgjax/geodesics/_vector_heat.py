@@ -53,14 +53,13 @@ References: N. Sharp, Y. Soliman, K. Crane, "The vector heat method", ACM TOG 38
 from __future__ import annotations
 
 import functools
-
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import at_top_level, kernel
 from .._errors import DDGInputError
@@ -79,7 +78,7 @@ from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradi
 from ..solve import Factorization, factorize
 from ..solve._linear import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan, SparseMatrix
-from ._heat import _Factors, _held_block, _heat_method, _plans, check_t_coef
+from ._heat import _Factors, _heat_method, _held_block, _plans, check_t_coef
 
 _INSIDE = 1e-9
 """How far outside a face (in barycentric coordinates) a centroid still counts as inside it."""
@@ -376,7 +375,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
             mesh, field_plan, vertex_plan(mesh), 1.0, boundary_scaling="geodesic", edge_weights=weights
         )
         MA = M
-    return L, M, A, MA, plans, field_plan, jnp.asarray(float(t_coef), L.values.dtype)
+    return L, M, A, MA, plans, field_plan, jax.device_put(np.asarray(float(t_coef), L.values.dtype))
 
 
 def _factored(kept: _Kept, solver: str) -> _Kept:
@@ -415,8 +414,11 @@ def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: Fiel
     )
 
 
-def _source_vertices(mesh: Mesh, source, *, single: bool = False) -> Int[Array, " m"]:
-    """`source` as a `(m,)` integer array (`(1,)` when `single`), refusing malformed or out-of-range concrete indices."""
+def _source_vertices(mesh: Mesh, source, *, single: bool = False) -> Int[ArrayLike, " m"]:
+    """`source` as a `(m,)` integer array (`(1,)` when `single`), refusing malformed or out-of-range concrete indices.
+
+    Concrete indices stay a NumPy array (in JAX's canonical integer type): unpacked or passed to a kernel
+    on the host, they compile no eager program."""
     what = "a vertex index" if single else "a vertex index or a 1-d array of them"
     if isinstance(source, jax.core.Tracer):
         if not jnp.issubdtype(source.dtype, jnp.integer) or source.ndim > (0 if single else 1):
@@ -434,12 +436,13 @@ def _source_vertices(mesh: Mesh, source, *, single: bool = False) -> Int[Array, 
     outside = (vertices < 0) | (vertices >= mesh.n_vertices)
     if outside.any():
         raise DDGInputError(f"source: vertex indices must lie in [0, {mesh.n_vertices}), got {vertices[outside][:5].tolist()}")
-    return jnp.asarray(vertices)
+    return vertices.astype(jax.dtypes.canonicalize_dtype(vertices.dtype))
 
 
-def _vectors(vector, m: int, dtype) -> Float[Array, "m 3"]:
-    """`vector` as `(m, 3)` (one `(3,)` vector is shared by the `m` sources only when `m == 1`)."""
-    vector = jnp.asarray(vector, dtype)
+def _vectors(vector, m: int, dtype) -> Float[ArrayLike, "m 3"]:
+    """`vector` as `(m, 3)` (one `(3,)` vector is shared by the `m` sources only when `m == 1`); concrete
+    ones on the host (as `_source_vertices`)."""
+    vector = jnp.asarray(vector, dtype) if isinstance(vector, jax.core.Tracer) else np.asarray(vector, dtype)
     if vector.shape == (3,):
         vector = vector[None]
     if vector.shape != (m, 3):

@@ -334,9 +334,9 @@ def _pins(topology: MeshTopology | TetTopology, vertices: np.ndarray, pattern: S
             fixed,
             plan,
             pins.size + extra.size,
-            jnp.asarray(labels),
+            device_array(labels),
             topology.n_components + 1,
-            jnp.asarray(floating[labels]),
+            device_array(floating[labels]),
         )
     if len(kept) >= _PINS_KEPT:
         kept.pop(next(iter(kept)))
