@@ -101,10 +101,27 @@ def load(key: str, in_tree) -> jax.stages.Compiled | None:
         version, executable, out_tree = pickle.loads(payload)
         if version != _FORMAT:
             return None
+        _bind_host_kernels()
         return serialize_executable.deserialize_and_load(executable, in_tree, out_tree)
     except Exception as error:  # any bad entry (truncated, another jaxlib or CPU) is compiled again, never trusted
-        _warn_once("load", f"ddgjax: a stored compiled program did not load and is compiled again ({type(error).__name__}: {error})")
+        _warn_once(
+            "load", f"ddgjax: a stored compiled program did not load and is compiled again ({type(error).__name__}: {error})"
+        )
         return None
+
+
+@functools.cache
+def _bind_host_kernels() -> None:
+    """Bind LAPACK's kernels before running a program read from disk.
+
+    JAX binds them lazily, when it first lowers a linear-algebra operation (`jax._src.lax.linalg`'s
+    `prepare_lapack_call`); a program read from disk is never lowered, and one calling LAPACK
+    (`eigh`, `cholesky`, `svd`, `solve`) in a process that lowered none would call an unbound kernel
+    and crash. `jax.export` binds them the same way for the programs it deserialises.
+    """
+    from jax._src.lax import linalg
+
+    linalg.initialize_lapack()
 
 
 def save(key: str, lowered: jax.stages.Lowered, compiled: jax.stages.Compiled) -> None:
@@ -164,7 +181,9 @@ def _fingerprint() -> str:
             versions.append((library, None))
     device = jax.devices()[0]
     backend = (device.platform, device.client.platform_version, device.device_kind)
-    return repr((_FORMAT, source.hexdigest(), versions, sys.version_info[:2], backend, os.environ.get("XLA_FLAGS", ""), _host_cpu()))
+    return repr(
+        (_FORMAT, source.hexdigest(), versions, sys.version_info[:2], backend, os.environ.get("XLA_FLAGS", ""), _host_cpu())
+    )
 
 
 def _host_cpu() -> str:
@@ -200,4 +219,3 @@ def _warn_once(kind: str, message: str) -> None:
     if kind not in _warned:
         _warned.add(kind)
         warnings.warn(message, stacklevel=4)
-

@@ -38,10 +38,22 @@ print(json.dumps({"compiles": len(compiles) - before, "sum": float(abs(values).s
 """
 
 
-def _fresh_process(cache: pathlib.Path, **environment) -> dict:
+# A kernel that calls LAPACK (`eigh`), alone in its process: JAX binds LAPACK only when it lowers a
+# linear-algebra operation, which a program read from disk never is.
+CALL_LAPACK = """
+import json, jax, numpy as np
+jax.config.update("jax_enable_x64", True)
+import ddgjax
+points = np.random.default_rng(0).normal(size=(211, 3))
+normals = np.asarray(ddgjax.pointcloud.point_cloud_normals(points))
+print(json.dumps({"sum": float(np.abs(normals).sum())}))
+"""
+
+
+def _fresh_process(cache: pathlib.Path, script: str = CALL, **environment) -> dict:
     env = {**os.environ, "DDGJAX_CACHE_DIR": str(cache), **environment}
     env.pop(_program_store.SWITCH_VARIABLE, None) if _program_store.SWITCH_VARIABLE not in environment else None
-    done = subprocess.run([sys.executable, "-c", CALL], env=env, capture_output=True, text=True, timeout=300)
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -56,6 +68,11 @@ def test_a_fresh_process_reads_the_program_an_earlier_one_compiled(tmp_path):
     second = _fresh_process(tmp_path)
     assert second["compiles"] == 0  # no tracing, lowering or compiling: the executable came from disk
     assert second["sum"] == first["sum"] and not second["warnings"]
+
+
+def test_a_stored_program_that_calls_lapack_runs_in_a_fresh_process(tmp_path):
+    first = _fresh_process(tmp_path, CALL_LAPACK)
+    assert _fresh_process(tmp_path, CALL_LAPACK)["sum"] == first["sum"]  # read from disk: no crash, same values
 
 
 def test_a_corrupted_entry_is_compiled_again_and_replaced(tmp_path):

@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .._compile import at_top_level, kernel
+from .._compile import at_top_level, device_array, kernel
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_norm
@@ -155,7 +155,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
     L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
     with jax.ensure_compile_time_eval():  # host data even when a caller's jit traces this call
         n = mesh.n_vertices
-        diagonal = jnp.asarray(L.pattern.slots(np.arange(n), np.arange(n)))
+        diagonal = device_array(L.pattern.slots(np.arange(n), np.arange(n)))
         # With `robust`, the connection Laplacian takes the intrinsic Delaunay weights of the mesh's edges (module docstring).
         edges = mesh.topology.edges
         edge_slots = None if triangulation is None else jnp.asarray(L.pattern.slots(edges[:, 0], edges[:, 1]))

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice
 from ..spectral._laplacian import wave_kernel_energies, wave_kernel_weights
 from ._shape import SpectralShape, require_spectral_shape
@@ -57,17 +58,23 @@ def descriptors(
             f"n_eigenpairs: expected an integer in [2, {shape.k}] (the shape's eigenpairs; compute more with "
             f"`spectral_shape(mesh, k)`), got {n_eigenpairs!r}"
         )
-    values, vectors = shape.values[:k], shape.vectors[:, :k]
+    landmarks = None if landmarks is None else _landmarks(landmarks, shape.vectors.shape[0])
+    return _descriptor_columns(shape.mass, shape.values, shape.vectors, landmarks, k=k, kind=kind, n_descriptors=n_descriptors)
+
+
+@kernel(static_argnames=("k", "kind", "n_descriptors"))
+def _descriptor_columns(mass, values, vectors, landmarks, *, k: int, kind: str, n_descriptors: int) -> Float[Array, "nv d"]:
+    """`descriptors` after its checks, on the shape's arrays (a kernel: one program, not one per operation)."""
+    values, vectors = values[:k], vectors[:, :k]
     weights = _scale_weights(values, kind, n_descriptors)  # (n_descriptors, k)
     weights = weights / jnp.sum(weights, axis=1, keepdims=True)
     columns = [(vectors**2) @ weights.T]
     if landmarks is not None:
-        landmarks = _landmarks(landmarks, vectors.shape[0])
         # (p, n_descriptors, nv) -> landmark-major columns, as pyFM's `lm_WKS` / `lm_HKS` order them.
         at_landmarks = jnp.einsum("sk,pk,nk->psn", weights, vectors[landmarks], vectors)
         columns.append(at_landmarks.reshape(-1, vectors.shape[0]).T)
     descriptors = jnp.concatenate(columns, axis=1)
-    return descriptors / jnp.sqrt(shape.mass @ descriptors**2)
+    return descriptors / jnp.sqrt(mass @ descriptors**2)
 
 
 def _scale_weights(values: Float[Array, " k"], kind: str, n: int) -> Float[Array, "n k"]:
@@ -87,4 +94,4 @@ def _landmarks(landmarks, nv: int) -> Int[Array, " p"]:
         raise DDGInputError(f"landmarks: expected a non-empty (p,) array of vertex indices, got shape {indices.shape}")
     if indices.min() < 0 or indices.max() >= nv:
         raise DDGInputError(f"landmarks: vertex indices must lie in [0, {nv}), got {indices.min()}..{indices.max()}")
-    return jnp.asarray(indices)
+    return device_array(indices)

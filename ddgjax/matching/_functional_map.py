@@ -24,7 +24,7 @@ import lineax as lx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice
 from .._numerics import safe_div, safe_norm
 from .._results import RESULTS, Solution, outcome
@@ -147,7 +147,7 @@ def functional_map(
         _traceable(target),
         F_s,
         F_t,
-        jnp.asarray([w / total for w in weights.values()], F_s.dtype),
+        device_array(np.asarray([w / total for w in weights.values()], F_s.dtype)),
         sign,
         k_s=k_s,
         k_t=k_t,

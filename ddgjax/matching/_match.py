@@ -6,6 +6,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
+from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count
 from .._results import Solution, first_failure, outcome
 from ..mesh import Mesh, require_mesh
@@ -132,7 +133,7 @@ def match_shapes(
         throw=False,
     )
     # A failed fit (reported below) may hold NaN: zeroed, the steps after it still run and the result says why.
-    initial = C = jnp.where(jnp.isfinite(fit.value), fit.value, 0.0)
+    initial = C = _finite_or_zero(fit.value)
     if refine == "zoomout":
         C = zoomout_refine(C, source, target, k_final=k_final)
     elif refine == "icp":
@@ -143,3 +144,8 @@ def match_shapes(
     # Every step runs: a failure is reported once, at the end, with what the pipeline made of it.
     result = first_failure(source_solution.result, target_solution.result, fit.result)
     return outcome(match, result, throw)
+
+
+@kernel
+def _finite_or_zero(C: Float[Array, "k_t k_s"]) -> Float[Array, "k_t k_s"]:
+    return jnp.where(jnp.isfinite(C), C, 0.0)
