@@ -112,16 +112,19 @@ def load(key: str, in_tree) -> jax.stages.Compiled | None:
 
 @functools.cache
 def _bind_host_kernels() -> None:
-    """Bind LAPACK's kernels before running a program read from disk.
+    """Bind the foreign kernels a stored program may call before running one read from disk.
 
-    JAX binds them lazily, when it first lowers a linear-algebra operation (`jax._src.lax.linalg`'s
+    JAX binds LAPACK's lazily, when it first lowers a linear-algebra operation (`jax._src.lax.linalg`'s
     `prepare_lapack_call`); a program read from disk is never lowered, and one calling LAPACK
     (`eigh`, `cholesky`, `svd`, `solve`) in a process that lowered none would call an unbound kernel
-    and crash. `jax.export` binds them the same way for the programs it deserialises.
+    and crash. `jax.export` binds them the same way for the programs it deserialises. `sparsax`
+    registers its CHOLMOD targets when imported.
     """
     from jax._src.lax import linalg
 
     linalg.initialize_lapack()
+    with contextlib.suppress(ImportError):  # the `cholmod` extra: absent, no stored program calls it
+        import sparsax  # noqa: F401
 
 
 def save(key: str, lowered: jax.stages.Lowered, compiled: jax.stages.Compiled) -> None:

@@ -33,6 +33,11 @@ conjugate gradients on its Hessian-vector products, preconditioned by the kept f
 the local-global loop as the solver without wrapping it as an optimistix solver class, and gives
 both modes through a symmetric `lax.custom_linear_solve`.
 
+How it runs: eagerly, one compiled program assembles `L_ff`, `ddgjax.solve.factorize` factors it
+outside every program (its definiteness check on the host) and a second program takes the
+factorisation and iterates, so both programs can be kept across processes (`ddgjax._program_store`);
+under `jit` / `grad` / `vmap` all of it is traced into the caller's program.
+
 Reference: O. Sorkine, M. Alexa, "As-Rigid-As-Possible Surface Modeling", SGP 2007 (eqs. 3-9).
 libigl: `data = igl.ARAPData(); data.energy = igl.ARAP_ENERGY_TYPE_SPOKES; data.max_iter = n;
 igl.arap_precomputation(V, F, 3, b, data); U = igl.arap_solve(bc, data, U0)`.
@@ -45,17 +50,18 @@ from collections.abc import Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int, Real
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._options import check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
 from ..internal import DirichletData, vertex_plan
 from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq
 from ..mesh import Mesh, corner_cotangents, face_edge_lengths_sq, require_mesh
-from ..solve import factorize
-from ..sparse import DirichletPlan, dirichlet_blocks
+from ..solve import Factorization, factorize
+from ..solve._linear import cholmod_analysis, kept_analysis
+from ..sparse import DirichletBlocks, DirichletPlan, SparseMatrix, dirichlet_blocks
 
 
 def arap(
@@ -126,36 +132,59 @@ def arap(
         raise DDGInputError(f"rtol: expected a positive float, got {rtol!r}")
     if initial is None:
         initial = mesh.vertices
-    initial = jnp.asarray(initial)
+    initial = device_array(initial)  # a host array moved without an eager program
     if initial.shape != (mesh.n_vertices, 3):
         raise DDGInputError(f"initial: expected shape ({mesh.n_vertices}, 3), got {initial.shape}")
+    # Kept for every global step: simplicial up to `SIMPLICIAL_LIMIT` unknowns, the faster solves.
+    with cholmod_analysis(kept_analysis(mesh.n_vertices)):
+        factorization = factorize(_free_block(mesh, plan, dirichlet.plan, dirichlet.values), method=solver)
     positions, result, stats = _arap(
         mesh,
         plan,
         dirichlet.plan,
-        dirichlet.values.astype(dtype),
-        initial.astype(dtype),
-        jnp.asarray(max_steps, jnp.int32),
-        jnp.asarray(rtol, dtype),
-        solver=solver,
+        factorization,
+        dirichlet.values,
+        initial,
+        jax.device_put(np.asarray(max_steps, np.int32)),  # host scalars moved without an eager program
+        jax.device_put(np.asarray(rtol, dtype)),
     )
     return outcome(positions, result, throw, stats)
 
 
-@kernel(static_argnames=("solver",))
+def _rest_blocks(mesh: Mesh, rest: Float[Array, "nv 3"], plan: TriangulationPlan, blocks: DirichletPlan) -> DirichletBlocks:
+    """`(L_ff, L_fc)` of the cotan Laplacian of the rest positions `rest`."""
+    laplacian = cotan_laplacian_from_lengths_sq(face_edge_lengths_sq(mesh.with_vertices(rest)), plan)
+    return dirichlet_blocks(laplacian, blocks)
+
+
+def _working_dtype(mesh: Mesh, values: Real[Array, "n_fixed 3"]) -> jnp.dtype:
+    """The dtype `arap` computes in: the rest positions' and the handles' promoted."""
+    return jnp.result_type(mesh.vertices.dtype, values.dtype)
+
+
+@kernel
+def _free_block(mesh: Mesh, plan: TriangulationPlan, blocks: DirichletPlan, values: Real[Array, "n_fixed 3"]) -> SparseMatrix:
+    """`L_ff`, the matrix `_arap` takes factored, without derivatives (the iterations run on values only)."""
+    rest = mesh.vertices.astype(_working_dtype(mesh, values))
+    return jax.lax.stop_gradient(_rest_blocks(mesh, rest, plan, blocks).free_free)
+
+
+@kernel
 def _arap(
     mesh: Mesh,
     plan: TriangulationPlan,
     blocks: DirichletPlan,
-    values: Float[Array, "n_fixed 3"],
-    initial: Float[Array, "nv 3"],
+    factorization: Factorization,
+    values: Real[Array, "n_fixed 3"],
+    initial: Real[Array, "nv 3"],
     max_steps: Int[Array, ""],
     rtol: Float[Array, ""],
-    *,
-    solver: str,
 ) -> tuple[Float[Array, "nv 3"], RESULTS, dict[str, Array]]:
-    """`(V', result, stats)` of `arap`. `blocks.fixed` is the handles, then the unreferenced vertices."""
-    rest = mesh.vertices.astype(values.dtype)
+    """`(V', result, stats)` of `arap`, given the factorisation of `_free_block`'s `L_ff`.
+    `blocks.fixed` is the handles, then the unreferenced vertices."""
+    dtype = _working_dtype(mesh, values)
+    values, initial = values.astype(dtype), initial.astype(dtype)
+    rest = mesh.vertices.astype(dtype)
     faces = mesh.faces
     n_handles = values.shape[0]
     fixed_positions = jnp.concatenate([values, initial[blocks.fixed[n_handles:]]])
@@ -163,8 +192,7 @@ def _arap(
 
     def pieces(rest):
         """The rest-shape data `F` needs, differentiable in `rest`: `L_ff`, `L_fc`, edge vectors and weights."""
-        laplacian = cotan_laplacian_from_lengths_sq(face_edge_lengths_sq(mesh.with_vertices(rest)), plan)
-        free_free, free_fixed = dirichlet_blocks(laplacian, blocks)
+        free_free, free_fixed = _rest_blocks(mesh, rest, plan, blocks)
         return free_free, free_fixed, _face_edges(rest, faces), corner_cotangents(mesh.with_vertices(rest)) / 2
 
     def residual(free):
@@ -176,9 +204,8 @@ def _arap(
         return free_free @ free + free_fixed @ fixed_positions - rhs[blocks.free]
 
     # The local-global loop runs on values only: `custom_root` differentiates `residual` instead.
-    free_free, free_fixed, rest_edges, weights = jax.lax.stop_gradient(pieces(rest))
+    _, free_fixed, rest_edges, weights = jax.lax.stop_gradient(pieces(rest))
     fixed_stopped = jax.lax.stop_gradient(fixed_positions)
-    factorization = factorize(free_free, method=solver)
     constant = free_fixed @ fixed_stopped
 
     def energy(deformed):

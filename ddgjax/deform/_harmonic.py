@@ -199,8 +199,7 @@ def _operator_plan(mesh: Mesh, k: int) -> _OperatorPlan:
     return plans[k]
 
 
-# The outcome is checked outside the program (`outcome`), as `ddgjax.pde.solve_poisson` does.
-@kernel(static_argnames=("n_pinned", "mass", "solver"))
+# The outcome is checked outside the programs (`outcome`), as `ddgjax.pde.solve_poisson` does.
 def _solve(
     mesh: Mesh,
     plan: TriangulationPlan,
@@ -212,7 +211,32 @@ def _solve(
     mass: str,
     solver: str,
 ) -> tuple[Float[Array, "nv 3"], RESULTS, dict[str, Array]]:
-    """`(positions, result, stats)` of `biharmonic_deformation`; `blocks.fixed` is the handles, then `n_pinned` unused vertices."""
+    """`(positions, result, stats)` of `biharmonic_deformation`; `blocks.fixed` is the handles, then `n_pinned` unused vertices.
+
+    Called eagerly: `Q_ff D_f = -Q_fc D_c` comes from one compiled program, `linear_solve` runs its own
+    (its definiteness check and outcome on the host, outside them) and one more joins `V + D`, so every
+    program can be kept across processes (`ddgjax._program_store`). Under `jit` / `grad` / `vmap` it is
+    all traced into the caller's program.
+    """
+    free_free, rhs, fixed_displacement = _system(mesh, plan, operator, values, blocks, n_pinned=n_pinned, mass=mass)
+    solution = linear_solve(free_free, rhs, method=solver, throw=False)
+    positions = _deformed(mesh, solution.value, fixed_displacement, blocks)
+    return positions, solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
+
+
+@kernel(static_argnames=("n_pinned", "mass"))
+def _system(
+    mesh: Mesh,
+    plan: TriangulationPlan,
+    operator: _OperatorPlan,
+    values: Float[Array, "n_fixed 3"],
+    blocks: DirichletPlan,
+    *,
+    n_pinned: int,
+    mass: str,
+) -> tuple[SparseMatrix, Float[Array, "n_free 3"], Float[Array, "n_held 3"]]:
+    """`(Q_ff, -Q_fc D_c, D_c)`: the free-free block of `Q = L (M^{-1} L)^{k-1}`, the right-hand side, and the
+    held displacement `D_c` (`values - V` at the handles, then `n_pinned` zeros)."""
     positions = mesh.vertices.astype(values.dtype)
     lengths_sq = face_edge_lengths_sq(mesh)
     laplacian = cotan_laplacian_from_lengths_sq(lengths_sq, plan)
@@ -225,9 +249,15 @@ def _solve(
     handles = blocks.fixed[: values.shape[0]]
     fixed_displacement = jnp.concatenate([values - positions[handles], jnp.zeros((n_pinned, 3), values.dtype)])
     free_free, free_fixed = dirichlet_blocks(operator_matrix, blocks)
-    solution = linear_solve(free_free, -(free_fixed @ fixed_displacement), method=solver, throw=False)
-    displacement = blocks.join(solution.value, fixed_displacement)
-    return positions + displacement, solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
+    return free_free, -(free_fixed @ fixed_displacement), fixed_displacement
+
+
+@kernel
+def _deformed(
+    mesh: Mesh, free_displacement: Float[Array, "n_free 3"], fixed_displacement: Float[Array, "n_held 3"], blocks: DirichletPlan
+) -> Float[Array, "nv 3"]:
+    """`V + D`, `D` joined from its free and held parts."""
+    return mesh.vertices.astype(fixed_displacement.dtype) + blocks.join(free_displacement, fixed_displacement)
 
 
 def _check_order(k) -> int:
@@ -248,5 +278,7 @@ def _check_handles(mesh: Mesh, fixed_vertices, fixed_values) -> tuple[ArrayLike,
             f"fixed_values: expected shape ({n_fixed if n_fixed is not None else 'n_fixed'}, 3), the new position of "
             f"each vertex of fixed_vertices (a 1-d index array), got {None if fixed_values is None else np.shape(fixed_values)}"
         )
-    values = jnp.asarray(fixed_values)
-    return fixed_vertices, values if jnp.issubdtype(values.dtype, jnp.floating) else values.astype(mesh.vertices.dtype)
+    values = device_array(fixed_values)  # host data moved without an eager program
+    if not jnp.issubdtype(values.dtype, jnp.floating):
+        values = device_array(fixed_values, mesh.vertices.dtype)
+    return fixed_vertices, values

@@ -129,14 +129,14 @@ def _structure(edge_bytes: bytes, ne: int, n_vertices: int) -> GraphStructure:
 def check_weights(edge_weights, n_edges: int) -> Float[Array, " ne"]:
     """`edge_weights` as a floating JAX array of shape `(ne,)` (ones when `None`); concrete ones checked `>= 0` and finite."""
     if edge_weights is None:
-        return jnp.ones(n_edges)
+        return device_array(np.ones(n_edges))  # made on the host: no eager program
     if np.shape(edge_weights) != (n_edges,):
         raise DDGInputError(f"edge_weights: expected shape ({n_edges},) (one per row of edges), got {np.shape(edge_weights)}")
-    edge_weights = device_array(edge_weights)
+    given, edge_weights = edge_weights, device_array(edge_weights)
     if not (jnp.issubdtype(edge_weights.dtype, jnp.floating) or jnp.issubdtype(edge_weights.dtype, jnp.integer)):
         raise DDGInputError(f"edge_weights: expected real numbers, got dtype {edge_weights.dtype}")
     if not jnp.issubdtype(edge_weights.dtype, jnp.floating):
-        edge_weights = edge_weights.astype(float)
+        edge_weights = device_array(given, float)  # host data converted on the host
     if not is_traced(edge_weights):
         host = np.asarray(edge_weights)
         bad = ~np.isfinite(host) | (host < 0)

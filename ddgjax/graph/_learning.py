@@ -34,7 +34,7 @@ from .._errors import DDGInputError, check_vertex_indices, is_traced
 from .._options import check_solver
 from .._results import RESULTS, Solution, outcome
 from ..solve import linear_solve
-from ..sparse import DirichletPlan, dirichlet_blocks, dirichlet_plan, nonnegative
+from ..sparse import DirichletPlan, NonNegative, dirichlet_blocks, dirichlet_plan, nonnegative
 from ._laplacian import GraphPlan, GraphStructure, check_weights, graph_structure, laplacian_from_plan
 
 # Dirichlet plans kept per edge list (one per fixed vertex set): re-solving with new values or edge weights skips them.
@@ -84,7 +84,7 @@ def harmonic_interpolation(
             f"fixed_values: expected shape ({fixed.size},) or ({fixed.size}, k) (one row per fixed vertex), got {values.shape}"
         )
     if not jnp.issubdtype(values.dtype, jnp.floating):
-        values = values.astype(edge_weights.dtype)
+        values = device_array(fixed_values, edge_weights.dtype)  # host data converted on the host
     plan, n_pinned = _dirichlet(structure, fixed)
     if plan is None:  # every vertex fixed: nothing to solve
         f = jnp.zeros((structure.n_vertices,) + values.shape[1:], values.dtype).at[fixed].set(values)
@@ -93,14 +93,34 @@ def harmonic_interpolation(
     return outcome(f, result, throw, stats)
 
 
-@kernel(static_argnames=("n_pinned", "solver"))
 def _harmonic(edge_weights, values, graph: GraphPlan, plan: DirichletPlan, *, n_pinned: int, solver: str):
+    """`(f, result, stats)` of `harmonic_interpolation`; `plan.fixed` is the fixed vertices, then `n_pinned` pins.
+
+    Called eagerly: `L_uu f_u = -L_ul f_l` comes from one compiled program, `linear_solve` runs its own
+    (its definiteness check and outcome on the host, outside them) and one more joins `f`, so every
+    program can be kept across processes (`ddgjax._program_store`). Under `jit` / `grad` / `vmap` it is
+    all traced into the caller's program.
+    """
+    free_free, rhs, fixed_values = _harmonic_system(edge_weights, values, graph, plan, n_pinned=n_pinned)
+    solution = linear_solve(free_free, rhs, method=solver, throw=False)
+    return _joined(plan, solution.value, fixed_values), solution.result, _stats(solution)
+
+
+@kernel(static_argnames=("n_pinned",))
+def _harmonic_system(edge_weights, values, graph: GraphPlan, plan: DirichletPlan, *, n_pinned: int):
+    """`(L_uu, -L_ul f_l, f_l)`: the free-free block of `L`, the right-hand side, and the held values
+    (`values`, then `n_pinned` zeros)."""
     laplacian = laplacian_from_plan(edge_weights, graph)
     dtype = jnp.result_type(laplacian.dtype, values.dtype)
     fixed_values = jnp.concatenate([values.astype(dtype), jnp.zeros((n_pinned,) + values.shape[1:], dtype)])
     free_free, free_fixed = dirichlet_blocks(laplacian, plan)
-    solution = linear_solve(free_free, -(free_fixed @ fixed_values), method=solver, throw=False)
-    return plan.join(solution.value, fixed_values), solution.result, _stats(solution)
+    return free_free, -(free_fixed @ fixed_values), fixed_values
+
+
+@kernel
+def _joined(plan: DirichletPlan, free_values, fixed_values):
+    """`f` with `free_values` at the free vertices and `fixed_values` at the held ones."""
+    return plan.join(free_values, fixed_values)
 
 
 def tikhonov_smoothing(
@@ -143,9 +163,9 @@ def tikhonov_smoothing(
     n = structure.n_vertices
     if np.ndim(signal) not in (1, 2) or np.shape(signal)[0] != n:
         raise DDGInputError(f"signal: expected shape ({n},) or ({n}, k), got {np.shape(signal)}")
-    signal = device_array(signal)
+    given, signal = signal, device_array(signal)
     if not jnp.issubdtype(signal.dtype, jnp.floating):
-        signal = signal.astype(edge_weights.dtype)
+        signal = device_array(given, edge_weights.dtype)  # host data converted on the host
     if np.ndim(alpha) != 0:
         raise DDGInputError(f"alpha: expected a scalar, got shape {np.shape(alpha)}")
     if not is_traced(alpha) and not (np.isfinite(alpha) and alpha >= 0):
@@ -154,12 +174,23 @@ def tikhonov_smoothing(
     return outcome(f, result, throw, stats)
 
 
-@kernel(static_argnames=("solver",))
 def _tikhonov(edge_weights, signal, alpha, graph: GraphPlan, *, solver: str):
-    # `nonnegative` keeps the PSD flag for a traced alpha and reports a negative one as an outcome.
-    system = (nonnegative(alpha) * laplacian_from_plan(edge_weights, graph)).shifted(1.0)
-    solution = linear_solve(system, signal.astype(system.dtype), method=solver, throw=False)
+    """`(f, result, stats)` of `tikhonov_smoothing`: `(I + alpha L) f = y` from one compiled program, then
+    `linear_solve` on it (eagerly its own programs, so each can be kept across processes; traced inline
+    under a transformation, as `_harmonic`)."""
+    system, rhs = _tikhonov_system(edge_weights, signal, alpha, graph, checked=not is_traced(alpha))
+    solution = linear_solve(system, rhs, method=solver, throw=False)
     return solution.value, solution.result, _stats(solution)
+
+
+@kernel(static_argnames=("checked",))
+def _tikhonov_system(edge_weights, signal, alpha, graph: GraphPlan, *, checked: bool):
+    """`(I + alpha L, y)`, `y` in the system's dtype; `checked`: `alpha` is concrete and was checked `>= 0` on the host."""
+    # `nonnegative` keeps the PSD flag for a traced alpha and reports a negative one as an outcome; a
+    # checked one needs no run-time check (a host callback, which would keep the program from being stored).
+    scale = NonNegative(jnp.asarray(alpha)) if checked else nonnegative(alpha)
+    system = (scale * laplacian_from_plan(edge_weights, graph)).shifted(1.0)
+    return system, signal.astype(system.dtype)
 
 
 def _dirichlet(structure: GraphStructure, fixed: np.ndarray) -> tuple[DirichletPlan | None, int]:

@@ -120,7 +120,8 @@ def diffusion_operators(
         if cached is not None:
             return outcome(cached, RESULTS.successful, throw)
     operators, result, stats = _compute(mesh, k, mass=mass, robust=robust)
-    if path is not None and bool(np.asarray(result == RESULTS.successful)):
+    # The item's index (equinox's `_value`) is read on the host rather than compared by a dispatched JAX op.
+    if path is not None and bool(np.all(np.asarray(result._value) == RESULTS.successful._value)):
         _save(path, operators)
     return outcome(operators, result, throw, stats)
 
@@ -129,32 +130,20 @@ def _compute(mesh: Mesh, k: int, *, mass: str, robust: bool | IntrinsicTriangula
     """The operators of `mesh` with the outcome and statistics of their eigensolve.
 
     The host work first (the degenerate-face check or the intrinsic flips, the neighbour table), then
-    one compiled program for the rest: a dataset meets a new mesh size at almost every mesh, and one
-    program compiles faster than the separate kernels it replaces (benchmarks/README.md). The plain
-    operators need the mesh's storage plan, which a compiled program does not see: they are built first.
+    one compiled program for the operators, the frames and the gradient weights, then the eigensolve.
+    The plain operators need the mesh's storage plan, which a compiled program does not see: they are
+    built first. Called eagerly, the eigensolve runs after the program (ARPACK on the host, outside
+    every program: `smallest_eigenpairs`), so each program can be kept across processes
+    (`ddgjax._program_store`); under a transformation everything is traced inline.
     """
     triangulation = resolve_robust(mesh, robust, mass=mass)
     matrices = laplacian_and_mass(mesh, mass=mass) if triangulation is None else None
     neighbors = device_array(neighbor_table(mesh.topology))
-    return _operators_program(mesh, triangulation, matrices, neighbors, k=k, mass=mass)
-
-
-@kernel(static_argnames=("k", "mass"))
-def _operators_program(
-    mesh: Mesh,
-    triangulation: IntrinsicTriangulation | None,
-    matrices: tuple[SparseMatrix, SparseMatrix] | None,
-    neighbors: Int[Array, "nv d"],
-    *,
-    k: int,
-    mass: str,
-) -> tuple[DiffusionOperators, RESULTS, dict]:
-    L, M = matrices if triangulation is None else laplacian_and_mass(mesh, mass=mass, robust=triangulation)
+    L, M, areas, frames, weights = _geometry(mesh, triangulation, matrices, neighbors, mass=mass)
     solution = smallest_eigenpairs(L, M, k, throw=False)
     values, vectors = solution.value
-    frames, weights = gradient_frames_and_weights(mesh, neighbors)
     operators = DiffusionOperators(
-        mass=M.diagonal(),
+        mass=areas,
         values=values,
         vectors=vectors,
         frames=frames,
@@ -162,6 +151,21 @@ def _operators_program(
         gradient_weights=weights,
     )
     return operators, solution.result, solution.stats
+
+
+@kernel(static_argnames=("mass",))
+def _geometry(
+    mesh: Mesh,
+    triangulation: IntrinsicTriangulation | None,
+    matrices: tuple[SparseMatrix, SparseMatrix] | None,
+    neighbors: Int[Array, "nv d"],
+    *,
+    mass: str,
+) -> tuple[SparseMatrix, SparseMatrix, Float[Array, " nv"], TangentBases, Float[Array, "nv d 2"]]:
+    """`(L, M, diag M, frames, gradient weights)`: everything of `DiffusionOperators` but the eigenpairs."""
+    L, M = matrices if triangulation is None else laplacian_and_mass(mesh, mass=mass, robust=triangulation)
+    frames, weights = gradient_frames_and_weights(mesh, neighbors)
+    return L, M, M.diagonal(), frames, weights
 
 
 def cache_key(mesh: Mesh, k: int, *, mass: str, robust: bool) -> str:

@@ -37,7 +37,10 @@ straight sides (the aspect ratio is the conformal one, not fixed).
 Everything is differentiable in the vertex positions and in `boundary_scale` / `boundary_angles`
 (`ddgjax.solve.linear_solve`'s implicit differentiation), under `jit`, `grad` and `vmap`. Two solves
 run (the Poisson problem of the conversion, the extension); the map's outcome is the first failing
-one's (`throw=`).
+one's (`throw=`). Eagerly, one compiled program assembles the systems, the free-free block is factored
+and the Neumann-to-Dirichlet system solved outside every program (their host checks included), and a
+second program does the rest, so both programs can be kept across processes (`ddgjax._program_store`);
+under `jit` / `grad` / `vmap` all of it is traced into the caller's program.
 
 Reference: R. Sawhney, K. Crane, "Boundary First Flattening", ACM Trans. Graph. 37(1), 2017, sections
 4-5 (Dirichlet-to-Neumann and Neumann-to-Dirichlet maps, curve construction, minimal length
@@ -59,6 +62,7 @@ from ..internal import vertex_plan
 from ..laplacian import cotan_laplacian
 from ..mesh import Mesh, vertex_angle_defects
 from ..solve import factorize, linear_solve
+from ..solve._linear import cholmod_analysis
 from ..sparse import dirichlet_blocks, dirichlet_plan
 from ._disk import (
     boundary_dual_lengths,
@@ -132,7 +136,7 @@ def boundary_first_flattening(
     scale = None if boundary_scale is None else boundary_values("boundary_scale", boundary_scale, disk, ())
     angles = None if boundary_angles is None else boundary_values("boundary_angles", boundary_angles, disk, ())
     if angles is not None and not is_traced(angles):
-        total = float(jnp.sum(angles))
+        total = float(np.sum(np.asarray(angles)))  # on the host: no eager program
         if abs(total - 2 * np.pi) > _ANGLE_SUM_TOLERANCE:
             raise DDGInputError(
                 f"boundary_angles: the exterior angles of a closed simple curve sum to 2 pi (Gauss-Bonnet), got "
@@ -186,22 +190,48 @@ def _corner_mask(loop: np.ndarray, corners) -> np.ndarray:
     return mask
 
 
-# One program per mesh size; the Laplacian (a kernel of its own) and the plans are made outside.
-@kernel(static_argnames=("shape", "solver"))
 def _flatten(mesh, L, dirichlet, neumann, loop, scale, angles, corner_mask, *, shape, solver):
+    """`(uv, result, stats)` of `boundary_first_flattening`: `_systems`, the factorisation of the Dirichlet
+    block and the Neumann-to-Dirichlet solve (`ddgjax.solve`, eagerly outside every program), then `_map`."""
+    block, problem, angles = _systems(mesh, L, dirichlet, neumann, loop, angles, corner_mask, shape=shape)
+    # The factorisation CHOLMOD chooses, as when it was made inside the map's program (two solves use it).
+    with cholmod_analysis("auto"):
+        factor = None if block is None else factorize(block, method=solver)
+    conversion = None if problem is None else linear_solve(*problem, method=solver, throw=False)
+    return _map(mesh, L, dirichlet, neumann, loop, factor, conversion, scale, angles)
+
+
+# One program per mesh size for each kernel; the Laplacian (a kernel of its own) and the plans are made outside.
+@kernel(static_argnames=("shape",))
+def _systems(mesh, L, dirichlet, neumann, loop, angles, corner_mask, *, shape):
+    """`(L_II, (L_nn, b) or None, k~ or None)`: the free-free block of `L` with the boundary held (`None`
+    when no vertex is free) and, when the target angles `k~` are given or set by `shape`, the
+    Neumann-to-Dirichlet system `L u = [-Omega_I; k~ - k_B]` with one vertex pinned (module docstring)."""
     dtype = L.values.dtype
-    defects = vertex_angle_defects(mesh)
-    lengths = boundary_edge_lengths(mesh.vertices, loop)
-    duals = boundary_dual_lengths(lengths)
-    nb, n = loop.shape[0], mesh.n_vertices
-    factor = None if dirichlet is None else factorize(dirichlet_blocks(L, dirichlet)[0], method=solver)
-    conversion = None  # the Poisson solve from the boundary data to the other half
+    block = None if dirichlet is None else dirichlet_blocks(L, dirichlet)[0]
     if shape == "circle":
+        duals = boundary_dual_lengths(boundary_edge_lengths(mesh.vertices, loop))
         angles = 2.0 * jnp.pi * duals / jnp.sum(duals)
     elif shape == "rectangle":
         angles = jnp.where(jnp.asarray(corner_mask), 0.5 * jnp.pi, 0.0).astype(dtype)
     if angles is None:
+        return block, None, None
+    angles = angles.astype(dtype)
+    defects = vertex_angle_defects(mesh)
+    rhs = (-defects).at[loop].set(angles - take_rows(defects, loop))
+    return block, (dirichlet_blocks(L, neumann)[0], rhs[neumann.free]), angles
+
+
+@kernel
+def _map(mesh, L, dirichlet, neumann, loop, factor, conversion, scale, angles):
+    """`(uv, result, stats)` from `_systems`'s factored block `factor` and the solved Neumann-to-Dirichlet
+    `conversion` (`None` when `angles` is `None`: then the Dirichlet-to-Neumann solve runs here)."""
+    dtype = L.values.dtype
+    lengths = boundary_edge_lengths(mesh.vertices, loop)
+    nb, n = loop.shape[0], mesh.n_vertices
+    if angles is None:
         # Dirichlet-to-Neumann: (L u)_I = -Omega_I with u_B given, then k~ = k + (L u)_B.
+        defects = vertex_angle_defects(mesh)
         u_boundary = jnp.zeros(nb, dtype) if scale is None else scale.astype(dtype)
         if dirichlet is None:
             u = jnp.zeros(n, dtype).at[loop].set(u_boundary)
@@ -213,13 +243,10 @@ def _flatten(mesh, L, dirichlet, neumann, loop, scale, angles, corner_mask, *, s
             u = dirichlet.join(conversion.value, fixed)
         angles = take_rows(defects + L @ u, loop)
     else:
-        # Neumann-to-Dirichlet: L u = [-Omega_I; k~ - k_B], one vertex pinned to 0, then centred.
-        angles = angles.astype(dtype)
-        rhs = (-defects).at[loop].set(angles - take_rows(defects, loop))
-        free_free, _ = dirichlet_blocks(L, neumann)
-        conversion = linear_solve(free_free, rhs[neumann.free], method=solver, throw=False)
+        # Neumann-to-Dirichlet (solved by `_flatten`): u with its pinned vertex at 0, then centred.
         u = neumann.join(conversion.value, jnp.zeros(neumann.fixed.shape[0], dtype))
         u_loop = take_rows(u, loop)
+        duals = boundary_dual_lengths(lengths)
         u_boundary = u_loop - jnp.sum(duals * u_loop) / jnp.sum(duals)
     curve = _boundary_curve(lengths, u_boundary, angles)
     uv, extension = harmonic_extension(L, dirichlet, factor, loop, curve)

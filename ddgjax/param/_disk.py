@@ -178,5 +178,7 @@ def boundary_values(name: str, values, disk: DiskTopology, trailing: tuple[int, 
     check_float_shape(name, np.empty(expected) if is_traced(values) else np.asarray(values), trailing)
     if not is_traced(values) and not np.all(np.isfinite(np.asarray(values))):
         raise DDGInputError(f"{name}: expected finite values, got NaN/inf")
-    values = jnp.asarray(values)
-    return values if jnp.issubdtype(values.dtype, jnp.floating) else values.astype(float)
+    if isinstance(values, (jax.Array, jax.core.Tracer)):
+        return values if jnp.issubdtype(values.dtype, jnp.floating) else values.astype(float)
+    host = np.asarray(values)  # host data moved without an eager program
+    return device_array(host if np.issubdtype(host.dtype, np.floating) else host.astype(float))
