@@ -288,7 +288,8 @@ def _signed_heat(mesh: Mesh, factors: _Factors, segments, weights, held, compone
     """Steps 1-4 (module docstring): `(phi, result, stats)`; the Poisson matrix is factored between two
     programs, as in `_heat_factor`."""
     heat, rhs, constrained = _poisson_system(mesh, factors, segments, weights, held)
-    poisson = factorize(constrained, method=solver).solve(rhs, throw=False)
+    with cholmod_analysis("auto"):  # factored for one solve: CHOLMOD's choice, the faster factorisation
+        poisson = factorize(constrained, method=solver).solve(rhs, throw=False)
     return _level_shift(mesh, heat, poisson, segments, weights, components)
 
 

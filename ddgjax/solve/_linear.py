@@ -342,7 +342,8 @@ def _factorize(A, *, method, preconditioner, rtol, max_steps, residual_tolerance
     values = jax.lax.stop_gradient(system.values)
     token, hierarchy = None, None
     eager = at_top_level() and not is_traced(values)
-    analysis = _CHOLMOD_ANALYSIS.get() or (kept_analysis(system.shape[0]) if eager else "auto")
+    # Kept factorisations simplicial (the faster solves), one-shot ones as CHOLMOD chooses (the faster factorisation).
+    analysis = _CHOLMOD_ANALYSIS.get() or (kept_analysis(system.shape[0]) if eager and not one_shot else "auto")
     if method == "cholesky" and eager:
         _release_cholmod_patterns()
         pattern, kept_values = _analysed_apart(system.pattern, values, analysis)
