@@ -105,7 +105,8 @@ def check_time_step(tau: Real[ArrayLike, ""], dtype) -> Real[Array, ""]:
         raise DDGInputError(f"tau: expected a real scalar time step > 0, got {tau!r}")
     if not is_traced(tau) and not (math.isfinite(float(tau)) and float(tau) > 0):
         raise DDGInputError(f"tau: expected a finite time step > 0, got {np.asarray(tau).item()!r}")
-    return jnp.asarray(tau).astype(dtype)
+    # Concrete: moved to the device without an eager program (`jnp.asarray(...).astype` compiles one).
+    return jnp.asarray(tau).astype(dtype) if is_traced(tau) else jax.device_put(np.asarray(tau, dtype))
 
 
 def check_progress(progress: bool, *values: PyTree) -> bool:

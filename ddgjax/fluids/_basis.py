@@ -47,9 +47,10 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_count
 from .._numerics import safe_div
 from .._options import LUMPED_MASS_MATRICES, check_mass
@@ -184,7 +185,7 @@ def _harmonic_fields(mesh: Mesh, cocycles, vertex_mass, *, mass, robust) -> Floa
     discretisation's accuracy with the intrinsic Delaunay one (`robust=True`, which keeps degenerate
     faces finite)."""
     if cocycles.shape[1] == 0:  # a sphere: no Poisson solve
-        return jnp.zeros((mesh.n_faces, 0, 3), mesh.vertices.dtype)
+        return device_array(np.zeros((mesh.n_faces, 0, 3), mesh.vertices.dtype))
     areas = face_areas(mesh)
     # Faces of (near-)zero area carry no field: a closed form's vector there is of size 1 / area.
     regular = (areas > default_area_tol(areas.dtype) * jnp.max(face_edge_lengths_sq(mesh), axis=1))[:, None, None]

@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, Real
 
-from .._compile import kernel
+from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._loop import (
     Failure,
@@ -206,7 +206,7 @@ def euler_flow(
         raise DDGInputError(f"basis: made for {basis.vectors.shape[0]} vertices, this mesh has {mesh.n_vertices}")
     n_harmonic = basis.harmonic.shape[1]
     if harmonic is None:
-        harmonic = jnp.zeros(n_harmonic, dtype)
+        harmonic = device_array(np.zeros(n_harmonic, dtype))
     elif np.iscomplexobj(harmonic) or np.shape(harmonic) != (n_harmonic,):
         raise DDGInputError(
             f"harmonic: expected a real array of shape ({n_harmonic},) (2 x the genus: coefficients of basis.harmonic), "
@@ -215,27 +215,41 @@ def euler_flow(
     elif not is_traced(harmonic) and not np.all(np.isfinite(np.asarray(harmonic))):
         raise DDGInputError(f"harmonic: expected finite values, got {np.asarray(harmonic)}")
     run = functools.partial(_states, progress=True) if progress else _run
-    state = (basis.coefficients(vorticity), jnp.asarray(harmonic).astype(dtype), None if dye is None else basis.coefficients(dye))
+    state = _initial_state(basis, vorticity, device_array(harmonic, dtype), dye)
     (coefficients, harmonic, dye_coefficients), failure = run(
         basis, state, tau, rotation, viscosity, steps=steps, save_every=save_every
     )
+    flow = _flow_record(basis, coefficients, harmonic, dye_coefficients, tau, failure, steps=steps, save_every=save_every)
+    return raise_if_failed(flow, flow.result, throw)
+
+
+# Eagerly, the set-up and the record are one program each (kept across processes), not ~25
+# operations compiled one by one.
+@kernel
+def _initial_state(basis: FluidBasis, vorticity, harmonic, dye):
+    """`(a, c, d)`: the basis coefficients of the vorticity and the dye, and the harmonic coefficients."""
+    return basis.coefficients(vorticity), harmonic, None if dye is None else basis.coefficients(dye)
+
+
+@kernel(static_argnames=("steps", "save_every"))
+def _flow_record(basis: FluidBasis, coefficients, harmonic, dye_coefficients, tau, failure, *, steps: int, save_every: int):
+    """The `EulerFlowResult` of the saved states' coefficients (module docstring: energy and enstrophy)."""
     saved = save_every * jnp.arange(steps // save_every + 1, dtype=jnp.int32)
     stream = basis.stream_coefficients(coefficients)
-    flow = EulerFlowResult(
+    return EulerFlowResult(
         vorticity=basis.function(coefficients),
         stream_function=basis.function(stream),
-        dye=None if dye is None else basis.function(dye_coefficients),
+        dye=None if dye_coefficients is None else basis.function(dye_coefficients),
         coefficients=coefficients,
         harmonic=harmonic,
         kinetic_energy=0.5 * (jnp.sum(basis.values * stream**2, axis=-1) + jnp.sum(harmonic**2, axis=-1)),
         enstrophy=0.5 * jnp.sum(coefficients**2, axis=-1),
-        times=tau * saved.astype(dtype),
+        times=tau * saved.astype(tau.dtype),
         steps=saved,
         tau=tau,
         result=failure.result,
         first_failure_step=first_failure_step(failure, steps),
     )
-    return raise_if_failed(flow, flow.result, throw)
 
 
 def _vertex_function(name: str, values, mesh: Mesh) -> Float[Array, " nv"]:
@@ -258,7 +272,7 @@ def _scalar(name: str, value, dtype, *, nonnegative: bool = False) -> Real[Array
         raise DDGInputError(f"{name}: expected {expected}, got {value!r}")
     if not is_traced(value) and not (np.isfinite(value) and (value >= 0 or not nonnegative)):
         raise DDGInputError(f"{name}: expected {expected}, got {np.asarray(value).item()!r}")
-    return jnp.asarray(value).astype(dtype)
+    return jnp.asarray(value).astype(dtype) if is_traced(value) else jax.device_put(np.asarray(value, dtype))
 
 
 class _Dynamics(eqx.Module):
