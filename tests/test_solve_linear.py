@@ -71,6 +71,10 @@ def test_solves_match_scipy_spsolve(method):
         # CG stops at a relative residual of 1e-10; the error is that times the condition number at most.
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
         assert solution.residual < 1e-9
+        # The stats an entry point reports: the relative residual as SciPy computes it, and the CG steps.
+        measured = np.linalg.norm(reference @ np.asarray(solution.value) - np.asarray(b)) / np.linalg.norm(np.asarray(b))
+        np.testing.assert_allclose(solution.stats["residual"], measured, rtol=1e-6, atol=1e-15)
+        assert solution.stats["num_steps"] == solution.num_steps
         B = _rhs(A.shape[0], seed=1, k=3)
         block = _solve(A, B, options).value
         assert block.shape == B.shape

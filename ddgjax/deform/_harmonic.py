@@ -100,16 +100,14 @@ def biharmonic_deformation(
         value = positions.astype(dtype).at[dirichlet.vertices].set(dirichlet.values.astype(dtype))
         stats = {"residual": jnp.zeros((), dtype), "num_steps": jnp.zeros((), jnp.int32)}
         return outcome(value, RESULTS.successful, throw, stats)
-    value, result, stats = _solve(
-        mesh,
-        vertex_plan(mesh),
-        operator,
-        dirichlet.values.astype(dtype),
-        dirichlet.plan,
-        n_pinned=dirichlet.n_pinned,
-        mass=mass,
-        solver=solver,
+    # `Q_ff D_f = -Q_fc D_c` from one program, `linear_solve` (its checks on the host, outside every
+    # program) and one more joining `V + D`, so each can be kept across processes (`ddgjax._program_store`);
+    # under `jit` / `grad` / `vmap` all of it is traced into the caller's program.
+    free_free, rhs, held = _system(
+        mesh, vertex_plan(mesh), operator, dirichlet.values.astype(dtype), dirichlet.plan, n_pinned=dirichlet.n_pinned, mass=mass
     )
+    solution = linear_solve(free_free, rhs, method=solver, throw=False)
+    value, result, stats = _deformed(mesh, solution.value, held, dirichlet.plan), solution.result, solution.stats
     return outcome(value, result, throw, stats)
 
 
@@ -197,31 +195,6 @@ def _operator_plan(mesh: Mesh, k: int) -> _OperatorPlan:
                 pattern = products[-1].pattern
             plans[k] = _OperatorPlan(pattern=pattern, products=tuple(products))
     return plans[k]
-
-
-# The outcome is checked outside the programs (`outcome`), as `ddgjax.pde.solve_poisson` does.
-def _solve(
-    mesh: Mesh,
-    plan: TriangulationPlan,
-    operator: _OperatorPlan,
-    values: Float[Array, "n_fixed 3"],
-    blocks: DirichletPlan,
-    *,
-    n_pinned: int,
-    mass: str,
-    solver: str,
-) -> tuple[Float[Array, "nv 3"], RESULTS, dict[str, Array]]:
-    """`(positions, result, stats)` of `biharmonic_deformation`; `blocks.fixed` is the handles, then `n_pinned` unused vertices.
-
-    Called eagerly: `Q_ff D_f = -Q_fc D_c` comes from one compiled program, `linear_solve` runs its own
-    (its definiteness check and outcome on the host, outside them) and one more joins `V + D`, so every
-    program can be kept across processes (`ddgjax._program_store`). Under `jit` / `grad` / `vmap` it is
-    all traced into the caller's program.
-    """
-    free_free, rhs, fixed_displacement = _system(mesh, plan, operator, values, blocks, n_pinned=n_pinned, mass=mass)
-    solution = linear_solve(free_free, rhs, method=solver, throw=False)
-    positions = _deformed(mesh, solution.value, fixed_displacement, blocks)
-    return positions, solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
 
 
 @kernel(static_argnames=("n_pinned", "mass"))

@@ -139,4 +139,4 @@ def _interpolate(
     free_fixed = SparseMatrix(real[1].values + 1j * imaginary[1].values, plan.free_fixed)
     solve = linear_solve(free_free, -(free_fixed @ values), method=solver, throw=False)
     u = jax.lax.complex(plan.join(solve.value.real, values.real), plan.join(solve.value.imag, values.imag))
-    return u, solve.result, {"residual": solve.residual, "num_steps": solve.num_steps}
+    return u, solve.result, solve.stats

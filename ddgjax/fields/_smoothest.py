@@ -150,7 +150,7 @@ def smoothest_field(
         s = check_positive("alignment_weight", alignment_weight)
         solve = linear_solve(A + s * M, s * (M @ q), method=solver, throw=False)
         field = _solved_field(A, M, solve.value)
-        result, stats = solve.result, {"residual": solve.residual, "num_steps": solve.num_steps}
+        result, stats = solve.result, solve.stats
     return outcome(field, result, throw, stats)
 
 

@@ -103,7 +103,7 @@ def _harmonic(edge_weights, values, graph: GraphPlan, plan: DirichletPlan, *, n_
     """
     free_free, rhs, fixed_values = _harmonic_system(edge_weights, values, graph, plan, n_pinned=n_pinned)
     solution = linear_solve(free_free, rhs, method=solver, throw=False)
-    return _joined(plan, solution.value, fixed_values), solution.result, _stats(solution)
+    return _joined(plan, solution.value, fixed_values), solution.result, solution.stats
 
 
 @kernel(static_argnames=("n_pinned",))
@@ -180,7 +180,7 @@ def _tikhonov(edge_weights, signal, alpha, graph: GraphPlan, *, solver: str):
     under a transformation, as `_harmonic`)."""
     system, rhs = _tikhonov_system(edge_weights, signal, alpha, graph, checked=not is_traced(alpha))
     solution = linear_solve(system, rhs, method=solver, throw=False)
-    return solution.value, solution.result, _stats(solution)
+    return solution.value, solution.result, solution.stats
 
 
 @kernel(static_argnames=("checked",))
@@ -211,10 +211,6 @@ def _dirichlet(structure: GraphStructure, fixed: np.ndarray) -> tuple[DirichletP
         structure.dirichlet.pop(next(iter(structure.dirichlet)))
     structure.dirichlet[key] = (plan, int(pins.size))
     return plan, int(pins.size)
-
-
-def _stats(solution) -> dict[str, Array]:
-    return {"residual": solution.residual, "num_steps": solution.num_steps}
 
 
 def _no_solve_stats(dtype) -> dict[str, Array]:

@@ -88,7 +88,7 @@ class LargeSteps(eqx.Module):
         solution = self.factorization.solve(parameters - self.offset, throw=False)
         solved = solution.value
         vertices = solved if self.free is None else self.template.at[self.free].set(solved)
-        stats = {"residual": solution.residual, "num_steps": solution.num_steps}
+        stats = solution.stats
         return outcome(vertices, solution.result, throw, stats)
 
 

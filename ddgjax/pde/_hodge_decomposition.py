@@ -206,7 +206,7 @@ def _decompose(
         free_free, _ = dirichlet_blocks(laplacian, pins)
         solution = linear_solve(free_free, rhs[pins.free], method=solver, throw=False)
         potentials = pins.join(solution.value, jnp.zeros((pins.fixed.shape[0], rhs.shape[1]), rhs.dtype))
-        solved, stats = solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
+        solved, stats = solution.result, solution.stats
     exact_forms = derivative @ potentials
     exact = exact_forms[:, :n_columns]
     remainder = columns - exact

@@ -173,7 +173,7 @@ def _solve_system(
     )
     solution = linear_solve(free_free, rhs, method=solver, throw=False)
     phi = _recentred(mass_matrix_, solution.value, fixed_values, blocks, labels, floating, n_components=n_components)
-    return phi, solution.result, {"residual": solution.residual, "num_steps": solution.num_steps}
+    return phi, solution.result, solution.stats
 
 
 def _component_mean(mass_matrix_: SparseMatrix, values, labels, n_components: int):

@@ -162,6 +162,11 @@ class LinearSolution(eqx.Module):
     num_steps: Int[Array, ""]
     method: str = eqx.field(static=True)
 
+    @property
+    def stats(self) -> dict[str, Array]:
+        """`{"residual": ..., "num_steps": ...}`: the `stats` of a `ddgjax.Solution` whose value came from this solve."""
+        return {"residual": self.residual, "num_steps": self.num_steps}
+
 
 def linear_solve(
     A: SparseMatrix,
