@@ -37,6 +37,7 @@ import numpy as np
 from jax.extend.core import find_top_trace
 
 from . import _program_store
+from ._domain import Domain, domain_for_parameter
 from ._errors import DDGInputError
 
 #: Options for every kernel compiled on CPU (module docstring).
@@ -104,16 +105,17 @@ def kernel(
     """The one way ddgjax compiles a kernel: `jax.jit` with static arguments by name, meshes handled here.
 
     - Static arguments are named (`static_argnames`), never numbered.
-    - The argument types are checked before tracing: a first parameter named `mesh` must be a
-      `ddgjax.Mesh`, one named `tet_mesh` a `ddgjax.volume.TetMesh`, one named `curve` a `ddgjax.curves.Curve` (`DDGInputError` saying what to call
-      otherwise, rather than an `AttributeError` from inside the trace).
+    - The argument types are checked before tracing: a first parameter named as a `Domain` subclass
+      declares (`mesh` for `ddgjax.Mesh`, `tet_mesh` for `ddgjax.volume.TetMesh`, `curve` for
+      `ddgjax.curves.Curve`, `batch` for `ddgjax.batch.MeshBatch`) must be one (`DDGInputError`
+      saying how to make one, rather than an `AttributeError` from inside the trace).
     - Options are keyword-only: too many positional arguments get Python's `TypeError` naming them.
-    - Every `Mesh` argument is passed as `mesh.without_topology()`: its static connectivity is not
+    - Every `Domain` argument is passed as `domain.for_kernel(...)`: a mesh's static connectivity is not
       part of the cache key, so one program serves every mesh of the same array shapes, and eager
       calls run one compiled program instead of hundreds of op-by-op dispatches. Host work that needs
       the topology (storage plans, orientation checks) runs before the kernel; plans are passed in
       as arguments. `requires_orientation` (the operation's name for the error) checks each mesh's
-      orientation first (`MeshTopology.require_oriented`); a kernel whose body calls an
+      orientation first (`Mesh.for_kernel`); a kernel whose body calls an
       orientation-requiring kernel declares it too.
     - A call outside every transformation runs a program of the kernel's bounded cache: one per
       argument signature (shapes, dtypes, static values), the `PROGRAMS_PER_KERNEL` most recently
@@ -146,8 +148,9 @@ def kernel(
         if len(args) > positional:  # Python's own message, naming the options, rather than jit's about static arguments
             hint = f"; pass its options by keyword: {function.__name__}(..., {keywords})" if keywords else ""
             raise TypeError(f"{function.__name__}() takes {positional} positional argument(s) but {len(args)} were given{hint}")
-        if args and first in _REQUIRED:
-            args = (_REQUIRED[first](first, args[0]), *args[1:])
+        domain = domain_for_parameter(first)
+        if args and domain is not None:
+            args = (domain.require(first, args[0]), *args[1:])
         args = tuple(_prepare(arg, requires_orientation) for arg in args)
         kwargs = {name: _prepare(arg, requires_orientation) for name, arg in kwargs.items()}
         if not at_top_level() or jax.config.jax_disable_jit:  # traced into the caller's program, or run op by op
@@ -252,33 +255,6 @@ def _signature(args: tuple, kwargs: dict, static_positions: dict[str, int | None
     return (tree, static, avals), dynamic
 
 
-def _require_mesh(name: str, value):
-    from .mesh import require_mesh  # the mesh package sits above this module
-
-    return require_mesh(name, value)
-
-
-def _require_curve(name: str, value):
-    from .curves import require_curve
-
-    return require_curve(name, value)
-
-
-def _require_tet_mesh(name: str, value):
-    from .volume import require_tet_mesh
-
-    return require_tet_mesh(name, value)
-
-
-_REQUIRED = {"mesh": _require_mesh, "curve": _require_curve, "tet_mesh": _require_tet_mesh}
-
-
 def _prepare(argument, requires_orientation: str | None):
-    """A `Mesh` without its topology (after the orientation check); anything else unchanged."""
-    without_topology = getattr(argument, "without_topology", None)
-    if without_topology is None or not callable(without_topology):
-        return argument
-    topology = getattr(argument, "topology", None)
-    if requires_orientation is not None and topology is not None:
-        topology.require_oriented(requires_orientation)
-    return without_topology()
+    """A `Domain` as its kernels trace it (`Domain.for_kernel`); anything else unchanged."""
+    return argument.for_kernel(requires_orientation) if isinstance(argument, Domain) else argument

@@ -33,6 +33,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._compile import device_array
+from .._domain import Domain
 from .._errors import DDGInputError, check_count, check_float_array, is_traced
 from ..mesh import Mesh
 from ._bucket import bucket
@@ -57,7 +58,7 @@ class PackedMeshes(NamedTuple):
     face_meshes: Int[np.ndarray, " m"]
 
 
-class MeshBatch(eqx.Module):
+class MeshBatch(Domain):
     """`B` triangle meshes of different sizes, padded to bucketed sizes (module docstring).
 
     Make one with `MeshBatch.from_meshes(meshes)`; differentiate with
@@ -93,6 +94,14 @@ class MeshBatch(eqx.Module):
     vertex_neighbors: Int[Array, "B nvp d"]
     slot_corners: Int[Array, "B n_slots m"]
     corner_slots: Int[Array, "B n_corners 2"]
+
+    parameter_name = "batch"
+
+    @classmethod
+    def how_to_build(cls, value: object) -> str:
+        """How to make a `MeshBatch` from what was given (`Domain.require`'s hint)."""
+        single = "; for a single mesh use the function of the same name in ddgjax.mesh / ddgjax.laplacian"
+        return "build one with MeshBatch.from_meshes([mesh, ...])" + (single if isinstance(value, Mesh) else "")
 
     # `meshes` is annotated loosely on purpose: a wrong element gets this method's `DDGInputError` naming
     # its index rather than a run-time type-checker's message.
@@ -210,17 +219,7 @@ class MeshBatch(eqx.Module):
 
 def require_batch(name: str, value) -> MeshBatch:
     """`value` if it is a `MeshBatch`, else `DDGInputError` naming the argument and saying how to make one."""
-    if isinstance(value, MeshBatch):
-        return value
-    hint = (
-        "; for a single mesh use the function of the same name in ddgjax.mesh / ddgjax.laplacian"
-        if isinstance(value, Mesh)
-        else ""
-    )
-    raise DDGInputError(
-        f"{name}: expected a ddgjax.batch.MeshBatch, got {type(value).__name__}; build one with "
-        f"MeshBatch.from_meshes([mesh, ...]){hint}"
-    )
+    return MeshBatch.require(name, value)
 
 
 def pad_vertex_values(values: Sequence, *, n_vertices: int | None = None) -> Float[Array, "B nvp *rest"]:

@@ -10,10 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from .._domain import Domain
 from .._errors import DDGInputError, check_finite, check_float_array, check_float_shape, first_indices, is_traced
 
 
-class Curve(eqx.Module):
+class Curve(Domain):
     """A polygonal plane curve: points in order, joined by straight edges.
 
     Every quantity in `ddgjax.curves` is a pure JAX function of `curve.points`; differentiate with
@@ -43,6 +44,8 @@ class Curve(eqx.Module):
     points: Float[Array, "n 2"]
     closed: bool = eqx.field(static=True)
 
+    parameter_name = "curve"
+
     def __init__(self, points: ArrayLike, closed: bool = True):
         if not isinstance(closed, (bool, np.bool_)):
             raise DDGInputError(f"closed: expected a Python bool, got {closed!r}")
@@ -55,6 +58,11 @@ class Curve(eqx.Module):
             array = array.astype(jnp.result_type(float))
         self.points = array
         self.closed = closed
+
+    @classmethod
+    def how_to_build(cls, value: object) -> str:
+        """How to make a `Curve` from what was given (`Domain.require`'s hint)."""
+        return "wrap the (n, 2) points with ddgjax.curves.Curve(points, closed=True) (closed=False for an open polyline)"
 
     def with_points(self, points: ArrayLike) -> Curve:
         """The same kind of curve (open / closed) through new points of the same shape.
@@ -115,14 +123,7 @@ def unchecked_curve(points: Float[Array, "n 2"], closed: bool) -> Curve:
 
 def require_curve(name: str, value) -> Curve:
     """`value` if it is a `Curve`, else `DDGInputError` naming the argument and saying how to make one."""
-    if isinstance(value, Curve):
-        return value
-    shape = getattr(value, "shape", None)
-    given = f"an array of shape {tuple(shape)}" if shape is not None else f"a {type(value).__name__}"
-    raise DDGInputError(
-        f"{name}: expected a ddgjax Curve, got {given}; wrap the (n, 2) points with "
-        "ddgjax.curves.Curve(points, closed=True) (closed=False for an open polyline)"
-    )
+    return Curve.require(name, value)
 
 
 def takes_curve(function):

@@ -9,11 +9,12 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array
+from .._domain import Domain
 from .._errors import DDGInputError, check_float_array, check_float_shape, is_traced
 from ._topology import MeshTopology, build_topology, validate_simplices
 
 
-class Mesh(eqx.Module):
+class Mesh(Domain):
     """A triangle mesh: vertex positions (differentiable) and connectivity (fixed).
 
     Make one with `Mesh.from_arrays(vertices, faces)` or `ddgjax.io.load_mesh(path)`. Every geometric
@@ -47,6 +48,8 @@ class Mesh(eqx.Module):
     edge_faces: Int[Array, "ne m"]
     edge_face_corners: Int[Array, "ne m"]
     topology: MeshTopology | None = eqx.field(static=True)
+
+    parameter_name = "mesh"
 
     def __init__(self, *args, **kwargs):
         raise DDGInputError(
@@ -121,6 +124,19 @@ class Mesh(eqx.Module):
         characteristic when no vertex is unreferenced. libigl: `igl.edges(F).shape[0]`."""
         return self.edges.shape[0]
 
+    @classmethod
+    def how_to_build(cls, value: object) -> str:
+        """How to make a `Mesh` from what was given (`Domain.require`'s hint)."""
+        if isinstance(value, tuple) and len(value) == 2:
+            return "for a (vertices, faces) pair use ddgjax.Mesh.from_arrays(vertices, faces)"
+        return "build one with ddgjax.Mesh.from_arrays(vertices, faces) or ddgjax.io.load_mesh(path)"
+
+    def for_kernel(self, operation: str | None) -> "Mesh":
+        """The mesh a compiled kernel traces (`without_topology`), after `MeshTopology.require_oriented(operation)`."""
+        if operation is not None and self.topology is not None:
+            self.topology.require_oriented(operation)
+        return self.without_topology()
+
     def without_topology(self) -> "Mesh":
         """The same arrays with `topology=None`: what ddgjax's compiled kernels trace (`ddgjax._compile.kernel`)."""
         if self.topology is None:
@@ -141,13 +157,7 @@ def _assemble(**fields) -> Mesh:
 
 def require_mesh(name: str, value) -> Mesh:
     """`value` if it is a `Mesh`, else `DDGInputError` naming the argument and saying how to make one."""
-    if isinstance(value, Mesh):
-        return value
-    if isinstance(value, tuple) and len(value) == 2:
-        hint = "for a (vertices, faces) pair use ddgjax.Mesh.from_arrays(vertices, faces)"
-    else:
-        hint = "build one with ddgjax.Mesh.from_arrays(vertices, faces) or ddgjax.io.load_mesh(path)"
-    raise DDGInputError(f"{name}: expected a ddgjax Mesh, got {type(value).__name__}; {hint}")
+    return Mesh.require(name, value)
 
 
 def checked_vertices(vertices, n_vertices: int) -> Float[Array, "nv 3"]:

@@ -7,13 +7,14 @@ import jax
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._domain import Domain
 from .._errors import DDGInputError, check_float_array, is_traced
 from ..internal import as_float_vertices, build_topology, checked_vertices, validate_simplices
 from ..mesh import Mesh, MeshTopology
 from ._topology import TetTopology, build_tet_topology
 
 
-class TetMesh(eqx.Module):
+class TetMesh(Domain):
     """A tetrahedral mesh: vertex positions (differentiable) and connectivity (fixed), the volume analogue of `Mesh`.
 
     Make one with `TetMesh.from_arrays(vertices, tets)` or `ddgjax.volume.load_tet_mesh(path)`. Every
@@ -50,6 +51,8 @@ class TetMesh(eqx.Module):
     tet_triangle_signs: Int[Array, "nt 4"]
     triangle_edges: Int[Array, "ntri 3"]
     topology: TetTopology | None = eqx.field(static=True)
+
+    parameter_name = "tet_mesh"
 
     def __init__(self, *args, **kwargs):
         raise DDGInputError(
@@ -142,6 +145,19 @@ class TetMesh(eqx.Module):
             raise DDGInputError("tet_mesh: this tet mesh has no boundary triangles (every triangle has two or more tets)")
         return Mesh.from_topology(self.vertices, _boundary_topology(topology))
 
+    @classmethod
+    def how_to_build(cls, value: object) -> str:
+        """How to make a `TetMesh` from what was given (`Domain.require`'s hint)."""
+        if isinstance(value, Mesh):
+            return "this is a triangle Mesh; the volume operators need tetrahedra (ddgjax.volume.tetrahedralize(mesh) fills a closed surface)"
+        if isinstance(value, tuple) and len(value) == 2:
+            return "for a (vertices, tets) pair use ddgjax.volume.TetMesh.from_arrays(vertices, tets)"
+        return "build one with ddgjax.volume.TetMesh.from_arrays(vertices, tets) or ddgjax.volume.load_tet_mesh(path)"
+
+    def for_kernel(self, operation: str | None) -> "TetMesh":
+        """The tet mesh a compiled kernel traces (`without_topology`); its tets are oriented on construction."""
+        return self.without_topology()
+
     def without_topology(self) -> "TetMesh":
         """The same arrays with `topology=None`: what ddgjax's compiled kernels trace (`ddgjax._compile.kernel`)."""
         if self.topology is None:
@@ -192,12 +208,4 @@ def _require_topology(tet_mesh: TetMesh) -> TetTopology:
 
 def require_tet_mesh(name: str, value) -> TetMesh:
     """`value` if it is a `TetMesh`, else `DDGInputError` naming the argument and saying how to make one."""
-    if isinstance(value, TetMesh):
-        return value
-    if isinstance(value, Mesh):
-        hint = "this is a triangle Mesh; the volume operators need tetrahedra (ddgjax.volume.tetrahedralize(mesh) fills a closed surface)"
-    elif isinstance(value, tuple) and len(value) == 2:
-        hint = "for a (vertices, tets) pair use ddgjax.volume.TetMesh.from_arrays(vertices, tets)"
-    else:
-        hint = "build one with ddgjax.volume.TetMesh.from_arrays(vertices, tets) or ddgjax.volume.load_tet_mesh(path)"
-    raise DDGInputError(f"{name}: expected a ddgjax TetMesh, got {type(value).__name__}; {hint}")
+    return TetMesh.require(name, value)
