@@ -251,7 +251,9 @@ def _signature(args: tuple, kwargs: dict, static_positions: dict[str, int | None
         {name: value for name, value in kwargs.items() if name not in static_positions},
     )
     leaves, tree = jax.tree_util.tree_flatten(dynamic)
-    avals = tuple((getattr(leaf, "shape", None), getattr(leaf, "dtype", type(leaf)), getattr(leaf, "weak_type", False)) for leaf in leaves)
+    avals = tuple(
+        (getattr(leaf, "shape", None), getattr(leaf, "dtype", type(leaf)), getattr(leaf, "weak_type", False)) for leaf in leaves
+    )
     return (tree, static, avals), dynamic
 
 

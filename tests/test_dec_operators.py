@@ -19,7 +19,7 @@ import pytest
 
 import ddgjax.dec as dec
 from ddgjax._errors import DDGInputError, MeshDataError
-from ddgjax.internal import dec_plan, vertex_plan
+from ddgjax.laplacian.internal import dec_plan, vertex_plan
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import (
     corner_dual_areas,

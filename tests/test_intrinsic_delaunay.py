@@ -14,7 +14,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddgjax._errors import DDGInputError, MeshDataError
-from ddgjax.internal import degenerate_faces
+from ddgjax.mesh.internal import degenerate_faces
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import (
     IntrinsicTriangulation,

@@ -341,20 +341,20 @@ def _draw_point_cloud(mesh: Mesh, cloud: np.ndarray, heat: np.ndarray, name: str
 def _screen(mesh: Mesh, up: str) -> np.ndarray:
     """`(nv, 3)` the vertices in `plot_mesh_function`'s default view: screen `x`, depth, screen `y`."""
     from ..plot import OBLIQUE_VIEW, TOP_VIEW, is_flat, view_rotation
-    from ..plot._view import _UP
+    from ..plot.internal import UP_ROTATIONS
 
-    rotation = view_rotation(*(TOP_VIEW if is_flat(mesh) else OBLIQUE_VIEW)) @ _UP[up]
+    rotation = view_rotation(*(TOP_VIEW if is_flat(mesh) else OBLIQUE_VIEW)) @ UP_ROTATIONS[up]
     return np.asarray(mesh.vertices, dtype=float) @ rotation.T
 
 
 def _facing(mesh: Mesh, up: str) -> np.ndarray:
     """`(nv,)` whether each vertex's normal faces the viewer of `_screen` (all of them on a flat mesh)."""
     from ..plot import OBLIQUE_VIEW, is_flat, view_rotation
-    from ..plot._view import _UP
+    from ..plot.internal import UP_ROTATIONS
 
     if is_flat(mesh):
         return np.ones(mesh.n_vertices, bool)
-    rotation = view_rotation(*OBLIQUE_VIEW) @ _UP[up]
+    rotation = view_rotation(*OBLIQUE_VIEW) @ UP_ROTATIONS[up]
     return (np.asarray(vertex_normals(mesh)) @ rotation.T)[:, 1] <= 0  # the viewer looks along +depth
 
 

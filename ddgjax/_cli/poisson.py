@@ -38,9 +38,9 @@ from .._compile import kernel
 from .._errors import DDGInputError, MeshDataError
 from .._options import BOUNDARY_CONDITIONS, MASS_MATRICES
 from .._results import RESULTS, Solution
-from ..internal import auto_method
 from ..mesh import Mesh, disk, icosphere
 from ..pde import solve_poisson
+from ..solve.internal import auto_method
 from ..volume import TetMesh, tet_ball
 from ._common import SURFACE_SUFFIXES, load_cli_mesh, write_figure
 

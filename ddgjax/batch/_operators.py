@@ -35,8 +35,9 @@ from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows_or_zero
 from .._numerics import safe_div, safe_norm, safe_normalize, unsigned_angle
 from .._options import LUMPED_MASS_MATRICES, check_mass
-from ..internal import dirichlet_energy_length_weights, face_geometry_from_corners
+from ..laplacian.internal import dirichlet_energy_length_weights
 from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
+from ..mesh.internal import face_geometry_from_corners
 from ..sparse import gather_sum
 from ._batch import MeshBatch, require_batch
 

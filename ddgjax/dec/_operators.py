@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from ..internal import incidence_matrix
 from ..mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix
+from ..sparse.internal import incidence_matrix
 
 
 def d0(mesh: Mesh) -> SparseMatrix:

@@ -215,7 +215,7 @@ class TangentBases(NamedTuple):
 
 
 @kernel
-def _tangent_bases(mesh: Mesh, plan: FieldPlan) -> TangentBases:
+def planned_tangent_bases(mesh: Mesh, plan: FieldPlan) -> TangentBases:
     normals = vertex_normals(mesh, weighting="angle")
     edges = take_rows(mesh.vertices, plan.reference_neighbor) - mesh.vertices
     e1 = safe_normalize(edges - jnp.sum(edges * normals, axis=-1, keepdims=True) * normals)
@@ -236,4 +236,4 @@ def tangent_bases(mesh: Mesh) -> TangentBases:
     Equivalent: potpourri3d `MeshVectorHeatSolver(V, F).get_tangent_frames()` (`basisX, basisY,
     basisN`; geometry-central `vertexTangentBasis`), with its own choice of reference edges.
     """
-    return _tangent_bases(mesh, plan_of(mesh))
+    return planned_tangent_bases(mesh, plan_of(mesh))

@@ -22,8 +22,8 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_vertex_indices
 from .._options import check_solver
 from .._results import RESULTS, Solution, outcome
-from ..internal import vertex_plan
 from ..laplacian import TriangulationPlan
+from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, MeshTopology, require_mesh
 from ..solve import linear_solve
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan

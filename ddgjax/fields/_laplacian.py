@@ -18,8 +18,8 @@ from .._compile import kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows_or_zero
 from .._options import LUMPED_MASS_MATRICES, check_mass
-from ..internal import vertex_plan
 from ..laplacian import TriangulationPlan, mass_matrix
+from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, edge_cotan_weights
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._connection import check_boundary_scaling, connection_angles, plan_of

@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Int
 
 from .._errors import DDGInputError, MeshDataError, first_indices
-from ..internal import vertex_plan
+from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, MeshTopology, require_mesh
 from ..sparse import SparsityPattern
 

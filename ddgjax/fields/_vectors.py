@@ -10,7 +10,7 @@ from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_atan2, safe_normalize
 from ..mesh import Mesh, face_normals, face_vertex_positions, require_mesh
-from ._connection import _tangent_bases, check_boundary_scaling, connection_angles, plan_of
+from ._connection import check_boundary_scaling, connection_angles, plan_of, planned_tangent_bases
 from ._laplacian import check_degree
 from ._smoothest import _complex_field, unit
 
@@ -25,7 +25,7 @@ def _directions(field: Complex[Array, " m"], e1: Float[Array, "m 3"], e2: Float[
 
 @kernel(static_argnames=("n",))
 def _vertex_vectors(mesh: Mesh, plan, field, n: int):
-    e1, e2, _ = _tangent_bases(mesh, plan)
+    e1, e2, _ = planned_tangent_bases(mesh, plan)
     return _directions(field, e1, e2, n)
 
 

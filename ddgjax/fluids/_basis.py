@@ -65,9 +65,9 @@ from ..mesh import (
     require_mesh,
     scatter_corners_to_vertices,
 )
-from ..mesh._check import default_area_tol
+from ..mesh.internal import default_area_tol
 from ..pde import solve_poisson
-from ..pde._hodge_decomposition import closed_cocycle_basis
+from ..pde.internal import closed_cocycle_basis
 from ..spectral import smallest_eigenpairs
 
 

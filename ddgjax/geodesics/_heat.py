@@ -65,8 +65,8 @@ from .._indexing import take_rows
 from .._numerics import safe_norm
 from .._options import BOUNDARY_CONDITIONS, check_mass, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
-from ..internal import DirichletData, require_tet_problem, resolve_robust
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
+from ..laplacian.internal import resolve_robust
 from ..mesh import (
     Mesh,
     MeshTopology,
@@ -75,10 +75,12 @@ from ..mesh import (
     face_hat_gradients,
     require_mesh,
 )
+from ..pde.internal import DirichletData
 from ..solve import Factorization, LinearSolution, factorize
-from ..solve._linear import cholmod_analysis, kept_analysis
+from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
 from ..volume import TetMesh, TetTopology
+from ..volume.internal import require_tet_problem
 
 HEAT_BOUNDARY_CONDITIONS = ("average", *BOUNDARY_CONDITIONS)
 """`boundary=` of the heat method: `BOUNDARY_CONDITIONS` and their mean, `"average"` (module docstring)."""
@@ -437,9 +439,9 @@ def _systems_of(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _
     heat_matrix = M + t * L
     return _Systems(
         t=t,
-        heat=_held_block(heat_matrix, plans.heat) if plans.neumann else None,
-        heat_dirichlet=None if plans.heat_dirichlet is None else _held_block(heat_matrix, plans.heat_dirichlet),
-        poisson=_held_block(L, plans.poisson),
+        heat=held_block(heat_matrix, plans.heat) if plans.neumann else None,
+        heat_dirichlet=None if plans.heat_dirichlet is None else held_block(heat_matrix, plans.heat_dirichlet),
+        poisson=held_block(L, plans.poisson),
         area_gradients=_measure_gradients(mesh),
     )
 
@@ -465,13 +467,13 @@ def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plan
     )
 
 
-def _held_block(matrix: SparseMatrix, plan: DirichletPlan | None) -> SparseMatrix:
+def held_block(matrix: SparseMatrix, plan: DirichletPlan | None) -> SparseMatrix:
     """`matrix`, or its free-free block when `plan` holds some indices at 0."""
     return matrix if plan is None else dirichlet_blocks(matrix, plan)[0]
 
 
-def _solve_held(factor: Factorization, plan: DirichletPlan | None, rhs) -> tuple[LinearSolution, Float[Array, " nv"]]:
-    """`(solution, x)`: `A x = rhs` on the free indices, `x = 0` on those `plan` holds (`_held_block`'s)."""
+def solve_held(factor: Factorization, plan: DirichletPlan | None, rhs) -> tuple[LinearSolution, Float[Array, " nv"]]:
+    """`(solution, x)`: `A x = rhs` on the free indices, `x = 0` on those `plan` holds (`held_block`'s)."""
     if plan is None:
         solution = factor.solve(rhs, throw=False)
         return solution, solution.value
@@ -483,7 +485,7 @@ def _heat_method(mesh: Mesh | TetMesh, factors: _Factors, corners, weights) -> t
     """The four steps (module docstring) with kept factorisations: `(steps, result, stats)`."""
     delta = jnp.zeros(mesh.n_vertices, weights.dtype).at[corners.ravel()].add(weights.ravel())
     flows = ((factors.heat, factors.heat_plan), (factors.heat_dirichlet, factors.heat_dirichlet_plan))
-    heats = [_solve_held(factor, plan, delta) for factor, plan in flows if factor is not None]
+    heats = [solve_held(factor, plan, delta) for factor, plan in flows if factor is not None]
     u = sum(heat for _, heat in heats) / len(heats)  # the Neumann and / or the Dirichlet heat flow; their mean
     # `A_f grad u` has the direction of `grad u` (`ddgjax.dec.gradient`); the divergence is `ddgjax.dec.divergence`'s weak form.
     cells = _cells(mesh)
@@ -492,7 +494,7 @@ def _heat_method(mesh: Mesh | TetMesh, factors: _Factors, corners, weights) -> t
     field = jnp.where(norm > 0, -g / jnp.where(norm > 0, norm, 1.0), 0.0)
     corner_divergence = jnp.einsum("fkd,fd->fk", factors.area_gradients, field)
     div = -jax.ops.segment_sum(corner_divergence.reshape(-1), cells.reshape(-1), num_segments=mesh.n_vertices)
-    poisson, phi = _solve_held(factors.poisson, factors.poisson_plan, -div)
+    poisson, phi = solve_held(factors.poisson, factors.poisson_plan, -div)
     steps = HeatMethodSteps(heat=u, field=field, divergence=div, distance=_shift(mesh, phi, factors.components, corners, weights))
     solutions = [solution for solution, _ in heats] + [poisson]
     stats = {

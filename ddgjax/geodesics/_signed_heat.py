@@ -63,11 +63,9 @@ from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_norm
 from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
 from .._results import Solution, first_failure, outcome
-from ..fields._connection import _tangent_bases, plan_of
-from ..fields._laplacian import planned_connection_laplacian
-from ..fields._plan import FieldPlan
-from ..internal import DirichletData, resolve_robust, vertex_plan
+from ..fields.internal import FieldPlan, plan_of, planned_connection_laplacian, planned_tangent_bases
 from ..laplacian import IntrinsicTriangulation, TriangulationPlan, laplacian_and_mass
+from ..laplacian.internal import resolve_robust, vertex_plan
 from ..mesh import (
     Mesh,
     MeshTopology,
@@ -78,8 +76,9 @@ from ..mesh import (
     require_mesh,
     scatter_corners_to_vertices,
 )
+from ..pde.internal import DirichletData
 from ..solve import Factorization, factorize
-from ..solve._linear import cholmod_analysis, kept_analysis
+from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import SparseMatrix
 from ._heat import check_t_coef
 
@@ -298,7 +297,7 @@ def _poisson_system(mesh: Mesh, factors: _Factors, segments, weights, held):
     """Steps 1-3 and step 4's system: `(heat solution, rhs, L with the held vertices' rows and columns
     made their diagonal)`, the rhs 0 on the held vertices."""
     n = mesh.n_vertices
-    e1, e2, normal = _tangent_bases(mesh, factors.field_plan)
+    e1, e2, normal = planned_tangent_bases(mesh, factors.field_plan)
     x = mesh.vertices
     tail, head = segments[:, 0], segments[:, 1]
     step = take_rows(x, head) - take_rows(x, tail)

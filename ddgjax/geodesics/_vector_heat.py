@@ -68,17 +68,23 @@ from .._numerics import safe_div, safe_norm
 from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
 from ..fields import connection_laplacian, connection_mass_matrix
-from ..fields._connection import _tangent_bases, connection_angles, plan_of, scaled_corner_angles
-from ..fields._laplacian import planned_connection_laplacian
-from ..fields._plan import FieldPlan, require_referenced
-from ..fields._smoothest import unit
-from ..internal import resolve_robust, vertex_plan
+from ..fields.internal import (
+    FieldPlan,
+    connection_angles,
+    plan_of,
+    planned_connection_laplacian,
+    planned_tangent_bases,
+    require_referenced,
+    scaled_corner_angles,
+    unit,
+)
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
+from ..laplacian.internal import resolve_robust, vertex_plan
 from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradients, face_vertex_positions, require_mesh
 from ..solve import Factorization, factorize
-from ..solve._linear import cholmod_analysis, kept_analysis
+from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan, SparseMatrix
-from ._heat import _Factors, _heat_method, _held_block, _plans, check_t_coef
+from ._heat import _Factors, _heat_method, _plans, check_t_coef, held_block
 
 _INSIDE = 1e-9
 """How far outside a face (in barycentric coordinates) a centroid still counts as inside it."""
@@ -130,7 +136,7 @@ class VectorHeatSolver(eqx.Module):
             throw: raise when a solve fails (default), or return a `ddgjax.Solution` (module docstring).
         """
         sources = _source_vertices(self.mesh, source)
-        vectors = _vectors(vector, sources.shape[0], self.kept.e1.dtype)
+        vectors = source_vectors(vector, sources.shape[0], self.kept.e1.dtype)
         value, result, stats = _transport(self.mesh, self.kept, sources, vectors)
         return outcome(value, result, throw, stats)
 
@@ -257,7 +263,7 @@ def parallel_transport(
     """
     mesh = require_mesh("mesh", mesh)
     sources = _source_vertices(mesh, source)  # refuse bad sources before factoring
-    _vectors(vector, sources.shape[0], mesh.vertices.dtype)
+    source_vectors(vector, sources.shape[0], mesh.vertices.dtype)
     return vector_heat_solver(mesh, t_coef=t_coef, mass=mass, robust=robust, solver=solver).transport(source, vector, throw=throw)
 
 
@@ -391,7 +397,7 @@ def _factored(kept: _Kept, solver: str) -> _Kept:
 def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: FieldPlan, t_coef) -> _Kept:
     """The solver's data with the heat, vector heat and pinned Poisson matrices unfactored (`_factored`)."""
     t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
-    e1, e2, normal = _tangent_bases(mesh, field_plan)
+    e1, e2, normal = planned_tangent_bases(mesh, field_plan)
     corners = face_vertex_positions(mesh)
     areas = face_areas(mesh)
     opposite = safe_norm(jnp.roll(corners, -1, axis=1) - jnp.roll(corners, -2, axis=1))
@@ -400,7 +406,7 @@ def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: Fiel
         t=t,
         heat=M + t * L,
         vector_heat=MA + t * A,
-        poisson=_held_block(L, poisson_plan),
+        poisson=held_block(L, poisson_plan),
         poisson_plan=poisson_plan,
         components=components,
         area_gradients=areas[:, None, None] * face_hat_gradients(mesh),
@@ -439,7 +445,7 @@ def _source_vertices(mesh: Mesh, source, *, single: bool = False) -> Int[ArrayLi
     return vertices.astype(jax.dtypes.canonicalize_dtype(vertices.dtype))
 
 
-def _vectors(vector, m: int, dtype) -> Float[ArrayLike, "m 3"]:
+def source_vectors(vector, m: int, dtype) -> Float[ArrayLike, "m 3"]:
     """`vector` as `(m, 3)` (one `(3,)` vector is shared by the `m` sources only when `m == 1`); concrete
     ones on the host (as `_source_vertices`)."""
     vector = jnp.asarray(vector, dtype) if isinstance(vector, jax.core.Tracer) else np.asarray(vector, dtype)
@@ -452,7 +458,7 @@ def _vectors(vector, m: int, dtype) -> Float[ArrayLike, "m 3"]:
     return vector
 
 
-def _stats(*solutions) -> tuple[RESULTS, dict]:
+def combined_stats(*solutions) -> tuple[RESULTS, dict]:
     result = first_failure(*(solution.result for solution in solutions))
     return result, {
         "residual": jnp.max(jnp.stack([solution.residual for solution in solutions])),
@@ -460,7 +466,7 @@ def _stats(*solutions) -> tuple[RESULTS, dict]:
     }
 
 
-def _point_masses(n: int, indices, values) -> Array:
+def point_masses(n: int, indices, values) -> Array:
     """`(n,)` zeros with `values` added at `indices` (the heat flows' initial conditions)."""
     return jnp.zeros(n, values.dtype).at[indices].add(values)
 
@@ -472,18 +478,18 @@ def _transport(mesh: Mesh, solver: _Kept, sources, vectors):
     z = jax.lax.complex(jnp.sum(vectors * solver.e1[sources], -1), jnp.sum(vectors * solver.e2[sources], -1))
     magnitude = jnp.abs(z)
     # Unit directions diffused (as geometry-central): each source steers its own region whatever its magnitude.
-    vector_solution = solver.vector_heat.solve(_point_masses(n, sources, unit(z)), throw=False)
+    vector_solution = solver.vector_heat.solve(point_masses(n, sources, unit(z)), throw=False)
     solutions = [vector_solution]
     if sources.shape[0] == 1:  # the diffused magnitude over the diffused indicator is |z| exactly
         magnitude = magnitude[0]
     else:
-        rhs = jnp.stack([_point_masses(n, sources, magnitude), _point_masses(n, sources, jnp.ones_like(magnitude))], axis=1)
+        rhs = jnp.stack([point_masses(n, sources, magnitude), point_masses(n, sources, jnp.ones_like(magnitude))], axis=1)
         scalar_solution = solver.heat.solve(rhs, throw=False)
         solutions.append(scalar_solution)
         magnitude = safe_div(scalar_solution.value[:, 0], scalar_solution.value[:, 1])  # 0 where no source reaches
     field = unit(vector_solution.value) * magnitude
     value = field.real[:, None] * solver.e1 + field.imag[:, None] * solver.e2
-    return (value, *_stats(*solutions))
+    return (value, *combined_stats(*solutions))
 
 
 def _outward_ball(mesh: Mesh, solver: _Kept, source) -> Array:
@@ -532,7 +538,7 @@ def _log_map_steps(mesh: Mesh, solver: _Kept, source):
     r_finite = jnp.where(reached, r, 0.0)
     log = jnp.stack([direction.real, direction.imag], axis=-1) * r_finite[:, None]
     log = jnp.where(reached[:, None], log, jnp.inf)
-    vector_result, vector_stats = _stats(radial_solution, horizontal_solution)
+    vector_result, vector_stats = combined_stats(radial_solution, horizontal_solution)
     result = first_failure(heat_result, vector_result)
     stats = {
         "residual": jnp.maximum(heat_stats["residual"], vector_stats["residual"]),

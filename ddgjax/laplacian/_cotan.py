@@ -34,8 +34,8 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._indexing import take_rows
 from .._numerics import safe_div
-from ..internal import degenerate_faces, face_geometry_from_corners
 from ..mesh import Mesh, corner_cotangents_from_lengths_sq, face_areas, face_edge_lengths_sq, require_mesh
+from ..mesh.internal import degenerate_faces, face_geometry_from_corners
 from ..sparse import SparseMatrix, gather_sum
 from ._lengths import laplacian_values, off_diagonal_entries, psd_matrix
 from ._plan import TriangulationPlan, vertex_plan
@@ -135,7 +135,7 @@ def apply_slot_weights(weights: Float[Array, " n_off"], plan: eqx.Module, u: Flo
     """`sum_j W_ij (u_j - u_i)` per vertex `i`, `W` given on the off-diagonal slots of `plan.pattern` (ELL, then the COO tail).
 
     `plan` is any plan with a vertex `pattern` and `n_vertices` (a `TriangulationPlan`, `ddgjax.volume`'s
-    tet plan, through `ddgjax.internal`)."""
+    tet plan, through `ddgjax.laplacian.internal`)."""
     n = plan.n_vertices
     shape = jnp.shape(u)
     columns = u.reshape(n, -1)
@@ -275,7 +275,7 @@ def dirichlet_energy_length_weights(
 
     With `d_k = u_{k+1} - u_{k+2}`, `D = sum_k d_k^2`, `S = sum_k cot_k d_k^2`: `(cot_m S + 2 d_m^2 - D) / (8 A)`;
     0 on a zero-area face, with finite derivatives. Columns of `corner_values` `(nf, 3, k)` add up.
-    Shared with `ddgjax.batch` through `ddgjax.internal`.
+    Shared with `ddgjax.batch` through `ddgjax.laplacian.internal`.
     """
     cotangents = corner_cotangents_from_lengths_sq(lengths_sq, areas=areas)
     differences = [corner_values[:, (k + 1) % 3] - corner_values[:, (k + 2) % 3] for k in range(3)]

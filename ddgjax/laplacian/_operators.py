@@ -27,8 +27,8 @@ from typing import NamedTuple
 
 from .._errors import DDGInputError, is_traced
 from .._options import check_mass
-from ..internal import require_nondegenerate
 from ..mesh import Mesh
+from ..mesh.internal import require_nondegenerate
 from ..sparse import SparseMatrix
 from ._cotan import cotan_laplacian
 from ._intrinsic import IntrinsicTriangulation, intrinsic_delaunay, intrinsic_delaunay_laplacian, intrinsic_delaunay_mass_matrix

@@ -31,9 +31,9 @@ from jaxtyping import Array, ArrayLike, Int
 
 from .._compile import device_array
 from .._errors import DDGInputError, check_count, first_indices, is_traced
-from ..internal import stable_order
 from ..mesh import Mesh, MeshTopology, require_mesh
 from ..sparse import CongruencePlan, SparsityPattern, congruence_plan
+from ..sparse.internal import stable_order
 
 
 class TriangulationPlan(eqx.Module):
@@ -206,7 +206,7 @@ def edge_slot_maps(
     """`(pattern, source, slot_corners, corner_slots)`: where per-element edge values land in the vertex pattern.
 
     A "corner" is any per-element edge slot: the corner opposite an edge of a triangle here, a local
-    edge `6 t + k` of a tet in `ddgjax.volume` (shared through `ddgjax.internal`). Arguments as
+    edge `6 t + k` of a tet in `ddgjax.volume` (shared through `ddgjax.laplacian.internal`). Arguments as
     `_build`'s (`pair_corners` padded with the number of corners, `corner_pairs` `-1` for none);
     the results are `TriangulationPlan`'s fields of the same names, on the host.
     """

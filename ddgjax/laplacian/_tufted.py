@@ -30,11 +30,11 @@ from typing import NamedTuple
 import numpy as np
 
 from ..mesh import MeshTopology
-from ._intrinsic import _flip_to_delaunay, _mollified, _replay_layout
+from ._flips import flip_to_delaunay, mollified, replay_layout
 
 
 class _CoverTopology(MeshTopology):
-    """The corner tables of the tufted cover that `_flip_to_delaunay` reads (those fields of a `MeshTopology`).
+    """The corner tables of the tufted cover that `flip_to_delaunay` reads (those fields of a `MeshTopology`).
 
     A subclass only so that the mesh flips' annotated helper accepts it: the cover is no `Mesh` (two
     vertices may be joined by several edges), and nothing else of `MeshTopology` is used.
@@ -85,10 +85,10 @@ def tufted_delaunay(points: np.ndarray, faces: np.ndarray, mollify_factor: float
     """
     edges, face_edges, cover, cover_edge_of = tufted_cover(points, faces)
     edge_lengths_sq = np.sum((points[edges[:, 1]] - points[edges[:, 0]]) ** 2, axis=1)
-    edge_lengths_sq = _mollified(edge_lengths_sq, face_edges, float(mollify_factor), np, np.sqrt, np.take)
-    cover_faces, cover_face_edges, rounds = _flip_to_delaunay(cover, edge_lengths_sq[cover_edge_of])
+    edge_lengths_sq = mollified(edge_lengths_sq, face_edges, float(mollify_factor), np, np.sqrt, np.take)
+    cover_faces, cover_face_edges, rounds = flip_to_delaunay(cover, edge_lengths_sq[cover_edge_of])
     n_cover_edges = cover_edge_of.size
-    flip_slots, face_length_slots = _replay_layout(rounds, cover_face_edges, n_cover_edges)
+    flip_slots, face_length_slots = replay_layout(rounds, cover_face_edges, n_cover_edges)
     # Unflipped cover edges read their distinct edge's slot; the new diagonals' slots shift down to follow the distinct edges.
     shift = np.int32(n_cover_edges - edges.shape[0])
 

@@ -25,8 +25,8 @@ from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import RESULTS, Solution, outcome
 from ..fields import TangentBases
-from ..internal import resolve_robust
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
+from ..laplacian.internal import resolve_robust
 from ..mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix
 from ..spectral import smallest_eigenpairs

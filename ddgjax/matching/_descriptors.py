@@ -15,7 +15,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice
-from ..spectral._laplacian import wave_kernel_energies, wave_kernel_weights
+from ..spectral.internal import wave_kernel_energies, wave_kernel_weights
 from ._shape import SpectralShape, require_spectral_shape
 
 DESCRIPTOR_KINDS = ("wks", "hks")

@@ -63,7 +63,7 @@ def face_geometry_from_corners(
     as those the lengths and areas of the cotan Laplacian (`ddgjax.laplacian`) compile into one kernel
     with its per-corner values instead of several that write out `(nf, 3, 3)` intermediates
     (benchmarks/laplacian.py). The kernels that gather their corners themselves (the Dirichlet
-    energy's gradient, `ddgjax.batch`) share it through `ddgjax.internal`.
+    energy's gradient, `ddgjax.batch`) share it through `ddgjax.mesh.internal`.
     """
     edges = [[corners[:, (k + 2) % 3, c] - corners[:, (k + 1) % 3, c] for c in range(3)] for k in range(3)]
     lengths_sq = jnp.stack([_dot(edges[k], edges[k]) for k in range(3)], axis=1)

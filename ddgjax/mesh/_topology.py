@@ -20,7 +20,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .._errors import DDGInputError, MeshDataError, first_indices
-from ..internal import stable_order
+from ..sparse.internal import stable_order
 
 _SIMPLICES = {3: ("nf", "triangles", "face", "triangle", "three"), 4: ("nt", "tetrahedra", "tetrahedron", "tetrahedron", "four")}
 
@@ -28,7 +28,7 @@ _SIMPLICES = {3: ("nf", "triangles", "face", "triangle", "three"), 4: ("nt", "te
 def validate_simplices(name: str, simplices, n_vertices: int, *, width: int) -> np.ndarray:
     """Host `(n, width)` int32 copy of a simplex list (`width` 3: faces, 4: tets), or `DDGInputError`
     naming `name`: a bad shape, an empty list, a non-integer dtype, indices out of range, a simplex
-    repeating a vertex. Faces of a `Mesh`, tets of a `TetMesh` (`ddgjax.volume`, through `ddgjax.internal`)."""
+    repeating a vertex. Faces of a `Mesh`, tets of a `TetMesh` (`ddgjax.volume`, through `ddgjax.mesh.internal`)."""
     rows, plural, element, simplex, count = _SIMPLICES[width]
     host = np.asarray(simplices)
     if host.ndim != 2 or host.shape[1] != width:

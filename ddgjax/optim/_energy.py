@@ -53,7 +53,7 @@ from .._options import check_solver
 from .._results import RESULTS, first_failure, is_failure, raise_if_failed
 from ..mesh import Mesh, require_mesh
 from ..solve import SparseCholesky
-from ..solve._lineax import _LINEAX_RESULTS
+from ..solve.internal import LINEAX_RESULTS
 from ..sparse import SparsityPattern
 
 
@@ -114,7 +114,7 @@ class _SparseNewton(optx.AbstractMinimiser):
 
     def terminate(self, fn, y, args, options, state, tags):
         result = optx.RESULTS.successful
-        for ours, theirs in _LINEAX_RESULTS:
+        for ours, theirs in LINEAX_RESULTS:
             result = optx.RESULTS.where(state.failure == ours, optx.RESULTS.promote(theirs), result)
         return state.converged | is_failure(state.failure), result
 

@@ -58,11 +58,11 @@ from .._errors import DDGInputError, check_choice, is_traced
 from .._indexing import take_rows
 from .._options import check_solver
 from .._results import Solution, outcome
-from ..internal import vertex_plan
 from ..laplacian import cotan_laplacian
+from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, vertex_angle_defects
 from ..solve import factorize, linear_solve
-from ..solve._linear import cholmod_analysis
+from ..solve.internal import cholmod_analysis
 from ..sparse import dirichlet_blocks, dirichlet_plan
 from ._disk import (
     boundary_dual_lengths,

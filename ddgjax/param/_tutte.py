@@ -31,8 +31,8 @@ from .._compile import kernel
 from .._indexing import take_rows_or_zero
 from .._options import check_solver, check_weights
 from .._results import RESULTS, Solution, first_failure, outcome
-from ..internal import vertex_plan
 from ..laplacian import cotan_laplacian
+from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh
 from ..solve import Factorization, factorize
 from ..sparse import DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan

@@ -78,8 +78,8 @@ from .._loop import (
 )
 from .._options import check_mass, check_solver
 from .._results import RESULTS, first_failure, raise_if_failed
-from ..internal import vertex_plan
 from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
+from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, enclosed_volume, face_edge_lengths_sq, require_mesh, total_area
 from ..solve import linear_solve
 from ..sparse import nonnegative

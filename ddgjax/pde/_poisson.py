@@ -54,17 +54,18 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_vertex_indices
 from .._options import check_mass, check_solver
 from .._results import RESULTS, Solution, outcome
-from ..internal import require_tet_problem, resolve_robust, vertex_plan
 from ..laplacian import (
     IntrinsicTriangulation,
     TriangulationPlan,
     cotan_laplacian_from_lengths_sq,
     mass_matrix_from_lengths_sq,
 )
+from ..laplacian.internal import resolve_robust, vertex_plan
 from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
 from ..solve import linear_solve
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
 from ..volume import TetMesh, TetTopology
+from ..volume.internal import require_tet_problem
 
 
 def solve_poisson(
@@ -254,7 +255,7 @@ class DirichletData:
     caller's `fixed_vertices` / `fixed_values` (`None`, `None` for none), `trailing` the trailing shape
     of the right-hand side, `pattern` the Laplacian's sparsity pattern the plan is of (default: the
     mesh's own). A `TetMesh` works the same, its tets in place of faces. Shared with the other solvers that pin one vertex per free component
-    (`ddgjax.internal.DirichletData`).
+    (`ddgjax.pde.internal.DirichletData`).
 
     Attributes:
         vertices, values: the checked fixed vertices (host int64) and their values.

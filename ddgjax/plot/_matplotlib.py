@@ -12,7 +12,7 @@ from matplotlib.colors import Normalize, to_rgb
 from .._errors import DDGInputError, check_choice
 from ..curves import Curve, CurveFlowResult, require_curve
 from ..mesh import Mesh, edge_lengths, require_mesh, vertex_normals
-from ._view import _UP, OBLIQUE_VIEW, TOP_VIEW, is_flat, view_rotation
+from ._view import OBLIQUE_VIEW, TOP_VIEW, UP_ROTATIONS, is_flat, view_rotation
 
 
 def polyline(points: ArrayLike, closed: bool = True) -> np.ndarray:
@@ -99,7 +99,7 @@ def plot_mesh_function(
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("shading", shading, ("gouraud", "flat"))
-    check_choice("up", up, tuple(_UP))
+    check_choice("up", up, tuple(UP_ROTATIONS))
     values = np.asarray(values, dtype=float)
     if values.shape not in ((mesh.n_vertices,), (mesh.n_faces,)):
         raise DDGInputError(
@@ -108,7 +108,7 @@ def plot_mesh_function(
         )
     if view is None:
         view = TOP_VIEW if is_flat(mesh) else OBLIQUE_VIEW
-    projected = np.asarray(mesh.vertices, dtype=float) @ (view_rotation(*view) @ _UP[up]).T
+    projected = np.asarray(mesh.vertices, dtype=float) @ (view_rotation(*view) @ UP_ROTATIONS[up]).T
     screen, depth = projected[:, [0, 2]], projected[:, 1]
     faces = np.asarray(mesh.faces)
     order = np.argsort(-depth[faces].mean(axis=1), kind="stable")  # farthest first
@@ -165,7 +165,7 @@ def plot_direction_field(
         The matplotlib `LineCollection`.
     """
     mesh = require_mesh("mesh", mesh)
-    check_choice("up", up, tuple(_UP))
+    check_choice("up", up, tuple(UP_ROTATIONS))
     vectors = np.asarray(vectors, dtype=float)
     if vectors.ndim == 2:
         vectors = vectors[:, None, :]
@@ -173,7 +173,7 @@ def plot_direction_field(
         raise DDGInputError(f"vectors: expected shape ({mesh.n_vertices}, k, 3) or ({mesh.n_vertices}, 3), got {vectors.shape}")
     if view is None:
         view = TOP_VIEW if is_flat(mesh) else OBLIQUE_VIEW
-    rotation = view_rotation(*view) @ _UP[up]
+    rotation = view_rotation(*view) @ UP_ROTATIONS[up]
     vertices = np.asarray(mesh.vertices, dtype=float)
     if length is None:
         length = 0.45 * float(np.mean(np.asarray(edge_lengths(mesh))))

@@ -13,7 +13,7 @@ OBLIQUE_VIEW = (-60.0, 20.0)
 #: The view from `+z` (x to the right, y up): the default for a mesh flat in z.
 TOP_VIEW = (0.0, 90.0)
 # Rotations that carry the named axis to +z (a proper rotation each, so orientation is kept).
-_UP = {
+UP_ROTATIONS = {
     "z": np.eye(3),
     "y": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
     "x": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),

@@ -10,7 +10,7 @@ from jaxtyping import ArrayLike
 from .._errors import DDGInputError, check_choice, check_finite, check_positive, first_indices
 from ..curves import Curve
 from ..mesh import Mesh
-from ._view import _UP, OBLIQUE_VIEW, TOP_VIEW, points_are_flat, view_rotation
+from ._view import OBLIQUE_VIEW, TOP_VIEW, UP_ROTATIONS, points_are_flat, view_rotation
 
 #: Colour of faces and points whose value is NaN or inf, and of a mesh drawn without values.
 MISSING_COLOR = "#bdbdbd"
@@ -110,7 +110,7 @@ def show(
     """
     go = _plotly()
     check_choice("vector_style", vector_style, VECTOR_STYLES)
-    check_choice("up", up, tuple(_UP))
+    check_choice("up", up, tuple(UP_ROTATIONS))
     if figure is not None and not isinstance(figure, go.Figure):
         raise DDGInputError(
             f"figure: expected a plotly Figure (the result of an earlier show(...)), got {type(figure).__name__}; "
@@ -125,7 +125,7 @@ def show(
     )
     coloring = None if values is None else _coloring(values, n_points, n_faces, cmap, vmin, vmax, name, colorbars)
     # Checked before anything is drawn, so a refused call leaves a given `figure` as it was.
-    arrows = None if vectors is None else _vectors(vectors, mesh, points, faces, vector_scale)
+    arrows = None if vectors is None else source_vectors(vectors, mesh, points, faces, vector_scale)
     if faces is not None:
         figure.add_traces(_surface(go, points, faces, coloring, color, name))
         if edges:
@@ -301,7 +301,7 @@ def _cones(go, starts, segments, color):
     )  # fmt: skip
 
 
-def _vectors(vectors, shape, points, faces, vector_scale) -> tuple[np.ndarray, np.ndarray]:
+def source_vectors(vectors, shape, points, faces, vector_scale) -> tuple[np.ndarray, np.ndarray]:
     """`(starts, segments)`, each `(m, 3)`: where each vector is drawn from and the drawn vector."""
     vectors = _real_array("vectors", vectors)
     n_points, n_faces = len(points), (0 if faces is None else len(faces))
@@ -348,7 +348,7 @@ def _spacing(shape, points, faces) -> float:
 
 def _scene(points, up) -> dict:
     """Equal axes, hidden, and a camera from `OBLIQUE_VIEW` (or from above, orthographic, for flat shapes)."""
-    up_rotation = _UP[up]
+    up_rotation = UP_ROTATIONS[up]
     flat = points_are_flat(points @ up_rotation.T)
     # Rows of the rotation in the data's coordinates: 1 the viewing direction, 2 the screen's up.
     rotation = view_rotation(*(TOP_VIEW if flat else OBLIQUE_VIEW)) @ up_rotation

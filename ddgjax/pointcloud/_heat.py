@@ -57,12 +57,11 @@ from .._numerics import safe_div, safe_sqrt
 from .._options import check_solver
 from .._results import Solution, first_failure, outcome
 from ..fields import TangentBases
-from ..fields._smoothest import unit
-from ..geodesics._heat import _held_block, _solve_held, check_t_coef
-from ..geodesics._vector_heat import _point_masses, _stats, _vectors
+from ..fields.internal import unit
+from ..geodesics.internal import check_t_coef, combined_stats, held_block, point_masses, solve_held, source_vectors
 from ..mesh import corner_cotangents_from_lengths_sq, face_areas_from_lengths_sq
 from ..solve import Factorization, LinearSolution, factorize
-from ..solve._linear import cholmod_analysis, kept_analysis
+from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan
 from ._laplacian import _COVER_MULTIPLICITY, _triangulation_for, laplacian_and_mass_from_lengths_sq
 from ._transport import orientation_tree, oriented_frames, point_cloud_connection_laplacian, tangent_coordinates
@@ -141,7 +140,7 @@ class PointCloudHeatSolver(eqx.Module):
         """
         corners, _ = _sources(self.points.shape[0], source, self.points.dtype, "source")
         sources = jnp.asarray(corners[:, 0])
-        value, result, stats = _transport(self, sources, _vectors(vector, sources.shape[0], self.points.dtype))
+        value, result, stats = _transport(self, sources, source_vectors(vector, sources.shape[0], self.points.dtype))
         return outcome(value, result, throw, stats)
 
     def log_map(self, source, *, throw: bool = True) -> Float[Array, "n 2"] | Solution:
@@ -368,8 +367,8 @@ def _systems(points, triangulation, heat_plan, poisson_plan, parents, trees, t_c
         )
     return (
         t,
-        _held_block(M + t * L, heat_plan),
-        _held_block(L, poisson_plan),
+        held_block(M + t * L, heat_plan),
+        held_block(L, poisson_plan),
         cotangents,
         areas,
         frames,
@@ -385,7 +384,7 @@ def _query(solver: PointCloudHeatSolver, corners, weights):
 def _distance(solver: PointCloudHeatSolver, corners, weights):
     n = solver.points.shape[0]
     delta = jnp.zeros(n, weights.dtype).at[corners[:, 0]].add(weights[:, 0])
-    heat, u = _solve_held(solver.heat, solver.heat_plan, delta)
+    heat, u = solve_held(solver.heat, solver.heat_plan, delta)
     faces = solver.triangulation.faces
     face_u = take_rows(u, faces)
     # (K_f u)_a = 1/2 [cot_c (u_a - u_b) + cot_b (u_a - u_c)] for the corners (a, b, c) in cyclic order.
@@ -397,7 +396,7 @@ def _distance(solver: PointCloudHeatSolver, corners, weights):
     norm = safe_sqrt(norm_sq)
     corner_div = jnp.where(norm[:, None] > 0, stiffness_u / jnp.where(norm > 0, norm, 1.0)[:, None], 0.0)
     div = jax.ops.segment_sum(corner_div.reshape(-1), faces.reshape(-1), num_segments=n) / _COVER_MULTIPLICITY
-    poisson, phi = _solve_held(solver.poisson, solver.poisson_plan, -div)
+    poisson, phi = solve_held(solver.poisson, solver.poisson_plan, -div)
     distance = _shift(phi, solver.components, corners[:, 0])
     stats = {"residual": jnp.maximum(heat.residual, poisson.residual), "num_steps": heat.num_steps + poisson.num_steps}
     return distance, first_failure(heat.result, poisson.result), stats
@@ -410,17 +409,17 @@ def _transport(solver: PointCloudHeatSolver, sources, vectors):
     z = tangent_coordinates(vectors, solver.frames, sources)
     magnitude = jnp.abs(z)
     # Unit directions diffused (as geometry-central): each source steers its own region whatever its magnitude.
-    vector, Y = _solve_columns_held(solver.vector_heat, solver.heat_plan, _point_masses(n, sources, unit(z)))
+    vector, Y = _solve_columns_held(solver.vector_heat, solver.heat_plan, point_masses(n, sources, unit(z)))
     solutions = [vector]
     if sources.shape[0] == 1:  # the diffused magnitude over the diffused indicator is |z| exactly
         magnitude = magnitude[0]
     else:
-        rhs = jnp.stack([_point_masses(n, sources, magnitude), _point_masses(n, sources, jnp.ones_like(magnitude))], axis=1)
+        rhs = jnp.stack([point_masses(n, sources, magnitude), point_masses(n, sources, jnp.ones_like(magnitude))], axis=1)
         scalar, u = _solve_columns_held(solver.heat, solver.heat_plan, rhs)
         solutions.append(scalar)
         magnitude = safe_div(u[:, 0], u[:, 1])  # 0 where no source reaches
     field = unit(Y) * magnitude
-    return (field.real[:, None] * solver.frames.e1 + field.imag[:, None] * solver.frames.e2, *_stats(*solutions))
+    return (field.real[:, None] * solver.frames.e1 + field.imag[:, None] * solver.frames.e2, *combined_stats(*solutions))
 
 
 @kernel
@@ -443,14 +442,14 @@ def _log_map(solver: PointCloudHeatSolver, corners, weights):
     radial_rhs = jnp.zeros(n, values.dtype).at[targets].add(values)
     radial, R = _solve_columns_held(solver.vector_heat, solver.heat_plan, radial_rhs)
     horizontal, H = _solve_columns_held(
-        solver.vector_heat, solver.heat_plan, _point_masses(n, corners[:, 0], jnp.ones(1, values.dtype))
+        solver.vector_heat, solver.heat_plan, point_masses(n, corners[:, 0], jnp.ones(1, values.dtype))
     )
     r, heat_result, heat_stats = _distance(solver, corners, weights)
     angle = unit(R * jnp.conj(H))
     reached = jnp.isfinite(r)
     log = jnp.stack([angle.real, angle.imag], axis=-1) * jnp.where(reached, r, 0.0)[:, None]
     log = jnp.where(reached[:, None], log, jnp.inf)
-    vector_result, vector_stats = _stats(radial, horizontal)
+    vector_result, vector_stats = combined_stats(radial, horizontal)
     stats = {
         "residual": jnp.maximum(heat_stats["residual"], vector_stats["residual"]),
         "num_steps": heat_stats["num_steps"] + vector_stats["num_steps"],
@@ -459,7 +458,7 @@ def _log_map(solver: PointCloudHeatSolver, corners, weights):
 
 
 def _solve_columns_held(factor: Factorization, plan: DirichletPlan | None, rhs) -> tuple[LinearSolution, Inexact[Array, "n *k"]]:
-    """`_solve_held` for complex or several right-hand sides (its annotation says one real column)."""
+    """`solve_held` for complex or several right-hand sides (its annotation says one real column)."""
     if plan is None:
         solution = factor.solve(rhs, throw=False)
         return solution, solution.value

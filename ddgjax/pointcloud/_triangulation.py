@@ -56,8 +56,8 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array
 from .._errors import DDGInputError, check_count, check_finite, check_float_shape, is_traced
-from ..internal import replayed_lengths_sq, tufted_delaunay
 from ..laplacian import TriangulationPlan, triangulation_plan
+from ..laplacian.internal import replayed_lengths_sq, tufted_delaunay
 
 # robust_laplacian's thresholds, relative to the neighbourhood radius (its farthest neighbour): a
 # neighbour this close to the centre is pushed out to it, and two neighbours within this angle

@@ -44,7 +44,7 @@ from jaxtyping import Array, Float, Int
 
 from .._errors import DDGInputError, is_traced
 from ..solve import AMGHierarchy, amg_v_cycle
-from ..solve._amg import AMGLevel, jacobi_steps
+from ..solve.internal import AMGLevel, jacobi_steps
 from ._partition import VERTICES, VertexPartition
 
 

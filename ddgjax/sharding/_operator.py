@@ -40,9 +40,9 @@ from .._errors import DDGInputError, is_traced
 from .._indexing import take_rows
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import raise_if_failed
-from ..internal import PRECONDITIONERS, linear_solution, preconditioned_cg
 from ..mesh import corner_cotangents_from_lengths_sq, corner_dual_areas_from_lengths_sq
 from ..solve import AMGHierarchy, LinearSolution, amg_hierarchy
+from ..solve.internal import PRECONDITIONERS, linear_solution, preconditioned_cg
 from ..sparse import from_scipy, gather_sum
 from ._amg import ShardedAMG, check_layout, layout, local_v_cycle
 from ._partition import VERTICES, LocalPlan, VertexPartition

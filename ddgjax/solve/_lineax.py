@@ -41,7 +41,7 @@ from ._linear import Factorization, factorize
 
 # ddgjax's outcome of a solve -> lineax's (pairs: enumeration items are not hashable). lineax has no
 # item for a failed Cholesky factorisation; its own `lx.Cholesky` reports one as `singular` too.
-_LINEAX_RESULTS = (
+LINEAX_RESULTS = (
     (RESULTS.max_steps_reached, lx.RESULTS.max_steps_reached),
     (RESULTS.singular, lx.RESULTS.singular),
     (RESULTS.not_positive_definite, lx.RESULTS.singular),
@@ -145,7 +145,7 @@ class SparseCholesky(lx.AbstractLinearSolver):
     def compute(self, state: Factorization, vector, options: dict[str, Any]):
         solution = state.solve(vector, throw=False)
         result = lx.RESULTS.successful
-        for ours, theirs in _LINEAX_RESULTS:
+        for ours, theirs in LINEAX_RESULTS:
             result = lx.RESULTS.where(solution.result == ours, theirs, result)
         return solution.value, result, {"num_steps": solution.num_steps}
 

@@ -671,7 +671,7 @@ def incidence_matrix(cols: Int[Array, "n k"], values: Float[Array, "n k"], n_col
     The signed incidence matrices of DEC (`ddgjax.dec.d0`, `d1`; `ddgjax.volume.d0`, `d1`, `d2`). Each row's
     columns are put in increasing order by their rank among the row's `k` (a comparison, not a sort:
     cheap to trace and compile on millions of rows), so the pattern is CSR with `k` entries per row,
-    built from the arrays alone inside jit. Shared through `ddgjax.internal`.
+    built from the arrays alone inside jit. Shared through `ddgjax.sparse.internal`.
     """
     n_rows, per_row = cols.shape
     rank = jnp.sum(cols[:, None, :] < cols[:, :, None], axis=-1)

@@ -75,8 +75,8 @@ from .._compile import at_top_level, kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._options import check_solver
 from .._results import RESULTS, Solution, first_failure, outcome, raise_if_failed
-from ..internal import PRECONDITIONERS, auto_method, preconditioned_cg
 from ..solve import AMGHierarchy, amg_hierarchy, factorize
+from ..solve.internal import PRECONDITIONERS, auto_method, preconditioned_cg
 from ..sparse import SparseMatrix, nonnegative
 
 # Eigenvalues within this fraction of the largest computed one count as one cluster (module docstring).

@@ -36,12 +36,12 @@ from .. import volume
 from .._errors import DDGInputError, check_choice
 from .._options import BOUNDARY_CONDITIONS, check_mass
 from .._results import Solution, outcome
-from ..internal import require_tet_problem
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import Mesh, require_mesh
 from ..solve import AMGHierarchy
 from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
 from ..volume import TetMesh
+from ..volume.internal import require_tet_problem
 from ._generalized import Eigenpairs, smallest_eigenpairs
 
 

@@ -47,13 +47,13 @@ from ._geometry import tet_volumes_from_lengths_sq as tet_volumes_from_lengths_s
 from ._geometry import triangle_areas as triangle_areas
 from ._io import load_tet_mesh as load_tet_mesh
 from ._io import save_tet_mesh as save_tet_mesh
-from ._laplacian import TetPlan as TetPlan
 from ._laplacian import cotan_laplacian as cotan_laplacian
 from ._laplacian import dirichlet_energy as dirichlet_energy
 from ._laplacian import laplacian_apply as laplacian_apply
 from ._laplacian import mass_matrix as mass_matrix
-from ._laplacian import tet_plan as tet_plan
 from ._meshing import tetrahedralize as tetrahedralize
+from ._plan import TetPlan as TetPlan
+from ._plan import tet_plan as tet_plan
 from ._section import PlaneSection as PlaneSection
 from ._section import plane_section as plane_section
 from ._shapes import tet_ball as tet_ball

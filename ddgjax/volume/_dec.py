@@ -48,8 +48,8 @@ from .._compile import kernel
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_norm, safe_reciprocal
-from ..internal import incidence_matrix
 from ..sparse import SparseMatrix, diagonal_matrix, gather_sum
+from ..sparse.internal import incidence_matrix
 from ._dual import TET_DUALS, tet_circumcenter_coordinates, vertex_dual_volumes
 from ._geometry import (
     edge_lengths,

@@ -52,7 +52,7 @@ from .._errors import check_choice
 from .._numerics import safe_div
 from .._options import DUAL_CELLS
 from ._geometry import tet_cotan_weights_from_lengths_sq, tet_edge_lengths_sq, tet_volumes, tet_volumes_from_lengths_sq
-from ._laplacian import TetPlan, row_sums, slot_values, tet_plan
+from ._plan import TetPlan, row_sums, slot_values, tet_plan
 from ._tet_mesh import TetMesh
 from ._topology import TET_EDGES, TET_TRIANGLES
 

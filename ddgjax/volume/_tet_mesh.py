@@ -9,8 +9,8 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._domain import Domain
 from .._errors import DDGInputError, check_float_array, is_traced
-from ..internal import as_float_vertices, build_topology, checked_vertices, validate_simplices
 from ..mesh import Mesh, MeshTopology
+from ..mesh.internal import as_float_vertices, build_topology, checked_vertices, validate_simplices
 from ._topology import TetTopology, build_tet_topology
 
 

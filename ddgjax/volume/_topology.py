@@ -27,7 +27,7 @@ import hashlib
 import numpy as np
 import scipy.sparse as sp
 
-from ..internal import stable_order
+from ..sparse.internal import stable_order
 
 #: Local vertex pairs of the six edges of a tet (libigl `edge_lengths` order); edge `k` is opposite `k + 3 (mod 6)`.
 TET_EDGES = np.array([[3, 0], [3, 1], [3, 2], [1, 2], [2, 0], [0, 1]], dtype=np.int32)
