@@ -154,7 +154,7 @@ def _vertex_values(batch: MeshBatch, u, *, name: str = "u", columns: bool = True
 AnyBatch = object
 
 
-def laplacian_apply(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"]) -> Float[Array, "B nvp *k"]:
+def laplacian_apply(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], /) -> Float[Array, "B nvp *k"]:
     """Matrix-free `L u` per mesh, `(B, nvp)` or `(B, nvp, k)`: `ddgjax.laplacian.laplacian_apply` on each mesh.
 
     `(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`, the PSD weak (integrated) cotan
@@ -180,7 +180,7 @@ def _laplacian(batch: MeshBatch, u: Float[Array, "B nvp *k"]) -> Float[Array, "B
     return _vmapped(_laplacian_one)(batch, u)
 
 
-def dirichlet_energy(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"]) -> Float[Array, " B"]:
+def dirichlet_energy(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], /) -> Float[Array, " B"]:
     """Dirichlet energy `E_b = 1/2 u_b^T L_b u_b` of each mesh, `(B,)` (summed over columns of a `(B, nvp, k)` `u`).
 
     As `ddgjax.laplacian.dirichlet_energy` per mesh; differentiable in `u` (`grad_u E = L u`) and the
@@ -299,7 +299,7 @@ def _lumped_mass(batch: MeshBatch, *, mass: str) -> Float[Array, "B nvp"]:
     return _vmapped(lambda faces, vertices: _lumped_mass_one(faces, vertices, mass=mass))(batch)
 
 
-def mass_apply(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], *, mass: str = "voronoi") -> Float[Array, "B nvp *k"]:
+def mass_apply(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], /, *, mass: str = "voronoi") -> Float[Array, "B nvp *k"]:
     """`M u` per mesh, `(B, nvp)` or `(B, nvp, k)`, for every `ddgjax.MASS_MATRICES` choice.
 
     Lumped masses multiply by `lumped_mass(batch, mass=mass)`; `"galerkin"` applies the consistent
@@ -327,7 +327,7 @@ def _mass_apply(batch: MeshBatch, u: Float[Array, "B nvp *k"], *, mass: str) -> 
     return _vmapped(lambda faces, vertices, u: _mass_apply_one(faces, vertices, u, mass=mass))(batch, u)
 
 
-def gradient(batch: AnyBatch, u: Float[ArrayLike, "B nvp"]) -> Float[Array, "B nfp 3"]:
+def gradient(batch: AnyBatch, u: Float[ArrayLike, "B nvp"], /) -> Float[Array, "B nfp 3"]:
     """Per-face gradient of the piecewise-linear interpolant of `u`, `(B, nfp, 3)` (`ddgjax.dec.gradient` per mesh).
 
     `(grad u)_f = sum_k u[F[f, k]] grad phi_k`, `grad phi_k = (N x e_k) / (2 A)` (`ddgjax.mesh.face_hat_gradients`);

@@ -49,7 +49,7 @@ def _evaluate(name: str, function: Callable, points: Float[Array, "q 3"], traili
     return values
 
 
-def integrate_0form(mesh: Mesh, f: Callable[[Float[Array, "3"]], Float[Array, ""]]) -> Float[Array, " nv"]:
+def integrate_0form(mesh: Mesh, f: Callable[[Float[Array, "3"]], Float[Array, ""]], /) -> Float[Array, " nv"]:
     """De Rham map of a 0-form: `f` sampled at the vertices, `u_i = f(p_i)`, `(nv,)`.
 
     `f` maps one position `(3,)` to a scalar `()` (it is `vmap`ped over the vertices; it must be a JAX

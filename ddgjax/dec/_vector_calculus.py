@@ -39,7 +39,7 @@ from ._hodge import hodge_star_entries
 from ._operators import d0, d1
 
 
-def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"]) -> Float[Array, "nf 3"]:
+def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"], /) -> Float[Array, "nf 3"]:
     """Gradient of the piecewise-linear interpolant of `u`, one tangent vector per face, `(nf, 3)`.
 
     `(grad u)_f = sum_k u[F[f, k]] grad phi_k` (`ddgjax.mesh.face_hat_gradients`). Any mesh.
@@ -157,7 +157,7 @@ def _hodge_laplacian(mesh: Mesh, name: str, form, degree: int, dual: str, weak: 
 
 
 def hodge_laplacian0(
-    mesh: Mesh, u: Float[ArrayLike, "nv *batch"], *, dual: str = "voronoi", weak: bool = False
+    mesh: Mesh, u: Float[ArrayLike, "nv *batch"], /, *, dual: str = "voronoi", weak: bool = False
 ) -> Float[Array, "nv *batch"]:
     """Hodge Laplacian on 0-forms, `Delta_0 u = delta_1 d0 u = *0^{-1} d0^T *1 d0 u`, `(nv, *batch)`.
 

@@ -88,7 +88,7 @@ def _values(mesh: Mesh, plan: TriangulationPlan) -> Float[Array, " nnz"]:
     return laplacian_values(face_edge_lengths_sq(mesh), plan, areas=face_areas(mesh))
 
 
-def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, "nv *k"]:
+def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"], /) -> Float[Array, "nv *k"]:
     """Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (same convention as `cotan_laplacian`).
 
     `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)` with `w_ij = 1/2 (cot a_ij + cot b_ij)`, evaluated term by
@@ -158,7 +158,7 @@ def apply_slot_weights(weights: Float[Array, " n_off"], plan: eqx.Module, u: Flo
 _compiled_apply = kernel(_apply_laplacian)
 
 
-def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"]) -> Float[Array, ""]:
+def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"], /) -> Float[Array, ""]:
     """Dirichlet energy `E(u) = 1/2 u^T L u = 1/2 int |grad u|^2` of a piecewise-linear function (summed over columns).
 
     `u` of shape `(nv,)` or `(nv, k)`. Differentiable in `u` (`grad_u E = L u`) and in the vertex

@@ -31,7 +31,7 @@ def _check_features(x: Array, operators: DiffusionOperators) -> int:
 
 
 def spectral_diffusion(
-    x: Float[ArrayLike, "..."], operators: DiffusionOperators, times: Float[ArrayLike, "..."]
+    x: Float[ArrayLike, "..."], /, operators: DiffusionOperators, times: Float[ArrayLike, "..."]
 ) -> Float[Array, "..."]:
     """Heat diffusion of each feature channel for its own time, in the truncated eigenbasis.
 
@@ -61,7 +61,7 @@ def spectral_diffusion(
     return (phi @ (decay * coefficients)).reshape(x.shape)
 
 
-def spatial_gradients(x: Float[ArrayLike, "..."], operators: DiffusionOperators) -> Float[Array, "..."]:
+def spatial_gradients(x: Float[ArrayLike, "..."], /, operators: DiffusionOperators) -> Float[Array, "..."]:
     """Tangent gradients of vertex features: `(nv, C, 2)` (or `(nv, 2)` for `(nv,)` features).
 
     `grad x_c(i) = sum_j w_ij (x_c[n_ij] - x_c(i))` with `operators.gradient_weights` (the

@@ -52,7 +52,7 @@ def check_basis_size(name: str, value, available: int, shape_name: str) -> int:
     return int(value)
 
 
-def point_map(C: Float[ArrayLike, "k_t k_s"], source: SpectralShape, target: SpectralShape) -> Int[Array, " n_target"]:
+def point_map(C: Float[ArrayLike, "k_t k_s"], /, source: SpectralShape, target: SpectralShape) -> Int[Array, " n_target"]:
     """For each target vertex, its source vertex under the functional map `C`: `(n_target,)` int32.
 
     `point_map[i] = argmin_j |Phi_t[i, :k_t] - (Phi_s[:, :k_s] C^T)[j]|^2`: the nearest source vertex

@@ -27,6 +27,7 @@ from ._shape import SpectralShape, require_spectral_shape
 
 def icp_refine(
     C: Float[ArrayLike, "k_t k_s"],
+    /,
     source: SpectralShape,
     target: SpectralShape,
     *,
@@ -92,6 +93,7 @@ def _icp(C, source_vectors, target_vectors, target_mass, rtol, *, max_steps: int
 
 def zoomout_refine(
     C: Float[ArrayLike, "k_t k_s"],
+    /,
     source: SpectralShape,
     target: SpectralShape,
     *,

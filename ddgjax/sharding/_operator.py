@@ -49,7 +49,7 @@ from ._partition import VERTICES, LocalPlan, VertexPartition
 
 
 def sharded_laplacian_apply(
-    partition: VertexPartition, u: Float[ArrayLike, "n_padded *k"], *, vertices: Float[ArrayLike, "n_padded 3"] | None = None
+    partition: VertexPartition, u: Float[ArrayLike, "n_padded *k"], /, *, vertices: Float[ArrayLike, "n_padded 3"] | None = None
 ) -> Float[Array, "n_padded *k"]:
     """`L u` on a vertex-partitioned mesh, each device computing its own rows (module docstring).
 
@@ -70,6 +70,7 @@ def sharded_laplacian_apply(
 def sharded_cg(
     partition: VertexPartition,
     b: Float[ArrayLike, " n_padded"],
+    /,
     *,
     shift: Real[ArrayLike, ""] = 0.0,
     mass: str = "voronoi",

@@ -142,6 +142,7 @@ class AMGHierarchy(eqx.Module):
 
 def amg_hierarchy(
     A: SparseMatrix,
+    /,
     *,
     smoother: str = "chebyshev",
     steps: int = 1,
@@ -226,7 +227,7 @@ def amg_hierarchy(
     return _assemble(tuple(operators), tuple(prolongators), tuple(galerkins), smoother=smoother, steps=int(steps))
 
 
-def amg_refresh(hierarchy: AMGHierarchy, A: SparseMatrix) -> AMGHierarchy:
+def amg_refresh(hierarchy: AMGHierarchy, A: SparseMatrix, /) -> AMGHierarchy:
     """The hierarchy of new values `A` on the pattern it was built for, keeping its aggregates and prolongators.
 
     Recomputes, in JAX, the Galerkin operators `A_{l+1} = P_l^T A_l P_l` (one sparse product with the
@@ -261,7 +262,7 @@ def amg_refresh(hierarchy: AMGHierarchy, A: SparseMatrix) -> AMGHierarchy:
     return _assemble(tuple(operators), prolongators, galerkins, smoother=hierarchy.smoother, steps=steps)
 
 
-def amg_v_cycle(hierarchy: AMGHierarchy, r: Float[ArrayLike, " n *k"]) -> Float[Array, " n *k"]:
+def amg_v_cycle(hierarchy: AMGHierarchy, r: Float[ArrayLike, " n *k"], /) -> Float[Array, " n *k"]:
     """One multigrid V-cycle from a zero initial guess: `B r ~ A^{-1} r`, symmetric positive definite in `r`.
 
     On level `l`: pre-smooth `x = S_l(0, r)`, restrict the residual `r_c = R_l (r - A_l x)`, recurse

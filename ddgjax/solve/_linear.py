@@ -171,6 +171,7 @@ class LinearSolution(eqx.Module):
 def linear_solve(
     A: SparseMatrix,
     b: Inexact[ArrayLike, "n *k"],
+    /,
     *,
     method: str = "auto",
     preconditioner: str | AMGHierarchy | None = None,
@@ -256,7 +257,7 @@ class Factorization(eqx.Module):
     max_steps: int = eqx.field(static=True)
     residual_tolerance: float = eqx.field(static=True)
 
-    def solve(self, b: Inexact[ArrayLike, "n *k"], *, throw: bool = True) -> LinearSolution:
+    def solve(self, b: Inexact[ArrayLike, "n *k"], /, *, throw: bool = True) -> LinearSolution:
         """Solve `A x = b` for `b` of shape `(n,)` or `(n, k)`, reusing the factorisation.
 
         Returns the `LinearSolution` (raising on failure when `throw`); an eager call runs one
@@ -302,6 +303,7 @@ def _solve(factorization: Factorization, b: Inexact[Array, "n *k"]) -> LinearSol
 
 def factorize(
     A: SparseMatrix,
+    /,
     *,
     method: str = "auto",
     preconditioner: str | AMGHierarchy | None = None,

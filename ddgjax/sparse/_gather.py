@@ -32,7 +32,7 @@ gather_sum_p = Primitive("ddgjax_gather_sum")
 
 
 def gather_sum(
-    x: Float[ArrayLike, "n *rest"], index: Int[ArrayLike, "m k"], transpose_index: Int[ArrayLike, "n j"]
+    x: Float[ArrayLike, "n *rest"], /, index: Int[ArrayLike, "m k"], transpose_index: Int[ArrayLike, "n j"]
 ) -> Float[Array, "m *rest"]:
     """`y[s] = sum_k x[index[s, k]]`, whose derivative in both modes is a fixed gather.
 

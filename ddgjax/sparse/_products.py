@@ -70,7 +70,9 @@ def congruence_plan(d_cols: np.ndarray, pattern: SparsityPattern) -> CongruenceP
     )
 
 
-def congruence(d: SparseMatrix, weights: Float[ArrayLike, " m"], pattern: SparsityPattern, plan: CongruencePlan) -> SparseMatrix:
+def congruence(
+    d: SparseMatrix, /, weights: Float[ArrayLike, " m"], pattern: SparsityPattern, plan: CongruencePlan
+) -> SparseMatrix:
     """`D^T diag(w) D` with values on a given `(n, n)` pattern: no sort and no search inside jit.
 
     `(D^T W D)_ij = sum_r w_r D_ri D_rj`. Every row of `D` holds the same number `k` of stored entries

@@ -109,6 +109,7 @@ class Eigenpairs(NamedTuple):
 def smallest_eigenpairs(
     L: SparseMatrix,
     M: SparseMatrix,
+    /,
     k: int,
     *,
     method: str = "auto",

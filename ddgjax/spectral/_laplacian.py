@@ -119,7 +119,7 @@ def eigenpairs(
 
 
 def spectral_coefficients(
-    vectors: Float[ArrayLike, "nv k"], M: SparseMatrix, f: Float[ArrayLike, "nv *m"]
+    vectors: Float[ArrayLike, "nv k"], M: SparseMatrix, f: Float[ArrayLike, "nv *m"], /
 ) -> Float[Array, "k *m"]:
     """`c = Phi^T M f`: the coordinates of `f` in an M-orthonormal eigenbasis (the discrete `int f phi_i dA`)."""
     vectors, f = _basis("vectors", vectors, M), _functions("f", f, M)
@@ -142,6 +142,7 @@ def spectral_filter(
     vectors: Float[ArrayLike, "nv k"],
     M: SparseMatrix,
     f: Float[ArrayLike, "nv *m"],
+    /,
     *,
     response: Callable[[Float[Array, " k"]], ArrayLike],
 ) -> Float[Array, "nv *m"]:

@@ -102,7 +102,7 @@ def mass_matrix(tet_mesh: TetMesh, *, mass: str = "voronoi") -> SparseMatrix:
     return SparseMatrix(_galerkin_values(tet_mesh, plan), plan.pattern, symmetric=True, positive_semidefinite=True)
 
 
-def laplacian_apply(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"]) -> Float[Array, "nv *k"]:
+def laplacian_apply(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"], /) -> Float[Array, "nv *k"]:
     """Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (the convention of `cotan_laplacian`).
 
     `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)`, the per-tet weights gathered onto the directed edges and
@@ -117,7 +117,7 @@ def _apply(tet_mesh: TetMesh, plan: TetPlan, u: Float[Array, "nv *k"]) -> Float[
     return apply_slot_weights(slot_values(-tet_cotan_weights(tet_mesh), plan), plan, u)
 
 
-def dirichlet_energy(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"]) -> Float[Array, ""]:
+def dirichlet_energy(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"], /) -> Float[Array, ""]:
     """Dirichlet energy `E(u) = 1/2 u^T L u = 1/2 int |grad u|^2 dV` of a piecewise-linear function (columns summed).
 
     Differentiable in `u` (`grad_u E = L u`) and in the vertex positions (forward and reverse mode,

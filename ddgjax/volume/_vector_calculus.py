@@ -39,7 +39,7 @@ def _gradient(tet_mesh: TetMesh, u: Float[Array, " nv"]) -> Float[Array, "nt 3"]
     return jnp.einsum("tk,tkd->td", take_rows(u, tet_mesh.tets), tet_hat_gradients(tet_mesh))
 
 
-def gradient(tet_mesh: TetMesh, u: Float[ArrayLike, " nv"]) -> Float[Array, "nt 3"]:
+def gradient(tet_mesh: TetMesh, u: Float[ArrayLike, " nv"], /) -> Float[Array, "nt 3"]:
     """Gradient of the piecewise-linear interpolant of `u`, one vector per tet, `(nt, 3)`.
 
     `(grad u)_t = sum_k u[T[t, k]] grad phi_k` (`tet_hat_gradients`); exact for linear `u`; 0 on a
