@@ -229,7 +229,9 @@ def main() -> int:
     print("|---|---|---|---|---|")
     static = ("closed", "kind", "method", "rescale", "steps", "save_every", "check")
     versions = {
-        label: jax.jit(_run.__wrapped__, static_argnames=static, compiler_options=ddgjax.cpu_compiler_options(extra) or None)
+        label: jax.jit(
+            _run.__wrapped__, static_argnames=static, compiler_options=ddgjax.cpu_compiler_options(extra=extra) or None
+        )
         for label, extra in (("threaded", None), ("single-threaded", _SERIAL_KERNELS))
     }
     for size, size_steps in ((200, 1000), (20_000, 100)) if args.quick else ((1000, 10_000), (20_000, 1000), (100_000, 200)):

@@ -4,7 +4,7 @@ On icospheres and open cylinders of ~10k and ~40k vertices, two handle regions (
 bottom held, the top translated and rotated), ddgjax jitted on the rest positions and the handles'
 positions (nothing folded at compile time):
 
-- **biharmonic**: `biharmonic_deformation(mesh, k=2)` against `V + igl.harmonic(V, F, b, bc - V[b], 2)`,
+- **biharmonic**: `biharmonic_deformation(mesh, order=2)` against `V + igl.harmonic(V, F, b, bc - V[b], 2)`,
   one solve each (factorisation included), warm.
 - **arap**: the spokes energy, from the same start (`U = V; U[b] = bc`). Per local-global step:
   ddgjax's time for `N + 1` steps minus one step, over `N` (its factorisation is inside the call;
@@ -90,7 +90,7 @@ def _biharmonic_row(name, args):
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
     inputs = (mesh.vertices, jnp.asarray(bc))
     ours, compile_ms = compiled(
-        jit(lambda v, bc: biharmonic_deformation(mesh.with_vertices(v), fixed_vertices=b, fixed_values=bc, k=2)),
+        jit(lambda v, bc: biharmonic_deformation(mesh.with_vertices(v), fixed_vertices=b, fixed_values=bc, order=2)),
         *inputs,
     )
     calls = {"ddgjax": (ours, inputs)}

@@ -48,7 +48,7 @@ def process(mesh: ddgjax.Mesh, path: str, solver: str) -> None:
     L, M, G = cotan_laplacian(mesh), mass_matrix(mesh), mass_matrix(mesh, mass="galerkin")
     jax.block_until_ready((L.values, M.values, G.values))
     if path == "solve":
-        x = linear_solve(M + 0.01 * L, M @ np.ones(mesh.n_vertices), method=solver)
+        x = linear_solve(M + 0.01 * L, M @ np.ones(mesh.n_vertices), solver=solver)
         jax.block_until_ready(x.value)
 
 

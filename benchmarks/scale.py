@@ -55,7 +55,7 @@ from ddgjax.graph import graph_laplacian, knn_graph  # noqa: E402
 from ddgjax.laplacian import cotan_laplacian, mass_matrix  # noqa: E402
 from ddgjax.mesh import icosphere  # noqa: E402
 from ddgjax.solve import linear_solve  # noqa: E402
-from ddgjax.solve._linear import auto_method  # noqa: E402
+from ddgjax.solve._linear import auto_solver  # noqa: E402
 from ddgjax.sparse import from_scipy  # noqa: E402
 
 cholespy = optional("cholespy")
@@ -121,7 +121,7 @@ class System:
 def ddgjax_contender(method: str, **options):
     def solve(system: System, s: float):
         A = s * system.ddgjax
-        return np.asarray(linear_solve(A, system.b, method=method, rtol=TOLERANCE, **options).value)
+        return np.asarray(linear_solve(A, system.b, solver=method, rtol=TOLERANCE, **options).value)
 
     return solve
 
@@ -202,7 +202,7 @@ def run_family(name, systems, solvers, args) -> dict:
     table = {contender: [] for contender in solvers}
     for label, A, b in systems:
         n = A.shape[0]
-        chosen = auto_method(n, one_shot=True, entries_per_row=A.nnz / n)
+        chosen = auto_solver(n, one_shot=True, entries_per_row=A.nnz / n)
         print(f"{label}: n = {n:,}, nnz = {A.nnz:,}; linear_solve's auto picks {chosen!r}", flush=True)
         direct = set(DIRECT) | ({"ddgjax auto"} if chosen in ("cholesky", "superlu") else set())
         running = {c: f for c, f in solvers.items() if not (name == "graph" and c in direct and n > args.direct_max)}

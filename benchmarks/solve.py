@@ -804,8 +804,8 @@ def _cg_on(name, mesh, args):
         start = time.perf_counter()
         ml = pyamg_solver(A)
         setup_pyamg = 1e3 * (time.perf_counter() - start)
-        amg = jit(lambda A, h, b: linear_solve(A, b, method="cg", preconditioner=h, throw=False))
-        jacobi = jit(lambda A, b: linear_solve(A, b, method="cg", max_steps=20_000, throw=False))
+        amg = jit(lambda A, h, b: linear_solve(A, b, solver="cg", preconditioner=h, throw=False))
+        jacobi = jit(lambda A, b: linear_solve(A, b, solver="cg", max_steps=20_000, throw=False))
         calls = {
             "ddgjax cg + AMG V-cycle (hierarchy kept)": (amg, (A_jax, hierarchy, b_jax)),
             "pyamg V-cycle + scipy cg (hierarchy kept)": (amg_cg_counted, (A, ml, b)),
@@ -861,7 +861,7 @@ def _scan_on(name, mesh, args):
     def ddgjax_scan(method):
         @jit
         def run(values, u):
-            kept = factorize(SparseMatrix(values, A_jax.pattern, symmetric=True, positive_semidefinite=True), method=method)
+            kept = factorize(SparseMatrix(values, A_jax.pattern, symmetric=True, positive_semidefinite=True), solver=method)
             return jax.lax.scan(lambda u, _: (kept.solve(M_jax @ u).value, None), u, None, length=100)[0]
 
         return lambda: run(values[next(turn) % 2], jnp.asarray(u0))
@@ -909,9 +909,9 @@ def _kept_on(name, mesh, args):
     A = A_jax.to_scipy().tocsr()
     rng = np.random.default_rng(4)
     b, B = rng.standard_normal(A.shape[0]), rng.standard_normal((A.shape[0], 8))
-    kept = factorize(A_jax, method="cholesky")  # outside jit: a kept factorisation, simplicial (`cholmod_analysis`)
+    kept = factorize(A_jax, solver="cholesky")  # outside jit: a kept factorisation, simplicial (`cholmod_analysis`)
     with cholmod_analysis("auto"):
-        supernodal = factorize(A_jax, method="cholesky")  # what `linear_solve` makes: CHOLMOD's own choice
+        supernodal = factorize(A_jax, solver="cholesky")  # what `linear_solve` makes: CHOLMOD's own choice
     solve = jit(lambda f, b: f.solve(b).value)
     calls = {
         "ddgjax factorize(A).solve(b), jitted": (solve, (kept, jnp.asarray(b))),
@@ -932,11 +932,11 @@ def _kept_on(name, mesh, args):
     def new_values():
         return A_jax * (1.0 + 1e-6 * next(scales))  # new values: no cached numeric factor is reused
 
-    calls["ddgjax factorize (eager, kept: simplicial)"] = (lambda: factorize(new_values(), method="cholesky").token, ())
+    calls["ddgjax factorize (eager, kept: simplicial)"] = (lambda: factorize(new_values(), solver="cholesky").token, ())
 
     def one_shot():
         with cholmod_analysis("auto"):
-            return factorize(new_values(), method="cholesky").token
+            return factorize(new_values(), solver="cholesky").token
 
     calls["ddgjax factorize, CHOLMOD's choice (linear_solve's)"] = (one_shot, ())
     if cholespy is not None:

@@ -74,7 +74,7 @@ def _known(name: str, value: str) -> bool:
 
 # `extra` is annotated loosely on purpose: a malformed value gets this function's own `DDGInputError`
 # (naming the argument) rather than a run-time type-checker's message.
-def cpu_compiler_options(extra: object = None) -> dict[str, str]:
+def cpu_compiler_options(*, extra: object = None) -> dict[str, str]:
     """XLA:CPU compiler options ddgjax compiles its own kernels with, for a `jax.jit` of your own.
 
     `jax.jit(f, compiler_options=ddgjax.cpu_compiler_options())` compiles `f` as ddgjax compiles its
@@ -161,7 +161,7 @@ def kernel(
         key = (signature, extra)
         program = programs.get(key)
         if program is None:
-            options = cpu_compiler_options(dict(extra)) if on_cpu else {}
+            options = cpu_compiler_options(extra=dict(extra)) if on_cpu else {}
             program = programs[key] = _program(function, static_positions, options, key, args, kwargs, dynamic)
             if len(programs) > PROGRAMS_PER_KERNEL:
                 programs.popitem(last=False)

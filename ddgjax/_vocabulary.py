@@ -253,6 +253,15 @@ TERMS: tuple[Term, ...] = (
         synonyms=("n_eigenpairs", "n_eigs", "num_eigs", "n_eigenvalues", "num_eigenvalues", "n_modes", "num_modes", "k_eig"),
     ),
     Term(
+        "the weight of a functional map's orientation term",
+        ("orientation_weight",),
+        "`orientation_weight=`",
+        "a number `>= 0` (pyFM's `w_orient`, 0 there; 1 here: without it a symmetric pair's map may come out mirrored)",
+        "`functional_map`, `match_shapes`",
+        synonyms=("w_orient",),
+        default=1.0,
+    ),
+    Term(
         "a polyharmonic order",
         ("order",),
         "`order=`",
@@ -358,7 +367,6 @@ POSITIONAL_WITH_DEFAULT: dict[str, str] = {
 DEFAULT_EXCEPTIONS: dict[str, str] = {
     "ddgjax.geodesics.heat_distance:boundary": 'the heat method\'s own condition, "average" (Crane et al. 2017, section 3.2.2)',
     "ddgjax.geodesics.heat_distance_solver:boundary": 'the heat method\'s own condition, "average" (Crane et al. 2017)',
-    "ddgjax.geodesics.HeatDistanceSolver.build:boundary": 'the heat method\'s own condition, "average" (Crane et al. 2017)',
     "ddgjax.learn.diffusion_operators:robust": "learning datasets hold bad meshes; DiffusionNet uses robust_laplacian's operators",
     "ddgjax.learn.diffusion_operators_of_meshes:robust": "as diffusion_operators",
     "ddgjax.graph.knn_graph:n_neighbors": "scikit-learn's kneighbors_graph default (a graph, not a surface patch)",

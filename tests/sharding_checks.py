@@ -58,7 +58,7 @@ def batch_checks() -> dict:
 
     def solve(V):
         mesh = SPHERE.with_vertices(V)
-        return linear_solve(mass_matrix(mesh) + 1e-2 * cotan_laplacian(mesh), V[:, 0], method="cg").value
+        return linear_solve(mass_matrix(mesh) + 1e-2 * cotan_laplacian(mesh), V[:, 0], solver="cg").value
 
     sharded = shard_batch(V, batch_sharding())
     single = jax.device_put(V, jax.devices()[0])
@@ -152,7 +152,7 @@ def amg_checks(mesh) -> dict:
     # One device: the same hierarchy, permuted to the locality order, is the preconditioner of linear_solve's CG.
     single = partition_vertices(mesh, n_devices=1)
     one = sharded_cg(single, single.shard(u), shift=shift, preconditioner=partition_amg(single, hierarchy))
-    unsharded = linear_solve(matrix, jnp.asarray(u), method="cg", preconditioner=hierarchy)
+    unsharded = linear_solve(matrix, jnp.asarray(u), solver="cg", preconditioner=hierarchy)
     results["one_device"] = {"sharded_steps": int(one.num_steps), "unsharded_steps": int(unsharded.num_steps)}
     errors = {}
     small = amg_hierarchy(cotan_laplacian(icosphere(2)) + shift * mass_matrix(icosphere(2)))

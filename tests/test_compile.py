@@ -43,7 +43,7 @@ def test_at_top_level_is_false_under_every_transformation():
 
 
 def test_unknown_options_are_left_out():
-    options = ddgjax.cpu_compiler_options({"xla_cpu_no_such_option_in_any_xla": "1"})
+    options = ddgjax.cpu_compiler_options(extra={"xla_cpu_no_such_option_in_any_xla": "1"})
     assert "xla_cpu_no_such_option_in_any_xla" not in options
     assert set(options) <= set(CPU_OPTIONS)
     # ... and what is left compiles: the public recipe for a user's own jit.
@@ -148,7 +148,7 @@ def test_cpu_options_are_chosen_at_top_level_only():
 @pytest.mark.parametrize("extra", ["xla_cpu_use_xnnpack", {"xla_cpu_use_xnnpack": False}, {1: "a"}])
 def test_malformed_extra_options_are_refused(extra):
     with pytest.raises(ddgjax.DDGInputError, match="extra"):
-        ddgjax.cpu_compiler_options(extra)
+        ddgjax.cpu_compiler_options(extra=extra)
 
 
 def test_a_kernel_keeps_a_bounded_number_of_programs_and_frees_the_others(monkeypatch):

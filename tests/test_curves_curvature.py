@@ -33,7 +33,7 @@ KINDS = ("A", "B", "C", "D")
 @pytest.fixture(scope="module")
 def wobbly():
     """Non-convex, unevenly spaced, counterclockwise."""
-    return random_polygon(24, seed=7)
+    return random_polygon(24, key=7)
 
 
 @jax.jit

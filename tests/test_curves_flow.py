@@ -33,15 +33,15 @@ from ddgjax.curves._flow_step import _explicit_step, _flow_weights, _semi_implic
 @pytest.fixture(scope="module")
 def polygon():
     """Non-convex, unevenly spaced random polygon (40 vertices, shortest edge ~0.06)."""
-    return random_polygon(40, seed=1)
+    return random_polygon(40, key=1)
 
 
 # The report's claims are measured on non-convex random polygons (no symmetry to help) and on two
 # simple symmetric shapes. All have 40 vertices, so each flow compiles once.
 SHAPES = {
-    "random-1": lambda: random_polygon(40, seed=1),
-    "random-5": lambda: random_polygon(40, seed=5),
-    "random-11": lambda: random_polygon(40, seed=11, amplitude=0.5),
+    "random-1": lambda: random_polygon(40, key=1),
+    "random-5": lambda: random_polygon(40, key=5),
+    "random-11": lambda: random_polygon(40, key=11, amplitude=0.5),
     "flower": lambda: flower(40),
     "star": lambda: star(5, inner_radius=0.5, subdivisions=4),
 }
@@ -397,7 +397,7 @@ def test_open_curve_keeps_its_endpoints(polygon):
 
 @pytest.fixture(scope="module")
 def small():
-    return random_polygon(10, seed=4)
+    return random_polygon(10, key=4)
 
 
 def _loss(points, tau, method):

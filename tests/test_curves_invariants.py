@@ -42,7 +42,7 @@ def invariants(curve):
 
 @pytest.fixture(scope="module")
 def wobbly():
-    return random_polygon(24, seed=7)
+    return random_polygon(24, key=7)
 
 
 def test_regular_polygon_closed_forms():
@@ -140,7 +140,7 @@ def test_is_simple_agrees_with_shapely_on_random_polygons():
     rng = np.random.default_rng(11)
     simple_fn = jax.jit(jax.vmap(lambda P: is_simple(Curve(P))))
     batch = rng.normal(size=(200, 7, 2))
-    batch[:100] = np.asarray(random_polygon(7, seed=1).points) + 0.15 * rng.normal(size=(100, 7, 2))
+    batch[:100] = np.asarray(random_polygon(7, key=1).points) + 0.15 * rng.normal(size=(100, 7, 2))
     ours = np.asarray(simple_fn(batch))
     reference = np.array([curvey.Curve(P).is_simple for P in batch])
     np.testing.assert_array_equal(ours, reference)
@@ -199,7 +199,7 @@ def test_property_invariance(seed, scale, angle):
 
 @pytest.mark.slow
 def test_clearance_against_shapely():
-    for curve in (star(), random_polygon(30, seed=2), Curve(np.asarray(star().points)[:12], closed=False)):
+    for curve in (star(), random_polygon(30, key=2), Curve(np.asarray(star().points)[:12], closed=False)):
         simple, clearance = simplicity_and_clearance(curve)
         points = np.asarray(curve.points)
         n, m = len(points), curve.n_edges
@@ -219,7 +219,7 @@ def test_clearance_against_shapely():
 
 
 def test_near_and_far_clearances_split_by_distance_along_the_curve():
-    curve = random_polygon(24, seed=2)
+    curve = random_polygon(24, key=2)
     points = np.asarray(curve.points)
     n = len(points)
     edges = [shapely.LineString([points[i], points[(i + 1) % n]]) for i in range(n)]
@@ -243,7 +243,7 @@ def test_near_and_far_clearances_split_by_distance_along_the_curve():
 
 @pytest.mark.slow
 def test_clearance_gradient_matches_finite_differences_and_stays_finite():
-    curve = random_polygon(16, seed=3)
+    curve = random_polygon(16, key=3)
     clearance = jax.jit(lambda P: simplicity_and_clearance(Curve(P))[1])
     P = curve.points
     v = jnp.asarray(np.random.default_rng(1).normal(size=P.shape))

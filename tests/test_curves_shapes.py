@@ -29,8 +29,8 @@ SHAPES = {
     "regular": lambda: regular_polygon(40, radius=2.0, center=(1.0, -3.0)),
     "flower": lambda: flower(40, petals=5, amplitude=0.45),
     "star": lambda: star(5, inner_radius=0.4, subdivisions=4),
-    "random-0": lambda: random_polygon(40, seed=0),
-    "random-7": lambda: random_polygon(40, seed=7, amplitude=0.7, modes=9, jitter=0.45),
+    "random-0": lambda: random_polygon(40, key=0),
+    "random-7": lambda: random_polygon(40, key=7, amplitude=0.7, modes=9, jitter=0.45),
     "figure3": figure3_polygon,
 }
 
@@ -111,8 +111,8 @@ def test_regular_polygon_matches_gpytoolbox():
 def test_sizes_and_determinism():
     assert figure3_polygon().points.shape == (64, 2)
     assert star(6, subdivisions=3).points.shape == (36, 2)
-    np.testing.assert_array_equal(random_polygon(30, seed=3).points, random_polygon(30, seed=3).points)
-    assert not np.array_equal(random_polygon(30, seed=3).points, random_polygon(30, seed=4).points)
+    np.testing.assert_array_equal(random_polygon(30, key=3).points, random_polygon(30, key=3).points)
+    assert not np.array_equal(random_polygon(30, key=3).points, random_polygon(30, key=4).points)
 
 
 def test_shapes_follow_default_dtype():

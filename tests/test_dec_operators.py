@@ -19,8 +19,8 @@ import pytest
 
 import ddgjax.dec as dec
 from ddgjax._errors import DDGInputError, MeshDataError
-from ddgjax.laplacian.internal import dec_plan, vertex_plan
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
+from ddgjax.laplacian.internal import dec_plan, vertex_plan
 from ddgjax.mesh import (
     corner_dual_areas,
     corner_dual_areas_from_lengths_sq,

@@ -54,7 +54,7 @@ def test_equals_libigl_harmonic_on_the_displacement(name, k):
     """libigl's tutorial 401 ("deformation field"): `V + igl.harmonic(V, F, b, bc - V[b], k)`."""
     mesh, b, bc = MESHES[name]()
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces, dtype=np.int64)
-    U = np.asarray(biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=bc, k=k))
+    U = np.asarray(biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=bc, order=k))
     expected = V + igl.harmonic(V, F, b, bc - V[b], k)
     # Q's condition number grows like h^(-2k); a direct solve on either side agrees to ~1e-13 here.
     np.testing.assert_allclose(U, expected, rtol=0, atol=1e-10)
@@ -74,7 +74,7 @@ def test_barycentric_mass_equals_libigls_operator_with_that_mass(k):
     D = np.zeros_like(V)
     D[b] = bc - V[b]
     D[free] = spla.spsolve(sp.csc_matrix(Q[free][:, free]), -(Q[free][:, b] @ D[b]))
-    U = biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=bc, k=k, mass="barycentric")
+    U = biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=bc, order=k, mass="barycentric")
     np.testing.assert_allclose(U, V + D, rtol=0, atol=1e-10)  # two direct solves of Q_ff (see above)
 
 
@@ -88,7 +88,7 @@ def test_flat_disk_k1_reproduces_affine_maps_and_the_positions_form():
     c, s = np.cos(0.3), np.sin(0.3)
     A = np.array([[c, -s, 0.0], [s, c, 0.0], [0.2, 0.1, 1.0]])  # rotation about z, then a shear into z
     affine = V @ A.T + [0.5, -1.0, 2.0]
-    U = np.asarray(biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=affine[b], k=1))
+    U = np.asarray(biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=affine[b], order=1))
     np.testing.assert_allclose(U, affine, rtol=0, atol=1e-13)
     np.testing.assert_allclose(U, igl.harmonic(V, F, b, affine[b], 1), rtol=0, atol=1e-13)
 
@@ -99,9 +99,9 @@ def test_identity_and_translation(k):
     (constants are k-harmonic). A rotation of the handles is not reproduced exactly (module docstring)."""
     mesh, b, _ = _sphere()
     V = np.asarray(mesh.vertices)
-    np.testing.assert_allclose(biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=V[b], k=k), V, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=V[b], order=k), V, rtol=0, atol=1e-15)
     shift = np.array([0.3, -0.2, 1.5])
-    U = biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=V[b] + shift, k=k)
+    U = biharmonic_deformation(mesh, fixed_vertices=b, fixed_values=V[b] + shift, order=k)
     np.testing.assert_allclose(U, V + shift, rtol=0, atol=1e-12)
 
 
@@ -117,7 +117,7 @@ def test_gradients_in_the_handles_and_the_rest_positions(k):
 
     @jax.jit
     def loss(values, positions):
-        deformed = biharmonic_deformation(mesh.with_vertices(positions), fixed_vertices=b, fixed_values=values, k=k)
+        deformed = biharmonic_deformation(mesh.with_vertices(positions), fixed_vertices=b, fixed_values=values, order=k)
         return jnp.sum(weights * deformed)
 
     check_grads(loss, (jnp.asarray(bc), jnp.asarray(V)), order=1, modes=("fwd", "rev"))
@@ -172,9 +172,9 @@ def test_bad_input_names_the_argument(without_type_checker):
         (dict(fixed_vertices=np.concatenate([b[:-1], b[:1]])), "fixed_vertices: expected distinct"),
         (dict(fixed_vertices=np.concatenate([b[:-1], [mesh.n_vertices]])), "fixed_vertices: vertex indices must lie"),
         (dict(fixed_vertices=b[None, :], fixed_values=bc), "fixed_values: expected shape"),
-        (dict(k=0), "k: expected an integer >= 1"),
-        (dict(k=1.5), "k: expected an integer >= 1"),
-        (dict(k=True), "k: expected an integer >= 1"),
+        (dict(order=0), "order: expected an integer >= 1"),
+        (dict(order=1.5), "order: expected an integer >= 1"),
+        (dict(order=True), "order: expected an integer >= 1"),
         (dict(mass="galerkin"), "mass"),
         (dict(solver="lu"), "solver"),
     ]

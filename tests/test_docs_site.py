@@ -46,9 +46,7 @@ def test_every_page_in_the_navigation_exists():
 def test_every_public_package_has_a_reference_page():
     # ddgjax.cli is the console script's entry point, not an API for users.
     packages = sorted(
-        info.name
-        for info in pkgutil.iter_modules(ddgjax.__path__)
-        if not info.name.startswith("_") and info.name != "cli"
+        info.name for info in pkgutil.iter_modules(ddgjax.__path__) if not info.name.startswith("_") and info.name != "cli"
     )
     assert {"mesh", "solve", "geodesics", "plot", "io"} <= set(packages)
     pages = set(_navigation())

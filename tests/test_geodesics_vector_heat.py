@@ -182,7 +182,7 @@ def test_centroid_of_two_points_on_the_sphere_is_the_arc_midpoint():
     assert int(centroid.vertex) in np.asarray(mesh.faces)[int(centroid.face)]
     np.testing.assert_allclose(np.sum(centroid.barycentric), 1.0, rtol=1e-12)
     # Weights 3 : 1 put the minimiser of 3 d(c, a)^2 + d(c, b)^2 at a quarter of the arc from a.
-    weighted = np.asarray(geodesic_centroid(mesh, [0, b], weights=[3.0, 1.0]).position)
+    weighted = np.asarray(geodesic_centroid(mesh, [0, b], source_weights=[3.0, 1.0]).position)
     angle = np.arccos(weighted @ V[0] / np.linalg.norm(weighted))
     assert abs(angle - distance[b] / 4) < 0.01  # measured 2.3e-3
     solution = geodesic_centroid(mesh, [0, b], max_steps=1, throw=False)
@@ -236,8 +236,8 @@ def test_bad_input(without_type_checker):
         (lambda: parallel_transport(mesh, 0, [1.0, 0.0]), "vector"),
         (lambda: vector_heat_solver(mesh, mass="galerkin"), "mass"),
         (lambda: vector_heat_solver(mesh, t_coef=0.0), "t_coef"),
-        (lambda: geodesic_centroid(mesh, [0, 1], weights=[1.0]), "weights"),
-        (lambda: geodesic_centroid(mesh, [0, 1], weights=[-1.0, 1.0]), "weights"),
+        (lambda: geodesic_centroid(mesh, [0, 1], source_weights=[1.0]), "weights"),
+        (lambda: geodesic_centroid(mesh, [0, 1], source_weights=[-1.0, 1.0]), "weights"),
         (lambda: geodesic_centroid(mesh, [0, 1], max_steps=0), "max_steps"),
     ]
     for call, message in cases:

@@ -423,7 +423,7 @@ def test_tutte_layout_of_a_disk_is_planar_and_barycentric():
     edges = np.asarray(mesh.topology.edges)
     loop = np.asarray(mesh.topology.boundary_loops[0])
     n = mesh.n_vertices
-    x = np.asarray(tutte_layout(edges, boundary_vertices=loop, n_vertices=n))
+    x = np.asarray(tutte_layout(edges, fixed_vertices=loop, n_vertices=n))
     angles = 2 * np.pi * np.arange(loop.size) / loop.size
     circle = np.stack([np.cos(angles), np.sin(angles)], axis=1)
     np.testing.assert_allclose(x[loop], circle, atol=1e-15)
@@ -445,21 +445,21 @@ def test_tutte_layout_with_random_weights_is_planar_and_equals_tutte_embedding()
     n, faces = mesh.n_vertices, np.asarray(mesh.faces)
     angles = 2 * np.pi * np.arange(loop.size) / loop.size
     circle = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-    x = tutte_layout(edges, boundary_vertices=loop, boundary_positions=circle, n_vertices=n)
+    x = tutte_layout(edges, fixed_vertices=loop, fixed_values=circle, n_vertices=n)
     np.testing.assert_allclose(x, ddgjax.param.tutte_embedding(mesh, shape=circle), rtol=0, atol=1e-12)
     # Positive random edge_weights (Floater 1997) keep the drawing planar.
     edge_weights = np.random.default_rng(21).uniform(0.1, 10.0, len(edges))
-    y = np.asarray(tutte_layout(edges, boundary_vertices=loop, edge_weights=edge_weights, n_vertices=n))
+    y = np.asarray(tutte_layout(edges, fixed_vertices=loop, edge_weights=edge_weights, n_vertices=n))
     assert _crossing_pairs(y, edges) == 0
     assert (_signed_areas(y, faces) > 0).all()
 
 
 def test_tutte_layout_refuses_a_boundary_that_is_not_a_cycle():
     edges = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [0, 2]])
-    with pytest.raises(ddgjax.DDGInputError, match="boundary_vertices: consecutive boundary vertices"):
-        tutte_layout(edges, boundary_vertices=np.array([0, 2, 1, 3]), n_vertices=4)  # 1-3 is no edge
-    with pytest.raises((ddgjax.DDGInputError, TypeCheckError), match="boundary_positions"):
-        tutte_layout(edges, boundary_vertices=np.array([0, 1, 2]), boundary_positions=np.zeros((4, 2)), n_vertices=4)
+    with pytest.raises(ddgjax.DDGInputError, match="fixed_vertices: consecutive boundary vertices"):
+        tutte_layout(edges, fixed_vertices=np.array([0, 2, 1, 3]), n_vertices=4)  # 1-3 is no edge
+    with pytest.raises((ddgjax.DDGInputError, TypeCheckError), match="fixed_values"):
+        tutte_layout(edges, fixed_vertices=np.array([0, 1, 2]), fixed_values=np.zeros((4, 2)), n_vertices=4)
 
 
 # ---------------------------------------------------------------------------------------------- networkx

@@ -14,7 +14,6 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddgjax._errors import DDGInputError, MeshDataError
-from ddgjax.mesh.internal import degenerate_faces
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import (
     IntrinsicTriangulation,
@@ -29,6 +28,7 @@ from ddgjax.laplacian import (
     triangulation_plan,
 )
 from ddgjax.mesh import Mesh, check_mesh, icosphere
+from ddgjax.mesh.internal import degenerate_faces
 from ddgjax.pde import harmonic_interpolation, solve_poisson
 from ddgjax.sparse import dirichlet_blocks
 from ddgjax.spectral import eigenpairs

@@ -107,7 +107,7 @@ def test_descriptors_match_pyfm(pair, kind):
     landmarks = np.array([3, 40, 100])
     model.compute_spectral_descriptors(n_descr=25, descr_type=kind.upper(), k_descr=20, landmarks=landmarks)
     for shape, expected in ((source, model.descr1), (target, model.descr2)):
-        ours = descriptors(shape, kind=kind, n_descriptors=25, landmarks=landmarks, n_eigenpairs=20)
+        ours = descriptors(shape, kind=kind, n_descriptors=25, landmarks=landmarks, k=20)
         assert ours.shape == (shape.vectors.shape[0], 25 * 4)
         np.testing.assert_allclose(ours, expected, rtol=0, atol=1e-10 * np.abs(expected).max())
     plain = descriptors(source, kind=kind, n_descriptors=25)
@@ -120,8 +120,8 @@ def test_descriptors_bad_input(pair):
     shape = pair[0]
     with pytest.raises(DDGInputError, match="kind"):
         descriptors(shape, kind="sihks")
-    with pytest.raises(DDGInputError, match="n_eigenpairs"):
-        descriptors(shape, n_eigenpairs=31)
+    with pytest.raises(DDGInputError, match=r"^k: expected an integer in \[2, "):
+        descriptors(shape, k=31)
     with pytest.raises(DDGInputError, match="landmarks"):
         descriptors(shape, landmarks=np.array([0, 10_000]))
     with pytest.raises(DDGInputError, match="n_descriptors"):

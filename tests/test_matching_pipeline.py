@@ -157,7 +157,7 @@ def test_geodesic_error_subsamples_target_vertices_uniformly_without_replacement
     rng = np.random.default_rng(2)
     true, predicted = rng.integers(0, spot.n_vertices, 60), rng.integers(0, spot.n_vertices, 60)
     chosen = np.random.default_rng(7).choice(60, 25, replace=False)
-    assert geodesic_error(spot, predicted, true, n_samples=25, seed=7) == pytest.approx(
+    assert geodesic_error(spot, predicted, true, n_samples=25, key=7) == pytest.approx(
         geodesic_error(spot, predicted[chosen], true[chosen]), rel=1e-12
     )
     assert geodesic_error(spot, predicted, true, n_samples=60) == geodesic_error(spot, predicted, true)

@@ -67,13 +67,13 @@ def system(n):
 
 dropped = []
 for n in range(3, 10):  # solved and dropped
-    linear_solve(*system(n), method="cholesky")
+    linear_solve(*system(n), solver="cholesky")
     dropped.append(sparsax.cache_size())
 A, b = system(10)
 # Rebuilt as a pytree (as solvers built with `eqx.tree_at` do): the first module dies, the token lives on.
-kept = jax.tree.map(lambda leaf: leaf, factorize(A, method="cholesky"))
+kept = jax.tree.map(lambda leaf: leaf, factorize(A, solver="cholesky"))
 for n in range(11, 16):  # while `kept` is alive
-    linear_solve(*system(n), method="cholesky")
+    linear_solve(*system(n), solver="cholesky")
 held = sparsax.cache_size()
 x = np.asarray(kept.solve(b).value)
 residual = float(np.max(np.abs(A.to_scipy() @ x - b)))

@@ -55,7 +55,9 @@ def parameters(function: Callable) -> list[inspect.Parameter]:
 def violations(functions) -> list[str]:
     """What the vocabulary refuses in `functions` (`(qualified name, function)` pairs), one line each."""
     synonyms = {synonym: term for term in vocabulary.TERMS for synonym in term.synonyms}
-    defaults = {name: term.default for term in vocabulary.TERMS for name in term.parameters if term.default is not vocabulary.PER_FUNCTION}
+    defaults = {
+        name: term.default for term in vocabulary.TERMS for name in term.parameters if term.default is not vocabulary.PER_FUNCTION
+    }
     found = []
     for qualified, function in functions:
         for parameter in parameters(function):
@@ -63,13 +65,17 @@ def violations(functions) -> list[str]:
             if name in synonyms:
                 found.append(f"{qualified}: `{name}` is a synonym of {synonyms[name].spelled} ({synonyms[name].concept})")
             has_default = parameter.default is not parameter.empty
-            if has_default and parameter.kind == parameter.POSITIONAL_OR_KEYWORD and qualified not in vocabulary.POSITIONAL_WITH_DEFAULT:
+            if (
+                has_default
+                and parameter.kind == parameter.POSITIONAL_OR_KEYWORD
+                and qualified not in vocabulary.POSITIONAL_WITH_DEFAULT
+            ):
                 found.append(f"{qualified}: the option `{name}` can be passed by position; make it keyword-only")
             if len(name) == 1 and name not in vocabulary.LETTERS_BY_KEYWORD and parameter.kind != parameter.POSITIONAL_ONLY:
                 found.append(f"{qualified}: the math letter `{name}` can be passed by keyword; make it positional-only (`/`)")
-            if has_default and name in defaults and f"{qualified}:{name}" not in vocabulary.DEFAULT_EXCEPTIONS:
-                if not _same(parameter.default, defaults[name]):
-                    found.append(f"{qualified}: `{name}={parameter.default!r}` where the vocabulary's default is {defaults[name]!r}")
+            excepted = f"{qualified}:{name}" in vocabulary.DEFAULT_EXCEPTIONS
+            if has_default and name in defaults and not excepted and not _same(parameter.default, defaults[name]):
+                found.append(f"{qualified}: `{name}={parameter.default!r}` where the vocabulary's default is {defaults[name]!r}")
     return found
 
 
@@ -86,7 +92,12 @@ def test_every_public_signature_speaks_the_vocabulary():
 
 def test_the_walk_reaches_every_kind_of_public_callable():
     names = {name for name, _ in public_callables()}
-    assert {"ddgjax.solve.linear_solve", "ddgjax.Mesh.from_arrays", "ddgjax.geodesics.heat_distance", "ddgjax.volume.cotan_laplacian"} <= names
+    assert {
+        "ddgjax.solve.linear_solve",
+        "ddgjax.Mesh.from_arrays",
+        "ddgjax.geodesics.heat_distance",
+        "ddgjax.volume.cotan_laplacian",
+    } <= names
 
 
 def _planted(seed: int = 0, *, throw: bool = False, mass: str = "barycentric", solver="auto", L=None):

@@ -204,16 +204,16 @@ def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead):
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
     # preconditioner="amg" builds the default hierarchy inside linear_solve (by factorize): the same
     # computation as amg_hierarchy(A).
-    built = factorize(A, method="cg", preconditioner="amg").hierarchy
+    built = factorize(A, solver="cg", preconditioner="amg").hierarchy
     assert built.sizes == hierarchy.sizes
     for ours, reference in zip(jax.tree.leaves(built), jax.tree.leaves(hierarchy)):
         np.testing.assert_allclose(ours, reference, rtol=1e-12, atol=0)
     # Pure-JAX CG with that V-cycle (under jit: one compiled program instead of op-by-op dispatch on
     # camelhead's levels), and pyamg's CG on the host.
-    solve = jax.jit(lambda A, b, hierarchy: linear_solve(A, b, rtol=1e-10, method="cg", preconditioner=hierarchy))
+    solve = jax.jit(lambda A, b, hierarchy: linear_solve(A, b, rtol=1e-10, solver="cg", preconditioner=hierarchy))
     # measured: 28 (the JAX V-cycle, evolution strength on camelhead's obtuse triangles) and 64 (the host
     # backend: pyamg's symmetric strength, 3-4x the iterations here for a 2-4x faster set-up)
-    for solution, most_steps in ((solve(A, b, built), 40), (linear_solve(A, b, rtol=1e-10, method="pyamg"), 90)):
+    for solution, most_steps in ((solve(A, b, built), 40), (linear_solve(A, b, rtol=1e-10, solver="pyamg"), 90)):
         assert solution.residual <= 1e-10 and 0 < int(solution.num_steps) <= most_steps
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
@@ -248,7 +248,7 @@ def test_bad_input(heat, refreshable):
     with pytest.raises(DDGInputError, match="pattern"):
         amg_refresh(refreshable, small)
     with pytest.raises(DDGInputError, match="preconditioner: 'amg' builds its hierarchy on the host"):
-        jax.jit(lambda A: linear_solve(A, jnp.ones(A.shape[0]), method="cg", preconditioner="amg").value)(A)
+        jax.jit(lambda A: linear_solve(A, jnp.ones(A.shape[0]), solver="cg", preconditioner="amg").value)(A)
     with pytest.raises(DDGInputError, match=r"preconditioner: an AMGHierarchy of shape \(642, 642\)"):
         linear_solve(small, jnp.ones(small.shape[0]), preconditioner=hierarchy)
 

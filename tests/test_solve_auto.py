@@ -19,13 +19,13 @@ B = jnp.asarray(np.random.default_rng(0).standard_normal(MESH.n_vertices))
 
 def test_auto_takes_cholmod_where_installed_else_superlu_then_pyamg_by_size(monkeypatch):
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(B))
-    assert linear_solve(A, B).method == ("cholesky" if _linear._has_sparsax() else "superlu")
+    assert linear_solve(A, B).solver == ("cholesky" if _linear._has_sparsax() else "superlu")
     monkeypatch.setattr(_linear, "_has_sparsax", lambda: False)  # the bare install
     small = linear_solve(A, B)
-    assert small.method == "superlu"
+    assert small.solver == "superlu"
     monkeypatch.setattr(_linear, "SUPERLU_LIMIT", MESH.n_vertices - 1)  # this system counts as large
     large = linear_solve(A, B)
-    assert large.method == "pyamg" and int(large.num_steps) > 0
+    assert large.solver == "pyamg" and int(large.num_steps) > 0
     for solution in (small, large):
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
@@ -37,18 +37,18 @@ def test_one_solve_above_the_iterative_limit_takes_pyamg_and_a_kept_factorisatio
     direct = "cholesky" if _linear._has_sparsax() else "superlu"
     monkeypatch.setattr(_linear, "ITERATIVE_LIMIT", MESH.n_vertices - 1)  # this system counts as large
     one = linear_solve(A, B, rtol=1e-12)
-    assert one.method == "pyamg" and int(one.num_steps) > 0
+    assert one.solver == "pyamg" and int(one.num_steps) > 0
     np.testing.assert_allclose(one.value, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
     kept = _linear.factorize(A)
-    assert kept.method == direct
-    assert _linear.auto_method(MESH.n_vertices, one_shot=True) == "pyamg"
-    assert _linear.auto_method(MESH.n_vertices - 1, one_shot=True) == direct
+    assert kept.solver == direct
+    assert _linear.auto_solver(MESH.n_vertices, one_shot=True) == "pyamg"
+    assert _linear.auto_solver(MESH.n_vertices - 1, one_shot=True) == direct
     # Rows of a volume (a 3-D neighbourhood graph, a tetrahedral mesh) fill in faster: iterative from fewer unknowns.
     monkeypatch.setattr(_linear, "ITERATIVE_LIMIT", 10**9)
     limit = _linear.VOLUME_ITERATIVE_LIMIT
-    assert _linear.auto_method(limit + 1, one_shot=True, entries_per_row=13.0) == "pyamg"
-    assert _linear.auto_method(limit + 1, one_shot=True, entries_per_row=7.0) == direct
-    assert _linear.auto_method(limit + 1, entries_per_row=13.0) == direct  # kept: factorised
+    assert _linear.auto_solver(limit + 1, one_shot=True, entries_per_row=13.0) == "pyamg"
+    assert _linear.auto_solver(limit + 1, one_shot=True, entries_per_row=7.0) == direct
+    assert _linear.auto_solver(limit + 1, entries_per_row=13.0) == direct  # kept: factorised
 
 
 def test_pyamg_strength_auto_is_symmetric_on_an_m_matrix_and_evolution_otherwise(monkeypatch):
@@ -74,7 +74,7 @@ def test_pyamg_strength_auto_is_symmetric_on_an_m_matrix_and_evolution_otherwise
 
 @pytest.mark.slow
 def test_auto_on_an_accelerator_is_cg_with_amg_outside_a_trace_and_jacobi_inside(monkeypatch):
-    assert linear_solve(A, B, preconditioner="amg").method == "cg"  # a preconditioner asks for CG anywhere
+    assert linear_solve(A, B, preconditioner="amg").solver == "cg"  # a preconditioner asks for CG anywhere
     monkeypatch.setattr(_linear.jax, "default_backend", lambda: "gpu")
     assert _linear._choose("auto", None, A, one_shot=True) == ("cg", "amg")  # concrete values: the hierarchy is built
     chosen = []
@@ -83,5 +83,5 @@ def test_auto_on_an_accelerator_is_cg_with_amg_outside_a_trace_and_jacobi_inside
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(B))
     for solve in (linear_solve, jax.jit(linear_solve)):
         solution = solve(A, B)
-        assert solution.method == "cg" and int(solution.num_steps) > 0
+        assert solution.solver == "cg" and int(solution.num_steps) > 0
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())

@@ -69,9 +69,9 @@ CASES = {
 @pytest.mark.parametrize("method", METHODS)
 def test_failures_are_results_and_raise_alike_eagerly_and_under_jit(method):
     # One compiled program per backend for every case (same shapes).
-    jitted = jax.jit(lambda A, b: linear_solve(A, b, method=method).value)
+    jitted = jax.jit(lambda A, b: linear_solve(A, b, solver=method).value)
     for name, (matrix, b, expected) in CASES.items():
-        solution = linear_solve(matrix, b, method=method, throw=False)
+        solution = linear_solve(matrix, b, solver=method, throw=False)
         if method not in expected:
             assert solution.result == RESULTS.successful, name
             reference = spla.spsolve(matrix.to_scipy().tocsc(), np.asarray(b))
@@ -84,14 +84,14 @@ def test_failures_are_results_and_raise_alike_eagerly_and_under_jit(method):
         # ddgjax's convention (docs/conventions.md): equinox's error eagerly, the XLA runtime's under a
         # plain jax.jit, with the same message; both are RuntimeErrors.
         with pytest.raises(eqx.EquinoxRuntimeError, match=message):
-            linear_solve(matrix, b, method=method)
+            linear_solve(matrix, b, solver=method)
         with pytest.raises(jax.errors.JaxRuntimeError, match=message):
             jax.block_until_ready(jitted(matrix, b))
     assert issubclass(eqx.EquinoxRuntimeError, RuntimeError) and issubclass(jax.errors.JaxRuntimeError, RuntimeError)
     # The process stays usable: a good system solves, eagerly and under the same jit.
     reference = spla.spsolve(A.to_scipy().tocsc(), np.asarray(B))
     good = _on_pattern(A.values)
-    for value in (linear_solve(good, B, method=method).value, jitted(good, B)):
+    for value in (linear_solve(good, B, solver=method).value, jitted(good, B)):
         np.testing.assert_allclose(value, reference, rtol=0, atol=1e-8 * np.abs(reference).max())
 
 
@@ -100,11 +100,11 @@ def test_a_failed_factorisation_is_kept_and_its_solves_are_nan(method):
     for matrix, expected in ((_with_nan(A), RESULTS.nonfinite), (-A, RESULTS.not_positive_definite)):
         if method != "cholesky" and expected == RESULTS.not_positive_definite:
             continue  # only CHOLMOD needs definiteness
-        factorization = factorize(matrix, method=method)
+        factorization = factorize(matrix, solver=method)
         assert factorization.result == expected
         solution = factorization.solve(B, throw=False)
         assert solution.result == expected and np.all(np.isnan(solution.value))
-    assert factorize(A, method=method).result == RESULTS.successful
+    assert factorize(A, solver=method).result == RESULTS.successful
 
 
 # CG and pyamg batch through plain JAX and `pure_callback`; CHOLMOD and SuperLU are the fast tier's, with one level.
@@ -122,7 +122,7 @@ def test_vmap_over_vertex_positions_with_a_shared_right_hand_side(method, nested
     def solve(V):
         moved = MESH.with_vertices(V)
         system = mass_matrix(moved) + 0.1 * cotan_laplacian(moved)
-        one, two = (linear_solve(system, b, method=method, throw=False) for b in (B, block))
+        one, two = (linear_solve(system, b, solver=method, throw=False) for b in (B, block))
         return one.value, two.value, one.result
 
     def batched(positions):
@@ -148,34 +148,34 @@ def test_vmap_over_vertex_positions_with_a_shared_right_hand_side(method, nested
 )
 def test_mixed_dtypes_are_promoted(method):
     reference = spla.spsolve(A.to_scipy().tocsc(), np.asarray(B.astype(jnp.float32), np.float64))
-    solution = linear_solve(A, B.astype(jnp.float32), method=method)
+    solution = linear_solve(A, B.astype(jnp.float32), solver=method)
     assert solution.value.dtype == jnp.float64 and solution.result == RESULTS.successful
     np.testing.assert_allclose(solution.value, reference, rtol=0, atol=1e-8 * np.abs(reference).max())
     complex_b = B.astype(jnp.complex64) * (1 + 2j)
-    assert linear_solve(A, complex_b, method=method).value.dtype == jnp.complex128
+    assert linear_solve(A, complex_b, solver=method).value.dtype == jnp.complex128
 
 
 def test_a_pattern_without_its_whole_diagonal_is_reported_or_refused():
     # The (1, 1) entry is not stored: CHOLMOD's stand-in factor cannot be the identity on the pattern's slots.
     gapped = from_scipy(sp.csr_matrix(np.array([[2.0, 1.0, 0.0], [1.0, 0.0, 1.0], [0.0, 1.0, 2.0]])))
-    assert linear_solve(gapped, jnp.ones(3), method="cholesky", throw=False).result == RESULTS.not_positive_definite
-    np.testing.assert_allclose(linear_solve(gapped, jnp.ones(3), method="superlu").value, [0.5, 0.0, 0.5], atol=1e-15)
+    assert linear_solve(gapped, jnp.ones(3), solver="cholesky", throw=False).result == RESULTS.not_positive_definite
+    np.testing.assert_allclose(linear_solve(gapped, jnp.ones(3), solver="superlu").value, [0.5, 0.0, 0.5], atol=1e-15)
     # Fewer stored entries than rows: an empty row, singular whatever the values.
     sparse = SparsityPattern(
         rows=jnp.array([0, 1]), cols=jnp.array([1, 0]), indptr=None, shape=(3, 3), layout="coo", symmetric=True
     )
     with pytest.raises(DDGInputError, match="A: stores 2 entries for 3 rows"):
-        linear_solve(SparseMatrix(jnp.ones(2), sparse, symmetric=True), jnp.ones(3), method="cholesky")
+        linear_solve(SparseMatrix(jnp.ones(2), sparse, symmetric=True), jnp.ones(3), solver="cholesky")
 
 
 def test_nonfinite_messages_speak_of_the_solve_not_of_flows():
     with pytest.raises(eqx.EquinoxRuntimeError, match="NaN or inf") as raised:
-        linear_solve(A, B.at[0].set(jnp.inf), method="superlu")
+        linear_solve(A, B.at[0].set(jnp.inf), solver="superlu")
     assert re.search(r"\bflows?\b", str(raised.value)) is None
 
 
 def test_amg_on_nan_values_reports_instead_of_raising_from_pyamg():
-    solution = linear_solve(_with_nan(A), B, method="cg", preconditioner="amg", throw=False)
+    solution = linear_solve(_with_nan(A), B, solver="cg", preconditioner="amg", throw=False)
     assert solution.result == RESULTS.nonfinite
     with pytest.raises(DDGInputError, match="A: expected finite values"):
         amg_hierarchy(_with_nan(A))
@@ -183,7 +183,7 @@ def test_amg_on_nan_values_reports_instead_of_raising_from_pyamg():
 
 def test_lineax_gets_singular_for_a_matrix_cholmod_cannot_factor():
     operator = lx.FunctionLinearOperator(lambda v: -(A @ v), jax.ShapeDtypeStruct(B.shape, B.dtype))
-    solution = lx.linear_solve(operator, B, SparseCholesky(A.pattern, method="cholesky"), throw=False)
+    solution = lx.linear_solve(operator, B, SparseCholesky(A.pattern, solver="cholesky"), throw=False)
     assert solution.result == lx.RESULTS.singular
 
 
@@ -191,11 +191,11 @@ def test_a_float32_system_warns_once():
     single = SparseMatrix(A.values.astype(jnp.float32), A.pattern, symmetric=True, positive_semidefinite=True)
     _linear._warn_low_precision.cache_clear()  # once per process: this test starts the count again
     with pytest.warns(PrecisionWarning, match="jax_enable_x64"):
-        linear_solve(single, B.astype(jnp.float32), method="superlu", residual_tolerance=1e-5)
+        linear_solve(single, B.astype(jnp.float32), solver="superlu", residual_tolerance=1e-5)
     with warnings.catch_warnings():
         warnings.simplefilter("error", PrecisionWarning)
-        linear_solve(single, B.astype(jnp.float32), method="cg", rtol=1e-6, residual_tolerance=1e-5)
-        linear_solve(A, B, method="superlu")
+        linear_solve(single, B.astype(jnp.float32), solver="cg", rtol=1e-6, residual_tolerance=1e-5)
+        linear_solve(A, B, solver="superlu")
 
 
 @pytest.mark.slow

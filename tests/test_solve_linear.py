@@ -31,8 +31,8 @@ def _options(backend: str, A: SparseMatrix) -> dict:
     """`linear_solve` keywords of a backend; the AMG hierarchy is built here, outside any trace."""
     if backend == "cg-amg":
         system = _real_form(A) if jnp.iscomplexobj(A.values) else A
-        return {"method": "cg", "preconditioner": amg_hierarchy(system, max_coarse=30)}
-    return {"method": backend}
+        return {"solver": "cg", "preconditioner": amg_hierarchy(system, max_coarse=30)}
+    return {"solver": backend}
 
 
 SPHERE = icosphere(2)
@@ -62,7 +62,7 @@ def _rhs(n, seed=0, k=None):
 @pytest.mark.parametrize("method", METHODS + ("auto",))
 def test_solves_match_scipy_spsolve(method):
     for A in (_heat_operator(SPHERE), _dirichlet_block(DISK)[0]):
-        options = {"method": "auto"} if method == "auto" else _options(method, A)
+        options = {"solver": "auto"} if method == "auto" else _options(method, A)
         reference = A.to_scipy().tocsc()
         b = _rhs(A.shape[0])
         solution = _solve(A, b, options)
@@ -204,12 +204,12 @@ def test_gradient_in_the_vertex_positions_matches_finite_differences():
 def test_cg_that_does_not_converge_is_reported():
     A = _heat_operator(SPHERE, t=1.0)
     b = _rhs(A.shape[0])
-    solution = linear_solve(A, b, method="cg", max_steps=2, throw=False)
+    solution = linear_solve(A, b, solver="cg", max_steps=2, throw=False)
     assert solution.result == RESULTS.max_steps_reached and int(solution.num_steps) == 2
     with pytest.raises(eqx.EquinoxRuntimeError, match="max_steps"):
-        linear_solve(A, b, method="cg", max_steps=2)
+        linear_solve(A, b, solver="cg", max_steps=2)
     with pytest.raises(Exception, match="max_steps"):  # under jit: raised by the XLA runtime, same message
-        jax.jit(lambda b: linear_solve(A, b, method="cg", max_steps=2).value)(b)
+        jax.jit(lambda b: linear_solve(A, b, solver="cg", max_steps=2).value)(b)
 
 
 @pytest.mark.parametrize("method", ("cholesky", "superlu", "cg"))
@@ -219,11 +219,11 @@ def test_eager_solves_reuse_their_compiled_programs(method):
     on the same pattern compile nothing."""
     A = _heat_operator(SPHERE, t=1.0)
     b = _rhs(A.shape[0])
-    linear_solve(A, b, method=method)
+    linear_solve(A, b, solver=method)
     programs = (_linear._solve._cache_size(), _linear._factor._cache_size())
-    again = linear_solve(2.0 * A, 2.0 * b, method=method)
+    again = linear_solve(2.0 * A, 2.0 * b, solver=method)
     assert (_linear._solve._cache_size(), _linear._factor._cache_size()) == programs
-    np.testing.assert_allclose(again.value, linear_solve(A, b, method=method).value, rtol=1e-8)  # CG's rtol 1e-10
+    np.testing.assert_allclose(again.value, linear_solve(A, b, solver=method).value, rtol=1e-8)  # CG's rtol 1e-10
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -250,10 +250,10 @@ def test_bad_input(without_type_checker):
         (lambda: linear_solve(SparseMatrix(A.values, A.pattern), b), "A: expected a symmetric matrix"),
         (lambda: linear_solve(A, b[:-1]), r"b: expected shape \(162,\) or \(162, k\), got \(161,\)"),
         (lambda: jax.jit(lambda b: linear_solve(A, b).value)(b[:-1]), r"b: expected shape \(162,\)"),
-        (lambda: linear_solve(A, b, method="lu"), "method: expected one of 'auto', 'cholesky', 'superlu', 'cg', 'pyamg'"),
-        (lambda: linear_solve(A, b, method="cg", max_steps=0), "max_steps: expected an integer >= 1"),
-        (lambda: linear_solve(A, b, method="cg", preconditioner="ilu"), "preconditioner: expected one of 'jacobi', 'amg'"),
-        (lambda: linear_solve(A, b, method="superlu", preconditioner="amg"), "preconditioner: only method='cg'"),
+        (lambda: linear_solve(A, b, solver="lu"), "solver: expected one of 'auto', 'cholesky', 'superlu', 'cg', 'pyamg'"),
+        (lambda: linear_solve(A, b, solver="cg", max_steps=0), "max_steps: expected an integer >= 1"),
+        (lambda: linear_solve(A, b, solver="cg", preconditioner="ilu"), "preconditioner: expected one of 'jacobi', 'amg'"),
+        (lambda: linear_solve(A, b, solver="superlu", preconditioner="amg"), "preconditioner: only solver='cg'"),
     ]
     for call, message in cases:
         with pytest.raises(DDGInputError, match=message):
@@ -370,17 +370,17 @@ def test_kept_factorisations_are_analysed_apart_and_answer_as_one_shot_solves(mo
     sparsax = pytest.importorskip("sparsax")
     modes = []
     monkeypatch.setattr(_linear, "_supernodal_setter", lambda: modes.append)
-    anchor = factorize(_heat_operator(DISK), method="cholesky")  # alive: ddgjax empties no sparsax cache meanwhile
+    anchor = factorize(_heat_operator(DISK), solver="cholesky")  # alive: ddgjax empties no sparsax cache meanwhile
     random = sp.random(300, 300, density=0.02, random_state=np.random.default_rng(7))
     A = from_scipy((random + random.T + 20.0 * sp.identity(300)).tocsr())  # a pattern no other test analyses
     b = _rhs(A.shape[0])
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
     del modes[:]
     before = sparsax.cache_size()
-    one_shot = linear_solve(A, b, method="cholesky").value
+    one_shot = linear_solve(A, b, solver="cholesky").value
     assert set(modes) == {1} and modes  # "auto" throughout, the default mode restored
     del modes[:]
-    kept = factorize(A, method="cholesky")
+    kept = factorize(A, solver="cholesky")
     assert modes == [0, 1]  # simplicial for the host check (which analyses), then restored
     assert sparsax.cache_size() == before + 2  # two analyses of one matrix: the kept one has a pattern of its own
     assert anchor.result == RESULTS.successful
@@ -388,9 +388,9 @@ def test_kept_factorisations_are_analysed_apart_and_answer_as_one_shot_solves(mo
     np.testing.assert_allclose(kept.solve(b).value, expected, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(kept.solve(jnp.stack([b, 2 * b], axis=1)).value[:, 1], 2 * expected, rtol=1e-12)
     with _linear.cholmod_analysis("simplicial"):
-        linear_solve(A, b, method="cholesky")
+        linear_solve(A, b, solver="cholesky")
         assert modes[-1] == 0  # linear_solve's "auto" block restored the enclosing "simplicial"
-        traced = jax.jit(lambda A, b: factorize(A, method="cholesky").solve(b).value)(A, b)  # analysed apart, traced
+        traced = jax.jit(lambda A, b: factorize(A, solver="cholesky").solve(b).value)(A, b)  # analysed apart, traced
     assert modes[-1] == 1
     np.testing.assert_allclose(traced, expected, rtol=1e-12, atol=1e-14)
     with pytest.raises(DDGInputError, match="mode"), _linear.cholmod_analysis("supernodal"):

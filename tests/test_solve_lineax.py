@@ -64,7 +64,7 @@ def test_lineax_solves_and_differentiates_with_it():
 def test_newton_on_a_quadratic_energy_is_the_direct_solve(method):
     """Screened Poisson: the minimiser of 1/2 phi^T (L + sM) phi - phi^T M rho solves (L + sM) phi = M rho."""
     screening = 2.0
-    newton = optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=SparseCholesky(L.pattern, method=method))
+    newton = optx.Newton(rtol=1e-12, atol=1e-12, linear_solver=SparseCholesky(L.pattern, solver=method))
 
     def minimiser(rho):
         gradient_of_energy = jax.grad(lambda phi, _: screened_dirichlet_energy(MESH, phi, screening) - jnp.vdot(phi, M @ rho))
@@ -103,8 +103,8 @@ def test_newton_iterates_on_a_non_quadratic_energy():
 def test_bad_input(without_type_checker):
     with pytest.raises(DDGInputError, match="pattern: expected a ddgjax SparsityPattern"):
         SparseCholesky(L)
-    with pytest.raises(DDGInputError, match="method: expected one of"):
-        SparseCholesky(L.pattern, method="lu")
+    with pytest.raises(DDGInputError, match="solver: expected one of"):
+        SparseCholesky(L.pattern, solver="lu")
     operator = lx.FunctionLinearOperator(lambda v: v, jax.ShapeDtypeStruct((5,), RHO.dtype))
     with pytest.raises(DDGInputError, match=r"operator: SparseCholesky expects an operator on \(642,\) vectors"):
         lx.linear_solve(operator, jnp.ones(5), SparseCholesky(L.pattern))

@@ -50,8 +50,8 @@ def test_mass_matrices_equal_libigl(tet_mesh, mass, igl_type):
 
 def test_cotan_weights_and_dihedral_angles_against_libigl(tet_mesh):
     V, T = host(tet_mesh)
-    theta, _ = igl.dihedral_angles(V, T)
-    assert np.abs(np.asarray(volume.dihedral_angles(tet_mesh)) - theta).max() < 1e-9  # libigl's arccos route
+    theta, _ = igl.tet_dihedral_angles(V, T)
+    assert np.abs(np.asarray(volume.tet_dihedral_angles(tet_mesh)) - theta).max() < 1e-9  # libigl's arccos route
     # libigl's cotmatrix_entries gives l_k cot(theta_k) / 6 per edge k: the weight of the opposite edge.
     entries = igl.cotmatrix_entries(V, T)
     weights = np.asarray(volume.tet_cotan_weights(tet_mesh))
@@ -100,7 +100,7 @@ def test_cotan_weights_exact_on_a_sliver():
 
 def test_regular_tet_dihedral_angles_and_volume_from_lengths():
     lengths_sq = jnp.ones((1, 6))
-    np.testing.assert_allclose(volume.dihedral_angles_from_lengths_sq(lengths_sq), np.arccos(1 / 3), rtol=1e-14)
+    np.testing.assert_allclose(volume.tet_dihedral_angles_from_lengths_sq(lengths_sq), np.arccos(1 / 3), rtol=1e-14)
     assert float(volume.tet_volumes_from_lengths_sq(lengths_sq)[0]) == pytest.approx(1 / (6 * np.sqrt(2)), rel=1e-14)
     # Each weight l cot(arccos(1/3)) / 6 = 1 / (6 sqrt(8)).
     np.testing.assert_allclose(volume.tet_cotan_weights_from_lengths_sq(lengths_sq), 1 / (6 * np.sqrt(8)), rtol=1e-14)
@@ -153,7 +153,7 @@ def test_flat_tets_keep_values_and_gradients_finite():
         moved = tet_mesh.with_vertices(V)
         return (
             volume.dirichlet_energy(moved, u)
-            + jnp.sum(volume.dihedral_angles(moved))
+            + jnp.sum(volume.tet_dihedral_angles(moved))
             + jnp.sum(volume.mass_matrix(moved, mass="galerkin").values)
             + jnp.sum(volume.tet_hat_gradients(moved) ** 2)
         )

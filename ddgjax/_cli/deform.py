@@ -147,7 +147,7 @@ def _deform(method: str, mesh: Mesh, vertices: np.ndarray, values: np.ndarray, a
         solution = arap(mesh, fixed_vertices=vertices, fixed_values=values, max_steps=args.steps, throw=False)
         label, measure = "arap", f"energy {float(solution.stats['energy']):.6g}"
     else:
-        solution = biharmonic_deformation(mesh, fixed_vertices=vertices, fixed_values=values, k=args.k, throw=False)
+        solution = biharmonic_deformation(mesh, fixed_vertices=vertices, fixed_values=values, order=args.k, throw=False)
         label, measure = f"{_ORDER_NAMES[args.k]} k={args.k}", f"residual {float(solution.stats['residual']):.3g}"
     positions = np.asarray(jax.block_until_ready(solution.value))
     elapsed = time.perf_counter() - start

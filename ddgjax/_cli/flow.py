@@ -123,7 +123,7 @@ def _initial_curve(args):
         "figure3": figure3_polygon,
         "flower": lambda: flower(args.vertices),
         "star": lambda: star(subdivisions=max(1, round(args.vertices / 10))),
-        "random": lambda: random_polygon(args.vertices, seed=args.seed),
+        "random": lambda: random_polygon(args.vertices, key=args.seed),
         "regular": lambda: regular_polygon(args.vertices),
     }
     if args.shape in builders:

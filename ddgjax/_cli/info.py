@@ -36,8 +36,8 @@ from ..volume import (
     TetMesh,
     TetMeshReport,
     check_tet_mesh,
-    dihedral_angles,
     load_tet_mesh,
+    tet_dihedral_angles,
     tet_signed_volumes,
 )
 from ._common import is_tet_file, write_figure
@@ -188,7 +188,7 @@ def format_info(name: str, report: MeshReport, stats: dict) -> str:
 @kernel
 def _tet_statistics(tet_mesh: TetMesh, boundary: Mesh | None) -> dict:
     """The numbers of the tet report, in one compiled call (`boundary`: the boundary surface, `None` when there is none)."""
-    stats = {"volumes": tet_signed_volumes(tet_mesh), "dihedral": dihedral_angles(tet_mesh)}
+    stats = {"volumes": tet_signed_volumes(tet_mesh), "dihedral": tet_dihedral_angles(tet_mesh)}
     if boundary is not None:
         stats["area"] = total_area(boundary)
         stats["enclosed"] = enclosed_volume(boundary)

@@ -40,7 +40,7 @@ from .._options import BOUNDARY_CONDITIONS, MASS_MATRICES
 from .._results import RESULTS, Solution
 from ..mesh import Mesh, disk, icosphere
 from ..pde import solve_poisson
-from ..solve.internal import auto_method
+from ..solve.internal import auto_solver
 from ..volume import TetMesh, tet_ball
 from ._common import SURFACE_SUFFIXES, load_cli_mesh, write_figure
 
@@ -343,7 +343,7 @@ def _unknowns(problem: Problem) -> int:
 
 def _solver_name(solver: str, n: int) -> str:
     """The backend `linear_solve` runs for `--solver`, in words (`"auto"` resolved as it resolves it)."""
-    return SOLVERS[auto_method(n) if solver == "auto" else solver]
+    return SOLVERS[auto_solver(n) if solver == "auto" else solver]
 
 
 def format_table(problem: Problem, outputs: dict, first: float, second: float, args) -> str:

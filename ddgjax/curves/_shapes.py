@@ -117,18 +117,18 @@ def star(tips: int = 5, *, inner_radius: float = 0.5, outer_radius: float = 1.0,
     return _closed(points.reshape(-1, 2), dtype)
 
 
-def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4, dtype=None) -> Curve:
+def random_polygon(n: int, *, key: int = 0, amplitude: float = 0.4, modes: int = 6, jitter: float = 0.4, dtype=None) -> Curve:
     """Random simple, generally non-convex polygon: a random radial function sampled at jittered angles.
 
     `r(phi) = 1 + sum_{m=2}^{modes} (a_m cos(m phi) + b_m sin(m phi))` with Gaussian `a_m, b_m`
     decaying like `1/m`, rescaled so that `max |r - 1| = amplitude`; the angles are the uniform
     grid `2 pi k / n` shifted by up to `jitter` of a grid step, so the spacing is uneven too.
     Star-shaped about the origin with positive radii and angle gaps below pi, hence simple and
-    counterclockwise. Deterministic for a given `seed` (NumPy `default_rng`).
+    counterclockwise. Deterministic for a given `key` (an integer seed of NumPy's `default_rng`: the polygon is made on the host).
 
     Args:
         n: number of vertices, at least 3.
-        seed: random seed.
+        key: the integer seed (the vocabulary's `key=`; NumPy's `default_rng`).
         amplitude: largest relative radial perturbation, in `[0, 1)`.
         modes: highest Fourier mode of the perturbation, at least 2.
         jitter: largest angular shift of a vertex as a fraction of the grid step, in `[0, 0.5)`.
@@ -143,7 +143,7 @@ def random_polygon(n: int, *, seed: int = 0, amplitude: float = 0.4, modes: int 
         raise DDGInputError(f"amplitude: expected a number in [0, 1) so the radii stay positive, got {amplitude!r}")
     if not 0 <= jitter < 0.5:
         raise DDGInputError(f"jitter: expected a number in [0, 0.5) so the angles stay sorted, got {jitter!r}")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(key)
     angles = 2 * np.pi * (np.arange(n) + jitter * rng.uniform(-1, 1, n)) / n
     m = np.arange(2, modes + 1)
     a, b = rng.standard_normal((2, m.size)) / m

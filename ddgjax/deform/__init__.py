@@ -1,6 +1,6 @@
 """Surface deformation from handles, differentiable in the handles' positions and in the rest shape.
 
-- `biharmonic_deformation(mesh, *, fixed_vertices, fixed_values, k=2)`: k-harmonic deformation, the
+- `biharmonic_deformation(mesh, *, fixed_vertices, fixed_values, order=2)`: k-harmonic deformation, the
   displacement minimising `D^T L (M^{-1} L)^{k-1} D` with the handles' displacements prescribed
   (`k = 1` harmonic, `2` biharmonic, `3` triharmonic; Jacobson et al. 2010, Botsch & Sorkine 2008);
   one sparse solve, differentiated implicitly. libigl: `V + igl.harmonic(V, F, b, bc - V[b], k)`.

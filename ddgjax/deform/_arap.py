@@ -138,7 +138,7 @@ def arap(
         raise DDGInputError(f"initial: expected shape ({mesh.n_vertices}, 3), got {initial.shape}")
     # Kept for every global step: simplicial up to `SIMPLICIAL_LIMIT` unknowns, the faster solves.
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):
-        factorization = factorize(_free_block(mesh, plan, dirichlet.plan, dirichlet.values), method=solver)
+        factorization = factorize(_free_block(mesh, plan, dirichlet.plan, dirichlet.values), solver=solver)
     positions, result, stats = _arap(
         mesh,
         plan,

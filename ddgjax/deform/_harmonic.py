@@ -41,7 +41,7 @@ def biharmonic_deformation(
     *,
     fixed_vertices: Int[ArrayLike, " n_fixed"],
     fixed_values: Float[ArrayLike, "n_fixed 3"],
-    k: int = 2,
+    order: int = 2,
     mass: str = "voronoi",
     solver: str = "auto",
     throw: bool = True,
@@ -63,7 +63,7 @@ def biharmonic_deformation(
             by no face stay where they are).
         fixed_vertices: `(n_fixed,)` distinct vertex indices, the handles (concrete, host data).
         fixed_values: `(n_fixed, 3)` their new positions.
-        k: the order, an integer `>= 1` (static).
+        order: the order `k`, an integer `>= 1` (static; the vocabulary's `order=`, libigl's `k`).
         mass: the lumped mass matrix `M`, one of `ddgjax.LUMPED_MASS_MATRICES`: `"voronoi"` (default,
             libigl's) or `"barycentric"`; unused for `k = 1`.
         solver: the backend of the linear solve, one of `ddgjax.LINEAR_SOLVERS`.
@@ -83,7 +83,7 @@ def biharmonic_deformation(
     the positions' version smooths the surface's detail away.
     """
     mesh = require_mesh("mesh", mesh)
-    k = _check_order(k)
+    k = _check_order(order)
     check_mass(mass, LUMPED_MASS_MATRICES)
     check_solver(solver)
     vertices, values = _check_handles(mesh, fixed_vertices, fixed_values)
@@ -107,7 +107,7 @@ def biharmonic_deformation(
     free_free, rhs, held = _system(
         mesh, vertex_plan(mesh), operator, dirichlet.values.astype(dtype), dirichlet.plan, n_pinned=dirichlet.n_pinned, mass=mass
     )
-    solution = linear_solve(free_free, rhs, method=solver, throw=False)
+    solution = linear_solve(free_free, rhs, solver=solver, throw=False)
     value, result, stats = _deformed(mesh, solution.value, held, dirichlet.plan), solution.result, solution.stats
     return outcome(value, result, throw, stats)
 
@@ -236,7 +236,7 @@ def _deformed(
 
 def _check_order(k) -> int:
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
-        raise DDGInputError(f"k: expected an integer >= 1 (1 harmonic, 2 biharmonic, 3 triharmonic), got {k!r}")
+        raise DDGInputError(f"order: expected an integer >= 1 (1 harmonic, 2 biharmonic, 3 triharmonic), got {k!r}")
     return int(k)
 
 

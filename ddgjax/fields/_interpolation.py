@@ -137,6 +137,6 @@ def _interpolate(
         real[0].values + 1j * imaginary[0].values, plan.free_free, hermitian=True, positive_semidefinite=True
     )
     free_fixed = SparseMatrix(real[1].values + 1j * imaginary[1].values, plan.free_fixed)
-    solve = linear_solve(free_free, -(free_fixed @ values), method=solver, throw=False)
+    solve = linear_solve(free_free, -(free_fixed @ values), solver=solver, throw=False)
     u = jax.lax.complex(plan.join(solve.value.real, values.real), plan.join(solve.value.imag, values.imag))
     return u, solve.result, solve.stats

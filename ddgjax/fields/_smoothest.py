@@ -148,7 +148,7 @@ def smoothest_field(
     else:
         q = _complex_field("alignment", alignment, mesh.n_vertices)
         s = check_positive("alignment_weight", alignment_weight)
-        solve = linear_solve(A + s * M, s * (M @ q), method=solver, throw=False)
+        solve = linear_solve(A + s * M, s * (M @ q), solver=solver, throw=False)
         field = _solved_field(A, M, solve.value)
         result, stats = solve.result, solve.stats
     return outcome(field, result, throw, stats)

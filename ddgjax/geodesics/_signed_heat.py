@@ -280,7 +280,7 @@ def _heat_factor(mesh: Mesh, L, M, edge_slots, field: FieldPlan, vertex: Triangu
     across processes (`ddgjax._program_store`); under a transformation everything is traced inline.
     """
     t, heat_matrix, area_gradients = _heat_system(mesh, L, M, edge_slots, field, vertex, t_coef)
-    return t, factorize(heat_matrix, method=solver), area_gradients
+    return t, factorize(heat_matrix, solver=solver), area_gradients
 
 
 def _signed_heat(mesh: Mesh, factors: _Factors, segments, weights, held, components, solver: str):
@@ -288,7 +288,7 @@ def _signed_heat(mesh: Mesh, factors: _Factors, segments, weights, held, compone
     programs, as in `_heat_factor`."""
     heat, rhs, constrained = _poisson_system(mesh, factors, segments, weights, held)
     with cholmod_analysis("auto"):  # factored for one solve: CHOLMOD's choice, the faster factorisation
-        poisson = factorize(constrained, method=solver).solve(rhs, throw=False)
+        poisson = factorize(constrained, solver=solver).solve(rhs, throw=False)
     return _level_shift(mesh, heat, poisson, segments, weights, components)
 
 

@@ -309,7 +309,7 @@ def geodesic_centroid(
     mesh: Mesh,
     sources,
     *,
-    weights=None,
+    source_weights=None,
     max_steps: int = 64,
     t_coef: float = 1.0,
     mass: str = "voronoi",
@@ -326,13 +326,13 @@ def geodesic_centroid(
     at `c` are `m`, in one of `c`'s faces. It starts at the heaviest source. Converges when the sources
     lie well inside a convex geodesic ball (the Karcher mean is unique there); on the unit sphere two
     points give the midpoint of their great-circle arc (tests). The position and barycentric
-    coordinates are differentiable in the vertex positions and `weights` for a fixed final vertex and
+    coordinates are differentiable in the vertex positions and `source_weights` for a fixed final vertex and
     face; runs as one `lax.while_loop` (jit-able).
 
     Args:
         mesh: the mesh (as `vector_heat_solver`).
         sources: `(m,)` vertex indices (or one).
-        weights: `(m,)` non-negative weights, not all 0 (default: equal).
+        source_weights: `(m,)` non-negative weights of the sources, not all 0 (default: equal).
         max_steps: the most moves of the walk (`RESULTS.max_steps_reached` beyond; default 64).
         t_coef, mass, robust, solver: as `vector_heat_solver`.
         throw: raise when a solve fails or the walk does not settle (default), or return a
@@ -347,18 +347,20 @@ def geodesic_centroid(
     mesh = require_mesh("mesh", mesh)
     points = _source_vertices(mesh, sources)
     m = points.shape[0]
-    if weights is None:
-        weights = jnp.ones(m, mesh.vertices.dtype)
+    if source_weights is None:
+        source_weights = jnp.ones(m, mesh.vertices.dtype)
     else:
-        weights = jnp.asarray(weights, mesh.vertices.dtype)
-        if weights.shape != (m,):
-            raise DDGInputError(f"weights: expected shape ({m},), one per source, got {weights.shape}")
-        if not isinstance(weights, jax.core.Tracer) and (np.any(np.asarray(weights) < 0) or not np.any(np.asarray(weights) > 0)):
-            raise DDGInputError("weights: expected non-negative weights, not all 0")
+        source_weights = jnp.asarray(source_weights, mesh.vertices.dtype)
+        if source_weights.shape != (m,):
+            raise DDGInputError(f"source_weights: expected shape ({m},), one per source, got {source_weights.shape}")
+        if not isinstance(source_weights, jax.core.Tracer) and (
+            np.any(np.asarray(source_weights) < 0) or not np.any(np.asarray(source_weights) > 0)
+        ):
+            raise DDGInputError("source_weights: expected non-negative weights, not all 0")
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
         raise DDGInputError(f"max_steps: expected a positive integer, got {max_steps!r}")
     vector_solver = vector_heat_solver(mesh, t_coef=t_coef, mass=mass, robust=robust, solver=solver)
-    value, result, stats = _centroid(mesh, vector_solver.kept, points, weights, max_steps=int(max_steps))
+    value, result, stats = _centroid(mesh, vector_solver.kept, points, source_weights, max_steps=int(max_steps))
     return outcome(value, result, throw, stats)
 
 

@@ -12,7 +12,7 @@ non-negative floats (default ones), the JAX values that `jit`, `grad` and `vmap`
 - `harmonic_interpolation(edges, *, fixed_vertices, fixed_values, ...)`: label propagation (Zhu,
   Ghahramani & Lafferty 2003); `tikhonov_smoothing(edges, signal, *, alpha, ...)`: `(I + alpha L) f = y`.
 - `spectral_layout(edges, *, n_vertices, dim=2)` (Koren 2005: `L x = lambda D x`) and
-  `tutte_layout(edges, *, boundary_vertices, ...)` (Tutte's barycentric embedding).
+  `tutte_layout(edges, *, fixed_vertices, ...)` (Tutte's barycentric embedding).
 - `from_networkx(G, *, weight="weight")`, `to_networkx(edges, *, edge_weights, n_vertices)` (networkx
   imported only there; it is not a dependency).
 

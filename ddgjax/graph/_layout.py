@@ -87,8 +87,8 @@ def spectral_layout(
 def tutte_layout(
     edges: Int[ArrayLike, "ne 2"],
     *,
-    boundary_vertices: Int[ArrayLike, " nb"],
-    boundary_positions: Float[ArrayLike, "nb 2"] | None = None,
+    fixed_vertices: Int[ArrayLike, " nb"],
+    fixed_values: Float[ArrayLike, "nb 2"] | None = None,
     edge_weights: Float[ArrayLike, " ne"] | None = None,
     n_vertices: int,
     solver: str = "auto",
@@ -96,17 +96,17 @@ def tutte_layout(
 ) -> Float[Array, "n 2"] | Solution:
     """Tutte's barycentric embedding: the boundary cycle on a convex polygon, every other vertex the mean of its neighbours.
 
-    `x = b` on `boundary_vertices` and `sum_j w_ij (x_i - x_j) = 0` elsewhere (`harmonic_interpolation` with
-    two columns): for a 3-connected planar graph with `boundary_vertices` a face cycle, positive edge weights and
-    `boundary_positions` a convex polygon in the cycle's order, no two edges cross (Tutte 1963,
+    `x = b` on `fixed_vertices` and `sum_j w_ij (x_i - x_j) = 0` elsewhere (`harmonic_interpolation` with
+    two columns): for a 3-connected planar graph with `fixed_vertices` a face cycle, positive edge weights and
+    `fixed_values` a convex polygon in the cycle's order, no two edges cross (Tutte 1963,
     Floater 1997). A component without a boundary vertex is placed at the origin. Differentiable in
-    `edge_weights` and `boundary_positions`.
+    `edge_weights` and `fixed_values`.
 
     Args:
         edges: `(ne, 2)` undirected edges (host data).
-        boundary_vertices: `(nb,)` distinct vertices in cycle order, `nb >= 3`, each joined by an edge to the
+        fixed_vertices: `(nb,)` distinct vertices in cycle order, `nb >= 3`, each joined by an edge to the
             next (and the last to the first).
-        boundary_positions: `(nb, 2)` their positions (a convex polygon, in the same order); default
+        fixed_values: `(nb, 2)` their positions (a convex polygon, in the same order); default
             the unit circle at equal angles, `(cos 2 pi k / nb, sin 2 pi k / nb)`, counterclockwise.
         edge_weights: `(ne,)` positive edge weights (default ones: Tutte's barycentric weights).
         n_vertices: the number of vertices.
@@ -122,7 +122,7 @@ def tutte_layout(
     """
     structure = graph_structure(edges, n_vertices)
     n = structure.n_vertices
-    boundary = check_vertex_indices("boundary_vertices", boundary_vertices, n, minimum=3)  # a simple cycle
+    boundary = check_vertex_indices("fixed_vertices", fixed_vertices, n, minimum=3)  # a simple cycle
     pair_keys = structure.pairs[:, 0] * n + structure.pairs[:, 1]
     following = np.roll(boundary, -1)
     keys = np.minimum(boundary, following).astype(np.int64) * n + np.maximum(boundary, following)
@@ -130,19 +130,19 @@ def tutte_layout(
     missing = (found >= pair_keys.size) | (pair_keys[np.minimum(found, max(pair_keys.size - 1, 0))] != keys)
     if missing.any():
         raise DDGInputError(
-            f"boundary_vertices: consecutive boundary vertices must be joined by an edge (a cycle of the graph, in order); "
+            f"fixed_vertices: consecutive boundary vertices must be joined by an edge (a cycle of the graph, in order); "
             f"no edge from boundary positions {first_indices(missing)} to the next"
         )
-    if boundary_positions is None:
+    if fixed_values is None:
         angles = 2 * np.pi * np.arange(boundary.size) / boundary.size
         dtype = check_weights(edge_weights, structure.n_edges).dtype
-        boundary_positions = jnp.asarray(np.stack([np.cos(angles), np.sin(angles)], axis=1), dtype)
-    elif np.shape(boundary_positions) != (boundary.size, 2):
-        raise DDGInputError(f"boundary_positions: expected shape ({boundary.size}, 2), got {np.shape(boundary_positions)}")
+        fixed_values = jnp.asarray(np.stack([np.cos(angles), np.sin(angles)], axis=1), dtype)
+    elif np.shape(fixed_values) != (boundary.size, 2):
+        raise DDGInputError(f"fixed_values: expected shape ({boundary.size}, 2), got {np.shape(fixed_values)}")
     return harmonic_interpolation(
         edges,
         fixed_vertices=boundary,
-        fixed_values=boundary_positions,
+        fixed_values=fixed_values,
         edge_weights=edge_weights,
         n_vertices=n_vertices,
         solver=solver,

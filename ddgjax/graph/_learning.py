@@ -102,7 +102,7 @@ def _harmonic(edge_weights, values, graph: GraphPlan, plan: DirichletPlan, *, n_
     all traced into the caller's program.
     """
     free_free, rhs, fixed_values = _harmonic_system(edge_weights, values, graph, plan, n_pinned=n_pinned)
-    solution = linear_solve(free_free, rhs, method=solver, throw=False)
+    solution = linear_solve(free_free, rhs, solver=solver, throw=False)
     return _joined(plan, solution.value, fixed_values), solution.result, solution.stats
 
 
@@ -179,7 +179,7 @@ def _tikhonov(edge_weights, signal, alpha, graph: GraphPlan, *, solver: str):
     `linear_solve` on it (eagerly its own programs, so each can be kept across processes; traced inline
     under a transformation, as `_harmonic`)."""
     system, rhs = _tikhonov_system(edge_weights, signal, alpha, graph, checked=not is_traced(alpha))
-    solution = linear_solve(system, rhs, method=solver, throw=False)
+    solution = linear_solve(system, rhs, solver=solver, throw=False)
     return solution.value, solution.result, solution.stats
 
 

@@ -233,10 +233,10 @@ def diffusion_operators_of_meshes(
     mass: str = "voronoi",
     robust: bool = True,
     cache_dir: str | os.PathLike | None = None,
-    progress: bool = True,
+    progress: bool = False,
     throw: bool = True,
 ) -> list[DiffusionOperators | Solution]:
-    """`diffusion_operators` of every mesh of a dataset, with a `tqdm` progress bar (`progress=False` silences it).
+    """`diffusion_operators` of every mesh of a dataset, with a `tqdm` progress bar if `progress=True`.
 
     A folder of files: `diffusion_operators_of_meshes(map(ddgjax.io.load_mesh, sorted(folder.glob("*.obj"))), k,
     cache_dir=folder / "operators")`. A host loop; batch the results with `stack_diffusion_operators`.

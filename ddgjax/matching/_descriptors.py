@@ -27,11 +27,11 @@ def descriptors(
     kind: str = "wks",
     n_descriptors: int = 100,
     landmarks: Int[ArrayLike, " p"] | None = None,
-    n_eigenpairs: int | None = None,
+    k: int | None = None,
 ) -> Float[Array, "nv d"]:
     """Multiscale WKS or HKS descriptors of a shape, each column of unit M-norm, `(nv, d)`.
 
-    With `Phi, lambda` the first `n_eigenpairs` eigenpairs (all of the shape's by default) and `s` the
+    With `Phi, lambda` the first `k` eigenpairs (all of the shape's by default) and `s` the
     `n_descriptors` scales, column `s` is `f_s(x) = sum_i w_i(s) phi_i(x)^2 / sum_i w_i(s)`:
 
     - `kind="wks"` (Aubry et al. 2011): `w_i(e) = exp(-(e - log lambda_i)^2 / (2 sigma^2))` on pyFM's
@@ -46,17 +46,18 @@ def descriptors(
 
     Differentiable in the shape's eigenpairs and mass (a plain JAX function), under `jit` too.
     pyFM: `FunctionalMapping(m1, m2).preprocess(n_descr=n_descriptors, descr_type="WKS", landmarks=...,
-    k_descr=n_eigenpairs)`'s `descr1` (pyFM's defaults: `k_descr=128`, no subsampling).
+    k_descr=k)`'s `descr1` (pyFM's defaults: `k_descr=128`, no subsampling).
     """
     shape = require_spectral_shape("shape", shape)
     kind = check_choice("kind", kind, DESCRIPTOR_KINDS)
     if not isinstance(n_descriptors, (int, np.integer)) or n_descriptors < 1:
         raise DDGInputError(f"n_descriptors: expected a positive integer, got {n_descriptors!r}")
-    k = shape.k if n_eigenpairs is None else n_eigenpairs
+    requested = k
+    k = shape.k if requested is None else requested
     if not isinstance(k, (int, np.integer)) or not 2 <= k <= shape.k:
         raise DDGInputError(
-            f"n_eigenpairs: expected an integer in [2, {shape.k}] (the shape's eigenpairs; compute more with "
-            f"`spectral_shape(mesh, k)`), got {n_eigenpairs!r}"
+            f"k: expected an integer in [2, {shape.k}] (the shape's eigenpairs; compute more with "
+            f"`spectral_shape(mesh, k)`), got {requested!r}"
         )
     landmarks = None if landmarks is None else _landmarks(landmarks, shape.vectors.shape[0])
     return _descriptor_columns(shape.mass, shape.values, shape.vectors, landmarks, k=k, kind=kind, n_descriptors=n_descriptors)

@@ -16,7 +16,7 @@ def geodesic_error(
     true_point_map: Int[ArrayLike, " n"],
     *,
     n_samples: int | None = None,
-    seed: int = 0,
+    key: int = 0,
 ) -> float:
     """Mean geodesic distance on the source between predicted and true matches, over `sqrt(area)`.
 
@@ -40,7 +40,7 @@ def geodesic_error(
         point_map: `(n,)` predicted source vertex of each target vertex.
         true_point_map: `(n,)` its true source vertex.
         n_samples: evaluate on this many target vertices drawn at random (default: all), for large meshes.
-        seed: the seed of that draw (NumPy's `default_rng`).
+        key: the integer seed of that draw (the vocabulary's `key=`; NumPy's `default_rng`).
 
     Returns:
         The normalised mean geodesic error, a Python float.
@@ -58,7 +58,7 @@ def geodesic_error(
     if n_samples is not None:
         n_samples = check_count("n_samples", n_samples)
         if n_samples < predicted.size:
-            chosen = np.random.default_rng(seed).choice(predicted.size, n_samples, replace=False)
+            chosen = np.random.default_rng(key).choice(predicted.size, n_samples, replace=False)
             predicted, true = predicted[chosen], true[chosen]
     solver = heat_distance_solver(mesh)
     positions = np.asarray(mesh.vertices, dtype=np.float64)

@@ -49,7 +49,7 @@ def functional_map(
     descriptor_weight: float = 1e-1,
     laplacian_weight: float = 1e-3,
     commutativity_weight: float = 1.0,
-    orientation_weight: float = 0.0,
+    orientation_weight: float = 1.0,
     orientation: str = "preserving",
     method: str = "auto",
     rtol: float | None = None,
@@ -92,7 +92,8 @@ def functional_map(
             (`ddgjax.matching.descriptors`), the same `d` on both.
         k_source, k_target: basis sizes (default: all of each shape's eigenpairs).
         descriptor_weight, laplacian_weight, commutativity_weight, orientation_weight: host numbers
-            `>= 0` (pyFM's `w_descr=0.1, w_lap=1e-3, w_dcomm=1, w_orient=0`).
+            `>= 0` (pyFM's `w_descr=0.1, w_lap=1e-3, w_dcomm=1`; its `w_orient` is 0, ddgjax's 1 as in
+            `match_shapes`: without the term a symmetric pair's map may come out mirrored).
         orientation: `"preserving"` (default) or `"reversing"` (pyFM's `orient_reversing`).
         method: `"cholesky"` (assemble the `(k_t k_s)^2` Hessian, `O(d k^4 + k^6)`, and factorise it),
             `"cg"` (matrix-free conjugate gradients, `O(d k^3)` an iteration, block-Jacobi

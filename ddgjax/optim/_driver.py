@@ -225,7 +225,7 @@ def minimize_shape(
     key: PRNGKeyArray | None = None,
     chunk_size: int | None = None,
     solver: str = "auto",
-    progress: bool = True,
+    progress: bool = False,
     throw: bool = True,
 ) -> ShapeOptimizationResult:
     """Minimise `loss(mesh)` over the vertex positions `V` `(nv, 3)` by a first-order optimiser (module docstring).
@@ -266,8 +266,8 @@ def minimize_shape(
         key: a PRNG key, split once per step and passed to `loss`; `None` for a loss without one.
         chunk_size: steps per compiled `lax.scan` chunk, i.e. per progress-bar update (default: about
             a twentieth of `steps`); a last chunk reaching past `steps` skips the extra steps.
-        progress: show a tqdm progress bar over the chunks (default); `False` runs every chunk in one
-            compiled program.
+        progress: show a tqdm progress bar over the chunks (off by default, as everywhere in ddgjax); `False`
+            runs every chunk in one compiled program.
         throw: raise when a step failed (default), or report it in `result`.
 
     Returns:

@@ -317,7 +317,7 @@ def _plan(graph: tuple, fixed: np.ndarray, trailing: tuple[int, ...], solver: st
     with jax.ensure_compile_time_eval():  # host work, also when called inside a caller's trace
         pattern = SparsityPattern.from_coo(rows, cols, (free.size * d, free.size * d))[0]
         unknowns = _Unknowns(position=device_array(position, jnp.int32), trailing=trailing)
-        plan = _Plan(free=free, unknowns=unknowns, cholesky=SparseCholesky(pattern, method=solver))
+        plan = _Plan(free=free, unknowns=unknowns, cholesky=SparseCholesky(pattern, solver=solver))
     _PLANS[cache_key] = plan
     if len(_PLANS) > _PLANS_KEPT:
         _PLANS.popitem(last=False)

@@ -151,7 +151,7 @@ def large_steps(
     matrix = from_scipy(block.astype(np.dtype(vertices.dtype)), positive_semidefinite=True)
     return LargeSteps(
         matrix=matrix,
-        factorization=factorize(matrix, method=solver),
+        factorization=factorize(matrix, solver=solver),
         offset=offset,
         free=None if free is None else jnp.asarray(free, jnp.int32),
         template=vertices,

@@ -196,8 +196,8 @@ def _flatten(mesh, L, dirichlet, neumann, loop, scale, angles, corner_mask, *, s
     block, problem, angles = _systems(mesh, L, dirichlet, neumann, loop, angles, corner_mask, shape=shape)
     # The factorisation CHOLMOD chooses, as when it was made inside the map's program (two solves use it).
     with cholmod_analysis("auto"):
-        factor = None if block is None else factorize(block, method=solver)
-    conversion = None if problem is None else linear_solve(*problem, method=solver, throw=False)
+        factor = None if block is None else factorize(block, solver=solver)
+    conversion = None if problem is None else linear_solve(*problem, solver=solver, throw=False)
     return _map(mesh, L, dirichlet, neumann, loop, factor, conversion, scale, angles)
 
 

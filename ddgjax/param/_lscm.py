@@ -218,7 +218,7 @@ def _lscm(mesh, plan, blocks, loop, pins, positions, *, solver):
     n_unreferenced = blocks.fixed.shape[0] // 2 - pins.shape[0]
     fixed = jnp.concatenate([positions[:, 0], positions[:, 1], jnp.zeros(2 * n_unreferenced, dtype)])
     free_free, free_fixed = dirichlet_blocks(Q, blocks)
-    solution = linear_solve(free_free, -(free_fixed @ fixed), method=solver, throw=False)
+    solution = linear_solve(free_free, -(free_fixed @ fixed), solver=solver, throw=False)
     x = blocks.join(solution.value, fixed)
     n = mesh.n_vertices
     return jnp.stack([x[:n], x[n:]], axis=-1), *solves_outcome(solution)

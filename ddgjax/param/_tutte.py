@@ -109,7 +109,7 @@ def harmonic_map(mesh: Mesh, *, shape="circle", solver: str = "auto", throw: boo
 def _embed(mesh, matrix, plan, loop, positions, *, kind, solver):
     lengths = boundary_edge_lengths(mesh.vertices, loop)
     fixed = place_boundary(kind, lengths) if positions is None else positions.astype(lengths.dtype)
-    factor = factorize(dirichlet_blocks(matrix, plan)[0], method=solver) if plan is not None else None
+    factor = factorize(dirichlet_blocks(matrix, plan)[0], solver=solver) if plan is not None else None
     uv, solution = harmonic_extension(matrix, plan, factor, loop, fixed)
     return uv, *solves_outcome(solution)
 

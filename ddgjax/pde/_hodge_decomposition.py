@@ -204,7 +204,7 @@ def _decompose(
         stats = {"residual": jnp.zeros((), rhs.dtype), "num_steps": jnp.zeros((), jnp.int32)}
     else:
         free_free, _ = dirichlet_blocks(laplacian, pins)
-        solution = linear_solve(free_free, rhs[pins.free], method=solver, throw=False)
+        solution = linear_solve(free_free, rhs[pins.free], solver=solver, throw=False)
         potentials = pins.join(solution.value, jnp.zeros((pins.fixed.shape[0], rhs.shape[1]), rhs.dtype))
         solved, stats = solution.result, solution.stats
     exact_forms = derivative @ potentials

@@ -240,7 +240,7 @@ def _advance(
         lengths_sq = face_edge_lengths_sq(mesh.with_vertices(vertices))
         current_mass = mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
         system = current_mass + step_size * (frozen if modified else laplacian(lengths_sq))
-        solution = linear_solve(system, current_mass @ vertices, method=solver, throw=False)
+        solution = linear_solve(system, current_mass @ vertices, solver=solver, throw=False)
         # A non-finite state says more than whatever the solver made of it.
         return (solution.value, record(failure, k, first_failure(finite_outcome(solution.value), solution.result))), None
 

@@ -172,7 +172,7 @@ def _solve_system(
     free_free, rhs, fixed_values = _reduced_system(
         laplacian, mass_matrix_, rho, values, blocks, labels, floating, n_pinned=n_pinned, n_components=n_components
     )
-    solution = linear_solve(free_free, rhs, method=solver, throw=False)
+    solution = linear_solve(free_free, rhs, solver=solver, throw=False)
     phi = _recentred(mass_matrix_, solution.value, fixed_values, blocks, labels, floating, n_components=n_components)
     return phi, solution.result, solution.stats
 

@@ -202,7 +202,7 @@ def point_cloud_heat_solver(
         t, heat, poisson, cotangents, areas, frames, vector_heat = _systems(
             points, triangulation, heat_plan, poisson_plan, parents, trees, float(t_coef)
         )
-        heat, poisson, vector_heat = (factorize(matrix, method=solver) for matrix in (heat, poisson, vector_heat))
+        heat, poisson, vector_heat = (factorize(matrix, solver=solver) for matrix in (heat, poisson, vector_heat))
         if at_top_level():
             jax.block_until_ready((heat, poisson, vector_heat))
     return PointCloudHeatSolver(

@@ -5,7 +5,7 @@ Two ways to use several devices, each a thin layer over JAX (no scheduler of ddg
 - **A batch of shapes of one connectivity** (`batch_sharding`, `shard_batch`): put the `(B, nv, 3)`
   positions on the devices split along the batch and `jax.jit(jax.vmap(f))` them; XLA partitions
   the whole program along the batch. Energies, gradients, operators, and the solves by conjugate
-  gradient (`linear_solve(..., method="cg")`, the problems of `ddgjax.pde` with `solver="cg"`)
+  gradient (`linear_solve(..., solver="cg")`, the problems of `ddgjax.pde` with `solver="cg"`)
   shard; the host solvers (`"cholesky"`, `"superlu"`, `"pyamg"`) do not (`ddgjax.sharding._batch`).
 - **One mesh too large for one device** (`partition_vertices`, `sharded_laplacian_apply`,
   `sharded_cg`): the vertices, reordered for locality, split in contiguous blocks, one per device,

@@ -14,7 +14,7 @@ connectivity and other closed-over arrays are replicated). Results come back sha
 
 What shards: everything written in JAX, i.e. energies and their derivatives, geometry, operators
 (`cotan_laplacian`, `mass_matrix`, `laplacian_apply`), and the solves with the conjugate gradient:
-`linear_solve(..., method="cg")` and the problems with `solver="cg"` (`solve_poisson`,
+`linear_solve(..., solver="cg")` and the problems with `solver="cg"` (`solve_poisson`,
 `mean_curvature_flow`, ...), with the Jacobi preconditioner (an `"amg"` hierarchy is built on the
 host from concrete values, so it cannot be made per shape inside `vmap`). A vmapped CG runs until
 every member of the batch has converged: the stopping test is one all-reduce per iteration. What does

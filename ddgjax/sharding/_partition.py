@@ -137,7 +137,7 @@ class VertexPartition:
         return result
 
 
-def locality_order(mesh: Mesh, *, order: str = "rcm") -> np.ndarray:
+def locality_order(mesh: Mesh, *, ordering: str = "rcm") -> np.ndarray:
     """`(nv,)` a vertex order that keeps neighbours close: reverse Cuthill-McKee of the vertex adjacency (`"rcm"`) or the identity (`"none"`).
 
     Contiguous blocks of this order are what `partition_vertices` gives each device; a small
@@ -145,9 +145,9 @@ def locality_order(mesh: Mesh, *, order: str = "rcm") -> np.ndarray:
     `scipy.sparse.csgraph.reverse_cuthill_mckee(adjacency, symmetric_mode=True)`.
     """
     mesh = require_mesh("mesh", mesh)
-    check_choice("order", order, ORDERS)
+    check_choice("ordering", ordering, ORDERS)
     n = mesh.n_vertices
-    if order == "none":
+    if ordering == "none":
         return np.arange(n)
     edges = np.asarray(mesh.edges)
     adjacency = sp.coo_matrix((np.ones(len(edges), np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
@@ -155,7 +155,7 @@ def locality_order(mesh: Mesh, *, order: str = "rcm") -> np.ndarray:
 
 
 def partition_vertices(
-    mesh: Mesh, *, n_devices: int | None = None, devices: Sequence[jax.Device] | None = None, order: str = "rcm"
+    mesh: Mesh, *, n_devices: int | None = None, devices: Sequence[jax.Device] | None = None, ordering: str = "rcm"
 ) -> VertexPartition:
     """Split `mesh`'s vertices into contiguous blocks of a locality order, one per device, with halos (module docstring).
 
@@ -164,7 +164,7 @@ def partition_vertices(
         n_devices: how many devices (default: all of `jax.devices()`, every host's after
             `jax.distributed.initialize()`).
         devices: the devices to use instead of `jax.devices()`.
-        order: `"rcm"` (default, reverse Cuthill-McKee) or `"none"` (the mesh's own order).
+        ordering: `"rcm"` (default, reverse Cuthill-McKee) or `"none"` (the mesh's own order).
 
     Returns:
         A `VertexPartition`; `sharded_laplacian_apply` and `sharded_cg` run on it.
@@ -174,7 +174,7 @@ def partition_vertices(
         raise DDGInputError("mesh: partition_vertices needs the mesh's topology; call it outside jit")
     sharding = NamedSharding(device_mesh(VERTICES, n_devices=n_devices, devices=devices), P(VERTICES))
     n_dev, n = sharding.mesh.size, mesh.n_vertices
-    permutation = locality_order(mesh, order=order)
+    permutation = locality_order(mesh, ordering=ordering)
     n_local = -(-n // n_dev)
     rank = np.empty(n, np.int64)
     rank[permutation] = np.arange(n)

@@ -1,6 +1,6 @@
 """Sparse linear algebra: differentiable solves of symmetric (Hermitian) positive definite systems.
 
-- `linear_solve(A, b, *, method=...)` and `factorize(A, *, method=...).solve(b)`: symmetric (or
+- `linear_solve(A, b, *, solver=...)` and `factorize(A, *, solver=...).solve(b)`: symmetric (or
   complex Hermitian) positive definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD
   through `sparsax`), SciPy's SuperLU, a pure-JAX conjugate gradient preconditioned by Jacobi or an
   algebraic-multigrid V-cycle, or pyamg's CG on the host (`method` one of `ddgjax.LINEAR_SOLVERS`);

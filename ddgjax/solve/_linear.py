@@ -1,6 +1,6 @@
 """Differentiable solves of symmetric (Hermitian) positive definite sparse systems `A x = b`.
 
-`linear_solve(A, b)` solves with one of four backends, chosen by `method=` (`ddgjax.LINEAR_SOLVERS`;
+`linear_solve(A, b)` solves with one of four backends, chosen by `solver=` (`ddgjax.LINEAR_SOLVERS`;
 a problem-level function passes its `solver=` here):
 
 - `"cholesky"`: a sparse direct Cholesky factorisation on the host, CHOLMOD called through XLA's
@@ -153,14 +153,14 @@ class LinearSolution(eqx.Module):
         result: an item of `ddgjax.RESULTS` (`RESULTS.successful` when `x` solves the system).
         residual: `|A x - b| / |b|` (Frobenius norms for a block `b`; 0 for `b = 0`).
         num_steps: CG iterations (the largest over the columns of a block); 0 for a direct solve.
-        method: the backend that ran (static).
+        solver: the backend that ran (static).
     """
 
     value: Inexact[Array, "n *k"]
     result: RESULTS
     residual: Float[Array, ""]
     num_steps: Int[Array, ""]
-    method: str = eqx.field(static=True)
+    solver: str = eqx.field(static=True)
 
     @property
     def stats(self) -> dict[str, Array]:
@@ -173,7 +173,7 @@ def linear_solve(
     b: Inexact[ArrayLike, "n *k"],
     /,
     *,
-    method: str = "auto",
+    solver: str = "auto",
     preconditioner: str | AMGHierarchy | None = None,
     rtol: float = 1e-10,
     max_steps: int | None = None,
@@ -187,12 +187,12 @@ def linear_solve(
             `cotan_laplacian`, `mass_matrix`, `M + t * L`, a free-free Dirichlet block); positive
             definite by the caller's promise.
         b: `(n,)` or `(n, k)` right-hand side(s), real or complex.
-        method: the backend, one of `ddgjax.LINEAR_SOLVERS`: `"cholesky"`, `"superlu"`, `"cg"`,
+        solver: the backend, one of `ddgjax.LINEAR_SOLVERS`: `"cholesky"`, `"superlu"`, `"cg"`,
             `"pyamg"` or `"auto"` (default; module docstring).
         preconditioner: for `"cg"`: `"jacobi"` (default), `"amg"` (a smoothed-aggregation hierarchy
             built on the host from `A`'s concrete values) or an `AMGHierarchy` from `amg_hierarchy`
             (built once outside `jit`, passed in; for a complex `A`, of its real form above). Giving
-            one with `method="auto"` selects `"cg"`.
+            one with `solver="auto"` selects `"cg"`.
         rtol: relative tolerance of the CG methods (`|r| <= rtol |b|`); the direct solves ignore it.
         max_steps: CG iteration limit (default `10 n`).
         residual_tolerance: a solution with a larger relative residual is reported as `singular`.
@@ -210,7 +210,7 @@ def linear_solve(
     with cholmod_analysis("auto"):  # one solve: CHOLMOD's choice factors fastest (`cholmod_analysis`)
         factorization = _factorize(
             A,
-            method=method,
+            solver=solver,
             preconditioner=preconditioner,
             rtol=rtol,
             max_steps=max_steps,
@@ -223,7 +223,7 @@ def linear_solve(
 class Factorization(eqx.Module):
     """A factorisation of a symmetric (Hermitian) positive definite `SparseMatrix`, kept for many right-hand sides.
 
-    Made by `factorize(A, method=...)`; `factorization.solve(b)` solves `A x = b` reusing it, with
+    Made by `factorize(A, solver=...)`; `factorization.solve(b)` solves `A x = b` reusing it, with
     the same differentiation rules as `linear_solve` (tangent and adjoint solves reuse the factor).
     What is kept: for `"cholesky"` the numeric CHOLMOD factor, held by `sparsax` and referenced by
     `token` (its cache keeps a bounded number of factors per sparsity pattern,
@@ -240,7 +240,7 @@ class Factorization(eqx.Module):
         result: the factorisation's outcome, an item of `ddgjax.RESULTS`: `nonfinite` (NaN or inf in
             `A`), `not_positive_definite` (CHOLMOD), `singular` (SuperLU: exactly singular), else
             `successful`. Every solve with a failed factorisation reports it and returns NaN.
-        method: the backend, one of `LINEAR_SOLVERS` (static, as are the four below).
+        solver: the backend, one of `LINEAR_SOLVERS` (static, as are the four below).
         complex_dtype: `A`'s dtype when `A` is complex, else `None`.
         rtol: the relative residual tolerance of `"cg"` and `"pyamg"`.
         max_steps: their iteration limit.
@@ -251,7 +251,7 @@ class Factorization(eqx.Module):
     token: Int[Array, "..."] | None
     hierarchy: AMGHierarchy | None
     result: RESULTS
-    method: str = eqx.field(static=True)
+    solver: str = eqx.field(static=True)
     complex_dtype: np.dtype | None = eqx.field(static=True)
     rtol: float = eqx.field(static=True)
     max_steps: int = eqx.field(static=True)
@@ -289,7 +289,7 @@ def _solve(factorization: Factorization, b: Inexact[Array, "n *k"]) -> LinearSol
         rhs,
         value,
         stats,
-        factorization.method,
+        factorization.solver,
         factorization.residual_tolerance,
         factorization_result=factorization.result,
     )
@@ -305,7 +305,7 @@ def factorize(
     A: SparseMatrix,
     /,
     *,
-    method: str = "auto",
+    solver: str = "auto",
     preconditioner: str | AMGHierarchy | None = None,
     rtol: float = 1e-10,
     max_steps: int | None = None,
@@ -324,7 +324,7 @@ def factorize(
     """
     return _factorize(
         A,
-        method=method,
+        solver=solver,
         preconditioner=preconditioner,
         rtol=rtol,
         max_steps=max_steps,
@@ -333,13 +333,13 @@ def factorize(
     )
 
 
-def _factorize(A, *, method, preconditioner, rtol, max_steps, residual_tolerance, one_shot: bool) -> Factorization:
-    """`factorize`; `one_shot` (`linear_solve`'s single solve) lets `"auto"` choose by size (`auto_method`)."""
+def _factorize(A, *, solver, preconditioner, rtol, max_steps, residual_tolerance, one_shot: bool) -> Factorization:
+    """`factorize`; `one_shot` (`linear_solve`'s single solve) lets `"auto"` choose by size (`auto_solver`)."""
     _check_matrix(A)
     complex_dtype = A.values.dtype if jnp.iscomplexobj(A.values) else None
     system = _real_form(A) if complex_dtype is not None else A
     entries = A.pattern.n_entries if A.pattern.n_entries is not None else A.pattern.nnz
-    method, preconditioner = _choose(method, preconditioner, system, one_shot=one_shot, entries_per_row=entries / A.shape[0])
+    solver, preconditioner = _choose(solver, preconditioner, system, one_shot=one_shot, entries_per_row=entries / A.shape[0])
     if max_steps is None:
         max_steps = 10 * A.shape[0]
     if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
@@ -351,18 +351,18 @@ def _factorize(A, *, method, preconditioner, rtol, max_steps, residual_tolerance
     eager = at_top_level() and not is_traced(values)
     # Kept factorisations simplicial (the faster solves), one-shot ones as CHOLMOD chooses (the faster factorisation).
     analysis = _CHOLMOD_ANALYSIS.get() or (kept_analysis(system.shape[0]) if eager and not one_shot else "auto")
-    if method == "cholesky" and eager:
+    if solver == "cholesky" and eager:
         _release_cholmod_patterns()
         pattern, kept_values = _analysed_apart(system.pattern, values, analysis)
         # Checked here rather than by a callback inside the program: JAX never frees a compiled
         # program that holds a host callback (benchmarks/README.md, "Memory over a stream of meshes").
         with cholmod_analysis(analysis):
             definite = _cholmod_definite_now(pattern, kept_values)
-        token, result = _factor(pattern, kept_values, definite, method=method)
-    elif method == "cholesky":
-        token, result = _factor(*_analysed_apart(system.pattern, values, analysis), None, method=method)
-    elif method in HOST_METHODS:
-        token, result = _factor(system.pattern, values, None, method=method)
+        token, result = _factor(pattern, kept_values, definite, solver=solver)
+    elif solver == "cholesky":
+        token, result = _factor(*_analysed_apart(system.pattern, values, analysis), None, solver=solver)
+    elif solver in HOST_METHODS:
+        token, result = _factor(system.pattern, values, None, solver=solver)
     else:
         result = RESULTS.where(jnp.all(jnp.isfinite(values)), RESULTS.successful, RESULTS.nonfinite)
     if isinstance(preconditioner, AMGHierarchy):
@@ -379,13 +379,13 @@ def _factorize(A, *, method, preconditioner, rtol, max_steps, residual_tolerance
         token=token,
         hierarchy=hierarchy,
         result=result,
-        method=method,
+        solver=solver,
         complex_dtype=complex_dtype,
         rtol=float(rtol),
         max_steps=int(max_steps),
         residual_tolerance=float(residual_tolerance),
     )
-    if method == "cholesky" and eager:
+    if solver == "cholesky" and eager:
         _track_cholmod(token)
     return factorization
 
@@ -422,28 +422,28 @@ def _check_rhs_shape(n: int, b) -> Inexact[Array, "n *k"]:
 
 
 def _choose(
-    method, preconditioner, system: SparseMatrix, *, one_shot: bool, entries_per_row: float = 7.0
+    solver, preconditioner, system: SparseMatrix, *, one_shot: bool, entries_per_row: float = 7.0
 ) -> tuple[str, str | AMGHierarchy | None]:
     """The backend and the CG preconditioner that run, `"auto"` resolved (module docstring), or `DDGInputError`."""
-    check_choice("method", method, LINEAR_SOLVERS)
+    check_choice("solver", solver, LINEAR_SOLVERS)
     if preconditioner is not None and not isinstance(preconditioner, AMGHierarchy):
         check_choice("preconditioner", preconditioner, PRECONDITIONERS)
-    if method == "auto":
-        method = auto_method(system.shape[0], preconditioner is not None, one_shot=one_shot, entries_per_row=entries_per_row)
-        if method == "cg" and preconditioner is None:
+    if solver == "auto":
+        solver = auto_solver(system.shape[0], preconditioner is not None, one_shot=one_shot, entries_per_row=entries_per_row)
+        if solver == "cg" and preconditioner is None:
             preconditioner = "jacobi" if is_traced(system.values) else "amg"
-    if method != "cg" and preconditioner is not None:
-        raise DDGInputError(f"preconditioner: only method='cg' takes a preconditioner; method={method!r} does not")
-    if method == "cholesky" and not jax.config.jax_enable_x64:
+    if solver != "cg" and preconditioner is not None:
+        raise DDGInputError(f"preconditioner: only solver='cg' takes a preconditioner; solver={solver!r} does not")
+    if solver == "cholesky" and not jax.config.jax_enable_x64:
         raise DDGInputError(
-            "method: 'cholesky' works in float64, which JAX has off; enable it with "
-            "jax.config.update('jax_enable_x64', True), or use method='superlu' or 'cg'"
+            "solver: 'cholesky' works in float64, which JAX has off; enable it with "
+            "jax.config.update('jax_enable_x64', True), or use solver='superlu' or 'cg'"
         )
-    if method == "cholesky" and not _has_sparsax():
+    if solver == "cholesky" and not _has_sparsax():
         raise DDGInputError(
-            "method: 'cholesky' needs the sparsax package (CHOLMOD through XLA FFI), which is not installed; "
+            "solver: 'cholesky' needs the sparsax package (CHOLMOD through XLA FFI), which is not installed; "
             'install it with `pip install "ddgjax[cholmod]"` (its wheels bundle GPL-2+ CHOLMOD code), or use '
-            "method='superlu' (SciPy) or 'cg'"
+            "solver='superlu' (SciPy) or 'cg'"
         )
     if preconditioner == "amg" and is_traced(system.values):
         raise DDGInputError(
@@ -451,11 +451,11 @@ def _choose(
             "build it outside jit with ddgjax.solve.amg_hierarchy(A) and pass preconditioner=hierarchy "
             "(amg_refresh updates it inside jit), or use preconditioner='jacobi'"
         )
-    return method, "jacobi" if method == "cg" and preconditioner is None else preconditioner
+    return solver, "jacobi" if solver == "cg" and preconditioner is None else preconditioner
 
 
-def auto_method(n: int, preconditioned: bool = False, *, one_shot: bool = False, entries_per_row: float = 7.0) -> str:
-    """The backend `method="auto"` runs for `n` unknowns (module docstring): `"cg"` when a preconditioner is
+def auto_solver(n: int, preconditioned: bool = False, *, one_shot: bool = False, entries_per_row: float = 7.0) -> str:
+    """The backend `solver="auto"` runs for `n` unknowns (module docstring): `"cg"` when a preconditioner is
     given or on an accelerator; for one solve (`linear_solve`, `one_shot`) of more than `ITERATIVE_LIMIT`
     unknowns, or of more than `VOLUME_ITERATIVE_LIMIT` with more than `VOLUME_ENTRIES_PER_ROW` stored entries
     per row of `A` (a complex `A`'s own rows), `"pyamg"`; else `"cholesky"` where `sparsax` is installed
@@ -491,7 +491,7 @@ def linear_solution(
     b,
     value,
     stats,
-    method: str,
+    solver: str,
     residual_tolerance: float,
     *,
     factorization_result: RESULTS = RESULTS.successful,
@@ -518,12 +518,12 @@ def linear_solution(
         ),
     )
     result = first_failure(factorization_result, solve_result)
-    return LinearSolution(value=value, result=result, residual=residual, num_steps=num_steps, method=method)
+    return LinearSolution(value=value, result=result, residual=residual, num_steps=num_steps, solver=solver)
 
 
-@kernel(static_argnames=("method",))
+@kernel(static_argnames=("solver",))
 def _factor(
-    pattern: SparsityPattern, values: Float[Array, " nnz"], definite: Bool[ArrayLike, ""] | None, *, method: str
+    pattern: SparsityPattern, values: Float[Array, " nnz"], definite: Bool[ArrayLike, ""] | None, *, solver: str
 ) -> tuple[Int[Array, "..."], RESULTS]:
     """The host factor's token of the matrix with `values` on `pattern` and the factorisation's outcome:
     CHOLMOD's (`sparsax.factor`, in float64) for `"cholesky"`, else SuperLU's or pyamg's (`host_factor`);
@@ -536,8 +536,8 @@ def _factor(
     """
     finite = jnp.all(jnp.isfinite(values))
     values = jnp.where(finite, values, (pattern.rows == pattern.cols).astype(values.dtype))
-    if method != "cholesky":
-        token = host_factor(method, pattern, values)
+    if solver != "cholesky":
+        token = host_factor(solver, pattern, values)
         factored = RESULTS.where(token >= 0, RESULTS.successful, RESULTS.singular)
     else:
         import sparsax
@@ -572,7 +572,7 @@ def cholmod_analysis(mode: str):
     """Analyse the CHOLMOD factorisations made (or, inside `jit`, run) in this block `"simplicial"`ly or as CHOLMOD chooses (`"auto"`).
 
     A simplicial factor's solves are faster than a supernodal one's on mesh Laplacians, its factorisation
-    as fast at ~10k unknowns and slower beyond (benchmarks/README.md, "Kept factorisations"): kept factorisations (`factorize` called outside `jit`, the heat method's solver,
+    as fast at ~10k unknowns and slower beyond (benchmarks/README.md, "Kept factorisations"): kept factorisations (`factorize` called outside `jit`, the heat solver's solver,
     Large Steps) are simplicial up to `SIMPLICIAL_LIMIT` unknowns (`kept_analysis`), one-shot solves
     (`linear_solve`) and larger systems CHOLMOD's choice (supernodal from a few thousand unknowns). `sparsax` fixes the choice per pattern when it first analyses it, process-wide
     (`sparsax_cpp.set_supernodal`, which `sparsax.set_options` sets and then empties its cache), so
@@ -654,7 +654,7 @@ def _release_cholmod_patterns() -> None:
     """Free `sparsax`'s factors once it holds `CHOLMOD_PATTERNS` patterns and no factorisation that uses them is alive.
 
     A stream of meshes of new connectivities, each solved and dropped, then keeps a bounded number of
-    patterns; a kept `Factorization` (a heat-method solver, a flow's factor) keeps them all, so its
+    patterns; a kept `Factorization` (a heat-solver solver, a flow's factor) keeps them all, so its
     token stays valid. Tokens made inside a `jit` and returned from it are not counted: keep such a
     factorisation by making it outside `jit`.
     """
@@ -745,19 +745,19 @@ def _solve_factored(factorization: Factorization, b):
     backend, which is `A` itself as `A` is symmetric: one factor serves the forward, the tangent and
     the adjoint solves. The backend itself is never differentiated.
     """
-    A, token, method = factorization.system, factorization.token, factorization.method
+    A, token, solver = factorization.system, factorization.token, factorization.solver
     rtol, max_steps = factorization.rtol, factorization.max_steps
     values = jax.lax.stop_gradient(A.values)
     succeeded = (jnp.zeros((), jnp.int32), jnp.ones((), bool), jnp.ones((), bool))
-    if method == "cholesky":
+    if solver == "cholesky":
         # CHOLMOD works in float64; a float32 system is solved in float64 and rounded back.
         def backend(_, rhs):
             return _cholmod_solve(token, rhs.astype(jnp.float64)).astype(rhs.dtype), succeeded
 
-    elif method in HOST_METHODS:
+    elif solver in HOST_METHODS:
 
         def backend(_, rhs):
-            return host_solve(method, A.pattern, values, token, rhs, rtol, max_steps)
+            return host_solve(solver, A.pattern, values, token, rhs, rtol, max_steps)
 
     else:
         fixed = SparseMatrix(values, A.pattern, symmetric=True)

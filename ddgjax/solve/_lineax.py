@@ -97,7 +97,7 @@ class SparseCholesky(lx.AbstractLinearSolver):
     """A lineax solver for symmetric positive definite operators with a known sparsity pattern.
 
     `SparseCholesky(pattern)` recovers the operator's matrix on `pattern` from a few products (module
-    docstring), factorises it with `ddgjax.solve.factorize` (CHOLMOD or SuperLU on CPU, or another `method`), and
+    docstring), factorises it with `ddgjax.solve.factorize` (CHOLMOD or SuperLU on CPU, or another `solver`), and
     solves. Use it wherever lineax takes a solver:
 
         optx.root_find(jax.grad(energy), optx.Newton(rtol, atol, linear_solver=SparseCholesky(pattern)), phi0)
@@ -113,23 +113,23 @@ class SparseCholesky(lx.AbstractLinearSolver):
     Attributes:
         pattern: the square, symmetric `SparsityPattern` of the operator's matrix.
         colouring: its `ColumnColouring` (built on the host once per pattern).
-        method: `factorize`'s backend (static): `"auto"` (CHOLMOD, else SuperLU, on CPU), `"cholesky"`,
+        solver: `factorize`'s backend (static): `"auto"` (CHOLMOD, else SuperLU, on CPU), `"cholesky"`,
             `"superlu"`, `"cg"` (Jacobi-preconditioned: the recovered matrix is traced, so no AMG
             hierarchy can be built from it) or `"pyamg"`.
     """
 
     pattern: SparsityPattern
     colouring: ColumnColouring
-    method: str = eqx.field(static=True)
+    solver: str = eqx.field(static=True)
 
-    def __init__(self, pattern: SparsityPattern, *, method: str = "auto"):
+    def __init__(self, pattern: SparsityPattern, *, solver: str = "auto"):
         if not isinstance(pattern, SparsityPattern):
             raise DDGInputError(
                 f"pattern: expected a ddgjax SparsityPattern (e.g. cotan_laplacian(mesh).pattern), got {type(pattern).__name__}"
             )
         self.pattern = pattern
         self.colouring = column_colouring(pattern)
-        self.method = check_choice("method", method, LINEAR_SOLVERS)
+        self.solver = check_choice("solver", solver, LINEAR_SOLVERS)
 
     def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]) -> Factorization:
         n = self.pattern.shape[0]
@@ -140,7 +140,7 @@ class SparseCholesky(lx.AbstractLinearSolver):
             )
         matrix = matrix_from_products(self.pattern, self.colouring, operator.mv)
         matrix = SparseMatrix(matrix.values, self.pattern, symmetric=True, positive_semidefinite=True)
-        return factorize(matrix, method=self.method)
+        return factorize(matrix, solver=self.solver)
 
     def compute(self, state: Factorization, vector, options: dict[str, Any]):
         solution = state.solve(vector, throw=False)

@@ -6,7 +6,7 @@ As `lineax.internal`: plain re-exports, visible to import graphs and type checke
 from ._amg import AMGLevel as AMGLevel
 from ._amg import jacobi_steps as jacobi_steps
 from ._linear import PRECONDITIONERS as PRECONDITIONERS
-from ._linear import auto_method as auto_method
+from ._linear import auto_solver as auto_solver
 from ._linear import cholmod_analysis as cholmod_analysis
 from ._linear import kept_analysis as kept_analysis
 from ._linear import linear_solution as linear_solution

@@ -76,7 +76,7 @@ from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._options import check_solver
 from .._results import RESULTS, Solution, first_failure, outcome, raise_if_failed
 from ..solve import AMGHierarchy, amg_hierarchy, factorize
-from ..solve.internal import PRECONDITIONERS, auto_method, preconditioned_cg
+from ..solve.internal import PRECONDITIONERS, auto_solver, preconditioned_cg
 from ..sparse import SparseMatrix, nonnegative
 
 # Eigenvalues within this fraction of the largest computed one count as one cluster (module docstring).
@@ -264,7 +264,7 @@ def _subspace_preconditioner(L, M, method, solver, preconditioner) -> str | AMGH
     before the custom VJP traces the values: an AMG hierarchy needs them concrete."""
     if preconditioner is not None and not isinstance(preconditioner, AMGHierarchy):
         check_choice("preconditioner", preconditioner, PRECONDITIONERS)
-    if method != "subspace" or (solver == "auto" and auto_method(L.shape[0], preconditioner is not None) != "cg"):
+    if method != "subspace" or (solver == "auto" and auto_solver(L.shape[0], preconditioner is not None) != "cg"):
         if preconditioner is not None:
             raise DDGInputError(
                 "preconditioner: only the subspace iteration's conjugate gradient takes one (method='subspace', solver='cg')"
@@ -443,7 +443,7 @@ def _eigenpairs_bwd(residuals, cotangents, perturbed, values, l_pattern, m_patte
         scales.append(eigenvalues)
         # The adjoint's preconditioning solves: as the forward's on the subspace path (in JAX on any device).
         method, solver, preconditioner, _ = options
-        solves = {"method": "auto"} if method == "arpack" else {"method": solver, "preconditioner": preconditioner}
+        solves = {"solver": "auto"} if method == "arpack" else {"solver": solver, "preconditioner": preconditioner}
         W = _outside_span_adjoint(L, M, eigenvalues, Phi, Phi_bar, solves)
         lefts.append(W)
         rights.append(Phi)
@@ -483,7 +483,7 @@ def _subspace_iteration(L: SparseMatrix, M: SparseMatrix, k: int, solver: str, p
     """
     n = L.shape[0]
     m = min(n, 2 * k + 8)
-    factor = factorize(_shifted(L, M), method=solver, preconditioner=preconditioner)
+    factor = factorize(_shifted(L, M), solver=solver, preconditioner=preconditioner)
     start = jax.random.normal(jax.random.key(0), (n, m), L.values.dtype)
 
     def orthonormal(Y):

@@ -3,7 +3,7 @@
 - `TetMesh`, `TetTopology`: vertex positions (differentiable) plus tetrahedral connectivity built
   once in NumPy; `tet_mesh.boundary_mesh()` is the boundary surface as a `ddgjax.Mesh`.
 - geometry: `tet_signed_volumes`, `tet_volumes`, `tet_edge_lengths_sq`, `edge_lengths`,
-  `triangle_areas`, `dihedral_angles`, `tet_cotan_weights`, `tet_hat_gradients`, and the intrinsic
+  `triangle_areas`, `tet_dihedral_angles`, `tet_cotan_weights`, `tet_hat_gradients`, and the intrinsic
   core from the six squared edge lengths (`*_from_lengths_sq`).
 - built-in solids and files: `tet_ball`, `tet_box`, `tet_solid_torus`, `tet_shell`; `load_tet_mesh`,
   `save_tet_mesh` (meshio formats); `tetrahedralize` (fTetWild, the `tetmesh` extra); `check_tet_mesh`.
@@ -33,12 +33,12 @@ from ._dual import TET_DUALS as TET_DUALS
 from ._dual import tet_edge_dual_volumes_from_lengths_sq as tet_edge_dual_volumes_from_lengths_sq
 from ._dual import tet_vertex_dual_volumes_from_lengths_sq as tet_vertex_dual_volumes_from_lengths_sq
 from ._dual import vertex_dual_volumes as vertex_dual_volumes
-from ._geometry import dihedral_angles as dihedral_angles
-from ._geometry import dihedral_angles_from_lengths_sq as dihedral_angles_from_lengths_sq
 from ._geometry import edge_lengths as edge_lengths
 from ._geometry import tet_corner_positions as tet_corner_positions
 from ._geometry import tet_cotan_weights as tet_cotan_weights
 from ._geometry import tet_cotan_weights_from_lengths_sq as tet_cotan_weights_from_lengths_sq
+from ._geometry import tet_dihedral_angles as tet_dihedral_angles
+from ._geometry import tet_dihedral_angles_from_lengths_sq as tet_dihedral_angles_from_lengths_sq
 from ._geometry import tet_edge_lengths_sq as tet_edge_lengths_sq
 from ._geometry import tet_hat_gradients as tet_hat_gradients
 from ._geometry import tet_signed_volumes as tet_signed_volumes

@@ -21,7 +21,7 @@ program per mesh size, as `ddgjax.mesh`'s geometry does, instead of dozens of sm
 
 Reference: Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), the cotan
 formula in 3-D; Jacobson, "Algorithms and interfaces for real-time deformation of 2D and 3D shapes"
-(2013), the tet cotangent weights; libigl `cotmatrix_entries`, `dihedral_angles`, `volume`.
+(2013), the tet cotangent weights; libigl `cotmatrix_entries`, `tet_dihedral_angles`, `volume`.
 """
 
 from __future__ import annotations
@@ -147,7 +147,7 @@ def tet_cotan_weights(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
     return tet_cotan_weights_from_lengths_sq(tet_edge_lengths_sq(tet_mesh), volumes=tet_volumes(tet_mesh))
 
 
-def dihedral_angles_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Float[Array, "nt 6"]:
+def tet_dihedral_angles_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Float[Array, "nt 6"]:
     """`(nt, 6)` interior dihedral angle at each local edge, in `[0, pi]`, from the squared edge lengths alone.
 
     `theta_m = atan2(6 V l_m, 36 V w_k)` with `k` the edge opposite `m` (module docstring): no
@@ -161,14 +161,14 @@ def dihedral_angles_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Float[A
 
 
 @kernel
-def dihedral_angles(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
+def tet_dihedral_angles(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
     """`(nt, 6)` interior dihedral angle at each local edge of each tet, in `[0, pi]`.
 
-    `dihedral_angles_from_lengths_sq` on the embedding's squared edge lengths (local order `TET_EDGES`):
+    `tet_dihedral_angles_from_lengths_sq` on the embedding's squared edge lengths (local order `TET_EDGES`):
     `theta_m = atan2(6 V l_m, 36 V w_k)`, finite with finite gradients on flat tets. libigl:
-    `igl.dihedral_angles(V, T)[0]` (the same order; tests).
+    `igl.tet_dihedral_angles(V, T)[0]` (the same order; tests).
     """
-    return dihedral_angles_from_lengths_sq(tet_edge_lengths_sq(tet_mesh))
+    return tet_dihedral_angles_from_lengths_sq(tet_edge_lengths_sq(tet_mesh))
 
 
 @kernel
