@@ -202,7 +202,7 @@ def cases() -> list[Case]:
         Case("optim.edge_length_loss", optim.edge_length_loss),
         Case("optim.normal_consistency_loss", optim.normal_consistency_loss),
         Case("optim.laplacian_smoothing_loss (cotan)", lambda m: optim.laplacian_smoothing_loss(m, weights="cotan")),
-        Case("optim.sample_points (5000)", lambda m, key: optim.sample_points(m, 5000, key), lambda m: (jax.random.key(0),)),
+        Case("optim.sample_points (5000)", lambda m, key: optim.sample_points(m, 5000, key=key), lambda m: (jax.random.key(0),)),
         # laplacian
         Case("laplacian.laplacian_and_mass", laplacian.laplacian_and_mass),
         Case(

@@ -61,7 +61,7 @@ def fit(args):
     for subdivisions, n in SIZES:
         source = icosphere(subdivisions)
         target_mesh = icosphere(5).with_vertices(icosphere(5).vertices * jnp.array([1.3, 1.0, 0.7]))
-        target = sample_points(target_mesh, n, jax.random.key(1))
+        target = sample_points(target_mesh, n, key=jax.random.key(1))
         loss, optimizer = _fit_loss(target, n), adam_uniform(1e-2)  # the same objects: one compiled chunk
 
         def seconds(steps, loss=loss, optimizer=optimizer, source=source):
@@ -91,7 +91,7 @@ def fit(args):
     for (subdivisions, n), ours in zip(SIZES, per_steps):
         source = icosphere(subdivisions)
         target_mesh = icosphere(5).with_vertices(icosphere(5).vertices * jnp.array([1.3, 1.0, 0.7]))
-        target = np.asarray(sample_points(target_mesh, n, jax.random.key(1)))
+        target = np.asarray(sample_points(target_mesh, n, key=jax.random.key(1)))
         per_step = 1e3 * _torch_fit(torch, source, target, n, args.steps)[0]
         print(
             f"{'icosphere(' + str(subdivisions) + ')':>16} {source.n_vertices:>9} {n:>8} {per_step:>15.1f} "
@@ -165,16 +165,16 @@ def quality(args):
     steps, n = args.quality_steps, 5_000
     source = icosphere(4)
     target_mesh = icosphere(5).with_vertices(icosphere(5).vertices * jnp.array([1.3, 1.0, 0.7]))
-    target = sample_points(target_mesh, n, jax.random.key(1))
+    target = sample_points(target_mesh, n, key=jax.random.key(1))
     ours = minimize_shape(
         _fit_loss(target, n), source, steps=steps, optimizer=adam_uniform(1e-2), key=jax.random.key(0), progress=False
     )
     theirs = source.with_vertices(jnp.asarray(_torch_fit(torch, source, np.asarray(target), n, steps)[1]))
-    reference = sample_points(target_mesh, 20_000, jax.random.key(8))
-    measure = lambda mesh: float(chamfer_distance(sample_points(mesh, 20_000, jax.random.key(7)), reference))
+    reference = sample_points(target_mesh, 20_000, key=jax.random.key(8))
+    measure = lambda mesh: float(chamfer_distance(sample_points(mesh, 20_000, key=jax.random.key(7)), reference))
     print(f"\n## quality: Chamfer distance to the target after {steps} iterations (20,000 samples each side)")
     print(
-        f"  start {measure(source):.3e}   ddgjax {measure(ours.mesh):.3e}   torch + largesteps {measure(theirs):.3e}   "
+        f"  start {measure(source):.3e}   ddgjax {measure(ours.mesh()):.3e}   torch + largesteps {measure(theirs):.3e}   "
         f"sampling floor (target vs itself) {measure(target_mesh):.3e}"
     )
 

@@ -17,7 +17,7 @@ Three families of symmetric positive definite systems (`--families`), each at gr
 Every contender solves to a relative residual `|A x - b| / |b| <= 1e-8` (checked; the direct
 solvers reach ~1e-14), one-shot: factorisation or preconditioner set-up included, as a user's first
 solve with new values pays; the matrix is converted to each library's input format once, untimed.
-Contenders: ddgjax's `linear_solve` with `method="auto"` (the default), and with each backend named;
+Contenders: ddgjax's `linear_solve` with `solver="auto"` (the default), and with each backend named;
 CHOLMOD through sparsax (`sparsax.solve`, the same library as ddgjax's `"cholesky"`) and through
 cholespy; pyamg's smoothed-aggregation solver with its defaults as CG preconditioner
 (`ml.solve(b, tol=1e-8, accel="cg")`). sparsax keeps the last numeric factorisation of a pattern and

@@ -18,7 +18,8 @@ their values, outcomes) is the table in docs/conventions.md.
 Failures that depend on values inside `jit` (a flow that self-intersects, a solve that does not
 converge) are reported through one results convention, as lineax and optimistix do: `throw=True` by
 default raises with the message of an item of `ddgjax.RESULTS`; `throw=False` returns a
-`ddgjax.Solution` (`value`, `result`, `stats`), or the run's record with its `result`.
+`ddgjax.Solution` (`value`, `result`, `stats`), or the run's record: every record is a `ddgjax.Record`
+with the same three names.
 
 Importing ddgjax never changes `jax.config`; enable float64 yourself
 (`jax.config.update("jax_enable_x64", True)`) for geometry work. ddgjax's own kernels compile with
@@ -65,6 +66,7 @@ _NAMES = {
     "Curve": "curves",
     "Mesh": "mesh",
     "RESULTS": "_results",
+    "Record": "_results",
     "Solution": "_results",
     "cpu_compiler_options": "_compile",
     "MASS_MATRICES": "_options",
@@ -107,6 +109,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from ._options import LUMPED_MASS_MATRICES as LUMPED_MASS_MATRICES
     from ._options import MASS_MATRICES as MASS_MATRICES
     from ._results import RESULTS as RESULTS
+    from ._results import Record as Record
     from ._results import Solution as Solution
     from .curves import Curve as Curve
     from .mesh import Mesh as Mesh

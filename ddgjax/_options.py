@@ -29,8 +29,8 @@ BOUNDARY_CONDITIONS = ("neumann", "dirichlet")
 `"average"`, the mean of the two, as Crane et al. 2013 recommend.)"""
 
 LINEAR_SOLVERS = ("auto", "cholesky", "superlu", "cg", "pyamg")
-"""`solver=` of a problem-level function, `method=` of `ddgjax.solve.linear_solve` itself: the backend
-of the sparse linear solves (`ddgjax.solve`)."""
+"""`solver=` everywhere, `ddgjax.solve.linear_solve` and `factorize` included: the backend of the
+sparse linear solves (`ddgjax.solve`)."""
 
 
 def check_mass(mass: str, allowed: tuple[str, ...] = MASS_MATRICES) -> str:

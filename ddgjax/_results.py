@@ -12,7 +12,11 @@ any batch member failed. What the caller gets back (docs/conventions.md, "Outcom
   `result` and `stats` (lineax's and optimistix's shape); `outcome(value, result, throw)` is the one
   place that makes this choice;
 - a driver whose answer is a record of its run (`linear_solve`'s `LinearSolution`, the flows,
-  `minimize_shape`) always returns the record, which carries `value` and `result` itself.
+  `minimize_shape`, `match_shapes`) always returns the record, which carries `value`, `result` and
+  `stats` itself.
+
+Every such record, `Solution` included, is a `Record`: one shape (`value`, `result`, `stats`) that a
+caller can rely on whatever returned it.
 
 Every outcome is an item of `RESULTS`; no computation raises through a bare `equinox.error_if` with a
 message of its own.
@@ -20,13 +24,12 @@ message of its own.
 Reference: optimistix `RESULTS` / lineax `RESULTS` (`equinox.Enumeration`, `throw=`).
 """
 
-from __future__ import annotations
-
 from typing import Any
 
 import equinox as eqx
 import jax
 import numpy as np
+from equinox import AbstractVar  # (no `from __future__ import annotations` here: equinox reads AbstractVar as an object)
 from jaxtyping import Array, Bool, PyTree
 
 
@@ -44,8 +47,8 @@ class RESULTS(eqx.Enumeration):
     max_steps_reached = (
         "The iteration did not reach its tolerance within `max_steps` iterations (an iterative linear "
         "solve's, or the function's own loop: ARAP's local-global steps, ICP's refinements). Raise "
-        '`max_steps` or loosen `rtol`; for a linear solve, a direct method (`method="cholesky"`, '
-        '`solver="cholesky"`) avoids the iteration. Pass `throw=False` to inspect the result.'
+        '`max_steps` or loosen `rtol`; for a linear solve, a direct backend (`solver="cholesky"`) '
+        "avoids the iteration. Pass `throw=False` to inspect the result."
     )
     singular = (
         "The solution does not solve the system to `residual_tolerance`: the matrix is singular (a "
@@ -89,7 +92,25 @@ class RESULTS(eqx.Enumeration):
     )
 
 
-class Solution(eqx.Module):
+class Record(eqx.Module):
+    """What every record of a computation that can fail has (lineax's and optimistix's `Solution` names).
+
+    Attributes:
+        value: the answer (for a run: its final state, as lineax's solution and optimistix's `y`).
+        result: an item of `RESULTS`; `RESULTS.successful` when `value` is the answer. For a run of
+            steps, the first failing step's outcome (and `first_failure_step` says which).
+        stats: what the computation measured on the way (residuals, iteration counts, a run's history),
+            a dict of arrays.
+
+    A subclass provides each as a field or a property (`equinox.AbstractVar`).
+    """
+
+    value: AbstractVar[PyTree]
+    result: AbstractVar[RESULTS]
+    stats: AbstractVar[dict[str, Any]]
+
+
+class Solution(Record):
     """A value with its outcome: what a computation that can fail returns with `throw=False`.
 
     Attributes:

@@ -191,18 +191,16 @@ def bumpy_sphere() -> Mesh:
 @pytest.mark.parametrize("orientation_weight", [0.0, 1.0])
 def test_match_shapes_on_slivers_with_robust_laplacian_is_finite_and_reports_its_outcome(bumpy_sphere, orientation_weight):
     """Zero-area faces and slivers: `robust=True` (intrinsic Delaunay) keeps every step finite; `throw=False`
-    reports the steps' outcome in a `ddgjax.Solution`. Without `robust`, the mesh is refused up front."""
+    reports the steps' outcome in the record's `result`. Without `robust`, the mesh is refused up front."""
     degenerate, moved = _with_slivers(bumpy_sphere, 4)
     areas = igl.doublearea(np.asarray(degenerate.vertices), np.asarray(degenerate.faces)) / 2
     assert len(moved) == 4 and np.sum(areas == 0) >= 2 and np.sum(areas < 1e-12) >= 5
     with pytest.raises(ddgjax.MeshDataError, match="robust=True"):
         match_shapes(bumpy_sphere, degenerate, k=10, k_final=20)
-    solution = match_shapes(
+    result = match_shapes(
         bumpy_sphere, degenerate, k=10, k_final=20, orientation_weight=orientation_weight, robust=True, throw=False
     )
-    assert isinstance(solution, ddgjax.Solution) and isinstance(solution.value, MatchResult)
-    assert solution.result == ddgjax.RESULTS.successful
-    result = solution.value
+    assert isinstance(result, MatchResult) and result.result == ddgjax.RESULTS.successful
     assert np.all(np.isfinite(np.asarray(result.functional_map))) and result.functional_map.shape == (20, 20)
     assert result.initial_functional_map.shape == (10, 10) and np.all(np.isfinite(np.asarray(result.initial_functional_map)))
     for shape in (result.source, result.target):
@@ -239,11 +237,12 @@ def test_bad_input(spot, without_type_checker):
 
 
 @pytest.mark.slow
-def test_match_shapes_with_throw_false_reports_its_steps_outcome_in_a_solution(bumpy_sphere):
-    """`throw=False`: the pipeline's result in a `ddgjax.Solution`, its `result` the first failed step's
-    (here none: a shape with no symmetry matched to itself maps every vertex to itself)."""
-    solution = match_shapes(bumpy_sphere, bumpy_sphere, k=10, k_final=20, throw=False)
-    assert isinstance(solution, ddgjax.Solution) and isinstance(solution.value, MatchResult)
-    assert solution.result == ddgjax.RESULTS.successful
-    assert solution.value.functional_map.shape == (20, 20)
-    np.testing.assert_array_equal(solution.value.point_map, np.arange(bumpy_sphere.n_vertices))
+def test_match_shapes_with_throw_false_reports_its_steps_outcome_in_its_record(bumpy_sphere):
+    """`throw=False`: the pipeline's record, its `result` the first failed step's (here none: a shape with
+    no symmetry matched to itself maps every vertex to itself), `value` the point map, `stats` each step's."""
+    record = match_shapes(bumpy_sphere, bumpy_sphere, k=10, k_final=20, throw=False)
+    assert isinstance(record, MatchResult) and isinstance(record, ddgjax.Record)
+    assert record.result == ddgjax.RESULTS.successful
+    assert record.functional_map.shape == (20, 20)
+    np.testing.assert_array_equal(record.value, np.arange(bumpy_sphere.n_vertices))
+    assert set(record.stats) == {"source", "target", "functional_map", "refine"}

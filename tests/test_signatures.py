@@ -138,3 +138,42 @@ def test_every_exception_names_a_public_function_that_needs_it():
 def test_the_conventions_page_shows_the_vocabulary_table():
     page = (ROOT / "docs" / "conventions.md").read_text()
     assert vocabulary.with_table(page) == page, "docs/conventions.md is stale: run `python -m ddgjax._vocabulary`"
+
+
+def _public_classes():
+    modules = [ddgjax] + [importlib.import_module(f"ddgjax.{name}") for name in ddgjax._SUBPACKAGES]
+    for module in modules:
+        for name in sorted(getattr(module, "__all__", None) or dir(module)):
+            value = getattr(module, name)
+            if inspect.isclass(value) and value.__module__.startswith("ddgjax") and not name.startswith("_"):
+                yield f"{module.__name__}.{name}", value
+
+
+#: Classes with an outcome that are not records of an answer, and why.
+NOT_RECORDS = {"ddgjax.solve.Factorization": "a kept solver state (lineax's solver state): its solves return the records"}
+
+
+def test_every_record_has_value_result_and_stats():
+    # One record shape (lineax / optimistix): whatever carries an outcome is a ddgjax.Record, whose three names
+    # equinox checks are provided (as fields or properties) when the class is defined.
+    records = {
+        name: cls
+        for name, cls in _public_classes()
+        if "result" in dir(cls) or any(f == "result" for f in getattr(cls, "__dataclass_fields__", {}))
+    }
+    assert {"ddgjax.solve.LinearSolution", "ddgjax.matching.MatchResult", "ddgjax.curves.CurveFlowResult"} <= set(records)
+    for name, cls in records.items():
+        if name not in NOT_RECORDS:
+            assert issubclass(cls, ddgjax.Record), (
+                f"{name}: a record with `result` must subclass ddgjax.Record (value, result, stats)"
+            )
+            assert isinstance(inspect.getattr_static(cls, "stats", None), property) or "stats" in cls.__dataclass_fields__, name
+
+
+def test_a_record_gives_its_states_by_methods():
+    # `.mesh(i)` / `.curve(i)` are methods on every record (a state by index, or the final one), never properties.
+    for name, cls in _public_classes():
+        for accessor in ("mesh", "curve", "tet_mesh"):
+            assert not isinstance(inspect.getattr_static(cls, accessor, None), property), (
+                f"{name}.{accessor} is a property; make it a method"
+            )

@@ -1,4 +1,4 @@
-"""`method="auto"` of ddgjax.solve.linear_solve: which backend runs, by installation, size and trace."""
+"""`solver="auto"` of ddgjax.solve.linear_solve: which backend runs, by installation, size and trace."""
 
 from __future__ import annotations
 

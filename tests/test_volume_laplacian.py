@@ -50,7 +50,7 @@ def test_mass_matrices_equal_libigl(tet_mesh, mass, igl_type):
 
 def test_cotan_weights_and_dihedral_angles_against_libigl(tet_mesh):
     V, T = host(tet_mesh)
-    theta, _ = igl.tet_dihedral_angles(V, T)
+    theta, _ = igl.dihedral_angles(V, T)
     assert np.abs(np.asarray(volume.tet_dihedral_angles(tet_mesh)) - theta).max() < 1e-9  # libigl's arccos route
     # libigl's cotmatrix_entries gives l_k cot(theta_k) / 6 per edge k: the weight of the opposite edge.
     entries = igl.cotmatrix_entries(V, T)

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         *rows,
     ]
     print("\n".join(f"{key:10s} {value}" for key, value in rows))
-    if not args.no_plot and not _draw(start, result.mesh, history, label, reference, args):
+    if not args.no_plot and not _draw(start, result.mesh(), history, label, reference, args):
         return 2
     return 0
 
@@ -98,7 +98,7 @@ def _willmore(steps: int, progress: bool):
     rows = [
         ("target", f"4 pi = {4 * np.pi:.6g}; the round icosphere(3)'s discrete energy {round_value:.6g}"),
         ("round", f"radii spread {(radii.max() - radii.min()) / radii.mean():.2%} of the mean radius"),
-        ("volume", f"{float(enclosed_volume(start)):.10g} -> {float(enclosed_volume(result.mesh)):.10g} (held)"),
+        ("volume", f"{float(enclosed_volume(start)):.10g} -> {float(enclosed_volume(result.mesh())):.10g} (held)"),
     ]
     return start, result, rows, ("4 pi", 4 * np.pi)
 
@@ -123,18 +123,18 @@ def _catenoid(steps: int, progress: bool):
 def _fit(steps: int, progress: bool):
     target_mesh = icosphere(4, dtype=jnp.float64)
     target_mesh = target_mesh.with_vertices(target_mesh.vertices * jnp.array([1.3, 1.0, 0.7]))
-    target = sample_points(target_mesh, 2000, jax.random.key(1))
+    target = sample_points(target_mesh, 2000, key=jax.random.key(1))
     loss = mesh_fitting_loss(target, n_samples=2000, edge_weight=0.05)
 
     start = icosphere(2, dtype=jnp.float64)
     optimizer = adam_uniform(optax.exponential_decay(5e-2, steps, 0.1))
     result = minimize_shape(loss, start, steps=steps, optimizer=optimizer, key=jax.random.key(0), progress=progress)
-    reference = sample_points(target_mesh, 2000, jax.random.key(8))
-    measure = lambda mesh: float(chamfer_distance(sample_points(mesh, 2000, jax.random.key(7)), reference))
+    reference = sample_points(target_mesh, 2000, key=jax.random.key(8))
+    measure = lambda mesh: float(chamfer_distance(sample_points(mesh, 2000, key=jax.random.key(7)), reference))
     rows = [
         (
             "chamfer",
-            f"{measure(start):.3g} -> {measure(result.mesh):.3g}; between two samplings of the target {measure(target_mesh):.3g}",
+            f"{measure(start):.3g} -> {measure(result.mesh()):.3g}; between two samplings of the target {measure(target_mesh):.3g}",
         ),
     ]
     return start, result, rows, ("", None)

@@ -32,7 +32,7 @@ from .._loop import (
     run_chunks,
     scan_steps,
 )
-from .._results import RESULTS, is_failure, raise_if_failed
+from .._results import RESULTS, Record, is_failure, raise_if_failed
 from ._curvature import KINDS, length, total_curvature
 from ._curve import Curve, takes_curve, unchecked_curve
 from ._flow_certificate import SIMPLICITY_CHECKS, state_outcome, track, tracker_start
@@ -40,7 +40,7 @@ from ._flow_step import METHODS, RESCALES, flow_step, rescaled, size
 from ._invariants import centroid, cyclic_residual, enclosed_area, is_simple, isoperimetric_ratio
 
 
-class CurveFlowResult(eqx.Module):
+class CurveFlowResult(Record):
     """Saved states of a curve-shortening flow and the invariants the reading report discusses.
 
     `s = steps // save_every + 1` states are saved: the initial curve and every `save_every` steps.
@@ -94,6 +94,23 @@ class CurveFlowResult(eqx.Module):
     def value(self) -> Float[Array, "n 2"]:
         """The final positions, `points[-1]` (`(n, 2)`; `curve()` wraps them in a `Curve`)."""
         return self.points[-1]
+
+    @property
+    def stats(self) -> dict[str, Array]:
+        """The run's history per saved state: `times`, `steps` and the invariants (`total_curvature`, `centroid`,
+        `length`, `area`, `isoperimetric_ratio`, `cyclic_residual`, `is_simple`), as the fields hold them."""
+        names = (
+            "times",
+            "steps",
+            "total_curvature",
+            "centroid",
+            "length",
+            "area",
+            "isoperimetric_ratio",
+            "cyclic_residual",
+            "is_simple",
+        )
+        return {name: getattr(self, name) for name in names}
 
     @property
     def first_failure_time(self) -> Float[Array, ""]:

@@ -54,6 +54,7 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_count
 from .._numerics import safe_div
 from .._options import LUMPED_MASS_MATRICES, check_mass
+from .._results import RESULTS, Solution, first_failure, outcome
 from ..dec import sharp
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..mesh import (
@@ -135,7 +136,15 @@ def inverse_values(values: Float[Array, " k"]) -> Float[Array, " k"]:
     return jnp.where(kept, 1.0 / jnp.where(kept, values, 1.0), 0.0)
 
 
-def fluid_basis(mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False) -> FluidBasis:
+def fluid_basis(
+    mesh: Mesh,
+    k: int,
+    *,
+    mass: str = "voronoi",
+    robust: bool | IntrinsicTriangulation = False,
+    solver: str = "auto",
+    throw: bool = True,
+) -> FluidBasis | Solution:
     """The first `k` Laplacian eigenpairs of a closed mesh and the advection tensor between them (module docstring).
 
     `W_kij = -int phi_k J(phi_i, phi_j)` with `J(p, q) = n . (grad p x grad q)` (exact per-face
@@ -150,17 +159,21 @@ def fluid_basis(mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | Int
             (`(l_max + 1)^2`: 16, 25, 36, 49, 64) so that no degree is cut in the middle.
         mass: the lumped mass matrix, `"voronoi"` (default) or `"barycentric"` (`ddgjax.LUMPED_MASS_MATRICES`).
         robust: the intrinsic Delaunay Laplacian (`ddgjax.spectral.eigenpairs`).
+        solver: the backend of the eigensolver's and the harmonic fields' linear solves (`ddgjax.LINEAR_SOLVERS`).
+        throw: raise when the eigensolve or a Poisson solve fails (default); with `False` return a
+            `ddgjax.Solution` holding the basis, the first failure, and `stats` with each step's
+            (`"eigenpairs"`, `"poisson"`).
 
     Returns:
         `FluidBasis` (`values (k,)`, `vectors (nv, k)`, `mass (nv,)`, `advection (k, k, k)`,
         `coriolis (k,)`; `harmonic (nf, 2 g, 3)`, `areas (nf,)`, `harmonic_advection (k, 2 g, k)`,
         `harmonic_exchange (k, 2 g, 2 g)`), differentiable in the vertex positions through `ddgjax.spectral.eigenpairs`
-        (any function invariant within clusters of equal eigenvalues).
+        (any function invariant within clusters of equal eigenvalues); in a `ddgjax.Solution` with `throw=False`.
 
     Raises:
         DDGInputError: `mesh` not a `Mesh`, a mesh with a boundary, bad `k` or `mass`;
             `MeshDataError` for a mesh that is not consistently oriented.
-        equinox.EquinoxRuntimeError: the eigensolver failed (`ddgjax.RESULTS.eigensolver_failed`).
+        equinox.EquinoxRuntimeError: with `throw=True`, the eigensolver or a solve failed (`ddgjax.RESULTS`).
     """
     mesh = require_mesh("mesh", mesh)
     check_basis_size(mesh, k)
@@ -172,20 +185,26 @@ def fluid_basis(mesh: Mesh, k: int, *, mass: str = "voronoi", robust: bool | Int
         )
     # What `ddgjax.spectral.eigenpairs` does with Neumann conditions, keeping the mass matrix it used.
     L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
-    values, vectors = smallest_eigenpairs(L, M, k)
-    harmonic = _harmonic_fields(mesh, closed_cocycle_basis(mesh.topology), M.diagonal(), mass=mass, robust=robust)
-    return _fluid_basis(mesh, values, vectors, M.diagonal(), harmonic)
+    eigen = smallest_eigenpairs(L, M, k, solver=solver, throw=False)
+    values, vectors = eigen.value
+    harmonic, poisson = _harmonic_fields(
+        mesh, closed_cocycle_basis(mesh.topology), M.diagonal(), mass=mass, robust=robust, solver=solver
+    )
+    basis = _fluid_basis(mesh, values, vectors, M.diagonal(), harmonic)
+    return outcome(
+        basis, first_failure(eigen.result, poisson.result), throw, {"eigenpairs": eigen.stats, "poisson": poisson.stats}
+    )
 
 
-def _harmonic_fields(mesh: Mesh, cocycles, vertex_mass, *, mass, robust) -> Float[Array, "nf h 3"]:
+def _harmonic_fields(mesh: Mesh, cocycles, vertex_mass, *, mass, robust, solver) -> tuple[Float[Array, "nf h 3"], Solution]:
     """`L^2`-orthonormal harmonic face fields spanning the classes of the closed `cocycles (ne, h)` (module docstring).
 
     The gradient part is removed with the basis's own Laplacian and mass (`vertex_mass`, `mass=`,
     `robust=`): exactly `L^2`-orthogonal to the mesh's gradients with the cotan Laplacian, to the
     discretisation's accuracy with the intrinsic Delaunay one (`robust=True`, which keeps degenerate
-    faces finite)."""
+    faces finite); with the Poisson solve's `Solution` (an empty one on a sphere)."""
     if cocycles.shape[1] == 0:  # a sphere: no Poisson solve
-        return device_array(np.zeros((mesh.n_faces, 0, 3), mesh.vertices.dtype))
+        return device_array(np.zeros((mesh.n_faces, 0, 3), mesh.vertices.dtype)), Solution(None, RESULTS.successful, {})
     areas = face_areas(mesh)
     # Faces of (near-)zero area carry no field: a closed form's vector there is of size 1 / area.
     regular = (areas > default_area_tol(areas.dtype) * jnp.max(face_edge_lengths_sq(mesh), axis=1))[:, None, None]
@@ -194,11 +213,14 @@ def _harmonic_fields(mesh: Mesh, cocycles, vertex_mass, *, mass, robust) -> Floa
     gradients = face_hat_gradients(mesh)  # (nf, 3 corners, 3)
     # L a = int grad phi_i . v dA: the gradient part of v. `solve_poisson` takes a pointwise right-hand side.
     divergence = scatter_corners_to_vertices(mesh, jnp.einsum("f,fcd,fmd->fcm", areas, gradients, closed))
-    potential = solve_poisson(mesh, safe_div(-divergence, vertex_mass[:, None]), mass=mass, robust=robust)
+    poisson = solve_poisson(
+        mesh, safe_div(-divergence, vertex_mass[:, None]), mass=mass, robust=robust, solver=solver, throw=False
+    )
+    potential = poisson.value
     fields = jnp.where(regular, closed - jnp.einsum("fcd,fcm->fmd", gradients, potential[mesh.faces]), 0.0)
     gram = jnp.einsum("f,fmd,fnd->mn", areas, fields, fields)
     factor = jnp.linalg.cholesky(gram)
-    return jnp.einsum("mn,fnd->fmd", jnp.linalg.inv(factor), fields)
+    return jnp.einsum("mn,fnd->fmd", jnp.linalg.inv(factor), fields), poisson
 
 
 def check_basis_size(mesh: Mesh, k: int) -> int:

@@ -72,7 +72,7 @@ from .._loop import (
     run_chunks,
     scan_steps,
 )
-from .._results import RESULTS, raise_if_failed
+from .._results import RESULTS, Record, raise_if_failed
 from ..mesh import Mesh, require_mesh
 from ._basis import FluidBasis, check_basis_size, fluid_basis, inverse_values
 
@@ -87,7 +87,7 @@ CONTRACTION = 0.01
 CONVERGENCE = 16
 
 
-class EulerFlowResult(eqx.Module):
+class EulerFlowResult(Record):
     """Saved states of `euler_flow`: the (projected) initial state and one every `save_every` steps.
 
     `s = steps // save_every + 1` states.
@@ -128,6 +128,11 @@ class EulerFlowResult(eqx.Module):
     def value(self) -> Float[Array, " nv"]:
         """The final vorticity at the vertices, `vorticity[-1]`."""
         return self.vorticity[-1]
+
+    @property
+    def stats(self) -> dict[str, Array]:
+        """The run's history per saved state: `times`, `steps`, `kinetic_energy`, `enstrophy`, as the fields hold them."""
+        return {"times": self.times, "steps": self.steps, "kinetic_energy": self.kinetic_energy, "enstrophy": self.enstrophy}
 
 
 def euler_flow(

@@ -454,7 +454,7 @@ def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plan
     each program can be kept across processes; under a transformation everything is traced inline.
     """
     systems = _systems(mesh, L, M, plans, t_coef)
-    factor = functools.partial(factorize, method=solver)
+    factor = functools.partial(factorize, solver=solver)
     return systems.t, _Factors(
         heat=None if systems.heat is None else factor(systems.heat),
         heat_plan=plans.heat if plans.neumann else None,

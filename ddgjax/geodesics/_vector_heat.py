@@ -389,7 +389,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
 def _factored(kept: _Kept, solver: str) -> _Kept:
     """`kept` with its three matrices factored. Called eagerly, on concrete values after `_systems`'s program
     (the definiteness check on the host, outside every program, so each can be kept across processes)."""
-    factor = functools.partial(factorize, method=solver)
+    factor = functools.partial(factorize, solver=solver)
     return eqx.tree_at(
         lambda k: (k.heat, k.vector_heat, k.poisson), kept, (factor(kept.heat), factor(kept.vector_heat), factor(kept.poisson))
     )

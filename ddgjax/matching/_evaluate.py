@@ -6,6 +6,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Int
 
 from .._errors import DDGInputError, check_count
+from .._results import RESULTS, Solution, first_failure, outcome
 from ..geodesics import heat_distance_solver
 from ..mesh import Mesh, require_mesh, total_area
 
@@ -17,7 +18,8 @@ def geodesic_error(
     *,
     n_samples: int | None = None,
     key: int = 0,
-) -> float:
+    throw: bool = True,
+) -> float | Solution:
     """Mean geodesic distance on the source between predicted and true matches, over `sqrt(area)`.
 
     `error = mean_i d_S(point_map[i], true_point_map[i]) / sqrt(area(S))` over the target vertices
@@ -41,9 +43,12 @@ def geodesic_error(
         true_point_map: `(n,)` its true source vertex.
         n_samples: evaluate on this many target vertices drawn at random (default: all), for large meshes.
         key: the integer seed of that draw (the vocabulary's `key=`; NumPy's `default_rng`).
+        throw: raise when a heat-method solve fails (default); with `False` return a `ddgjax.Solution`
+            whose `result` is the first failed solve's and whose `stats` hold `n_queries`, the
+            distance queries made.
 
     Returns:
-        The normalised mean geodesic error, a Python float.
+        The normalised mean geodesic error, a Python float (in a `ddgjax.Solution` with `throw=False`).
 
     Reference: V. G. Kim, Y. Lipman, T. Funkhouser, "Blended intrinsic maps" (SIGGRAPH 2011),
     section 7. pyFM computes geodesic errors in its examples from exact geodesic matrices
@@ -65,10 +70,17 @@ def geodesic_error(
     distance = np.linalg.norm(positions[predicted] - positions[true], axis=1)
     # Only the true vertices that are missed need a query; each query serves every target vertex that shares it.
     missed = predicted != true
-    for source in np.unique(true[missed]):
+    sources = np.unique(true[missed])
+    results = [RESULTS.successful]
+    for source in sources:
         pairs = np.flatnonzero(missed & (true == source))
-        distance[pairs] = np.maximum(distance[pairs], np.asarray(solver.distance(int(source)))[predicted[pairs]])
-    return float(np.mean(distance) / np.sqrt(float(total_area(mesh))))
+        query = solver.distance(int(source), throw=throw)
+        if not throw:
+            results.append(query.result)
+            query = query.value
+        distance[pairs] = np.maximum(distance[pairs], np.asarray(query)[predicted[pairs]])
+    error = float(np.mean(distance) / np.sqrt(float(total_area(mesh))))
+    return outcome(error, first_failure(*results), throw, {"n_queries": len(sources)})
 
 
 def _indices(name: str, value, n_vertices: int) -> np.ndarray:

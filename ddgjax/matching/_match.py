@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count
-from .._results import Solution, first_failure, outcome
+from .._results import RESULTS, Record, first_failure, raise_if_failed
 from ..mesh import Mesh, require_mesh
 from ._descriptors import descriptors
 from ._functional_map import functional_map
@@ -20,8 +19,8 @@ from ._shape import SpectralShape, spectral_shape
 REFINEMENTS = ("zoomout", "icp", None)
 
 
-class MatchResult(eqx.Module):
-    """What `match_shapes` returns (a pytree).
+class MatchResult(Record):
+    """What `match_shapes` returns (a pytree): the record of its run, with `value`, `result` and `stats` (`ddgjax.Record`).
 
     Attributes:
         point_map: `(n_target,)` for each target vertex, its source vertex.
@@ -30,6 +29,9 @@ class MatchResult(eqx.Module):
             `point_map(initial_functional_map, source, target)`).
         source: the source `SpectralShape` (its bases hold every eigenpair used).
         target: the target `SpectralShape`.
+        result: the first failure of the pipeline's steps (`ddgjax.RESULTS.successful` when none failed).
+        stats: each step's own `stats`: `{"source": ..., "target": ...}` of the two eigensolves and
+            `{"functional_map": ...}` of the fit.
     """
 
     point_map: Int[Array, " n_target"]
@@ -37,6 +39,13 @@ class MatchResult(eqx.Module):
     initial_functional_map: Float[Array, "k k"]
     source: SpectralShape
     target: SpectralShape
+    result: RESULTS
+    stats: dict
+
+    @property
+    def value(self) -> Int[Array, " n_target"]:
+        """The answer: `point_map`."""
+        return self.point_map
 
 
 def match_shapes(
@@ -55,7 +64,7 @@ def match_shapes(
     k_final: int = 100,
     robust: bool = False,
     throw: bool = True,
-) -> MatchResult | Solution:
+) -> MatchResult:
     """Match two shapes: for each target vertex its source vertex, by functional maps refined with ZoomOut.
 
     The pipeline (pyFM's `FunctionalMapping` preprocess / fit / zoomout_refine / get_p2p):
@@ -87,12 +96,12 @@ def match_shapes(
         robust: the intrinsic Delaunay Laplacian for both shapes (`spectral_shape(robust=True)`),
             for meshes with degenerate faces.
         throw: a failed eigensolve or functional-map solve raises (default); with `False` the
-            pipeline runs to its end and returns a `ddgjax.Solution` whose `result` is the first
-            failure of its steps (`ddgjax.RESULTS.successful` when none failed).
+            pipeline runs to its end and the record's `result` is the first failure of its steps
+            (`ddgjax.RESULTS.successful` when none failed).
 
     Returns:
-        `MatchResult` with `.point_map`, `.functional_map`, `.source`, `.target`; in a
-        `ddgjax.Solution` with `throw=False`.
+        `MatchResult` with `.point_map` (its `value`), `.functional_map`, `.source`, `.target`, `.result`
+        and `.stats`, with either `throw` (a record of the run, as the flows return).
 
     Reference: M. Ovsjanikov et al., "Functional maps" (SIGGRAPH 2012); S. Melzi et al., "ZoomOut"
     (SIGGRAPH Asia 2019). pyFM: `FunctionalMapping(mesh1, mesh2)`, `.preprocess(n_descr=100,
@@ -134,16 +143,28 @@ def match_shapes(
     )
     # A failed fit (reported below) may hold NaN: zeroed, the steps after it still run and the result says why.
     initial = C = _finite_or_zero(fit.value)
+    refined_result, refine_stats = RESULTS.successful, {}
     if refine == "zoomout":
         C = zoomout_refine(C, source, target, k_final=k_final)
     elif refine == "icp":
-        C = icp_refine(C, source, target)
-    match = MatchResult(
-        point_map=point_map(C, source, target), functional_map=C, initial_functional_map=initial, source=source, target=target
-    )
+        refined = icp_refine(C, source, target, throw=False)
+        C, refined_result, refine_stats = refined.value, refined.result, refined.stats
     # Every step runs: a failure is reported once, at the end, with what the pipeline made of it.
-    result = first_failure(source_solution.result, target_solution.result, fit.result)
-    return outcome(match, result, throw)
+    match = MatchResult(
+        point_map=point_map(C, source, target),
+        functional_map=C,
+        initial_functional_map=initial,
+        source=source,
+        target=target,
+        result=first_failure(source_solution.result, target_solution.result, fit.result, refined_result),
+        stats={
+            "source": source_solution.stats,
+            "target": target_solution.stats,
+            "functional_map": fit.stats,
+            "refine": refine_stats,
+        },
+    )
+    return raise_if_failed(match, match.result, throw)
 
 
 @kernel

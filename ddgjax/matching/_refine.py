@@ -21,6 +21,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._compile import kernel
 from .._errors import DDGInputError, check_count
+from .._results import RESULTS, Solution, outcome
 from ._point_map import check_functional_map, embedded_nearest, project_point_map
 from ._shape import SpectralShape, require_spectral_shape
 
@@ -33,7 +34,8 @@ def icp_refine(
     *,
     max_steps: int = 10,
     rtol: float = 1e-10,
-) -> Float[Array, "k_t k_s"]:
+    throw: bool = True,
+) -> Float[Array, "k_t k_s"] | Solution:
     """Refine `C` by spectral ICP: point map, its functional map, the nearest orthogonal matrix; repeat.
 
     Each step: `p = point_map(C)`, `C' = Phi_t^T M_t Phi_s[p]` (`functional_map_from_point_map`),
@@ -49,9 +51,12 @@ def icp_refine(
         target: the target `SpectralShape` (at least `k_t` eigenpairs).
         max_steps: the most ICP steps (default 10, pyFM's `nit`).
         rtol: the change of `C`, relative to its largest entry, below which the steps stop (default 1e-10, pyFM's `tol`).
+        throw: raise when the refined map is not finite (`RESULTS.nonfinite`: a NaN in `C` or in the
+            shapes' bases); with `False` return a `ddgjax.Solution` whose `stats` hold `num_steps` (the
+            steps taken) and `change` (the last step's relative change: at most `rtol` at a fixed point).
 
     Returns:
-        `(k_t, k_s)` refined functional map.
+        `(k_t, k_s)` refined functional map (in a `ddgjax.Solution` with `throw=False`).
 
     Reference: M. Ovsjanikov et al., "Functional maps: a flexible representation of maps between
     shapes" (SIGGRAPH 2012), section 6.1. pyFM: `refine.icp_refine(C, Phi_s[:, :k_s], Phi_t[:, :k_t],
@@ -63,7 +68,10 @@ def icp_refine(
     max_steps = check_count("max_steps", max_steps, minimum=0)
     if not (np.isscalar(rtol) and np.isreal(rtol) and 0 <= rtol < np.inf) or isinstance(rtol, bool):
         raise DDGInputError(f"rtol: expected a finite number >= 0, got {rtol!r}")
-    return _icp(jnp.asarray(C), source.vectors[:, :k_s], target.vectors[:, :k_t], target.mass, rtol, max_steps=max_steps)
+    C, result, stats = _icp(
+        jnp.asarray(C), source.vectors[:, :k_s], target.vectors[:, :k_t], target.mass, rtol, max_steps=max_steps
+    )
+    return outcome(C, result, throw, stats)
 
 
 @kernel(static_argnames=("max_steps",))
@@ -87,8 +95,9 @@ def _icp(C, source_vectors, target_vectors, target_mass, rtol, *, max_steps: int
         change = jnp.max(jnp.abs(refined - C)) / jnp.maximum(jnp.max(jnp.abs(C)), jnp.finfo(C.dtype).tiny)
         return refined, change, steps + 1
 
-    C, _, _ = jax.lax.while_loop(cond, body, (C, jnp.asarray(jnp.inf, C.dtype), jnp.asarray(0)))
-    return C
+    C, change, num_steps = jax.lax.while_loop(cond, body, (C, jnp.asarray(jnp.inf, C.dtype), jnp.asarray(0)))
+    result = RESULTS.where(jnp.all(jnp.isfinite(C)), RESULTS.successful, RESULTS.nonfinite)
+    return C, result, {"num_steps": num_steps, "change": change}
 
 
 def zoomout_refine(

@@ -354,7 +354,7 @@ class SampledPoints(NamedTuple):
     normals: Float[Array, "n 3"]
 
 
-def sample_points(mesh: Mesh, n: int, key: PRNGKeyArray, *, return_normals: bool = False) -> Float[Array, "n 3"] | SampledPoints:
+def sample_points(mesh: Mesh, n: int, *, key: PRNGKeyArray, return_normals: bool = False) -> Float[Array, "n 3"] | SampledPoints:
     """`n` points uniformly distributed by area on the surface, differentiable in the vertices.
 
     Faces are drawn with probability `A_f / sum A` (the draw is not differentiated), and a point in

@@ -48,7 +48,7 @@ from .._compile import kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._loop import Failure, check_progress, finite_outcome, first_failure_step, no_failure, record, run_chunks, scan_steps
 from .._options import check_solver, check_weights
-from .._results import RESULTS, first_failure, is_failure, raise_if_failed
+from .._results import RESULTS, Record, first_failure, is_failure, raise_if_failed
 from ..mesh import Mesh, enclosed_volume, require_mesh
 from ._large_steps import LargeSteps, adam_uniform, fixed_vertex_indices, large_steps
 
@@ -56,11 +56,11 @@ PARAMETRIZATIONS = ("large_steps", "vertices")
 CONSTRAINTS = (None, "volume")
 
 
-class ShapeOptimizationResult(eqx.Module):
+class ShapeOptimizationResult(Record):
     """What `minimize_shape` returns.
 
     Attributes:
-        value: `(nv, 3)` final positions (the last good iterate if a step failed); `mesh` wraps them.
+        value: `(nv, 3)` final positions (the last good iterate if a step failed); `mesh()` wraps them.
         loss_history: `(steps + 1,)` the loss after `k` steps, `k = 0, ..., steps` (the first is the
             initial shape's, the last the final shape's; a stochastic loss is evaluated with the
             step's key).
@@ -68,7 +68,7 @@ class ShapeOptimizationResult(eqx.Module):
             `nonfinite` (a NaN / inf loss, gradient or update) or a failed Large Steps solve's.
         first_failure_step: int scalar, that step's number (`1, ..., steps`: step `k` updates iterate
             `k - 1`), `steps + 1` when none failed. Failed steps are not applied.
-        initial: the input mesh (its connectivity, for `mesh`).
+        initial: the input mesh (its connectivity, for `mesh()`).
         parametrization: `"large_steps"` or `"vertices"` (static).
     """
 
@@ -80,8 +80,12 @@ class ShapeOptimizationResult(eqx.Module):
     parametrization: str = eqx.field(static=True)
 
     @property
+    def stats(self) -> dict[str, Array]:
+        """The run's history: `{"loss": loss_history}` (the loss after each step, the initial shape's first)."""
+        return {"loss": self.loss_history}
+
     def mesh(self) -> Mesh:
-        """The optimised mesh, `initial.with_vertices(value)`."""
+        """The optimised mesh, `initial.with_vertices(value)` (a method, as the flows' `mesh(index)`)."""
         return self.initial.with_vertices(self.value)
 
 
@@ -236,7 +240,7 @@ def minimize_shape(
     with Large Steps):
 
         def fit(mesh, key):
-            points = sample_points(mesh, 2000, key)
+            points = sample_points(mesh, 2000, key=key)
             return chamfer_distance(points, target) + 0.1 * normal_consistency_loss(mesh)
 
         result = minimize_shape(fit, icosphere(2), steps=500, key=jax.random.key(0))

@@ -2,7 +2,7 @@
 
 `mesh_fitting_loss(target, n_samples=...)` returns `loss(mesh, key)`:
 
-    chamfer(sample_points(mesh, n_samples, key), target)
+    chamfer(sample_points(mesh, n_samples, key=key), target)
         + edge_weight * edge_length_loss(mesh)
         + normal_weight * normal_consistency_loss(mesh)
         + laplacian_weight * laplacian_smoothing_loss(mesh)
@@ -38,7 +38,7 @@ def mesh_fitting_loss(
     regularisers (module docstring), a scalar `()` differentiable in the vertex positions.
 
     Args:
-        target: `(n, 3)` target points (e.g. `sample_points(target_mesh, n, key)`).
+        target: `(n, 3)` target points (e.g. `sample_points(target_mesh, n, key=key)`).
         n_samples: surface samples of the mesh per call.
         edge_weight, normal_weight, laplacian_weight: the regularisers' weights (the tutorial's 1, 0.01, 0.1).
     """
@@ -48,7 +48,7 @@ def mesh_fitting_loss(
 
     def loss(mesh: Mesh, key: PRNGKeyArray) -> Float[Array, ""]:
         return (
-            chamfer_distance(sample_points(mesh, n_samples, key), target)
+            chamfer_distance(sample_points(mesh, n_samples, key=key), target)
             + edge_weight * edge_length_loss(mesh)
             + normal_weight * normal_consistency_loss(mesh)
             + laplacian_weight * laplacian_smoothing_loss(mesh)

@@ -77,7 +77,7 @@ from .._loop import (
     scan_steps,
 )
 from .._options import check_mass, check_solver
-from .._results import RESULTS, first_failure, raise_if_failed
+from .._results import RESULTS, Record, first_failure, raise_if_failed
 from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
 from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, enclosed_volume, face_edge_lengths_sq, require_mesh, total_area
@@ -85,7 +85,7 @@ from ..solve import linear_solve
 from ..sparse import nonnegative
 
 
-class MeanCurvatureFlowResult(eqx.Module):
+class MeanCurvatureFlowResult(Record):
     """Saved states of `mean_curvature_flow`: the initial surface and one every `save_every` steps.
 
     `s = steps // save_every + 1` states.
@@ -123,6 +123,11 @@ class MeanCurvatureFlowResult(eqx.Module):
     def value(self) -> Float[Array, "nv 3"]:
         """The final vertex positions, `vertices[-1]` (`(nv, 3)`; `mesh()` wraps them in a `Mesh`)."""
         return self.vertices[-1]
+
+    @property
+    def stats(self) -> dict[str, Array]:
+        """The run's history per saved state: `times`, `area`, `volume`, as the fields hold them."""
+        return {"times": self.times, "area": self.area, "volume": self.volume}
 
     def mesh(self, index: int = -1) -> Mesh:
         """Saved state `index` (default: the final one) as a `Mesh` of the input's connectivity."""

@@ -20,7 +20,7 @@ host from concrete values, so it cannot be made per shape inside `vmap`). A vmap
 every member of the batch has converged: the stopping test is one all-reduce per iteration. What does
 not: the host backends (`"cholesky"`, `"superlu"`, `"pyamg"`, and `"auto"` on CPU, which picks one
 of them) call the host through XLA's FFI or `jax.pure_callback`; they run, but on the host of each
-process, not on the devices the batch lives on. Pass `method="cg"` / `solver="cg"` for sharded solves.
+process, not on the devices the batch lives on. Pass `solver="cg"` for sharded solves.
 
 Reference: JAX documentation, "Distributed arrays and automatic parallelization"
 (`jax.sharding.NamedSharding`, `jax.device_put`, computation follows data).

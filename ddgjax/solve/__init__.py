@@ -14,7 +14,7 @@
   products by column colouring), so `optimistix.Newton` minimises an energy with them.
 
 The geometry problems that solve with these (Poisson, harmonic interpolation, Hodge decomposition,
-mean curvature flow) are in `ddgjax.pde`; there `solver=` names the backend passed on as `method=`.
+mean curvature flow) are in `ddgjax.pde`; there too `solver=` names the backend.
 """
 
 from ._amg import AMGHierarchy as AMGHierarchy

@@ -96,7 +96,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Inexact, Int
 from .._compile import at_top_level, device_array, kernel
 from .._errors import DDGInputError, check_choice, is_traced
 from .._options import LINEAR_SOLVERS
-from .._results import RESULTS, first_failure, is_failure, raise_if_failed
+from .._results import RESULTS, Record, first_failure, is_failure, raise_if_failed
 from ..sparse import SparseMatrix, SparsityPattern
 from ._amg import AMGHierarchy, amg_hierarchy, amg_v_cycle
 from ._host import HOST_METHODS, host_factor, host_solve
@@ -145,7 +145,7 @@ def _warn_low_precision() -> None:
     )
 
 
-class LinearSolution(eqx.Module):
+class LinearSolution(Record):
     """The answer of `linear_solve`: the solution, the outcome and what the solver did.
 
     Attributes:

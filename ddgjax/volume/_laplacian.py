@@ -30,7 +30,7 @@ from ..laplacian.internal import apply_slot_weights
 from ..sparse import SparseMatrix, diagonal_matrix
 from ._dual import vertex_dual_volumes
 from ._geometry import tet_cotan_weights, tet_volumes
-from ._plan import TetPlan, laplacian_values_from_weights, tet_plan
+from ._plan import TetPlan, laplacian_values_from_weights, row_sums, slot_values, tet_plan, with_diagonal
 from ._tet_mesh import TetMesh, require_tet_mesh
 
 
@@ -67,7 +67,7 @@ def _galerkin_values(tet_mesh: TetMesh, plan: TetPlan) -> Float[Array, " nnz"]:
     volumes = tet_volumes(tet_mesh)
     off_diagonal = slot_values(jnp.broadcast_to(volumes[:, None] / 20.0, (volumes.shape[0], 6)), plan)
     # Each vertex has three edges per tet: the row sum of V / 20 is 3 V / 20, the diagonal V / 10 = 2/3 of it.
-    return _with_diagonal(row_sums(off_diagonal, plan) * (2.0 / 3.0), off_diagonal)
+    return with_diagonal(row_sums(off_diagonal, plan) * (2.0 / 3.0), off_diagonal)
 
 
 def mass_matrix(tet_mesh: TetMesh, *, mass: str = "voronoi") -> SparseMatrix:

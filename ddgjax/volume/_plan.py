@@ -76,17 +76,17 @@ def slot_values(per_edge: Float[Array, "nt 6"], plan: TetPlan) -> Float[Array, "
     return gather_sum(per_edge.reshape(-1), plan.slot_edges, plan.edge_slots)
 
 
-def _with_diagonal(diagonal: Float[Array, " nv"], off_diagonal: Float[Array, " n_off"]) -> Float[Array, " nnz"]:
+def with_diagonal(diagonal: Float[Array, " nv"], off_diagonal: Float[Array, " n_off"]) -> Float[Array, " nnz"]:
     return jnp.concatenate([diagonal, off_diagonal])
 
 
 def row_sums(off_diagonal: Float[Array, " n_off"], plan: TetPlan) -> Float[Array, " nv"]:
     """Row sums of the symmetric matrix on `plan.pattern` with these off-diagonal values and a zero diagonal."""
     zeros = jnp.zeros(plan.n_vertices, off_diagonal.dtype)
-    return SparseMatrix(_with_diagonal(zeros, off_diagonal), plan.pattern, symmetric=True).row_sums()
+    return SparseMatrix(with_diagonal(zeros, off_diagonal), plan.pattern, symmetric=True).row_sums()
 
 
 def laplacian_values_from_weights(weights: Float[Array, "nt 6"], plan: TetPlan) -> Float[Array, " nnz"]:
     """Values of the Laplacian on `plan.pattern` from per-tet edge weights `w` (`L_ij = -sum w`, `L 1 = 0` exactly)."""
     off_diagonal = slot_values(-weights, plan)
-    return _with_diagonal(-row_sums(off_diagonal, plan), off_diagonal)
+    return with_diagonal(-row_sums(off_diagonal, plan), off_diagonal)
