@@ -3,7 +3,7 @@
 Subpackages (each loaded on first use): `ddgjax.curves` (plane curves, four discrete curvatures,
 curve-shortening flows), `ddgjax.mesh` (triangle meshes, geometry, curvature, built-in shapes),
 `ddgjax.dec` (discrete exterior calculus), `ddgjax.laplacian` (cotan Laplacian, mass matrices,
-intrinsic Delaunay), `ddgjax.sparse` (fixed-pattern sparse matrices), `ddgjax.solve` (sparse linear
+intrinsic Delaunay), `ddgjax.discretization` (a triangle or tet mesh as the problems solve on it), `ddgjax.sparse` (fixed-pattern sparse matrices), `ddgjax.solve` (sparse linear
 algebra: differentiable solves, CG, AMG), `ddgjax.pde` (Poisson / harmonic problems, Hodge
 decomposition, mean curvature flow, energies), `ddgjax.spectral` (Laplacian eigenpairs),
 `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields`
@@ -42,6 +42,7 @@ _SUBPACKAGES = (
     "curves",
     "dec",
     "deform",
+    "discretization",
     "fields",
     "fluids",
     "geodesics",
@@ -82,6 +83,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import curves as curves
     from . import dec as dec
     from . import deform as deform
+    from . import discretization as discretization
     from . import fields as fields
     from . import fluids as fluids
     from . import geodesics as geodesics

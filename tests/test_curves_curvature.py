@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.curves import (
     Curve,
     curvature,

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import ddgjax.curves as dc
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.curves import Curve, length
 
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])

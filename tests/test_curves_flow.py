@@ -13,7 +13,7 @@ import pytest
 import shapely
 from curvey.flow import CurveShorteningFlow
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.curves import (
     RESULTS,
     Curve,

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.curves import (
     Curve,
     enclosed_area,

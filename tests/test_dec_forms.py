@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import ddgjax.dec as dec
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.mesh import grid, icosphere
 from ddgjax.mesh._geometry import face_normals
 from ddgjax.mesh._mesh import Mesh

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import ddgjax.dec as dec
-from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax import DDGInputError, MeshDataError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.laplacian.internal import dec_plan, vertex_plan
 from ddgjax.mesh import (

@@ -13,7 +13,7 @@ import robust_laplacian
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax import DDGInputError, MeshDataError
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import (
     IntrinsicTriangulation,

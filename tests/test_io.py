@@ -9,7 +9,7 @@ import igl
 import numpy as np
 import pytest
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.io import load_mesh, save_mesh
 from ddgjax.mesh import Mesh
 

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from jax.test_util import check_grads
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.laplacian import _cotan as cotan_module
 from ddgjax.laplacian import (
     cotan_laplacian,

@@ -10,8 +10,7 @@ import scipy.linalg
 import scipy.sparse.linalg as spla
 from jax.test_util import check_grads
 
-from ddgjax import LUMPED_MASS_MATRICES, RESULTS, MeshDataError
-from ddgjax._errors import DDGInputError
+from ddgjax import LUMPED_MASS_MATRICES, RESULTS, DDGInputError, MeshDataError
 from ddgjax.io import load_mesh, save_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.learn import (

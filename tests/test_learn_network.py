@@ -11,7 +11,7 @@ import optax
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.batch import MeshBatch, pad_vertex_values, unpad
 from ddgjax.learn import (
     MIN_TIME,

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax import DDGInputError, MeshDataError
 from ddgjax.cli import main
 from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, check_mesh, face_areas, icosphere

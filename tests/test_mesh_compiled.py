@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from ddgjax import DDGInputError, MeshDataError
 from ddgjax._compile import kernel
-from ddgjax._errors import DDGInputError, MeshDataError
 from ddgjax.io import save_mesh
 from ddgjax.laplacian import cotan_laplacian, dirichlet_energy, laplacian_apply, mass_matrix
 from ddgjax.laplacian._cotan import _values as laplacian_values

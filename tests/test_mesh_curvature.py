@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from ddgjax._errors import DDGInputError, MeshDataError
+from ddgjax import DDGInputError, MeshDataError
 from ddgjax.io import _read_obj, _read_with_trimesh, load_mesh
 from ddgjax.laplacian import laplacian_apply
 from ddgjax.mesh import (

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.io import load_mesh
 from ddgjax.mesh import (
     Mesh,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.mesh import cylinder, disk, grid, icosphere, torus, uv_sphere
 
 

@@ -12,7 +12,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import ddgjax.laplacian
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.dec import divergence, gradient
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import Mesh, disk, icosphere, vertex_dual_areas

@@ -11,8 +11,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ddgjax import RESULTS, DDGInputError, Solution
-from ddgjax._errors import MeshDataError
+from ddgjax import RESULTS, DDGInputError, MeshDataError, Solution
 from ddgjax.dec import d0, d1, hodge_star_entries
 from ddgjax.mesh import Mesh, icosphere, torus
 from ddgjax.pde._hodge_decomposition import HodgeDecomposition, closed_cocycle_basis, hodge_decomposition

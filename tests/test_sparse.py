@@ -14,7 +14,7 @@ import scipy.sparse as sp
 from jax.test_util import check_grads
 from jaxtyping import TypeCheckError
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.sparse import (
     NonNegative,
     SparseMatrix,

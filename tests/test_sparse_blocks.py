@@ -13,7 +13,7 @@ import scipy.sparse as sp
 from jax.test_util import check_grads
 from scipy.sparse.linalg import spsolve
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, grid
 from ddgjax.sparse import DirichletBlocks, DirichletPlan, SparseMatrix, dirichlet_blocks, dirichlet_plan, from_scipy

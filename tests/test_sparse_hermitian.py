@@ -13,7 +13,7 @@ import pytest
 import scipy.sparse as sp
 from jax.test_util import check_grads
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.sparse import SparseMatrix, SparsityPattern, diagonal_matrix, from_scipy, identity, nonnegative
 
 N = 30

@@ -16,8 +16,7 @@ import scipy.spatial
 from jax.test_util import check_grads
 from tet_meshes import jittered_grid_tets
 
-from ddgjax import volume
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError, volume
 
 jax.config.update("jax_enable_x64", True)
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as sla
 
-from ddgjax._errors import DDGInputError
+from ddgjax import DDGInputError
 from ddgjax.mesh import grid, icosphere
 from ddgjax.volume import (
     TetMesh,

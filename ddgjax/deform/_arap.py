@@ -56,10 +56,10 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError
 from .._options import check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
+from ..discretization.internal import DirichletData
 from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq
 from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, corner_cotangents, face_edge_lengths_sq, require_mesh
-from ..pde.internal import DirichletData
 from ..solve import Factorization, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import DirichletBlocks, DirichletPlan, SparseMatrix, dirichlet_blocks

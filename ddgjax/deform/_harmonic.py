@@ -28,10 +28,10 @@ from .._errors import DDGInputError
 from .._numerics import safe_reciprocal
 from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
 from .._results import RESULTS, Solution, outcome
+from ..discretization.internal import DirichletData
 from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
 from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
-from ..pde.internal import DirichletData
 from ..solve import linear_solve
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, gather_sum
 

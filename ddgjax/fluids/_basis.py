@@ -56,7 +56,8 @@ from .._numerics import safe_div
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import RESULTS, Solution, first_failure, outcome
 from ..dec import sharp
-from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
+from ..discretization import discretize
+from ..laplacian import IntrinsicTriangulation
 from ..mesh import (
     Mesh,
     face_areas,
@@ -184,7 +185,8 @@ def fluid_basis(
             "vertices (the stream function's boundary condition is not modelled)"
         )
     # What `ddgjax.spectral.eigenpairs` does with Neumann conditions, keeping the mass matrix it used.
-    L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
+    discretization = discretize(mesh, mass=mass, robust=robust)
+    L, M = discretization.laplacian, discretization.mass
     eigen = smallest_eigenpairs(L, M, k, solver=solver, throw=False)
     values, vectors = eigen.value
     harmonic, poisson = _harmonic_fields(

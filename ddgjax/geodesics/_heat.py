@@ -58,29 +58,23 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .. import volume
 from .._compile import at_top_level, kernel
 from .._errors import DDGInputError, check_choice, first_indices
 from .._indexing import take_rows
 from .._numerics import safe_norm
-from .._options import BOUNDARY_CONDITIONS, check_mass, check_solver
+from .._options import BOUNDARY_CONDITIONS, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
-from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..laplacian.internal import resolve_robust
+from ..discretization import discretize
+from ..discretization.internal import DirichletData, cell_measure_gradients, cells, domain_edge_lengths, require_domain
+from ..laplacian import IntrinsicTriangulation
 from ..mesh import (
     Mesh,
     MeshTopology,
-    edge_lengths,
-    face_areas,
-    face_hat_gradients,
-    require_mesh,
 )
-from ..pde.internal import DirichletData
 from ..solve import Factorization, LinearSolution, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
 from ..volume import TetMesh, TetTopology
-from ..volume.internal import require_tet_problem
 
 HEAT_BOUNDARY_CONDITIONS = ("average", *BOUNDARY_CONDITIONS)
 """`boundary=` of the heat method: `BOUNDARY_CONDITIONS` and their mean, `"average"` (module docstring)."""
@@ -253,17 +247,11 @@ def check_t_coef(t_coef) -> float:
 def _operators(mesh: Mesh | TetMesh, t_coef, mass: str, boundary: str, robust, solver: str):
     """Checked options, then `(L, M, plans, t_coef)`: what the kernels below take (host work and plans here)."""
     check_choice("boundary", boundary, HEAT_BOUNDARY_CONDITIONS)
-    check_mass(mass)
     check_solver(solver)
     check_t_coef(t_coef)
-    if isinstance(mesh, TetMesh):
-        require_tet_problem(mesh, robust)
-        triangulation = None
-        L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
-    else:
-        triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="heat_distance")
-        L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
-    plans = _plans(mesh, boundary, L.pattern, cached=triangulation is None)
+    discretization = discretize(mesh, mass=mass, robust=robust, caller="heat_distance")
+    L, M = discretization.laplacian, discretization.mass
+    plans = _plans(mesh, boundary, discretization.pattern, cached=discretization.triangulation is None)
     return L, M, plans, jax.device_put(np.asarray(float(t_coef), L.values.dtype))
 
 
@@ -298,7 +286,7 @@ def heat_distance_solver(
     potpourri3d: `MeshHeatMethodDistanceSolver(V, F, t_coef=1.0)` (defaults compared in `heat_distance`);
     libigl: `igl.heat_geodesics_precompute(V, F, t, data)`.
     """
-    mesh = _require_mesh(mesh)
+    mesh = require_domain("mesh", mesh)
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
         t, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
@@ -396,29 +384,13 @@ def heat_distance(
     Reference: K. Crane, C. Weischedel, M. Wardetzky, "Geodesics in heat" (2013), sections 3.1-3.2 and
     (boundary conditions) 3.4; "The heat method for distance computation" (2017).
     """
-    mesh = _require_mesh(mesh)
+    mesh = require_domain("mesh", mesh)
     _source_points(mesh, sources)  # refuse malformed sources before building the Laplacian
     L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
     corners, weights = _sources(mesh, sources, dirichlet=not plans.neumann)
     _, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
     steps, result, stats = _query(mesh, factors, corners, weights)
     return outcome(steps.distance, result, throw, stats)
-
-
-def _require_mesh(mesh) -> Mesh | TetMesh:
-    return mesh if isinstance(mesh, TetMesh) else require_mesh("mesh", mesh)
-
-
-def _cells(mesh: Mesh | TetMesh) -> Int[Array, "nc k"]:
-    """The cells the heat method's field lives on: the faces of a triangle mesh, the tets of a tet mesh."""
-    return mesh.tets if isinstance(mesh, TetMesh) else mesh.faces
-
-
-def _measure_gradients(mesh: Mesh | TetMesh) -> Float[Array, "nc k 3"]:
-    """`A_f grad phi_k` per face and corner, or `V_t grad phi_k` per tet and vertex (`HeatDistanceSolver.area_gradients`)."""
-    if isinstance(mesh, TetMesh):
-        return volume.tet_volumes(mesh)[:, None, None] * volume.tet_hat_gradients(mesh)
-    return face_areas(mesh)[:, None, None] * face_hat_gradients(mesh)
 
 
 class _Systems(eqx.Module):
@@ -434,15 +406,14 @@ class _Systems(eqx.Module):
 
 def _systems_of(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef) -> _Systems:
     """`_Systems` of `M + t L`, its Dirichlet block and the pinned `L` (module docstring)."""
-    lengths = volume.edge_lengths(mesh) if isinstance(mesh, TetMesh) else edge_lengths(mesh)
-    t = t_coef * jnp.mean(lengths) ** 2
+    t = t_coef * jnp.mean(domain_edge_lengths(mesh)) ** 2
     heat_matrix = M + t * L
     return _Systems(
         t=t,
         heat=held_block(heat_matrix, plans.heat) if plans.neumann else None,
         heat_dirichlet=None if plans.heat_dirichlet is None else held_block(heat_matrix, plans.heat_dirichlet),
         poisson=held_block(L, plans.poisson),
-        area_gradients=_measure_gradients(mesh),
+        area_gradients=cell_measure_gradients(mesh),
     )
 
 
@@ -488,12 +459,12 @@ def _heat_method(mesh: Mesh | TetMesh, factors: _Factors, corners, weights) -> t
     heats = [solve_held(factor, plan, delta) for factor, plan in flows if factor is not None]
     u = sum(heat for _, heat in heats) / len(heats)  # the Neumann and / or the Dirichlet heat flow; their mean
     # `A_f grad u` has the direction of `grad u` (`ddgjax.dec.gradient`); the divergence is `ddgjax.dec.divergence`'s weak form.
-    cells = _cells(mesh)
-    g = jnp.einsum("fk,fkd->fd", take_rows(u, cells), factors.area_gradients)
+    cell_vertices = cells(mesh)
+    g = jnp.einsum("fk,fkd->fd", take_rows(u, cell_vertices), factors.area_gradients)
     norm = safe_norm(g, keepdims=True)
     field = jnp.where(norm > 0, -g / jnp.where(norm > 0, norm, 1.0), 0.0)
     corner_divergence = jnp.einsum("fkd,fd->fk", factors.area_gradients, field)
-    div = -jax.ops.segment_sum(corner_divergence.reshape(-1), cells.reshape(-1), num_segments=mesh.n_vertices)
+    div = -jax.ops.segment_sum(corner_divergence.reshape(-1), cell_vertices.reshape(-1), num_segments=mesh.n_vertices)
     poisson, phi = solve_held(factors.poisson, factors.poisson_plan, -div)
     steps = HeatMethodSteps(heat=u, field=field, divergence=div, distance=_shift(mesh, phi, factors.components, corners, weights))
     solutions = [solution for solution, _ in heats] + [poisson]

@@ -63,9 +63,11 @@ from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_norm
 from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
 from .._results import Solution, first_failure, outcome
+from ..discretization import discretize
+from ..discretization.internal import DirichletData
 from ..fields.internal import FieldPlan, plan_of, planned_connection_laplacian, planned_tangent_bases
-from ..laplacian import IntrinsicTriangulation, TriangulationPlan, laplacian_and_mass
-from ..laplacian.internal import resolve_robust, vertex_plan
+from ..laplacian import IntrinsicTriangulation, TriangulationPlan
+from ..laplacian.internal import vertex_plan
 from ..mesh import (
     Mesh,
     MeshTopology,
@@ -76,7 +78,6 @@ from ..mesh import (
     require_mesh,
     scatter_corners_to_vertices,
 )
-from ..pde.internal import DirichletData
 from ..solve import Factorization, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import SparseMatrix
@@ -150,14 +151,14 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
             "mesh: the signed heat method needs a manifold, consistently oriented mesh (its curves' normals "
             "and the connection Laplacian do); orient the faces consistently (ddgjax.mesh.check_mesh lists the problems)"
         )
-    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="signed_heat_distance")
-    L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
+    discretization = discretize(mesh, mass=mass, robust=robust, caller="signed_heat_distance")
+    L, M, triangulation = discretization.laplacian, discretization.mass, discretization.triangulation
     with jax.ensure_compile_time_eval():  # host data even when a caller's jit traces this call
         n = mesh.n_vertices
-        diagonal = device_array(L.pattern.slots(np.arange(n), np.arange(n)))
+        diagonal = device_array(discretization.pattern.slots(np.arange(n), np.arange(n)))
         # With `robust`, the connection Laplacian takes the intrinsic Delaunay weights of the mesh's edges (module docstring).
         edges = mesh.topology.edges
-        edge_slots = None if triangulation is None else jnp.asarray(L.pattern.slots(edges[:, 0], edges[:, 1]))
+        edge_slots = None if triangulation is None else jnp.asarray(discretization.pattern.slots(edges[:, 0], edges[:, 1]))
     return L, M, diagonal, edge_slots, plan_of(mesh), vertex_plan(mesh), jax.device_put(np.asarray(float(t_coef), L.values.dtype))
 
 
@@ -351,7 +352,7 @@ def _pins(mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
     pins = _PINS.get(mesh.topology)
     if pins is None:
         with jax.ensure_compile_time_eval():
-            data = DirichletData(mesh, None, None, ())
+            data = DirichletData(mesh, None, None, (), vertex_plan(mesh).pattern)
             pins = _PINS[mesh.topology] = (np.asarray(data.fixed), np.asarray(data.labels))
     return pins
 

@@ -67,6 +67,7 @@ from .._indexing import take_rows, take_rows_or_zero
 from .._numerics import safe_div, safe_norm
 from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
+from ..discretization import discretize
 from ..fields import connection_laplacian, connection_mass_matrix
 from ..fields.internal import (
     FieldPlan,
@@ -78,8 +79,8 @@ from ..fields.internal import (
     scaled_corner_angles,
     unit,
 )
-from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..laplacian.internal import resolve_robust, vertex_plan
+from ..laplacian import IntrinsicTriangulation
+from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradients, face_vertex_positions, require_mesh
 from ..solve import Factorization, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
@@ -371,14 +372,14 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
     check_t_coef(t_coef)
     field_plan = plan_of(mesh)
     require_referenced(mesh, "vector_heat_solver")
-    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="vector_heat_solver")
-    L, M = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
-    plans = _plans(mesh, "neumann", L.pattern, cached=triangulation is None)
+    discretization = discretize(mesh, mass=mass, robust=robust, caller="vector_heat_solver")
+    L, M, triangulation = discretization.laplacian, discretization.mass, discretization.triangulation
+    plans = _plans(mesh, "neumann", discretization.pattern, cached=triangulation is None)
     if triangulation is None:
         A, MA = connection_laplacian(mesh, n=1), connection_mass_matrix(mesh, mass=mass)
     else:  # the intrinsic Delaunay weights of the mesh's edges (>= 0; 0 where flipped away) and mass
         edges = mesh.topology.edges
-        weights = -take_rows_or_zero(L.values, jnp.asarray(L.pattern.slots(edges[:, 0], edges[:, 1])))
+        weights = -take_rows_or_zero(L.values, jnp.asarray(discretization.pattern.slots(edges[:, 0], edges[:, 1])))
         A = planned_connection_laplacian(
             mesh, field_plan, vertex_plan(mesh), 1.0, boundary_scaling="geodesic", edge_weights=weights
         )

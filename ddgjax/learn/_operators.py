@@ -24,9 +24,9 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice, check_count, is_traced
 from .._options import LUMPED_MASS_MATRICES, check_mass
 from .._results import RESULTS, Solution, outcome
+from ..discretization import discretize
 from ..fields import TangentBases
-from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..laplacian.internal import resolve_robust
+from ..laplacian import IntrinsicTriangulation
 from ..mesh import Mesh, require_mesh
 from ..sparse import SparseMatrix
 from ..spectral import smallest_eigenpairs
@@ -129,17 +129,16 @@ def diffusion_operators(
 def _compute(mesh: Mesh, k: int, *, mass: str, robust: bool | IntrinsicTriangulation) -> tuple[DiffusionOperators, RESULTS, dict]:
     """The operators of `mesh` with the outcome and statistics of their eigensolve.
 
-    The host work first (the degenerate-face check or the intrinsic flips, the neighbour table), then
-    one compiled program for the operators, the frames and the gradient weights, then the eigensolve.
-    The plain operators need the mesh's storage plan, which a compiled program does not see: they are
-    built first. Called eagerly, the eigensolve runs after the program (ARPACK on the host, outside
-    every program: `smallest_eigenpairs`), so each program can be kept across processes
-    (`ddgjax._program_store`); under a transformation everything is traced inline.
+    The mesh's discretisation first (`ddgjax.discretization.discretize`: the degenerate-face check or the
+    intrinsic flips, then `L` and `M`), the neighbour table, one compiled program for the frames and
+    the gradient weights, then the eigensolve. Called eagerly, the eigensolve runs after the programs
+    (ARPACK on the host, outside every program: `smallest_eigenpairs`), so each program can be kept
+    across processes (`ddgjax._program_store`); under a transformation everything is traced inline.
     """
-    triangulation = resolve_robust(mesh, robust, mass=mass)
-    matrices = laplacian_and_mass(mesh, mass=mass) if triangulation is None else None
+    discretization = discretize(mesh, mass=mass, robust=robust)
+    L, M = discretization.laplacian, discretization.mass
     neighbors = device_array(neighbor_table(mesh.topology))
-    L, M, areas, frames, weights = _geometry(mesh, triangulation, matrices, neighbors, mass=mass)
+    areas, frames, weights = _geometry(mesh, M, neighbors)
     solution = smallest_eigenpairs(L, M, k, throw=False)
     values, vectors = solution.value
     operators = DiffusionOperators(
@@ -153,19 +152,13 @@ def _compute(mesh: Mesh, k: int, *, mass: str, robust: bool | IntrinsicTriangula
     return operators, solution.result, solution.stats
 
 
-@kernel(static_argnames=("mass",))
+@kernel
 def _geometry(
-    mesh: Mesh,
-    triangulation: IntrinsicTriangulation | None,
-    matrices: tuple[SparseMatrix, SparseMatrix] | None,
-    neighbors: Int[Array, "nv d"],
-    *,
-    mass: str,
-) -> tuple[SparseMatrix, SparseMatrix, Float[Array, " nv"], TangentBases, Float[Array, "nv d 2"]]:
-    """`(L, M, diag M, frames, gradient weights)`: everything of `DiffusionOperators` but the eigenpairs."""
-    L, M = matrices if triangulation is None else laplacian_and_mass(mesh, mass=mass, robust=triangulation)
+    mesh: Mesh, M: SparseMatrix, neighbors: Int[Array, "nv d"]
+) -> tuple[Float[Array, " nv"], TangentBases, Float[Array, "nv d 2"]]:
+    """`(diag M, frames, gradient weights)`: with the discretisation's `L` and `M` and the eigenpairs, `DiffusionOperators`."""
     frames, weights = gradient_frames_and_weights(mesh, neighbors)
-    return L, M, M.diagonal(), frames, weights
+    return M.diagonal(), frames, weights
 
 
 def cache_key(mesh: Mesh, k: int, *, mass: str, robust: bool) -> str:

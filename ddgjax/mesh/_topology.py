@@ -143,6 +143,16 @@ class MeshTopology:
         return self._components[1]
 
     @property
+    def cells(self) -> np.ndarray:
+        """The top-dimensional simplices, `faces` (as `ddgjax.volume.TetTopology.cells` is `tets`)."""
+        return self.faces
+
+    @property
+    def cell_components(self) -> np.ndarray:
+        """The connected component of each cell, `face_components`."""
+        return self.face_components
+
+    @property
     def n_components(self) -> int:
         return self._components[0]
 

@@ -76,12 +76,12 @@ from .._errors import DDGInputError, check_choice, check_float_shape
 from .._options import DUAL_CELLS, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
 from ..dec import d0, hodge_star_entries
+from ..discretization.internal import DirichletData
 from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq
 from ..laplacian.internal import dec_plan, vertex_plan
 from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
 from ..solve import linear_solve
 from ..sparse import CongruencePlan, DirichletPlan, congruence, dirichlet_blocks
-from ._poisson import DirichletData
 
 
 class HodgeDecomposition(eqx.Module):

@@ -42,30 +42,24 @@ References: the reading report, "The Poisson problem" (Crane's DDG notes, ch. 6)
 
 from __future__ import annotations
 
-import weakref
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from .. import volume
-from .._compile import device_array, kernel
-from .._errors import DDGInputError, check_vertex_indices
-from .._options import check_mass, check_solver
+from .._compile import kernel
+from .._errors import DDGInputError
+from .._options import check_solver
 from .._results import RESULTS, Solution, outcome
+from ..discretization import discretize
+from ..discretization.internal import DirichletData, require_domain
 from ..laplacian import (
     IntrinsicTriangulation,
-    TriangulationPlan,
-    cotan_laplacian_from_lengths_sq,
-    mass_matrix_from_lengths_sq,
 )
-from ..laplacian.internal import resolve_robust, vertex_plan
-from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
+from ..mesh import Mesh
 from ..solve import linear_solve
-from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, dirichlet_plan
-from ..volume import TetMesh, TetTopology
-from ..volume.internal import require_tet_problem
+from ..sparse import DirichletPlan, SparseMatrix, dirichlet_blocks
+from ..volume import TetMesh
 
 
 def solve_poisson(
@@ -113,40 +107,19 @@ def solve_poisson(
     libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix(V, F)`
     (`V, T` for tets); gpytoolbox: `min_quad_with_fixed(L, c=M @ rho, k=known, y=values)`.
     """
-    tet = isinstance(mesh, TetMesh)
-    mesh = mesh if tet else require_mesh("mesh", mesh)
-    check_mass(mass)
+    mesh = require_domain("mesh", mesh)
     check_solver(solver)
-    if tet:
-        require_tet_problem(mesh, robust)
-        triangulation, plan = None, volume.tet_plan(mesh)
-    else:
-        triangulation = resolve_robust(mesh, robust, mass=mass, host_plans="solve_poisson")
-        plan = vertex_plan(mesh) if triangulation is None else triangulation.plan
     rho = _vertex_values("rho", mesh, rho)
-    dirichlet = DirichletData(mesh, fixed_vertices, fixed_values, rho.shape[1:], plan.pattern)
+    discretization = discretize(mesh, mass=mass, robust=robust, caller="solve_poisson")
+    dirichlet = DirichletData(mesh, fixed_vertices, fixed_values, rho.shape[1:], discretization.pattern)
     if dirichlet.plan is None:  # every vertex prescribed: nothing to solve
         phi = jnp.zeros_like(rho).at[dirichlet.vertices].set(dirichlet.values.astype(rho.dtype))
         stats = {"residual": jnp.zeros((), rho.dtype), "num_steps": jnp.zeros((), jnp.int32)}
         return outcome(phi, RESULTS.successful, throw, stats)
     problem = (rho, dirichlet.values, dirichlet.plan, dirichlet.labels, dirichlet.floating)
     options = {"n_pinned": dirichlet.n_pinned, "n_components": dirichlet.n_components, "solver": solver}
-    if tet:  # the solid's operators, assembled by ddgjax.volume (each its own compiled program)
-        L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
-    else:
-        L, M = _operators(mesh, triangulation, plan, mass=mass)
-    phi, result, stats = _solve_system(L, M, *problem, **options)
+    phi, result, stats = _solve_system(discretization.laplacian, discretization.mass, *problem, **options)
     return outcome(phi, result, throw, stats)
-
-
-@kernel(static_argnames=("mass",))
-def _operators(
-    mesh: Mesh, triangulation: IntrinsicTriangulation | None, plan: TriangulationPlan, *, mass: str
-) -> tuple[SparseMatrix, SparseMatrix]:
-    """`(L, M)` of a triangle mesh (the intrinsic Delaunay ones with a `triangulation`). `mesh` comes without
-    its topology: everything that needs it (`plan`) is passed in."""
-    lengths_sq = face_edge_lengths_sq(mesh) if triangulation is None else triangulation.face_lengths_sq(mesh)
-    return cotan_laplacian_from_lengths_sq(lengths_sq, plan), mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
 
 
 def _solve_system(
@@ -235,7 +208,7 @@ def harmonic_interpolation(
     `igl.harmonic(V, F, fixed_vertices, fixed_values, 1)`; gpytoolbox: `min_quad_with_fixed` with
     `L` and no linear term.
     """
-    mesh = mesh if isinstance(mesh, TetMesh) else require_mesh("mesh", mesh)
+    mesh = require_domain("mesh", mesh)
     if fixed_vertices is None or np.size(fixed_vertices) == 0:
         raise DDGInputError("fixed_vertices: expected at least one vertex to interpolate from, got none")
     fixed_values = jnp.asarray(fixed_values)
@@ -246,103 +219,6 @@ def harmonic_interpolation(
     return solve_poisson(
         mesh, rho, fixed_vertices=fixed_vertices, fixed_values=fixed_values, robust=robust, solver=solver, throw=throw
     )
-
-
-class DirichletData:
-    """Host bookkeeping of a Poisson problem (module docstring): components, pinned vertices, the block plan.
-
-    Built from the mesh's topology (outside every kernel) and checked: `vertices` and `values` are a
-    caller's `fixed_vertices` / `fixed_values` (`None`, `None` for none), `trailing` the trailing shape
-    of the right-hand side, `pattern` the Laplacian's sparsity pattern the plan is of (default: the
-    mesh's own). A `TetMesh` works the same, its tets in place of faces. Shared with the other solvers that pin one vertex per free component
-    (`ddgjax.pde.internal.DirichletData`).
-
-    Attributes:
-        vertices, values: the checked fixed vertices (host int64) and their values.
-        fixed: `(n_fixed + n_pinned,)` host indices held fixed in the solve: `vertices`, then one pinned
-            vertex per component without a fixed vertex, then the unreferenced vertices.
-        plan: the `DirichletPlan` of `fixed` on `pattern`, or `None` when every vertex is fixed.
-        n_pinned: how many indices `fixed` adds to `vertices` (all held at 0).
-        labels: `(nv,)` the component of each vertex (unreferenced vertices: `n_components - 1`).
-        n_components: the number of labels (the face (tet) components, plus one for unreferenced vertices).
-        floating: `(nv,)` whether each vertex's component has no fixed vertex (re-centred to zero mean).
-    """
-
-    def __init__(self, mesh: Mesh | TetMesh, vertices, values, trailing: tuple[int, ...], pattern=None):
-        topology = mesh.topology
-        n = mesh.n_vertices
-        if vertices is None:
-            if values is not None:
-                raise DDGInputError("fixed_values: given without fixed_vertices; pass both or neither")
-            vertices = np.zeros(0, dtype=np.int64)
-        vertices = check_vertex_indices("fixed_vertices", vertices, n)
-        if values is None:
-            values = np.zeros((vertices.size,) + trailing)
-        values = device_array(values)  # host data moved without an eager program (`ddgjax._compile.device_array`)
-        if values.shape != (vertices.size,) + trailing:
-            raise DDGInputError(
-                f"fixed_values: expected shape {(vertices.size,) + trailing} (one value per fixed vertex, "
-                f"as many columns as rho), got {values.shape}"
-            )
-        self.vertices = vertices
-        self.values = values
-        if pattern is None:
-            pattern = (volume.tet_plan(mesh) if isinstance(mesh, TetMesh) else vertex_plan(mesh)).pattern
-        self.fixed, self.plan, self.n_pinned, self.labels, self.n_components, self.floating = _pins(topology, vertices, pattern)
-
-    def fixed_values(self, dtype) -> Float[Array, " n_fixed *k"]:
-        """The values of `fixed` in `dtype`: `values`, then zeros for the pinned and unreferenced vertices."""
-        zeros = jnp.zeros((self.n_pinned,) + self.values.shape[1:], dtype)
-        return jnp.concatenate([self.values.astype(dtype), zeros])
-
-
-# The host bookkeeping of the last few problems per connectivity: solving again with the same fixed
-# vertices (new values, a new right-hand side, moved vertices) skips it.
-_PINS: "weakref.WeakKeyDictionary[MeshTopology | TetTopology, dict]" = weakref.WeakKeyDictionary()
-_PINS_KEPT = 8
-
-
-def _pins(topology: MeshTopology | TetTopology, vertices: np.ndarray, pattern: SparsityPattern) -> tuple:
-    """`DirichletData`'s `(fixed, plan, n_pinned, labels, n_components, floating)` for these fixed vertices (cached)."""
-    kept = _PINS.setdefault(topology, {})
-    key = (vertices.tobytes(), id(pattern))
-    entry = kept.get(key)
-    if entry is not None and entry[0] is pattern:
-        return entry[1]
-    n = topology.n_vertices
-    # Component of each vertex (unreferenced vertices: their own label, past the components of the cells).
-    if isinstance(topology, TetTopology):
-        cells, cell_components = topology.tets, topology.tet_components
-    else:
-        cells, cell_components = topology.faces, topology.face_components
-    labels = np.full(n, topology.n_components, dtype=np.int32)
-    labels[cells.ravel()] = np.repeat(cell_components, cells.shape[1])
-    constrained = np.zeros(topology.n_components + 1, dtype=bool)
-    constrained[labels[vertices]] = True
-    floating = ~constrained
-    floating[-1] = False  # unreferenced vertices are fixed to 0, not re-centred
-    # Pin the lowest vertex of each floating component (components are numbered by first cell).
-    first_vertex = np.full(topology.n_components, n, dtype=np.int64)
-    np.minimum.at(first_vertex, labels[labels < topology.n_components], np.flatnonzero(labels < topology.n_components))
-    pins = first_vertex[floating[:-1]]
-    extra = np.setdiff1d(topology.unreferenced_vertices, vertices)
-    fixed = np.concatenate([vertices, pins, extra])
-    fixed.setflags(write=False)
-    # Host work even inside a caller's trace: it depends on the connectivity and the indices only.
-    with jax.ensure_compile_time_eval():
-        plan = dirichlet_plan(pattern, fixed) if fixed.size < n else None
-        pinned = (
-            fixed,
-            plan,
-            pins.size + extra.size,
-            device_array(labels),
-            topology.n_components + 1,
-            device_array(floating[labels]),
-        )
-    if len(kept) >= _PINS_KEPT:
-        kept.pop(next(iter(kept)))
-    kept[key] = (pattern, pinned)
-    return pinned
 
 
 def _vertex_values(name: str, mesh: Mesh | TetMesh, values) -> Float[Array, "nv *k"]:

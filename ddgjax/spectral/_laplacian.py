@@ -32,16 +32,16 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from .. import volume
 from .._errors import DDGInputError, check_choice
-from .._options import BOUNDARY_CONDITIONS, check_mass
+from .._options import BOUNDARY_CONDITIONS
 from .._results import Solution, outcome
-from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
-from ..mesh import Mesh, require_mesh
+from ..discretization import discretize
+from ..discretization.internal import require_domain
+from ..laplacian import IntrinsicTriangulation
+from ..mesh import Mesh
 from ..solve import AMGHierarchy
 from ..sparse import SparseMatrix, diagonal_matrix, dirichlet_blocks, dirichlet_plan
 from ..volume import TetMesh
-from ..volume.internal import require_tet_problem
 from ._generalized import Eigenpairs, smallest_eigenpairs
 
 
@@ -87,15 +87,10 @@ def eigenpairs(
 
     libigl (C++ only): `igl::eigs(-cotmatrix, massmatrix, k, igl::EIGS_TYPE_SM, U, D)` (on `V, F` or `V, T`).
     """
-    tet = isinstance(mesh, TetMesh)
-    mesh = mesh if tet else require_mesh("mesh", mesh)
+    mesh = require_domain("mesh", mesh)
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
-    check_mass(mass)
-    if tet:
-        require_tet_problem(mesh, robust)
-        L, M = volume.cotan_laplacian(mesh), volume.mass_matrix(mesh, mass=mass)
-    else:
-        L, M = laplacian_and_mass(mesh, mass=mass, robust=robust)
+    discretization = discretize(mesh, mass=mass, robust=robust)
+    L, M = discretization.laplacian, discretization.mass
     if boundary == "neumann":
         return smallest_eigenpairs(L, M, k, method=method, solver=solver, preconditioner=preconditioner, throw=throw)
     fixed = mesh.topology.boundary_vertices

@@ -133,6 +133,16 @@ class TetTopology:
         return self._components[1]
 
     @property
+    def cells(self) -> np.ndarray:
+        """The top-dimensional simplices, `tets` (as `ddgjax.mesh.MeshTopology.cells` is `faces`)."""
+        return self.tets
+
+    @property
+    def cell_components(self) -> np.ndarray:
+        """The connected component of each cell, `tet_components`."""
+        return self.tet_components
+
+    @property
     def n_components(self) -> int:
         return self._components[0]
 

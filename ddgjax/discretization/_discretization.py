@@ -1,0 +1,138 @@
+"""`discretize`: a domain, with `mass=` and `robust=`, as the problem layer solves on it (one object, every domain).
+
+The problem layer (`ddgjax.pde`'s Poisson and harmonic problems, `ddgjax.spectral.eigenpairs`, every heat
+method in `ddgjax.geodesics`, the learning operators and the fluid basis) needs the same things of a
+domain: its weak Laplacian `L` and mass matrix `M`, the sparsity pattern its host plans are built on, and,
+for a surface with `robust=`, the intrinsic Delaunay triangulation they came from. `discretize` builds
+them once, checks `mass=` and `robust=` the same way for all of them, and is the one place where the kind
+of domain matters:
+
+- a triangle `Mesh`: `robust=False` refuses degenerate faces on concrete positions (`MeshDataError`,
+  `ddgjax.laplacian.laplacian_and_mass`) and assembles `L`, `M` from the mesh's squared edge lengths;
+  `robust=True` (or an `IntrinsicTriangulation`) from the intrinsic Delaunay ones (mollified; the tufted
+  cover on non-manifold meshes). One compiled program either way.
+- a `ddgjax.volume.TetMesh`: `robust=False` only (no intrinsic Delaunay retriangulation in 3-D), degenerate
+  tets refused on concrete positions; `L`, `M` from `ddgjax.volume`.
+
+The per-cell pieces of a domain that a kernel needs (its cells, their measure-weighted hat gradients, the
+edge lengths) are `cells`, `cell_measure_gradients` and `domain_edge_lengths`, which work on the arrays a
+kernel traces. Reference: libigl builds `cotmatrix` / `massmatrix` from `(V, F)` or `(V, T)` alike;
+geometry-central's `IntrinsicGeometryInterface` plays this part for surfaces.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+from jaxtyping import Array, Float, Int
+
+from .._compile import kernel
+from .._options import check_mass
+from ..laplacian import (
+    IntrinsicTriangulation,
+    TriangulationPlan,
+    cotan_laplacian_from_lengths_sq,
+    mass_matrix_from_lengths_sq,
+)
+from ..laplacian.internal import resolve_robust, vertex_plan
+from ..mesh import Mesh, edge_lengths, face_areas, face_edge_lengths_sq, face_hat_gradients
+from ..sparse import SparseMatrix, SparsityPattern
+from ..volume import TetMesh, tet_hat_gradients, tet_plan, tet_volumes
+from ..volume import cotan_laplacian as tet_cotan_laplacian
+from ..volume import edge_lengths as tet_edge_lengths
+from ..volume import mass_matrix as tet_mass_matrix
+from ..volume.internal import require_tet_problem
+
+
+class Discretization(eqx.Module):
+    """A domain as the problem layer solves on it (module docstring).
+
+    Attributes:
+        domain: the `Mesh` or `TetMesh` (with its topology).
+        laplacian: `(nv, nv)` the PSD weak Laplacian `L` (cotan, or intrinsic Delaunay with `robust=`).
+        mass: `(nv, nv)` the mass matrix `M` of `mass=`.
+        triangulation: the `IntrinsicTriangulation` `L` and `M` come from, or None (the domain's own cells).
+        pattern: `laplacian`'s vertex-vertex sparsity pattern from the host-built plan (concrete even when
+            `laplacian` is traced inside a caller's `jit`): what host plans (Dirichlet blocks, pins) are built on.
+    """
+
+    domain: Mesh | TetMesh
+    laplacian: SparseMatrix
+    mass: SparseMatrix
+    triangulation: IntrinsicTriangulation | None
+    pattern: SparsityPattern
+
+
+def discretize(
+    mesh: Mesh | TetMesh, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False, caller: str | None = None
+) -> Discretization:
+    """`L`, `M` (and the intrinsic triangulation) of a triangle or tet mesh, checked as every problem checks them.
+
+    Args:
+        mesh: a `ddgjax.Mesh` or a `ddgjax.volume.TetMesh`.
+        mass: one of `ddgjax.MASS_MATRICES` (`"voronoi"`, the default, `"barycentric"`, `"galerkin"`).
+        robust: `False`, `True` or an `IntrinsicTriangulation` (triangle meshes only; module docstring).
+        caller: the public function asking, named in the error when it builds host plans on a traced
+            triangulation (`robust=` given as an argument of a `jit`).
+
+    Returns:
+        `Discretization(domain, laplacian, mass, triangulation)`.
+
+    Raises:
+        DDGInputError: `mesh` neither kind, a bad `mass` or `robust`. `MeshDataError`: degenerate faces
+            (with `robust=False`) or tets on concrete positions.
+    """
+    mesh = require_domain("mesh", mesh)
+    check_mass(mass)
+    return _BUILDERS[type(mesh)](mesh, mass, robust, caller)
+
+
+def require_domain(name: str, value) -> Mesh | TetMesh:
+    """`value` if the problem layer solves on it (a `Mesh` or a `TetMesh`), else `DDGInputError` naming the argument."""
+    if type(value) in _BUILDERS:
+        return value
+    return Mesh.require(name, value)  # its message, with the hint for a (vertices, faces) pair
+
+
+def _surface(mesh: Mesh, mass: str, robust, caller: str | None) -> Discretization:
+    triangulation = resolve_robust(mesh, robust, mass=mass, host_plans=caller)
+    plan = vertex_plan(mesh) if triangulation is None else triangulation.plan
+    laplacian, mass_matrix = _surface_operators(mesh, triangulation, plan, mass=mass)
+    return Discretization(domain=mesh, laplacian=laplacian, mass=mass_matrix, triangulation=triangulation, pattern=plan.pattern)
+
+
+def _solid(tet_mesh: TetMesh, mass: str, robust, caller: str | None) -> Discretization:
+    require_tet_problem(tet_mesh, robust)
+    laplacian, mass_matrix = tet_cotan_laplacian(tet_mesh), tet_mass_matrix(tet_mesh, mass=mass)
+    return Discretization(
+        domain=tet_mesh, laplacian=laplacian, mass=mass_matrix, triangulation=None, pattern=tet_plan(tet_mesh).pattern
+    )
+
+
+_BUILDERS = {Mesh: _surface, TetMesh: _solid}
+
+
+@kernel(static_argnames=("mass",))
+def _surface_operators(
+    mesh: Mesh, triangulation: IntrinsicTriangulation | None, plan: TriangulationPlan, *, mass: str
+) -> tuple[SparseMatrix, SparseMatrix]:
+    """`(L, M)` of a triangle mesh (the intrinsic Delaunay ones with a `triangulation`), in one program from the
+    squared edge lengths. `mesh` comes without its topology: everything that needs it (`plan`) is passed in."""
+    lengths_sq = face_edge_lengths_sq(mesh) if triangulation is None else triangulation.face_lengths_sq(mesh)
+    return cotan_laplacian_from_lengths_sq(lengths_sq, plan), mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
+
+
+def cells(domain: Mesh | TetMesh) -> Int[Array, "nc k"]:
+    """The top-dimensional cells: a triangle mesh's faces `(nf, 3)`, a tet mesh's tets `(nt, 4)` (works in kernels)."""
+    return domain.tets if isinstance(domain, TetMesh) else domain.faces
+
+
+def cell_measure_gradients(domain: Mesh | TetMesh) -> Float[Array, "nc k 3"]:
+    """`A_f grad phi_k` per face and corner, or `V_t grad phi_k` per tet and vertex: the weak gradient's blocks."""
+    if isinstance(domain, TetMesh):
+        return tet_volumes(domain)[:, None, None] * tet_hat_gradients(domain)
+    return face_areas(domain)[:, None, None] * face_hat_gradients(domain)
+
+
+def domain_edge_lengths(domain: Mesh | TetMesh) -> Float[Array, " ne"]:
+    """The lengths of the domain's edges (the heat methods' time scale is their mean, squared)."""
+    return tet_edge_lengths(domain) if isinstance(domain, TetMesh) else edge_lengths(domain)
