@@ -156,7 +156,7 @@ def test_outcomes_without_throw():
     assert float(solution.stats["residual"]) < 1e-10
     solver = heat_distance_solver(mesh, solver="cg")
     assert solver.distance([0], throw=False).result == RESULTS.successful
-    cut = eqx.tree_at(lambda s: s.heat, solver, factorize(solver.heat.system, solver="cg", max_steps=2))
+    cut = eqx.tree_at(lambda s: s.factors.heat, solver, factorize(solver.factors.heat.system, solver="cg", max_steps=2))
     failed = cut.distance([0], throw=False)
     assert failed.result == RESULTS.max_steps_reached and int(failed.stats["num_steps"]) >= 2
     assert cut.steps([0], throw=False).result == RESULTS.max_steps_reached

@@ -22,6 +22,7 @@ solid from vertex sources, the heat method in 3-D as in Crane et al. 2013).
 """
 
 from ._heat import HeatDistanceSolver as HeatDistanceSolver
+from ._heat import HeatFactors as HeatFactors
 from ._heat import HeatMethodSteps as HeatMethodSteps
 from ._heat import heat_distance as heat_distance
 from ._heat import heat_distance_solver as heat_distance_solver

@@ -107,39 +107,17 @@ class HeatDistanceSolver(eqx.Module):
     Attributes:
         mesh: the mesh (a triangle mesh or a `TetMesh`).
         t: the heat flow's time `t_coef * h^2`.
-        heat: factorisation of `M + t L` for the Neumann heat flow (of its free-free block, with the
-            unreferenced vertices held at 0, when there are any); `None` with `boundary="dirichlet"`
-            on a mesh with boundary.
-        heat_plan: the unreferenced vertices' `DirichletPlan` for `heat`, else `None`.
-        heat_dirichlet: factorisation of the free-free block of `M + t L` with the boundary (and
-            unreferenced) vertices held at 0 (`boundary="average"` or `"dirichlet"` on a mesh with
-            boundary and at least one interior vertex), else `None`.
-        heat_dirichlet_plan: its `DirichletPlan`, else `None`.
-        poisson: factorisation of `L` with one vertex per component pinned (its free-free block).
-        poisson_plan: the pins' `DirichletPlan`.
-        components: `(nv,)` the connected component of each vertex (the unreferenced vertices share
-            one label past those of the faces' components).
-        area_gradients: `(nf, 3, 3)` each face's area times the gradient of each corner's hat
-            function, `A_f grad phi_k` (`ddgjax.mesh.face_hat_gradients`): a query's two sweeps over
-            the faces, the field `X` and its divergence `-sum_f A_f grad phi_i . X_f`, read only these.
-            On a `TetMesh` `(nt, 4, 3)`, `V_t grad phi_k` (`ddgjax.volume.tet_hat_gradients`).
+        factors: the kept factorisations and per-cell data its queries read (`HeatFactors`).
     """
 
     mesh: Mesh | TetMesh
     t: Float[Array, ""]
-    heat: Factorization | None
-    heat_plan: DirichletPlan | None
-    heat_dirichlet: Factorization | None
-    heat_dirichlet_plan: DirichletPlan | None
-    poisson: Factorization
-    poisson_plan: DirichletPlan
-    components: Int[Array, " nv"]
-    area_gradients: Float[Array, "nc k 3"]
+    factors: HeatFactors
 
     @property
     def n_pinned(self) -> int:
         """The number of vertices the Poisson solve pins (one per connected component, and unreferenced ones)."""
-        return self.poisson_plan.fixed.shape[0]
+        return self.factors.poisson_plan.fixed.shape[0]
 
     def distance(self, sources, *, throw: bool = True) -> Float[Array, " nv"] | Solution:
         """Geodesic distance from the sources to every vertex, `(nv,)`: `>= 0`, `inf` where no source reaches.
@@ -158,23 +136,35 @@ class HeatDistanceSolver(eqx.Module):
 
     def _run(self, sources, throw: bool, pick):
         # Only the Dirichlet heat flow is kept exactly when `boundary="dirichlet"` on a mesh with boundary.
-        corners, weights = _sources(self.mesh, sources, dirichlet=self.heat is None)
-        factors = _Factors(
-            self.heat,
-            self.heat_plan,
-            self.heat_dirichlet,
-            self.heat_dirichlet_plan,
-            self.poisson,
-            self.poisson_plan,
-            self.components,
-            self.area_gradients,
-        )
-        steps, result, stats = _query(self.mesh, factors, corners, weights)
+        corners, weights = _sources(self.mesh, sources, dirichlet=self.factors.heat is None)
+        steps, result, stats = _query(self.mesh, self.factors, corners, weights)
         return outcome(pick(steps), result, throw, stats)
 
 
-class _Factors(eqx.Module):
-    """What a query needs besides the mesh (the solver without its mesh, which a kernel takes apart)."""
+class HeatFactors(eqx.Module):
+    """The heat method's kept factorisations and per-cell data: what a query reads besides the mesh.
+
+    Shared by `HeatDistanceSolver` and the vector heat method's solver (`ddgjax.geodesics.VectorHeatSolver`),
+    which nest it.
+
+    Attributes:
+        heat: factorisation of `M + t L` for the Neumann heat flow (of its free-free block, with the
+            unreferenced vertices held at 0, when there are any); `None` with `boundary="dirichlet"`
+            on a mesh with boundary.
+        heat_plan: the unreferenced vertices' `DirichletPlan` for `heat`, else `None`.
+        heat_dirichlet: factorisation of the free-free block of `M + t L` with the boundary (and
+            unreferenced) vertices held at 0 (`boundary="average"` or `"dirichlet"` on a mesh with
+            boundary and at least one interior vertex), else `None`.
+        heat_dirichlet_plan: its `DirichletPlan`, else `None`.
+        poisson: factorisation of `L` with one vertex per component pinned (its free-free block).
+        poisson_plan: the pins' `DirichletPlan`.
+        components: `(nv,)` the connected component of each vertex (the unreferenced vertices share
+            one label past those of the faces' components).
+        area_gradients: `(nf, 3, 3)` each face's area times the gradient of each corner's hat
+            function, `A_f grad phi_k` (`ddgjax.mesh.face_hat_gradients`): a query's two sweeps over
+            the faces, the field `X` and its divergence `-sum_f A_f grad phi_i . X_f`, read only these.
+            On a `TetMesh` `(nt, 4, 3)`, `V_t grad phi_k` (`ddgjax.volume.tet_hat_gradients`).
+    """
 
     heat: Factorization | None
     heat_plan: DirichletPlan | None
@@ -292,18 +282,7 @@ def heat_distance_solver(
         t, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
         if at_top_level():
             jax.block_until_ready(factors)  # the factorisations run in the block
-    return HeatDistanceSolver(
-        mesh=mesh,
-        t=t,
-        heat=factors.heat,
-        heat_plan=factors.heat_plan,
-        heat_dirichlet=factors.heat_dirichlet,
-        heat_dirichlet_plan=factors.heat_dirichlet_plan,
-        poisson=factors.poisson,
-        poisson_plan=factors.poisson_plan,
-        components=factors.components,
-        area_gradients=factors.area_gradients,
-    )
+    return HeatDistanceSolver(mesh=mesh, t=t, factors=factors)
 
 
 def heat_distance(
@@ -418,7 +397,7 @@ def _systems_of(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _
 
 
 def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, solver: str):
-    """`(t, _Factors)`: the factorisations of `M + t L`, its Dirichlet block and the pinned `L` (module docstring).
+    """`(t, HeatFactors)`: the factorisations of `M + t L`, its Dirichlet block and the pinned `L` (module docstring).
 
     Called eagerly, the matrices come from one compiled program and are factored after it, on concrete
     values (`ddgjax.solve.factorize`: the definiteness check on the host, outside every program), so
@@ -426,7 +405,7 @@ def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plan
     """
     systems = _systems(mesh, L, M, plans, t_coef)
     factor = functools.partial(factorize, solver=solver)
-    return systems.t, _Factors(
+    return systems.t, HeatFactors(
         heat=None if systems.heat is None else factor(systems.heat),
         heat_plan=plans.heat if plans.neumann else None,
         heat_dirichlet=None if systems.heat_dirichlet is None else factor(systems.heat_dirichlet),
@@ -452,7 +431,7 @@ def solve_held(factor: Factorization, plan: DirichletPlan | None, rhs) -> tuple[
     return solution, plan.join(solution.value, jnp.zeros(plan.fixed.shape[0], rhs.dtype))
 
 
-def _heat_method(mesh: Mesh | TetMesh, factors: _Factors, corners, weights) -> tuple[HeatMethodSteps, RESULTS, dict]:
+def _heat_method(mesh: Mesh | TetMesh, factors: HeatFactors, corners, weights) -> tuple[HeatMethodSteps, RESULTS, dict]:
     """The four steps (module docstring) with kept factorisations: `(steps, result, stats)`."""
     delta = jnp.zeros(mesh.n_vertices, weights.dtype).at[corners.ravel()].add(weights.ravel())
     flows = ((factors.heat, factors.heat_plan), (factors.heat_dirichlet, factors.heat_dirichlet_plan))
@@ -500,7 +479,7 @@ def _systems(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef) -> _Systems:
 
 
 @kernel
-def _query(domain: Mesh | TetMesh, factors: _Factors, corners, weights):
+def _query(domain: Mesh | TetMesh, factors: HeatFactors, corners, weights):
     return _heat_method(domain, factors, corners, weights)
 
 

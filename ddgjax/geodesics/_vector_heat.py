@@ -84,8 +84,8 @@ from ..laplacian.internal import vertex_plan
 from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradients, face_vertex_positions, require_mesh
 from ..solve import Factorization, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
-from ..sparse import DirichletPlan, SparseMatrix
-from ._heat import _Factors, _heat_method, _plans, check_t_coef, held_block
+from ..sparse import SparseMatrix
+from ._heat import HeatFactors, _heat_method, _plans, check_t_coef, held_block
 
 _INSIDE = 1e-9
 """How far outside a face (in barycentric coordinates) a centroid still counts as inside it."""
@@ -158,16 +158,13 @@ class VectorHeatSolver(eqx.Module):
 
 
 class _Kept(eqx.Module):
-    """What a `VectorHeatSolver` keeps besides its mesh (a kernel takes the mesh apart, as the heat method's `_Factors`).
+    """What a `VectorHeatSolver` keeps besides its mesh (a kernel takes the mesh apart, as the heat method's).
 
     Attributes:
         t: the heat flows' time `t_coef * h^2`.
-        heat: factorisation of the scalar heat operator `M + t L`.
+        scalar: the scalar heat method's `HeatFactors` (the Neumann heat flow `M + t L`, the pinned
+            Poisson solve, components, `A_f grad phi_k`), as `HeatDistanceSolver` keeps them.
         vector_heat: factorisation of the vector heat operator `M + t A` (complex Hermitian).
-        poisson: factorisation of `L` with one vertex per component pinned (the heat method's last step).
-        poisson_plan: the pins' `DirichletPlan`.
-        components: `(nv,)` the connected component of each vertex.
-        area_gradients: `(nf, 3, 3)` `A_f grad phi_k` per face and corner (the heat method's sweeps).
         e1, e2, normal: `(nv, 3)` the vertices' tangent frames (`ddgjax.fields.tangent_bases`).
         corner_angles: `(nf, 3)` the corner angles.
         heights: `(nf, 3)` each face's height from each corner, `2 A_f / |opposite edge|`.
@@ -177,12 +174,8 @@ class _Kept(eqx.Module):
 
     t: Float[Array, ""]
     # Matrices between `_systems` and `_factored`, factorisations after.
-    heat: Factorization | SparseMatrix
+    scalar: HeatFactors
     vector_heat: Factorization | SparseMatrix
-    poisson: Factorization | SparseMatrix
-    poisson_plan: DirichletPlan
-    components: Int[Array, " nv"]
-    area_gradients: Float[Array, "nf 3 3"]
     e1: Float[Array, "nv 3"]
     e2: Float[Array, "nv 3"]
     normal: Float[Array, "nv 3"]
@@ -392,7 +385,9 @@ def _factored(kept: _Kept, solver: str) -> _Kept:
     (the definiteness check on the host, outside every program, so each can be kept across processes)."""
     factor = functools.partial(factorize, solver=solver)
     return eqx.tree_at(
-        lambda k: (k.heat, k.vector_heat, k.poisson), kept, (factor(kept.heat), factor(kept.vector_heat), factor(kept.poisson))
+        lambda k: (k.scalar.heat, k.vector_heat, k.scalar.poisson),
+        kept,
+        (factor(kept.scalar.heat), factor(kept.vector_heat), factor(kept.scalar.poisson)),
     )
 
 
@@ -407,12 +402,17 @@ def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: Fiel
     first = connection_angles(mesh, field_plan, boundary_scaling="geodesic").corner_polar
     return _Kept(
         t=t,
-        heat=M + t * L,
+        scalar=HeatFactors(
+            heat=M + t * L,
+            heat_plan=None,
+            heat_dirichlet=None,
+            heat_dirichlet_plan=None,
+            poisson=held_block(L, poisson_plan),
+            poisson_plan=poisson_plan,
+            components=components,
+            area_gradients=areas[:, None, None] * face_hat_gradients(mesh),
+        ),
         vector_heat=MA + t * A,
-        poisson=held_block(L, poisson_plan),
-        poisson_plan=poisson_plan,
-        components=components,
-        area_gradients=areas[:, None, None] * face_hat_gradients(mesh),
         e1=e1,
         e2=e2,
         normal=normal,
@@ -487,7 +487,7 @@ def _transport(mesh: Mesh, solver: _Kept, sources, vectors):
         magnitude = magnitude[0]
     else:
         rhs = jnp.stack([point_masses(n, sources, magnitude), point_masses(n, sources, jnp.ones_like(magnitude))], axis=1)
-        scalar_solution = solver.heat.solve(rhs, throw=False)
+        scalar_solution = solver.scalar.heat.solve(rhs, throw=False)
         solutions.append(scalar_solution)
         magnitude = safe_div(scalar_solution.value[:, 0], scalar_solution.value[:, 1])  # 0 where no source reaches
     field = unit(vector_solution.value) * magnitude
@@ -531,10 +531,7 @@ def _log_map_steps(mesh: Mesh, solver: _Kept, source):
     R, H = radial_solution.value, horizontal_solution.value
     corners = jnp.full((1, 3), source)
     weights = jnp.zeros((1, 3), solver.t.dtype).at[0, 0].set(1.0)
-    factors = _Factors(
-        solver.heat, None, None, None, solver.poisson, solver.poisson_plan, solver.components, solver.area_gradients
-    )
-    steps, heat_result, heat_stats = _heat_method(mesh, factors, corners, weights)
+    steps, heat_result, heat_stats = _heat_method(mesh, solver.scalar, corners, weights)
     r = steps.distance
     direction = unit(R * jnp.conj(H))
     reached = jnp.isfinite(r)
