@@ -28,10 +28,10 @@ from .._errors import DDGInputError
 from .._numerics import safe_reciprocal
 from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
 from .._results import RESULTS, Solution, outcome
+from ..discretization import discretize
 from ..discretization.internal import DirichletData
-from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
 from ..laplacian.internal import vertex_plan
-from ..mesh import Mesh, MeshTopology, face_edge_lengths_sq, require_mesh
+from ..mesh import Mesh, MeshTopology, require_mesh
 from ..solve import linear_solve
 from ..sparse import DirichletPlan, SparseMatrix, SparsityPattern, dirichlet_blocks, gather_sum
 
@@ -104,8 +104,15 @@ def biharmonic_deformation(
     # `Q_ff D_f = -Q_fc D_c` from one program, `linear_solve` (its checks on the host, outside every
     # program) and one more joining `V + D`, so each can be kept across processes (`ddgjax._program_store`);
     # under `jit` / `grad` / `vmap` all of it is traced into the caller's program.
+    discretization = discretize(mesh, mass=mass)
     free_free, rhs, held = _system(
-        mesh, vertex_plan(mesh), operator, dirichlet.values.astype(dtype), dirichlet.plan, n_pinned=dirichlet.n_pinned, mass=mass
+        mesh,
+        discretization.laplacian,
+        discretization.mass,
+        operator,
+        dirichlet.values.astype(dtype),
+        dirichlet.plan,
+        n_pinned=dirichlet.n_pinned,
     )
     solution = linear_solve(free_free, rhs, solver=solver, throw=False)
     value, result, stats = _deformed(mesh, solution.value, held, dirichlet.plan), solution.result, solution.stats
@@ -198,26 +205,25 @@ def _operator_plan(mesh: Mesh, k: int) -> _OperatorPlan:
     return plans[k]
 
 
-@kernel(static_argnames=("n_pinned", "mass"))
+@kernel(static_argnames=("n_pinned",))
 def _system(
     mesh: Mesh,
-    plan: TriangulationPlan,
+    laplacian: SparseMatrix,
+    mass_matrix_: SparseMatrix,
     operator: _OperatorPlan,
     values: Float[Array, "n_fixed 3"],
     blocks: DirichletPlan,
     *,
     n_pinned: int,
-    mass: str,
 ) -> tuple[SparseMatrix, Float[Array, "n_free 3"], Float[Array, "n_held 3"]]:
-    """`(Q_ff, -Q_fc D_c, D_c)`: the free-free block of `Q = L (M^{-1} L)^{k-1}`, the right-hand side, and the
-    held displacement `D_c` (`values - V` at the handles, then `n_pinned` zeros)."""
+    """`(Q_ff, -Q_fc D_c, D_c)`: the free-free block of `Q = L (M^{-1} L)^{k-1}` (`L`, `M` the mesh's
+    discretisation), the right-hand side, and the held displacement `D_c` (`values - V` at the handles,
+    then `n_pinned` zeros)."""
     positions = mesh.vertices.astype(values.dtype)
-    lengths_sq = face_edge_lengths_sq(mesh)
-    laplacian = cotan_laplacian_from_lengths_sq(lengths_sq, plan)
     operator_matrix = laplacian
     if operator.products:
         # Unused vertices have no area; their rows of L are empty, so any weight serves (0).
-        inverse_areas = safe_reciprocal(mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass).diagonal())
+        inverse_areas = safe_reciprocal(mass_matrix_.diagonal())
         for product in operator.products:
             operator_matrix = product(operator_matrix, inverse_areas, laplacian)
     handles = blocks.fixed[: values.shape[0]]
