@@ -36,6 +36,7 @@ from .._options import DUAL_CELLS
 from ..mesh import Mesh, corner_cotangents, face_edge_vectors, face_hat_gradients, require_mesh, scatter_corners_to_vertices
 from ..sparse import SparseMatrix
 from ._hodge import hodge_star_entries
+from ._hodge_laplacian import codifferential_from, hodge_laplacian_from
 from ._operators import d0, d1
 
 
@@ -95,10 +96,6 @@ def _as_array(name: str, array, n: int, symbol: str) -> Array:
     return array
 
 
-def _scale(entries: Float[Array, " n"], x: Float[Array, "n *batch"]) -> Float[Array, "n *batch"]:
-    return entries.reshape((-1,) + (1,) * (x.ndim - 1)) * x
-
-
 def _exterior_derivative(mesh: Mesh, degree: int) -> SparseMatrix:
     return d0(mesh) if degree == 0 else d1(mesh)
 
@@ -112,11 +109,12 @@ def _as_form(name: str, mesh: Mesh, form, degree: int) -> Array:
     return _as_array(name, form, n, symbol)
 
 
-def _codifferential(mesh: Mesh, form, degree: int, dual: str):
-    d = _exterior_derivative(mesh, degree - 1)
-    star_inverse = hodge_star_entries(mesh, degree=degree - 1, dual=dual, inverse=True)
-    star = hodge_star_entries(mesh, degree=degree, dual=dual)
-    return _scale(star_inverse, d.T @ _scale(star, form))
+def _complex(mesh: Mesh, dual: str):
+    """The surface's `d_k` and `*_k` as `ddgjax.dec._hodge_laplacian` takes them."""
+    return (
+        lambda degree: _exterior_derivative(mesh, degree),
+        lambda degree, inverse: hodge_star_entries(mesh, degree=degree, dual=dual, inverse=inverse),
+    )
 
 
 def codifferential(
@@ -137,23 +135,14 @@ def codifferential(
     check_choice("degree", degree, (1, 2))
     if degree == 2:
         mesh.topology.require_oriented("ddgjax.dec.codifferential(degree=2)")
-    return _codifferential(mesh, _as_form("form", mesh, form, degree), degree, dual)
+    return codifferential_from(_as_form("form", mesh, form, degree), degree, *_complex(mesh, dual))
 
 
 def _hodge_laplacian(mesh: Mesh, name: str, form, degree: int, dual: str, weak: bool):
     if degree > 0:
         mesh.topology.require_oriented(f"ddgjax.dec.hodge_laplacian{degree}")
     check_choice("dual", dual, DUAL_CELLS)
-    form = _as_form(name, mesh, form, degree)
-    result = jnp.zeros_like(form)
-    if degree < 2:
-        d = _exterior_derivative(mesh, degree)
-        up = d.T @ _scale(hodge_star_entries(mesh, degree=degree + 1, dual=dual), d @ form)
-        result = result + (up if weak else _scale(hodge_star_entries(mesh, degree=degree, dual=dual, inverse=True), up))
-    if degree > 0:
-        down = _exterior_derivative(mesh, degree - 1) @ _codifferential(mesh, form, degree, dual)
-        result = result + (_scale(hodge_star_entries(mesh, degree=degree, dual=dual), down) if weak else down)
-    return result
+    return hodge_laplacian_from(_as_form(name, mesh, form, degree), degree, 2, *_complex(mesh, dual), weak=weak)
 
 
 def hodge_laplacian0(

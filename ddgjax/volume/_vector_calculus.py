@@ -29,6 +29,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice
 from .._indexing import take_rows
+from ..dec.internal import codifferential_from, hodge_laplacian_from
 from ._dec import TET_DUALS, TetIncidence, exterior_derivative, hodge_star_entries, sum_onto_vertices, tet_incidence
 from ._geometry import tet_hat_gradients, tet_volumes
 from ._tet_mesh import TetMesh, require_tet_mesh
@@ -88,14 +89,12 @@ def _as_form(name: str, tet_mesh: TetMesh, form, degree: int) -> Array:
     return _as_array(name, form, getattr(tet_mesh, attribute), symbol)
 
 
-def _scale(entries: Float[Array, " n"], x: Float[Array, "n *batch"]) -> Float[Array, "n *batch"]:
-    return entries.reshape((-1,) + (1,) * (x.ndim - 1)) * x
-
-
-def _codifferential(tet_mesh: TetMesh, form: Array, degree: int, dual: str) -> Array:
-    star = hodge_star_entries(tet_mesh, degree=degree, dual=dual)
-    star_inverse = hodge_star_entries(tet_mesh, degree=degree - 1, dual=dual, inverse=True)
-    return _scale(star_inverse, exterior_derivative(tet_mesh, degree - 1).T @ _scale(star, form))
+def _complex(tet_mesh: TetMesh, dual: str):
+    """The solid's `d_k` and `*_k` as `ddgjax.dec`'s dimension-free Hodge Laplacian takes them."""
+    return (
+        lambda degree: exterior_derivative(tet_mesh, degree),
+        lambda degree, inverse: hodge_star_entries(tet_mesh, degree=degree, dual=dual, inverse=inverse),
+    )
 
 
 def codifferential(
@@ -111,7 +110,7 @@ def codifferential(
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     check_choice("dual", dual, TET_DUALS)
     check_choice("degree", degree, (1, 2, 3))
-    return _codifferential(tet_mesh, _as_form("form", tet_mesh, form, degree), degree, dual)
+    return codifferential_from(_as_form("form", tet_mesh, form, degree), degree, *_complex(tet_mesh, dual))
 
 
 def hodge_laplacian(
@@ -132,13 +131,4 @@ def hodge_laplacian(
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     check_choice("dual", dual, TET_DUALS)
     check_choice("degree", degree, (0, 1, 2, 3))
-    form = _as_form("form", tet_mesh, form, degree)
-    result = jnp.zeros_like(form)
-    if degree < 3:
-        d = exterior_derivative(tet_mesh, degree)
-        up = d.T @ _scale(hodge_star_entries(tet_mesh, degree=degree + 1, dual=dual), d @ form)
-        result = result + (up if weak else _scale(hodge_star_entries(tet_mesh, degree=degree, dual=dual, inverse=True), up))
-    if degree > 0:
-        down = exterior_derivative(tet_mesh, degree - 1) @ _codifferential(tet_mesh, form, degree, dual)
-        result = result + (_scale(hodge_star_entries(tet_mesh, degree=degree, dual=dual), down) if weak else down)
-    return result
+    return hodge_laplacian_from(_as_form("form", tet_mesh, form, degree), degree, 3, *_complex(tet_mesh, dual), weak=weak)
