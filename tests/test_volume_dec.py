@@ -14,9 +14,10 @@ import pytest
 import scipy.sparse
 import scipy.spatial
 from jax.test_util import check_grads
-from tet_meshes import jittered_grid_tets
 
 from ddgjax import DDGInputError, volume
+
+from tet_meshes import jittered_grid_tets
 
 jax.config.update("jax_enable_x64", True)
 

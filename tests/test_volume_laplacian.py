@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import scipy.spatial
 from jax.test_util import check_grads
-from tet_meshes import jittered_grid_tets
 
 from ddgjax import DDGInputError, volume
+
+from tet_meshes import jittered_grid_tets
 
 jax.config.update("jax_enable_x64", True)
 

@@ -7,10 +7,10 @@ for a surface with `robust=`, the intrinsic Delaunay triangulation they came fro
 them once, checks `mass=` and `robust=` the same way for all of them, and is the one place where the kind
 of domain matters:
 
-- a triangle `Mesh`: `robust=False` refuses degenerate faces on concrete positions (`MeshDataError`,
-  `ddgjax.laplacian.laplacian_and_mass`) and assembles `L`, `M` from the mesh's squared edge lengths;
-  `robust=True` (or an `IntrinsicTriangulation`) from the intrinsic Delaunay ones (mollified; the tufted
-  cover on non-manifold meshes). One compiled program either way.
+- a triangle `Mesh`: `ddgjax.laplacian.laplacian_and_mass`: `robust=False` refuses degenerate faces on
+  concrete positions (`MeshDataError`) and gives the cotan Laplacian and mass matrix; `robust=True` (or
+  an `IntrinsicTriangulation`) the intrinsic Delaunay ones (mollified; the tufted cover, halved, on
+  non-manifold meshes).
 - a `ddgjax.volume.TetMesh`: `robust=False` only (no intrinsic Delaunay retriangulation in 3-D), degenerate
   tets refused on concrete positions; `L`, `M` from `ddgjax.volume`.
 
@@ -25,16 +25,10 @@ from __future__ import annotations
 import equinox as eqx
 from jaxtyping import Array, Float, Int
 
-from .._compile import kernel
 from .._options import check_mass
-from ..laplacian import (
-    IntrinsicTriangulation,
-    TriangulationPlan,
-    cotan_laplacian_from_lengths_sq,
-    mass_matrix_from_lengths_sq,
-)
+from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..laplacian.internal import resolve_robust, vertex_plan
-from ..mesh import Mesh, edge_lengths, face_areas, face_edge_lengths_sq, face_hat_gradients
+from ..mesh import Mesh, edge_lengths, face_areas, face_hat_gradients
 from ..sparse import SparseMatrix, SparsityPattern
 from ..volume import TetMesh, tet_hat_gradients, tet_plan, tet_volumes
 from ..volume import cotan_laplacian as tet_cotan_laplacian
@@ -96,7 +90,7 @@ def require_domain(name: str, value) -> Mesh | TetMesh:
 def _surface(mesh: Mesh, mass: str, robust, caller: str | None) -> Discretization:
     triangulation = resolve_robust(mesh, robust, mass=mass, host_plans=caller)
     plan = vertex_plan(mesh) if triangulation is None else triangulation.plan
-    laplacian, mass_matrix = _surface_operators(mesh, triangulation, plan, mass=mass)
+    laplacian, mass_matrix = laplacian_and_mass(mesh, mass=mass, robust=False if triangulation is None else triangulation)
     return Discretization(domain=mesh, laplacian=laplacian, mass=mass_matrix, triangulation=triangulation, pattern=plan.pattern)
 
 
@@ -109,16 +103,6 @@ def _solid(tet_mesh: TetMesh, mass: str, robust, caller: str | None) -> Discreti
 
 
 _BUILDERS = {Mesh: _surface, TetMesh: _solid}
-
-
-@kernel(static_argnames=("mass",))
-def _surface_operators(
-    mesh: Mesh, triangulation: IntrinsicTriangulation | None, plan: TriangulationPlan, *, mass: str
-) -> tuple[SparseMatrix, SparseMatrix]:
-    """`(L, M)` of a triangle mesh (the intrinsic Delaunay ones with a `triangulation`), in one program from the
-    squared edge lengths. `mesh` comes without its topology: everything that needs it (`plan`) is passed in."""
-    lengths_sq = face_edge_lengths_sq(mesh) if triangulation is None else triangulation.face_lengths_sq(mesh)
-    return cotan_laplacian_from_lengths_sq(lengths_sq, plan), mass_matrix_from_lengths_sq(lengths_sq, plan, mass=mass)
 
 
 def cells(domain: Mesh | TetMesh) -> Int[Array, "nc k"]:

@@ -166,11 +166,12 @@ class HeatFactors(eqx.Module):
             On a `TetMesh` `(nt, 4, 3)`, `V_t grad phi_k` (`ddgjax.volume.tet_hat_gradients`).
     """
 
-    heat: Factorization | None
+    # Factorisations; the vector heat solver's assembly holds the matrices for a moment before factoring them.
+    heat: Factorization | SparseMatrix | None
     heat_plan: DirichletPlan | None
-    heat_dirichlet: Factorization | None
+    heat_dirichlet: Factorization | SparseMatrix | None
     heat_dirichlet_plan: DirichletPlan | None
-    poisson: Factorization
+    poisson: Factorization | SparseMatrix
     poisson_plan: DirichletPlan
     components: Int[Array, " nv"]
     area_gradients: Float[Array, "nc k 3"]

@@ -101,7 +101,7 @@ def eigenpairs(
             f"boundary: 'dirichlet' holds the boundary at 0, and all {fixed.size} vertices of this mesh lie on its "
             "boundary (a strip, a single triangle or tet), so no eigenfunction is left (use 'neumann')"
         )
-    plan = dirichlet_plan(L, fixed)
+    plan = dirichlet_plan(discretization.pattern, fixed)
     L_ff, _ = dirichlet_blocks(L, plan)
     if M.pattern.is_diagonal:  # a lumped mass: its block is the free part of the diagonal
         M_ff = diagonal_matrix(M.diagonal()[plan.free], positive_semidefinite=True)
