@@ -14,9 +14,7 @@ import pytest
 
 import ddgjax.dec as dec
 from ddgjax import DDGInputError
-from ddgjax.mesh import grid, icosphere
-from ddgjax.mesh._geometry import face_normals
-from ddgjax.mesh._mesh import Mesh
+from ddgjax.mesh import Mesh, face_normals, grid, icosphere
 
 from conftest import data_path
 

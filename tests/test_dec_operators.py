@@ -22,8 +22,11 @@ from ddgjax import DDGInputError, MeshDataError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.laplacian.internal import dec_plan, vertex_plan
 from ddgjax.mesh import (
+    Mesh,
     corner_dual_areas,
     corner_dual_areas_from_lengths_sq,
+    edge_cotan_weights,
+    face_areas,
     grid,
     icosphere,
     vertex_dual_areas,
@@ -32,8 +35,6 @@ from ddgjax.mesh import (
     vertex_pointwise_mean_curvatures,
     vertex_principal_curvatures,
 )
-from ddgjax.mesh._geometry import edge_cotan_weights, face_areas
-from ddgjax.mesh._mesh import Mesh
 from ddgjax.sparse import congruence
 
 from conftest import data_path

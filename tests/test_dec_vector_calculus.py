@@ -14,8 +14,7 @@ import pytest
 
 import ddgjax.dec as dec
 from ddgjax import DDGInputError
-from ddgjax.mesh._geometry import face_areas, face_normals, face_vertex_positions
-from ddgjax.mesh._mesh import Mesh
+from ddgjax.mesh import Mesh, face_areas, face_normals, face_vertex_positions
 
 from conftest import data_path
 

@@ -30,7 +30,7 @@ from ddgjax.laplacian import (
     to_pytorch3d_cot_laplacian,
     triangulation_plan,
 )
-from ddgjax.laplacian._plan import vertex_plan
+from ddgjax.laplacian.internal import vertex_plan
 from ddgjax.mesh import Mesh, face_edge_lengths_sq, grid, icosphere
 
 from conftest import data_path

@@ -13,7 +13,7 @@ from ddgjax import DDGInputError, MeshDataError
 from ddgjax.cli import main
 from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, check_mesh, face_areas, icosphere
-from ddgjax.mesh._check import default_area_tol
+from ddgjax.mesh.internal import default_area_tol
 
 from conftest import data_path
 

@@ -14,7 +14,8 @@ import scipy.sparse.linalg as spla
 from ddgjax import RESULTS, DDGInputError, MeshDataError, Solution
 from ddgjax.dec import d0, d1, hodge_star_entries
 from ddgjax.mesh import Mesh, icosphere, torus
-from ddgjax.pde._hodge_decomposition import HodgeDecomposition, closed_cocycle_basis, hodge_decomposition
+from ddgjax.pde import HodgeDecomposition, hodge_decomposition
+from ddgjax.pde.internal import closed_cocycle_basis
 
 from conftest import read_ddg_reference
 from mesh_union import disjoint_union

@@ -11,7 +11,7 @@ import pytest
 
 from ddgjax import RESULTS, DDGInputError
 from ddgjax.mesh import Mesh, enclosed_volume, icosphere, torus
-from ddgjax.pde._mean_curvature_flow import MeanCurvatureFlowResult, mean_curvature_flow
+from ddgjax.pde import MeanCurvatureFlowResult, mean_curvature_flow
 
 from conftest import read_ddg_reference
 

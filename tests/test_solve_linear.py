@@ -16,8 +16,7 @@ import scipy.sparse.linalg as spla
 from ddgjax import RESULTS, DDGInputError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk, icosphere
-from ddgjax.solve import _linear, factorize, linear_solve
-from ddgjax.solve._amg import amg_hierarchy
+from ddgjax.solve import _linear, amg_hierarchy, factorize, linear_solve
 from ddgjax.solve._linear import _real_form
 from ddgjax.sparse import SparseMatrix, from_scipy
 
