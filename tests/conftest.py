@@ -89,6 +89,17 @@ def _write_large_mesh(seed: pathlib.Path, target: pathlib.Path) -> None:
     target.write_bytes(trimesh.exchange.ply.export_ply(trimesh.Trimesh(vertices, faces, process=False), encoding="binary"))
 
 
+@pytest.fixture(scope="session")
+def sphere_obj(tmp_path_factory) -> str:
+    """The unit icosphere of 162 vertices (`icosphere(2)`) as an OBJ file, as a user's mesh file (the CLI tests)."""
+    from ddgjax.io import save_mesh
+    from ddgjax.mesh import icosphere
+
+    path = tmp_path_factory.mktemp("meshes") / "sphere.obj"
+    save_mesh(path, icosphere(2))
+    return str(path)
+
+
 @pytest.fixture
 def without_type_checker():
     """Turn off the suite's run-time type checker (jaxtyping + beartype) for one test: what a user sees,

@@ -23,10 +23,8 @@ from conftest import run_cli
 
 
 @pytest.fixture(scope="module")
-def sphere(tmp_path_factory):
-    path = tmp_path_factory.mktemp("fluid") / "sphere.obj"
-    save_mesh(path, icosphere(2))  # 162 vertices
-    return str(path)
+def sphere(sphere_obj):
+    return sphere_obj
 
 
 def _numbers(out: str, row: str) -> list[float]:

@@ -13,17 +13,12 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from ddgjax.io import save_mesh
-from ddgjax.mesh import icosphere
-
 from conftest import run_cli
 
 
 @pytest.fixture(scope="module")
-def sphere(tmp_path_factory):
-    path = tmp_path_factory.mktemp("geodesic") / "sphere.obj"
-    save_mesh(path, icosphere(2))
-    return str(path)
+def sphere(sphere_obj):
+    return sphere_obj
 
 
 def _numbers(out: str, row: str) -> list[float]:
