@@ -235,7 +235,7 @@ def test_a_folder_of_meshes_with_a_degenerate_one(tmp_path, capsys):
     meshes = {"a.obj": icosphere(1), "b.off": disk(4), "c.obj": degenerate}
     for name, shape in meshes.items():
         save_mesh(tmp_path / name, shape)
-    operators = diffusion_operators_of_meshes((load_mesh(tmp_path / name) for name in sorted(meshes)), 5)
+    operators = diffusion_operators_of_meshes((load_mesh(tmp_path / name) for name in sorted(meshes)), 5, progress=True)
     assert "diffusion operators" in capsys.readouterr().err  # the progress bar
     for ops, shape in zip(operators, meshes.values()):
         assert isinstance(ops, DiffusionOperators) and ops.vectors.shape == (shape.n_vertices, 5)
