@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import ddgjax
-from ddgjax import RESULTS, DDGInputError
+from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax.fluids import EulerFlowResult, FluidBasis, euler_flow, fluid_basis, stream_function_velocity
 from ddgjax.mesh import Mesh, disk, icosphere, torus
 
@@ -438,3 +438,14 @@ def test_zero_area_face_refused_plainly_and_finite_with_robust():
     assert np.all(np.isfinite(np.asarray(solution.vorticity)))
     gradient = jax.grad(lambda w: euler_flow(cap, w, tau=0.01, steps=5, basis=basis).value.sum())(vorticity)
     assert np.all(np.isfinite(np.asarray(gradient)))
+
+
+def test_fluid_basis_with_throw_false_reports_its_solves(ring):
+    """`throw=False`: the basis in a `ddgjax.Solution` with the eigensolve's and the harmonic fields' Poisson
+    solve's outcome and stats; the same basis as `throw=True` (the torus has 2 harmonic fields, so both run)."""
+    mesh, basis = ring
+    solution = fluid_basis(mesh, 36, throw=False)
+    assert isinstance(solution, Solution) and solution.result == RESULTS.successful
+    assert set(solution.stats) == {"eigenpairs", "poisson"} and float(solution.stats["poisson"]["residual"]) < 1e-10
+    np.testing.assert_allclose(solution.value.values, basis.values, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(solution.value.harmonic, basis.harmonic, rtol=1e-10, atol=1e-12)

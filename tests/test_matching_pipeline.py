@@ -138,6 +138,11 @@ def test_geodesic_error_against_exact_geodesics(spot):
         np.testing.assert_allclose(
             geodesic_error(spot, predicted[:, column], true), np.mean(exact[:, column]) / sqrt_area, rtol=rtol
         )
+    # throw=False: the same error in a `ddgjax.Solution`, with one heat-method query per distinct true vertex.
+    solution = geodesic_error(spot, predicted[:, 2], true, throw=False)
+    assert isinstance(solution, ddgjax.Solution) and solution.result == ddgjax.RESULTS.successful
+    assert solution.value == geodesic_error(spot, predicted[:, 2], true)
+    assert solution.stats["n_queries"] == np.unique(true[predicted[:, 2] != true]).size
 
 
 @pytest.mark.slow

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ddgjax import DDGInputError
+from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax.io import load_mesh
 from ddgjax.matching import SpectralShape, functional_map_from_point_map, icp_refine, point_map, spectral_shape, zoomout_refine
 
@@ -117,3 +118,17 @@ def test_bad_input(shape, without_type_checker):
         zoomout_refine(np.eye(10), shape, shape, k_final=41)
     with pytest.raises(DDGInputError, match="max_steps"):
         icp_refine(np.eye(10), shape, shape, max_steps=-1)
+
+
+def test_icp_reports_its_steps_and_a_nonfinite_map(shape):
+    """`throw=False`: pyFM's map in a `ddgjax.Solution`, with the steps taken (at most `max_steps`) and the last
+    change; a map that turns NaN inside `jit` (where its values cannot be checked first) is `nonfinite`."""
+    C = _noisy_map(20, 20, seed=3)
+    solution = icp_refine(C, shape, shape, throw=False)
+    assert isinstance(solution, Solution) and solution.result == RESULTS.successful
+    np.testing.assert_allclose(solution.value, icp_refine(C, shape, shape), atol=0)
+    assert 1 <= int(solution.stats["num_steps"]) <= 10 and float(solution.stats["change"]) >= 0
+    poisoned = jax.jit(lambda C: icp_refine(C, shape, shape, throw=False).result)(jnp.asarray(C).at[0, 0].set(jnp.nan))
+    assert poisoned == RESULTS.nonfinite
+    with pytest.raises(Exception, match="non-finite|nonfinite|NaN"):
+        jax.block_until_ready(jax.jit(lambda C: icp_refine(C, shape, shape))(jnp.asarray(C).at[0, 0].set(jnp.nan)))

@@ -45,8 +45,9 @@ class Discretization(eqx.Module):
         laplacian: `(nv, nv)` the PSD weak Laplacian `L` (cotan, or intrinsic Delaunay with `robust=`).
         mass: `(nv, nv)` the mass matrix `M` of `mass=`.
         triangulation: the `IntrinsicTriangulation` `L` and `M` come from, or None (the domain's own cells).
-        pattern: `laplacian`'s vertex-vertex sparsity pattern from the host-built plan (concrete even when
-            `laplacian` is traced inside a caller's `jit`): what host plans (Dirichlet blocks, pins) are built on.
+        pattern: `laplacian`'s vertex-vertex sparsity pattern from the host-built plan: what host plans
+            (Dirichlet blocks, pins) are built on. Concrete inside a caller's `jit`, where `laplacian`'s own
+            pattern is traced, unless the triangulation itself is an argument of that `jit`.
     """
 
     domain: Mesh | TetMesh
@@ -69,7 +70,17 @@ def discretize(
             triangulation (`robust=` given as an argument of a `jit`).
 
     Returns:
-        `Discretization(domain, laplacian, mass, triangulation)`.
+        `Discretization(domain, laplacian, mass, triangulation, pattern)`; `L == -igl.cotmatrix(V, F)` (or
+        `(V, T)`), `M == igl.massmatrix(V, F, MASSMATRIX_TYPE_VORONOI)` by default; with `robust=True` and
+        `mass="barycentric"`, `robust_laplacian.mesh_laplacian(V, F)`'s pair. Differentiable in the vertex
+        positions (under `jit`, `grad`, `vmap`; the host work, checks and flips, runs before).
+
+    Example:
+        >>> import ddgjax
+        >>> from ddgjax.discretization import discretize
+        >>> d = discretize(ddgjax.mesh.icosphere(1), mass="barycentric")
+        >>> d.laplacian.shape, d.mass.shape, d.triangulation is None
+        ((42, 42), (42, 42), True)
 
     Raises:
         DDGInputError: `mesh` neither kind, a bad `mass` or `robust`. `MeshDataError`: degenerate faces

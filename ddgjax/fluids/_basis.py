@@ -189,8 +189,10 @@ def fluid_basis(
     L, M = discretization.laplacian, discretization.mass
     eigen = smallest_eigenpairs(L, M, k, solver=solver, throw=False)
     values, vectors = eigen.value
+    # The Poisson solve of the harmonic fields reuses this discretisation's triangulation (no second set of flips).
+    triangulation = False if discretization.triangulation is None else discretization.triangulation
     harmonic, poisson = _harmonic_fields(
-        mesh, closed_cocycle_basis(mesh.topology), M.diagonal(), mass=mass, robust=robust, solver=solver
+        mesh, closed_cocycle_basis(mesh.topology), M.diagonal(), mass=mass, robust=triangulation, solver=solver
     )
     basis = _fluid_basis(mesh, values, vectors, M.diagonal(), harmonic)
     return outcome(

@@ -51,8 +51,8 @@ def icp_refine(
         target: the target `SpectralShape` (at least `k_t` eigenpairs).
         max_steps: the most ICP steps (default 10, pyFM's `nit`).
         rtol: the change of `C`, relative to its largest entry, below which the steps stop (default 1e-10, pyFM's `tol`).
-        throw: raise when the refined map is not finite (`RESULTS.nonfinite`: a NaN in `C` or in the
-            shapes' bases); with `False` return a `ddgjax.Solution` whose `stats` hold `num_steps` (the
+        throw: raise when the initial or the refined map is not finite (`RESULTS.nonfinite`: a NaN in a
+            traced `C`, which cannot be refused first, or in the shapes' bases); with `False` return a `ddgjax.Solution` whose `stats` hold `num_steps` (the
             steps taken) and `change` (the last step's relative change: at most `rtol` at a fixed point).
 
     Returns:
@@ -95,8 +95,11 @@ def _icp(C, source_vectors, target_vectors, target_mass, rtol, *, max_steps: int
         change = jnp.max(jnp.abs(refined - C)) / jnp.maximum(jnp.max(jnp.abs(C)), jnp.finfo(C.dtype).tiny)
         return refined, change, steps + 1
 
+    # A NaN in the initial map (traced, so not refused first) makes its point map arbitrary; the steps
+    # after it are finite and mean nothing, so it is the input's finiteness that is reported too.
+    finite = jnp.all(jnp.isfinite(C))
     C, change, num_steps = jax.lax.while_loop(cond, body, (C, jnp.asarray(jnp.inf, C.dtype), jnp.asarray(0)))
-    result = RESULTS.where(jnp.all(jnp.isfinite(C)), RESULTS.successful, RESULTS.nonfinite)
+    result = RESULTS.where(finite & jnp.all(jnp.isfinite(C)), RESULTS.successful, RESULTS.nonfinite)
     return C, result, {"num_steps": num_steps, "change": change}
 
 
