@@ -100,6 +100,45 @@ def sphere_obj(tmp_path_factory) -> str:
     return str(path)
 
 
+def _icosphere(subdivisions: int):
+    from ddgjax.mesh import icosphere
+
+    return icosphere(subdivisions)
+
+
+# The suite's common meshes, built once per session: a `Mesh` is immutable, so tests share one. Each unit
+# icosphere is the subdivided icosahedron of `ddgjax.mesh.icosphere` (a convergence study that varies the level
+# calls `icosphere` itself).
+@pytest.fixture(scope="session")
+def icosphere0():
+    """The icosahedron inscribed in the unit sphere: 12 vertices, 20 faces."""
+    return _icosphere(0)
+
+
+@pytest.fixture(scope="session")
+def icosphere1():
+    """The unit icosphere of 42 vertices and 80 faces."""
+    return _icosphere(1)
+
+
+@pytest.fixture(scope="session")
+def icosphere2():
+    """The unit icosphere of 162 vertices and 320 faces."""
+    return _icosphere(2)
+
+
+@pytest.fixture(scope="session")
+def icosphere3():
+    """The unit icosphere of 642 vertices and 1280 faces."""
+    return _icosphere(3)
+
+
+@pytest.fixture(scope="session")
+def icosphere4():
+    """The unit icosphere of 2562 vertices and 5120 faces."""
+    return _icosphere(4)
+
+
 @pytest.fixture
 def without_type_checker():
     """Turn off the suite's run-time type checker (jaxtyping + beartype) for one test: what a user sees,

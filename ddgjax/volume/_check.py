@@ -200,8 +200,14 @@ def require_tet_problem(tet_mesh: TetMesh, robust: object) -> None:
       Delaunay retriangulation of a surface (Sharp & Crane 2020), which has no tetrahedral counterpart.
     - No degenerate tets at concrete positions (`MeshDataError` naming them): a tet of near-zero volume
       has near-infinite cotan weights, so its Laplacian's rounding makes the solve fail or lie, and tets
-      have no `robust=` remedy. Measured once per `TetMesh` object, on the host, with `check_tet_mesh`'s
-      test; nothing is checked under `jit` (traced positions), where values and gradients stay finite.
+      have no `robust=` remedy.
+    - No inverted tets (`MeshDataError` naming them): a tet turned inside out by a move (`with_vertices`)
+      overlaps its neighbours, so the solid is no longer an embedding; its signed volume would enter the
+      mass with the wrong sign and its cotan weights would describe a folded solid, an answer with no
+      meaning rather than an error.
+
+    Both are measured once per `TetMesh` object, on the host, with `check_tet_mesh`'s test; nothing is
+    checked under `jit` (traced positions), where values and gradients stay finite.
     """
     if robust is not False:
         raise DDGInputError(
@@ -211,19 +217,26 @@ def require_tet_problem(tet_mesh: TetMesh, robust: object) -> None:
         )
     if is_traced(tet_mesh.vertices) or tet_mesh.topology is None:
         return
-    found = tet_mesh.__dict__.get("_degenerate_tets")
+    found = tet_mesh.__dict__.get("_unusable_tets")
     if found is None:
         signed, longest, _ = _unit_signed_volumes_and_longest_edges(
             np.asarray(tet_mesh.vertices, dtype=np.float64), tet_mesh.topology.tets
         )
-        found = np.flatnonzero(np.abs(signed) <= default_volume_tol(tet_mesh.vertices.dtype) * longest**3)
-        object.__setattr__(tet_mesh, "_degenerate_tets", found)  # a cache beside the pytree's fields
-    if found.size:
-        mask = np.zeros(tet_mesh.n_tets, dtype=bool)
-        mask[found] = True
+        flat = np.abs(signed) <= default_volume_tol(tet_mesh.vertices.dtype) * longest**3
+        found = (np.flatnonzero(flat), np.flatnonzero(~flat & (signed < 0)))
+        object.__setattr__(tet_mesh, "_unusable_tets", found)  # a cache beside the pytree's fields
+    degenerate, inverted = found
+    if degenerate.size:
         raise MeshDataError(
-            f"tet_mesh: tets {first_indices(mask)} have zero or near-zero volume (|volume| <= "
+            f"tet_mesh: tets {_first(degenerate)} have zero or near-zero volume (|volume| <= "
             f"{default_volume_tol(tet_mesh.vertices.dtype):g} * longest edge^3: coplanar or coincident corners), where "
             "the cotan weights are infinite or undefined; remove or repair them (ddgjax.volume.check_tet_mesh lists them; "
             "re-mesh with ddgjax.volume.tetrahedralize)"
+        )
+    if inverted.size:
+        raise MeshDataError(
+            f"tet_mesh: {inverted.size} of its {tet_mesh.n_tets} tets are inverted (negative signed volume: tets "
+            f"{_first(inverted)}), so the solid folds over itself and its Laplacian and mass have no meaning; untangle "
+            "the positions (a move through with_vertices turned them inside out), or, for a mirrored mesh whose tets "
+            "are all inverted, rebuild it with ddgjax.volume.TetMesh.from_arrays(vertices, tets), which orients each tet"
         )

@@ -3,11 +3,13 @@
 `load_tet_mesh` keeps the file's points in file order (points no tet
 uses included, so per-vertex data lines up index for index, as `ddgjax.load_mesh` does) and takes
 every block of linear tetrahedra (`tetra` cells), ignoring the file's other cells (a gmsh file's
-boundary triangles, lines and points); tets are oriented by `TetMesh.from_arrays`. `save_tet_mesh`
-writes the vertices and tets in float64 (binary where the format has it), so a round trip gives the
-same arrays back exactly, and replaces the target atomically as `ddgjax.save_mesh` does (written
-aside, flushed, renamed into place); TetGen's two files (`.node` positions, `.ele` tets) are each
-replaced atomically, the `.node` first.
+boundary triangles, lines and points); a file whose tets are all negatively oriented is turned right
+side out, any other keeps its tets as written (an inverted tet stays inverted, for `check_tet_mesh` and the
+problem layer to report). `save_tet_mesh` writes the vertices and tets as given, in float64 (binary where the
+format has it), so a round trip gives the same arrays back exactly, and replaces the target atomically as
+`ddgjax.save_mesh` does (written aside, flushed, renamed into place); TetGen's two files (`.node`
+positions, `.ele` tets) are replaced together (both or neither) and carry one tag, so `load_tet_mesh`
+refuses a pair that was not written together.
 
 meshio (MIT, pure Python; Schlömer et al., https://github.com/nschloe/meshio) is imported on first
 use; libigl's equivalents are `igl.read_mesh` / `igl.write_mesh` (medit only) and
@@ -16,15 +18,21 @@ use; libigl's equivalents are `igl.read_mesh` / `igl.write_mesh` (medit only) an
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pathlib
 import tempfile
+import uuid
 
 import numpy as np
 
 from .._errors import DDGInputError
-from .._files import finite_host_vertices, write_atomically
-from ._tet_mesh import TetMesh, require_tet_mesh
+from .._files import finite_host_vertices, replace_together
+from ._tet_mesh import TetMesh, host_signed_volumes, require_tet_mesh, tet_mesh_as_given
+
+#: The first line of both files of a TetGen pair `save_tet_mesh` writes (a comment to TetGen and meshio),
+#: with one random token per save: `load_tet_mesh` refuses a pair whose tokens differ.
+_PAIR_TAG = "# ddgjax tet pair"
 
 #: File extension -> meshio's format (and the name of its reader / writer module, `meshio.gmsh`, ...).
 _FORMATS = {
@@ -55,7 +63,8 @@ def load_tet_mesh(path: str | os.PathLike, *, dtype=None) -> TetMesh:
         FileNotFoundError: no such file.
         DDGInputError: another extension, content meshio cannot read, points that are
             not 3-D, or a file with no linear tetrahedra (naming the cell types it has: a triangle
-            mesh goes to `ddgjax.load_mesh`, quadratic `tetra10` cells are not read).
+            mesh goes to `ddgjax.load_mesh`, quadratic `tetra10` cells are not read), or a TetGen
+            pair whose `.node` and `.ele` were not saved together by `save_tet_mesh`.
 
     Equivalents: `meshio.read(path)`; `igl.read_mesh(path)` for medit files.
     """
@@ -65,6 +74,8 @@ def load_tet_mesh(path: str | os.PathLike, *, dtype=None) -> TetMesh:
     fmt = _format_of(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no such tet mesh file: {str(path)!r}")
+    if fmt == "tetgen":
+        _check_pair(path)
     try:
         # The format's own reader: meshio.read prints and exits the process (SystemExit) on a file it cannot read.
         data = getattr(meshio, fmt).read(str(path))
@@ -87,7 +98,10 @@ def load_tet_mesh(path: str | os.PathLike, *, dtype=None) -> TetMesh:
     points = np.asarray(data.points)
     if points.ndim != 2 or points.shape[1] != 3:
         raise DDGInputError(f"path: {str(path)!r} has points of shape {points.shape}; expected 3-D points (n, 3)")
-    tet_mesh = TetMesh.from_arrays(points.astype(np.float64), np.concatenate(blocks).astype(np.int64))
+    points, tets = points.astype(np.float64), np.concatenate(blocks).astype(np.int64)
+    # A file of the opposite convention (every tet negative) is turned right side out; a file with some tets
+    # inverted keeps them so, for check_tet_mesh and the problem layer to see.
+    tet_mesh = TetMesh.from_arrays(points, tets) if _every_tet_negative(points, tets) else tet_mesh_as_given(points, tets)
     return tet_mesh if dtype is None else tet_mesh.with_vertices(tet_mesh.vertices.astype(dtype))
 
 
@@ -95,9 +109,10 @@ def save_tet_mesh(path: str | os.PathLike, tet_mesh: TetMesh) -> None:
     """Write `tet_mesh` to a gmsh 4.1 `.msh`, `.vtk`, `.vtu`, medit `.mesh` / `.meshb` or TetGen `.ele` / `.node` file.
 
     Writes every vertex (unused ones too) in float64 and the tets as `tet_mesh.tets` holds them
-    (positively oriented), so `load_tet_mesh` gives back the same arrays exactly. The target is
+    (inverted ones too), so `load_tet_mesh` gives back the same arrays exactly. The target is
     replaced atomically (`ddgjax.save_mesh`'s guarantee: a failed write leaves an existing file as
-    it was); for TetGen both `stem.node` and `stem.ele` are written, whichever of the two `path` names.
+    it was); for TetGen both `stem.node` and `stem.ele` are written, whichever of the two `path` names,
+    and replaced together: a failure leaves both old files, never a new `.node` beside an old `.ele`.
 
     Raises `DDGInputError`, before anything is written, for another extension, anything but a
     `TetMesh`, or vertices with NaN or inf coordinates; `OSError` when a file cannot be written.
@@ -111,14 +126,42 @@ def save_tet_mesh(path: str | os.PathLike, tet_mesh: TetMesh) -> None:
 
     data = meshio.Mesh(vertices, [("tetra", np.asarray(tet_mesh.tets, dtype=np.int64))])
     target = pathlib.Path(os.path.realpath(path))
-    # meshio writes only to paths (not to open files), so it writes into a scratch folder and each
-    # file it made is then copied over its target by the one atomic writer.
     names = [target.with_suffix(".node").name, target.with_suffix(".ele").name] if fmt == "tetgen" else [target.name]
-    with tempfile.TemporaryDirectory(prefix=".ddgjax-", dir=target.parent) as scratch:
+    # meshio writes only to paths (not to open files): it writes into a scratch folder of the system's (where
+    # a killed process leaves nothing beside the user's files), and the files are then replaced together.
+    with tempfile.TemporaryDirectory(prefix="ddgjax-") as scratch:
         meshio.write(pathlib.Path(scratch) / target.name, data, file_format=fmt)
-        for name in names:
-            written = (pathlib.Path(scratch) / name).read_bytes()
-            write_atomically(target.with_name(name), lambda handle, written=written: handle.write(written))
+        written = {name: (pathlib.Path(scratch) / name).read_bytes() for name in names}
+    if fmt == "tetgen":
+        tag = f"{_PAIR_TAG} {uuid.uuid4().hex}\n".encode()
+        written = {name: tag + content for name, content in written.items()}
+    replace_together(
+        {target.with_name(name): lambda handle, content=content: handle.write(content) for name, content in written.items()}
+    )
+
+
+def _check_pair(path: pathlib.Path) -> None:
+    """Refuse a TetGen `.node` / `.ele` pair whose files were not written together: both carry the tag
+    `save_tet_mesh` writes as their first line, and the tags differ (one file was replaced without the other)."""
+    tags = {}
+    for suffix in (".node", ".ele"):
+        with contextlib.suppress(OSError), open(path.with_suffix(suffix), encoding="utf-8", errors="replace") as handle:
+            first = handle.readline()
+            if first.startswith(_PAIR_TAG):
+                tags[suffix] = first.split()[-1]
+    if len(tags) == 2 and tags[".node"] != tags[".ele"]:
+        raise DDGInputError(
+            f"path: {str(path.with_suffix('.node'))!r} and {str(path.with_suffix('.ele'))!r} were not written together "
+            f"(their save_tet_mesh tags differ: {tags['.node']} vs {tags['.ele']}), so the tets may index other vertices; "
+            "save the tet mesh again, or restore the matching pair"
+        )
+
+
+def _every_tet_negative(points: np.ndarray, tets: np.ndarray) -> bool:
+    if tets.size == 0 or tets.min() < 0 or tets.max() >= len(points):
+        return False  # TetMesh's own checks name the problem
+    volumes = host_signed_volumes(points, tets)
+    return bool((volumes < 0).any() and not (volumes > 0).any())
 
 
 def _format_of(path: pathlib.Path) -> str:

@@ -71,20 +71,10 @@ class TetMesh(Domain):
         near-zero volume) keep their order and are reported by `check_tet_mesh`. Non-manifold
         triangles (three or more tets) are accepted and reported.
         """
-        if is_traced(vertices):
-            raise DDGInputError(
-                "vertices: TetMesh.from_arrays builds topology on the host and needs concrete arrays; inside jit use "
-                "tet_mesh.with_vertices(V) on a tet mesh made outside"
-            )
-        host_vertices = check_float_array("vertices", vertices, (3,))
-        host_tets = validate_simplices("tets", tets, host_vertices.shape[0], width=4)
-        corners = host_vertices[host_tets].astype(np.float64)
-        volumes = np.einsum(
-            "ij,ij->i", corners[:, 1] - corners[:, 0], np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 0])
-        )
+        host_vertices, host_tets = _validated(vertices, tets, "TetMesh.from_arrays")
+        volumes = host_signed_volumes(host_vertices, host_tets)
         host_tets[volumes < 0] = host_tets[volumes < 0][:, [0, 1, 3, 2]]
-        topology = build_tet_topology(host_tets, host_vertices.shape[0])
-        return cls.from_topology(as_float_vertices(vertices), topology)
+        return cls.from_topology(as_float_vertices(vertices), build_tet_topology(host_tets, host_vertices.shape[0]))
 
     @classmethod
     def from_topology(cls, vertices: Float[Array, "nv 3"], topology: TetTopology) -> "TetMesh":
@@ -176,6 +166,35 @@ _ARRAY_FIELDS = (
     "tet_triangle_signs",
     "triangle_edges",
 )
+
+
+def tet_mesh_as_given(vertices, tets) -> TetMesh:
+    """A `TetMesh` checked as `TetMesh.from_arrays` checks it, with the tets in the order given (not re-oriented).
+
+    For `load_tet_mesh`: a file whose tets are mostly positive and some inverted keeps them inverted, so
+    `check_tet_mesh` and the problem layer see what was saved (`from_arrays` would silently turn them
+    right side out).
+    """
+    host_vertices, host_tets = _validated(vertices, tets, "load_tet_mesh")
+    return TetMesh.from_topology(as_float_vertices(vertices), build_tet_topology(host_tets, host_vertices.shape[0]))
+
+
+def host_signed_volumes(vertices: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """`(nt,)` float64 signed volumes times 6, `det(b - a, c - a, d - a)`, on the host."""
+    corners = vertices[tets].astype(np.float64)
+    return np.einsum(
+        "ij,ij->i", corners[:, 1] - corners[:, 0], np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 0])
+    )
+
+
+def _validated(vertices, tets, caller: str) -> tuple[np.ndarray, np.ndarray]:
+    if is_traced(vertices):
+        raise DDGInputError(
+            f"vertices: {caller} builds topology on the host and needs concrete arrays; inside jit use "
+            "tet_mesh.with_vertices(V) on a tet mesh made outside"
+        )
+    host_vertices = check_float_array("vertices", vertices, (3,))
+    return host_vertices, validate_simplices("tets", tets, host_vertices.shape[0], width=4)
 
 
 def _assemble(**fields) -> TetMesh:
