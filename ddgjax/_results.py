@@ -75,7 +75,8 @@ class RESULTS(eqx.Enumeration):
         "negative eigenvalue): the mesh has degenerate or inverted elements (`ddgjax.mesh.check_mesh` "
         "lists zero-area faces; `robust=True` handles them), or the "
         "shift / time step makes the system indefinite, or the matrix is singular (a closed surface's "
-        "Laplacian). In float32 (JAX's default precision) round-off can tip a nearly singular matrix "
+        "Laplacian; a graph whose zero edge weights, traced inside `jit`, cut a piece off every fixed "
+        "vertex). In float32 (JAX's default precision) round-off can tip a nearly singular matrix "
         'over: enable float64 with `jax.config.update("jax_enable_x64", True)`. Pass `throw=False` to '
         "inspect the result."
     )

@@ -56,7 +56,7 @@ def knn_graph(
         n_neighbors: neighbours per point, `1 <= n_neighbors <= n - 1` (default 10, scikit-learn's
             `SpectralClustering` default).
         sigma: the Gaussian's width (a positive number, or a JAX scalar to differentiate); default
-            the mean edge length.
+            the mean edge length (every weight 1 when all the points coincide).
 
     Returns:
         `WeightedEdges(edges, edge_weights)`; `edge_weights` is `gaussian_weights(points, edges, sigma=sigma)`.
@@ -119,7 +119,8 @@ def gaussian_weights(
     Args:
         points: `(n, d)` coordinates (may be traced).
         edges: `(ne, 2)` integer vertex pairs (host data or a JAX array).
-        sigma: the width, `> 0`; default the mean edge length `mean |p_i - p_j|` (the mean neighbour distance).
+        sigma: the width, `> 0`; default the mean edge length `mean |p_i - p_j|` (the mean neighbour distance;
+            when every edge has length 0, points that all coincide, every weight is 1).
 
     Returns:
         `(ne,)` edge_weights in `(0, 1]`, in the points' dtype.
@@ -146,7 +147,10 @@ def _gaussian(points, edges, sigma):
     if edges.shape[0] == 0:
         return lengths_sq
     if sigma is None:
-        sigma = jnp.mean(safe_sqrt(lengths_sq))
+        mean = jnp.mean(safe_sqrt(lengths_sq))
+        # Every edge of zero length (coincident points): each weight is exp(0) = 1 at any width, so any
+        # positive one serves; the mean would give 0 / 0.
+        sigma = jnp.where(mean > 0, mean, 1.0)
     return jnp.exp(-lengths_sq / (2 * jnp.asarray(sigma, points.dtype) ** 2))
 
 

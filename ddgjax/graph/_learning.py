@@ -10,7 +10,9 @@ so every free vertex is the weighted mean of its neighbours, `f_i = sum_j w_ij f
 the `k` problems share one factorisation and the predicted class is the argmax of the row. A
 connected component without a fixed vertex has only the constants as harmonic functions: it gets 0,
 as `ddgjax.pde.harmonic_interpolation` gives a mesh component without a fixed vertex (one vertex of
-it is held at 0 in the solve; isolated vertices are such components).
+it is held at 0 in the solve; isolated vertices are such components). An edge of weight 0 joins nothing:
+a piece that only zero-weight edges connect to the fixed vertices is such a component too (weights known
+on the host; traced inside `jit`, such a cut leaves the system singular, reported through `throw=`).
 
 Tikhonov smoothing solves `(I + alpha L) f = y`: the minimiser of
 `|f - y|^2 + alpha f^T L f`, a low-pass filter with response `1 / (1 + alpha lambda)` on the
@@ -27,7 +29,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
+from scipy.sparse import csgraph
 
 from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_vertex_indices, is_traced
@@ -55,7 +59,7 @@ def harmonic_interpolation(
 
     Solves `L_uu f_u = -L_ul f_l` (`L = D - W`, `graph_laplacian`) with `f = fixed_values` on
     `fixed_vertices`: each free vertex ends at the weighted mean of its neighbours. A component
-    without a fixed vertex gets 0. Differentiable in `edge_weights` and `fixed_values`.
+    without a fixed vertex gets 0, also one cut off by edges of weight 0. Differentiable in `edge_weights` and `fixed_values`.
 
     Args:
         edges: `(ne, 2)` undirected edges (host data; `graph_laplacian`).
@@ -85,7 +89,7 @@ def harmonic_interpolation(
         )
     if not jnp.issubdtype(values.dtype, jnp.floating):
         values = device_array(fixed_values, edge_weights.dtype)  # host data converted on the host
-    plan, n_pinned = _dirichlet(structure, fixed)
+    plan, n_pinned = _dirichlet(structure, fixed, _weighted_components(structure, edge_weights))
     if plan is None:  # every vertex fixed: nothing to solve
         f = jnp.zeros((structure.n_vertices,) + values.shape[1:], values.dtype).at[fixed].set(values)
         return outcome(f, RESULTS.successful, throw, _no_solve_stats(values.dtype))
@@ -193,16 +197,38 @@ def _tikhonov_system(edge_weights, signal, alpha, graph: GraphPlan, *, checked: 
     return system, signal.astype(system.dtype)
 
 
-def _dirichlet(structure: GraphStructure, fixed: np.ndarray) -> tuple[DirichletPlan | None, int]:
-    """`(plan, n_pinned)`: the Dirichlet plan of `[fixed | one pinned vertex per unlabelled component]` (cached)."""
-    key = fixed.tobytes()
+def _weighted_components(structure: GraphStructure, edge_weights) -> tuple[int, np.ndarray, bytes]:
+    """`(n_components, labels, key)` of the graph whose edges have positive weight: an edge of weight 0 joins
+    nothing, so a piece it alone connects to a fixed vertex is a component of its own (and gets 0, as a
+    piece with no edges does). The edges' components (`key` empty) where every weight is positive, and
+    for traced weights (no host values: a cut there leaves the system singular, a failed outcome)."""
+    if is_traced(edge_weights):
+        return structure.n_components, structure.labels, b""
+    pair_weights = np.bincount(np.asarray(structure.plan.pair_of_edge), np.asarray(edge_weights), structure.pairs.shape[0])
+    cut = pair_weights <= 0
+    if not cut.any():
+        return structure.n_components, structure.labels, b""
+    kept = structure.pairs[~cut]
+    n = structure.n_vertices
+    adjacency = sp.coo_matrix((np.ones(kept.shape[0]), (kept[:, 0], kept[:, 1])), shape=(n, n))
+    n_components, labels = csgraph.connected_components(adjacency, directed=False)
+    return n_components, labels, np.packbits(cut).tobytes()
+
+
+def _dirichlet(
+    structure: GraphStructure, fixed: np.ndarray, components: tuple[int, np.ndarray, bytes]
+) -> tuple[DirichletPlan | None, int]:
+    """`(plan, n_pinned)`: the Dirichlet plan of `[fixed | one pinned vertex per unlabelled component]` (cached
+    per fixed set and set of cut edges), the components `(n_components, labels, key)` of `_weighted_components`."""
+    n_components, labels, cut_key = components
+    key = (fixed.tobytes(), cut_key)
     if key in structure.dirichlet:
         return structure.dirichlet[key]
-    labelled = np.zeros(structure.n_components, dtype=bool)
-    labelled[structure.labels[fixed]] = True
+    labelled = np.zeros(n_components, dtype=bool)
+    labelled[labels[fixed]] = True
     # The lowest vertex of each component without a fixed vertex is held at 0 (its harmonic functions are constants).
-    first = np.full(structure.n_components, structure.n_vertices, dtype=np.int64)
-    np.minimum.at(first, structure.labels, np.arange(structure.n_vertices))
+    first = np.full(n_components, structure.n_vertices, dtype=np.int64)
+    np.minimum.at(first, labels, np.arange(structure.n_vertices))
     pins = first[~labelled]
     held = np.concatenate([fixed, pins])
     with jax.ensure_compile_time_eval():  # host work even inside a caller's trace
