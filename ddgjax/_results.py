@@ -66,14 +66,16 @@ class RESULTS(eqx.Enumeration):
         "The eigensolver did not converge to the requested eigenpairs (the subspace iteration ran out "
         "of steps, or its basis lost rank), or its pairs do not solve the problem to round-off (a "
         "Laplacian with faces of near-zero area is too ill-conditioned for them: `ddgjax.mesh.check_mesh` "
-        "lists those faces, `robust=True` handles them): raise `k` by a few (a cluster cut at `k`), or use "
+        "lists those faces and `robust=True` handles them on a triangle mesh; on a tet mesh "
+        "`ddgjax.volume.check_tet_mesh` lists flat tets, to repair): raise `k` by a few (a cluster cut at `k`), or use "
         '`method="arpack"`. Pass `throw=False` to inspect the result.'
     )
     not_positive_definite = (
         "A matrix that must be positive definite is not (a factorisation met a non-positive pivot, "
         "a mass matrix has a non-positive row sum, or a Laplacian flagged positive semidefinite has a "
         "negative eigenvalue): the mesh has degenerate or inverted elements (`ddgjax.mesh.check_mesh` "
-        "lists zero-area faces; `robust=True` handles them), or the "
+        "lists zero-area faces, which `robust=True` handles; `ddgjax.volume.check_tet_mesh` lists flat "
+        "and inverted tets, which only a repair fixes), or the "
         "shift / time step makes the system indefinite, or the matrix is singular (a closed surface's "
         "Laplacian; a graph whose zero edge weights, traced inside `jit`, cut a piece off every fixed "
         "vertex). In float32 (JAX's default precision) round-off can tip a nearly singular matrix "
@@ -84,6 +86,13 @@ class RESULTS(eqx.Enumeration):
         "A value declared non-negative with `ddgjax.sparse.nonnegative(t)` (a time step, a shift, a "
         "weight) was negative or NaN when the program ran, so the matrix scaled by it would be flagged "
         "semidefinite without being so. Pass a value >= 0 (and not NaN)."
+    )
+    coincident_vertices = (
+        "The mesh has an edge of zero length (two vertices at one point), where the tangent directions and "
+        "corner angles that carry vectors from vertex to vertex are undefined: `robust=True` keeps the scalar "
+        "operators finite there, but transported vectors and log-map directions near and beyond those "
+        "vertices have no meaning. Merge the coincident vertices (`ddgjax.mesh.check_mesh` lists the "
+        "zero-length edges; trimesh's `Trimesh.merge_vertices()`). Pass `throw=False` to keep the values."
     )
     missing_diagonal = (
         "A diagonal was added onto a sparse matrix whose pattern lacks diagonal entries (`A + D` or "

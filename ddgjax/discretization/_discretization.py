@@ -23,12 +23,16 @@ geometry-central's `IntrinsicGeometryInterface` plays this part for surfaces.
 from __future__ import annotations
 
 import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
+from .._errors import MeshDataError, first_indices, is_traced
+from .._numerics import safe_div, safe_sqrt
 from .._options import check_mass
 from ..laplacian import IntrinsicTriangulation, laplacian_and_mass
 from ..laplacian.internal import resolve_robust, vertex_plan
-from ..mesh import Mesh, edge_lengths, face_areas, face_hat_gradients
+from ..mesh import Mesh, edge_lengths, face_areas, face_areas_from_lengths_sq, face_hat_gradients
 from ..sparse import SparseMatrix, SparsityPattern
 from ..volume import TetMesh, tet_hat_gradients, tet_plan, tet_volumes
 from ..volume import cotan_laplacian as tet_cotan_laplacian
@@ -83,12 +87,27 @@ def discretize(
         ((42, 42), (42, 42), True)
 
     Raises:
-        DDGInputError: `mesh` neither kind, a bad `mass` or `robust`. `MeshDataError`: degenerate faces
-            (with `robust=False`) or tets on concrete positions.
+        DDGInputError: `mesh` neither kind, a bad `mass` or `robust`. `MeshDataError`: NaN / inf
+            positions, degenerate faces (with `robust=False`), degenerate or inverted tets, on concrete positions.
     """
     mesh = require_domain("mesh", mesh)
     check_mass(mass)
+    _require_finite_positions(mesh)
     return _BUILDERS[type(mesh)](mesh, mass, robust, caller)
+
+
+def _require_finite_positions(mesh: Mesh | TetMesh) -> None:
+    """`MeshDataError` naming the vertices with NaN / inf coordinates, when they are concrete: positions set past
+    `with_vertices`' check (`eqx.tree_at`) would otherwise surface as an eigensolver or solver failure."""
+    if is_traced(mesh.vertices):
+        return  # under jit the values are unknown: a failure is reported through `throw=` (`RESULTS.nonfinite`)
+    bad = ~np.isfinite(np.asarray(mesh.vertices)).all(axis=1)
+    if bad.any():
+        raise MeshDataError(
+            f"{type(mesh).parameter_name}: {int(bad.sum())} of its {bad.size} vertices have NaN or inf coordinates "
+            f"(vertices {first_indices(bad)}), so no Laplacian or mass can be built; give them finite positions "
+            "(with_vertices checks new positions; eqx.tree_at does not)"
+        )
 
 
 def require_domain(name: str, value) -> Mesh | TetMesh:
@@ -116,16 +135,50 @@ def _solid(tet_mesh: TetMesh, mass: str, robust, caller: str | None) -> Discreti
 _BUILDERS = {Mesh: _surface, TetMesh: _solid}
 
 
-def cells(domain: Mesh | TetMesh) -> Int[Array, "nc k"]:
-    """The top-dimensional cells: a triangle mesh's faces `(nf, 3)`, a tet mesh's tets `(nt, 4)` (works in kernels)."""
+def cells(domain: Mesh | TetMesh, triangulation: IntrinsicTriangulation | None = None) -> Int[Array, "nc k"]:
+    """The top-dimensional cells: a triangle mesh's faces `(nf, 3)` (its intrinsic triangulation's faces when
+    one is given), a tet mesh's tets `(nt, 4)` (works in kernels)."""
+    if triangulation is not None:
+        return triangulation.faces
     return domain.tets if isinstance(domain, TetMesh) else domain.faces
 
 
-def cell_measure_gradients(domain: Mesh | TetMesh) -> Float[Array, "nc k 3"]:
-    """`A_f grad phi_k` per face and corner, or `V_t grad phi_k` per tet and vertex: the weak gradient's blocks."""
+def cell_measure_gradients(domain: Mesh | TetMesh, triangulation: IntrinsicTriangulation | None = None) -> Float[Array, "nc k d"]:
+    """`A_f grad phi_k` per face and corner, or `V_t grad phi_k` per tet and vertex: the weak gradient's blocks.
+
+    On a mesh, `(nf, 3, 3)` in world coordinates. With an intrinsic triangulation, `(nf, 3, 2)` on its faces
+    (`cells(domain, triangulation)`), from their (mollified, flipped) edge lengths alone, in each face's own
+    layout (`intrinsic_measure_gradients`), divided by the number of sheets as its operators are: a face
+    of zero area in the mesh then contributes nothing ill-conditioned (its normal, its `1 / A`).
+    """
+    if triangulation is not None:
+        return intrinsic_measure_gradients(triangulation.face_lengths_sq(domain)) / triangulation.sheets
     if isinstance(domain, TetMesh):
         return tet_volumes(domain)[:, None, None] * tet_hat_gradients(domain)
     return face_areas(domain)[:, None, None] * face_hat_gradients(domain)
+
+
+def intrinsic_measure_gradients(face_lengths_sq: Float[Array, "nf 3"]) -> Float[Array, "nf 3 2"]:
+    """`A_f grad phi_k = J e_k / 2` of triangles given by their squared edge lengths, in a planar layout per face.
+
+    Corner 0 at the origin, corner 1 on the positive x axis, corner 2 above it: `p1 = (c, 0)`,
+    `p2 = ((b^2 + c^2 - a^2) / (2 c), 2 A / c)` with `a, b, c` the lengths opposite corners 0, 1, 2
+    (`face_lengths_sq`'s columns); `e_k` is the edge opposite corner `k`, counterclockwise
+    (`p2 - p1`, `p0 - p2`, `p1 - p0`), and `J` the rotation by +90 degrees. Only the area's square root
+    and `1 / c` divide, and a mollified triangle (`ddgjax.laplacian.intrinsic_delaunay`) has `A > 0`, `c > 0`.
+    A function's gradient `sum_k u_k A grad phi_k` and the divergence's corner terms live in the same
+    layout, so nothing needs the faces' positions in space (Sharp & Crane 2020, the heat method on an
+    intrinsic triangulation).
+    """
+    a_sq, b_sq, c_sq = face_lengths_sq[:, 0], face_lengths_sq[:, 1], face_lengths_sq[:, 2]
+    c = safe_sqrt(c_sq)
+    area = face_areas_from_lengths_sq(face_lengths_sq)
+    x = safe_div(b_sq + c_sq - a_sq, 2.0 * c)
+    y = safe_div(2.0 * area, c)
+    zero = jnp.zeros_like(c)
+    corners = jnp.stack([jnp.stack([zero, zero], -1), jnp.stack([c, zero], -1), jnp.stack([x, y], -1)], axis=1)
+    opposite = jnp.roll(corners, -2, axis=1) - jnp.roll(corners, -1, axis=1)  # e_k = p_{k+2} - p_{k+1}
+    return 0.5 * jnp.stack([-opposite[..., 1], opposite[..., 0]], axis=-1)
 
 
 def domain_edge_lengths(domain: Mesh | TetMesh) -> Float[Array, " ne"]:

@@ -85,7 +85,9 @@ class HeatMethodSteps(eqx.Module):
 
     Attributes:
         heat: `(nv,)` `u`, the heat after time `t`.
-        field: `(nf, 3)` `X = -grad u / |grad u|` per face (`(nt, 3)` per tet on a `TetMesh`).
+        field: `(nf, 3)` `X = -grad u / |grad u|` per face (`(nt, 3)` per tet on a `TetMesh`). With
+            `robust=`, `(nf, 2)` per face of the intrinsic triangulation, in that face's planar layout
+            (corner 0 at the origin, corner 1 on the x axis: `ddgjax.discretization.internal.intrinsic_measure_gradients`).
         divergence: `(nv,)` the integrated divergence of `X` (`ddgjax.dec.divergence`; the DDG
             exercises' `div` is its negative).
         distance: `(nv,)` `phi` shifted per connected component (module docstring, step 4): `>= 0`,
@@ -93,7 +95,7 @@ class HeatMethodSteps(eqx.Module):
     """
 
     heat: Float[Array, " nv"]
-    field: Float[Array, "nc 3"]
+    field: Float[Array, "nc d"]
     divergence: Float[Array, " nv"]
     distance: Float[Array, " nv"]
 
@@ -160,10 +162,14 @@ class HeatFactors(eqx.Module):
         poisson_plan: the pins' `DirichletPlan`.
         components: `(nv,)` the connected component of each vertex (the unreferenced vertices share
             one label past those of the faces' components).
+        cells: `(nc, k)` the cells the field lives on: the mesh's faces, the intrinsic triangulation's
+            faces with `robust=`, a `TetMesh`'s tets.
         area_gradients: `(nf, 3, 3)` each face's area times the gradient of each corner's hat
             function, `A_f grad phi_k` (`ddgjax.mesh.face_hat_gradients`): a query's two sweeps over
             the faces, the field `X` and its divergence `-sum_f A_f grad phi_i . X_f`, read only these.
-            On a `TetMesh` `(nt, 4, 3)`, `V_t grad phi_k` (`ddgjax.volume.tet_hat_gradients`).
+            With `robust=`, `(nf, 3, 2)` on the intrinsic faces, each in its own planar layout, from
+            their lengths alone (`ddgjax.discretization.internal.cell_measure_gradients`). On a
+            `TetMesh` `(nt, 4, 3)`, `V_t grad phi_k` (`ddgjax.volume.tet_hat_gradients`).
     """
 
     # Factorisations; the vector heat solver's assembly holds the matrices for a moment before factoring them.
@@ -174,7 +180,8 @@ class HeatFactors(eqx.Module):
     poisson: Factorization | SparseMatrix
     poisson_plan: DirichletPlan
     components: Int[Array, " nv"]
-    area_gradients: Float[Array, "nc k 3"]
+    cells: Int[Array, "nc k"]
+    area_gradients: Float[Array, "nc k d"]
 
 
 class _Plans(eqx.Module):
@@ -236,14 +243,16 @@ def check_t_coef(t_coef) -> float:
 
 
 def _operators(mesh: Mesh | TetMesh, t_coef, mass: str, boundary: str, robust, solver: str):
-    """Checked options, then `(L, M, plans, t_coef)`: what the kernels below take (host work and plans here)."""
+    """Checked options, then `(L, M, plans, t_coef, triangulation)`: what the kernels below take (host work and
+    plans here; `triangulation` the intrinsic one with `robust=`, else `None`)."""
     check_choice("boundary", boundary, HEAT_BOUNDARY_CONDITIONS)
     check_solver(solver)
     check_t_coef(t_coef)
     discretization = discretize(mesh, mass=mass, robust=robust, caller="heat_distance")
     L, M = discretization.laplacian, discretization.mass
     plans = _plans(mesh, boundary, discretization.pattern, cached=discretization.triangulation is None)
-    return L, M, plans, jax.device_put(np.asarray(float(t_coef), L.values.dtype))
+    t_coef = jax.device_put(np.asarray(float(t_coef), L.values.dtype))
+    return L, M, plans, t_coef, discretization.triangulation
 
 
 def heat_distance_solver(
@@ -278,9 +287,9 @@ def heat_distance_solver(
     libigl: `igl.heat_geodesics_precompute(V, F, t, data)`.
     """
     mesh = require_domain("mesh", mesh)
-    L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
+    L, M, plans, t_coef, triangulation = _operators(mesh, t_coef, mass, boundary, robust, solver)
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
-        t, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
+        t, factors = _factorizations(mesh, L, M, plans, t_coef, triangulation, solver)
         if at_top_level():
             jax.block_until_ready(factors)  # the factorisations run in the block
     return HeatDistanceSolver(mesh=mesh, t=t, factors=factors)
@@ -366,9 +375,9 @@ def heat_distance(
     """
     mesh = require_domain("mesh", mesh)
     _source_points(mesh, sources)  # refuse malformed sources before building the Laplacian
-    L, M, plans, t_coef = _operators(mesh, t_coef, mass, boundary, robust, solver)
+    L, M, plans, t_coef, triangulation = _operators(mesh, t_coef, mass, boundary, robust, solver)
     corners, weights = _sources(mesh, sources, dirichlet=not plans.neumann)
-    _, factors = _factorizations(mesh, L, M, plans, t_coef, solver)
+    _, factors = _factorizations(mesh, L, M, plans, t_coef, triangulation, solver)
     steps, result, stats = _query(mesh, factors, corners, weights)
     return outcome(steps.distance, result, throw, stats)
 
@@ -381,10 +390,11 @@ class _Systems(eqx.Module):
     heat: SparseMatrix | None
     heat_dirichlet: SparseMatrix | None
     poisson: SparseMatrix
-    area_gradients: Float[Array, "nc k 3"]
+    cells: Int[Array, "nc k"]
+    area_gradients: Float[Array, "nc k d"]
 
 
-def _systems_of(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef) -> _Systems:
+def _systems_of(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, triangulation) -> _Systems:
     """`_Systems` of `M + t L`, its Dirichlet block and the pinned `L` (module docstring)."""
     t = t_coef * jnp.mean(domain_edge_lengths(mesh)) ** 2
     heat_matrix = M + t * L
@@ -393,18 +403,19 @@ def _systems_of(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _
         heat=held_block(heat_matrix, plans.heat) if plans.neumann else None,
         heat_dirichlet=None if plans.heat_dirichlet is None else held_block(heat_matrix, plans.heat_dirichlet),
         poisson=held_block(L, plans.poisson),
-        area_gradients=cell_measure_gradients(mesh),
+        cells=cells(mesh, triangulation),
+        area_gradients=cell_measure_gradients(mesh, triangulation),
     )
 
 
-def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, solver: str):
+def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plans: _Plans, t_coef, triangulation, solver: str):
     """`(t, HeatFactors)`: the factorisations of `M + t L`, its Dirichlet block and the pinned `L` (module docstring).
 
     Called eagerly, the matrices come from one compiled program and are factored after it, on concrete
     values (`ddgjax.solve.factorize`: the definiteness check on the host, outside every program), so
     each program can be kept across processes; under a transformation everything is traced inline.
     """
-    systems = _systems(mesh, L, M, plans, t_coef)
+    systems = _systems(mesh, L, M, plans, t_coef, triangulation)
     factor = functools.partial(factorize, solver=solver)
     return systems.t, HeatFactors(
         heat=None if systems.heat is None else factor(systems.heat),
@@ -414,6 +425,7 @@ def _factorizations(mesh: Mesh | TetMesh, L: SparseMatrix, M: SparseMatrix, plan
         poisson=factor(systems.poisson),
         poisson_plan=plans.poisson,
         components=plans.components,
+        cells=systems.cells,
         area_gradients=systems.area_gradients,
     )
 
@@ -439,7 +451,7 @@ def _heat_method(mesh: Mesh | TetMesh, factors: HeatFactors, corners, weights) -
     heats = [solve_held(factor, plan, delta) for factor, plan in flows if factor is not None]
     u = sum(heat for _, heat in heats) / len(heats)  # the Neumann and / or the Dirichlet heat flow; their mean
     # `A_f grad u` has the direction of `grad u` (`ddgjax.dec.gradient`); the divergence is `ddgjax.dec.divergence`'s weak form.
-    cell_vertices = cells(mesh)
+    cell_vertices = factors.cells
     g = jnp.einsum("fk,fkd->fd", take_rows(u, cell_vertices), factors.area_gradients)
     norm = safe_norm(g, keepdims=True)
     field = jnp.where(norm > 0, -g / jnp.where(norm > 0, norm, 1.0), 0.0)
@@ -475,8 +487,8 @@ def _shift(mesh: Mesh | TetMesh, phi, components, corners, weights) -> Float[Arr
 # The kernels' first parameter is `domain`: one named `mesh` would be checked to be a triangle mesh
 # (`ddgjax._compile.kernel`), and these serve tet meshes too.
 @kernel
-def _systems(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef) -> _Systems:
-    return _systems_of(domain, L, M, plans, t_coef)
+def _systems(domain: Mesh | TetMesh, L, M, plans: _Plans, t_coef, triangulation) -> _Systems:
+    return _systems_of(domain, L, M, plans, t_coef, triangulation)
 
 
 @kernel

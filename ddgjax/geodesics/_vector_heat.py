@@ -36,7 +36,10 @@ vector solves and the heat method's two scalar solves (log map), in one compiled
 Laplacian's cotan weights by the intrinsic Delaunay weights of the mesh's edges (non-negative, 0 on
 an edge the intrinsic triangulation flipped away; transport still along mesh edges): a face with an
 angle near `pi` (a flat cap), whose cotan weight is large and negative, would otherwise make
-`M + t A` indefinite (`RESULTS.not_positive_definite`).
+`M + t A` indefinite (`RESULTS.not_positive_definite`). A mesh with two vertices at one point (an
+edge of length 0, which `robust=True` accepts) has no tangent direction along that edge and no corner
+angles at its ends, so no transport through them has a meaning: every query reports
+`RESULTS.coincident_vertices` (merge the vertices first).
 Every step is a JAX function of the vertex positions and the solves differentiate implicitly, so the
 results are differentiable in the positions away from the cut locus (where the transported direction
 jumps) and from the source (where the log map's direction is undefined). Each solve reports its outcome
@@ -59,7 +62,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from .._compile import at_top_level, kernel
 from .._errors import DDGInputError
@@ -68,6 +71,7 @@ from .._numerics import safe_div, safe_norm
 from .._options import LUMPED_MASS_MATRICES, check_mass, check_solver
 from .._results import RESULTS, Solution, first_failure, outcome
 from ..discretization import discretize
+from ..discretization.internal import cell_measure_gradients, cells
 from ..fields import connection_laplacian, connection_mass_matrix
 from ..fields.internal import (
     FieldPlan,
@@ -81,7 +85,7 @@ from ..fields.internal import (
 )
 from ..laplacian import IntrinsicTriangulation
 from ..laplacian.internal import vertex_plan
-from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_hat_gradients, face_vertex_positions, require_mesh
+from ..mesh import Mesh, corner_angles, edge_lengths, face_areas, face_vertex_positions, require_mesh
 from ..solve import Factorization, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import SparseMatrix
@@ -170,6 +174,8 @@ class _Kept(eqx.Module):
         heights: `(nf, 3)` each face's height from each corner, `2 A_f / |opposite edge|`.
         corner_first, corner_second: `(nf, 3)` the polar angles, at each corner's vertex, of its first
             edge (towards the next corner) and its second (towards the previous one).
+        coincident: `()` whether an edge has length exactly 0 (`check_mesh`'s zero-length edges), where
+            those angles are undefined: every query then reports `RESULTS.coincident_vertices`.
     """
 
     t: Float[Array, ""]
@@ -183,6 +189,7 @@ class _Kept(eqx.Module):
     heights: Float[Array, "nf 3"]
     corner_first: Float[Array, "nf 3"]
     corner_second: Float[Array, "nf 3"]
+    coincident: Bool[Array, ""]
 
 
 def vector_heat_solver(
@@ -214,9 +221,10 @@ def vector_heat_solver(
     `use_intrinsic_delaunay=False` and `mass="barycentric"` (tests).
     """
     mesh = require_mesh("mesh", mesh)
-    L, M, A, MA, plans, field_plan, t_coef = _operators(mesh, t_coef, mass, robust, solver)
+    L, M, A, MA, plans, field_plan, t_coef, triangulation = _operators(mesh, t_coef, mass, robust, solver)
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):  # kept for many queries: the faster solves
-        kept = _factored(_systems(mesh, L, M, A, MA, plans.poisson, plans.components, field_plan, t_coef), solver)
+        systems = _systems(mesh, L, M, A, MA, plans.poisson, plans.components, field_plan, t_coef, triangulation)
+        kept = _factored(systems, solver)
         if at_top_level():
             jax.block_until_ready(kept)  # the factorisations run in the block
     return VectorHeatSolver(mesh=mesh, kept=kept)
@@ -377,7 +385,7 @@ def _operators(mesh: Mesh, t_coef, mass: str, robust, solver: str):
             mesh, field_plan, vertex_plan(mesh), 1.0, boundary_scaling="geodesic", edge_weights=weights
         )
         MA = M
-    return L, M, A, MA, plans, field_plan, jax.device_put(np.asarray(float(t_coef), L.values.dtype))
+    return L, M, A, MA, plans, field_plan, jax.device_put(np.asarray(float(t_coef), L.values.dtype)), triangulation
 
 
 def _factored(kept: _Kept, solver: str) -> _Kept:
@@ -392,7 +400,7 @@ def _factored(kept: _Kept, solver: str) -> _Kept:
 
 
 @kernel
-def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: FieldPlan, t_coef) -> _Kept:
+def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: FieldPlan, t_coef, triangulation) -> _Kept:
     """The solver's data with the heat, vector heat and pinned Poisson matrices unfactored (`_factored`)."""
     t = t_coef * jnp.mean(edge_lengths(mesh)) ** 2
     e1, e2, normal = planned_tangent_bases(mesh, field_plan)
@@ -410,7 +418,8 @@ def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: Fiel
             poisson=held_block(L, poisson_plan),
             poisson_plan=poisson_plan,
             components=components,
-            area_gradients=areas[:, None, None] * face_hat_gradients(mesh),
+            cells=cells(mesh, triangulation),
+            area_gradients=cell_measure_gradients(mesh, triangulation),
         ),
         vector_heat=MA + t * A,
         e1=e1,
@@ -420,7 +429,13 @@ def _systems(mesh: Mesh, L, M, A, MA, poisson_plan, components, field_plan: Fiel
         heights=safe_div(2.0 * areas[:, None], opposite),
         corner_first=first,
         corner_second=first + scaled_corner_angles(mesh, field_plan, "geodesic"),
+        coincident=jnp.any(jnp.all(mesh.vertices[mesh.edges[:, 0]] == mesh.vertices[mesh.edges[:, 1]], axis=1)),
     )
+
+
+def _meaningful(solver: _Kept) -> RESULTS:
+    """`RESULTS.coincident_vertices` where the mesh has a zero-length edge (no vector query has a meaning there)."""
+    return RESULTS.where(solver.coincident, RESULTS.coincident_vertices, RESULTS.successful)
 
 
 def _source_vertices(mesh: Mesh, source, *, single: bool = False) -> Int[ArrayLike, " m"]:
@@ -492,7 +507,8 @@ def _transport(mesh: Mesh, solver: _Kept, sources, vectors):
         magnitude = safe_div(scalar_solution.value[:, 0], scalar_solution.value[:, 1])  # 0 where no source reaches
     field = unit(vector_solution.value) * magnitude
     value = field.real[:, None] * solver.e1 + field.imag[:, None] * solver.e2
-    return (value, *combined_stats(*solutions))
+    result, stats = combined_stats(*solutions)
+    return value, first_failure(_meaningful(solver), result), stats
 
 
 def _outward_ball(mesh: Mesh, solver: _Kept, source) -> Array:
@@ -539,7 +555,7 @@ def _log_map_steps(mesh: Mesh, solver: _Kept, source):
     log = jnp.stack([direction.real, direction.imag], axis=-1) * r_finite[:, None]
     log = jnp.where(reached[:, None], log, jnp.inf)
     vector_result, vector_stats = combined_stats(radial_solution, horizontal_solution)
-    result = first_failure(heat_result, vector_result)
+    result = first_failure(_meaningful(solver), heat_result, vector_result)
     stats = {
         "residual": jnp.maximum(heat_stats["residual"], vector_stats["residual"]),
         "num_steps": heat_stats["num_steps"] + vector_stats["num_steps"],

@@ -80,7 +80,8 @@ def eigenpairs(
 
     Returns:
         `Eigenpairs(values (k,), vectors (nv, k))` (unpacks as `values, vectors = ...`), ascending,
-        M-orthonormal, each eigenvector's entry of largest magnitude positive; in a `ddgjax.Solution`
+        M-orthonormal, each eigenvector's entry of largest magnitude positive, 0 at vertices no face
+        (tet) uses (their rows of `L` and `M` are zero: no eigenvalue is theirs); in a `ddgjax.Solution`
         with `throw=False`. Differentiable in the vertex positions
         (`ddgjax.spectral.smallest_eigenpairs`: eigenvalues always; eigenvectors away from clusters
         of equal eigenvalues; any function invariant within a cluster), under `jit` and `vmap`.
@@ -91,11 +92,16 @@ def eigenpairs(
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
     discretization = discretize(mesh, mass=mass, robust=robust)
     L, M = discretization.laplacian, discretization.mass
-    if boundary == "neumann":
+    # Vertices of no face (tet) have zero rows in L and M, so no eigenvalue: they are held at 0 (as the
+    # Poisson problems hold them), and the eigenproblem is solved on the others.
+    unreferenced = mesh.topology.unreferenced_vertices
+    if boundary == "neumann" and unreferenced.size == 0:
         return smallest_eigenpairs(L, M, k, method=method, solver=solver, preconditioner=preconditioner, throw=throw)
-    fixed = mesh.topology.boundary_vertices
-    if fixed.size == 0:
-        raise DDGInputError("boundary: 'dirichlet' needs a mesh with a boundary; this mesh is closed (use 'neumann')")
+    fixed = unreferenced
+    if boundary == "dirichlet":
+        if mesh.topology.boundary_vertices.size == 0:
+            raise DDGInputError("boundary: 'dirichlet' needs a mesh with a boundary; this mesh is closed (use 'neumann')")
+        fixed = np.union1d(mesh.topology.boundary_vertices, unreferenced)
     if fixed.size == mesh.n_vertices:
         raise DDGInputError(
             f"boundary: 'dirichlet' holds the boundary at 0, and all {fixed.size} vertices of this mesh lie on its "
