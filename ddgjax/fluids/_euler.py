@@ -22,17 +22,40 @@ theorem for the loops round the handles).
 Integrator: the implicit midpoint rule on the state `x = (a, c)`, `x' = x + tau F((x + x') / 2)`,
 viscosity included (for the linear viscous term it is Crank-Nicolson). The midpoint `x = (a + a') / 2`
 solves `R(x) = D x - a - tau/2 N(x) = 0` (`D = 1 + tau nu lambda / 2`, `N` the quadratic advection),
-to round-off (an iteration moving it by at most `CONVERGENCE` ulps of the state): first fixed-point
-iterations `x <- D^{-1} (a + tau/2 N(x))` from `x = a`, one `k^3` product each, while each moves `x` at
-most `CONTRACTION` times the last move (5-7 of them at the usual `tau`, where `tau |N'|` is small),
-then Newton steps (`k x k` Jacobian, at most `NEWTON_STEPS`), whose error squares each step where
-the fixed point contracts slowly or not at all (large `tau`). Both are `lax.while_loop`s; the gradient
-does not go through them (below). The rule conserves every quadratic invariant of the ODE; with the
-alternating tensor these are the kinetic energy `1/2 sum lambda b^2` and the enstrophy of the absolute
-vorticity `1/2 sum (a + f)^2` (the relative enstrophy `1/2 sum a^2` without rotation). Measured on the
-unit sphere (icosphere(3), k = 36, 200 steps of a random vorticity of degrees 1 to 3 with unit normal
+to round-off (`euler_flow`'s `rtol`, default `CONVERGENCE` = 16 ulps): first fixed-point iterations
+`x <- D^{-1} (a + tau/2 N(x))` from `x = a`, one `k^3` product each, while each moves `x` at most
+`CONTRACTION` times the last move (5-7 of them at the usual `tau`, where `tau |N'|` is small), until
+one moves `x` by at most `rtol max|a|`; then, where they stopped contracting, Newton steps (`k x k`
+Newton matrix `J = D - tau/2 N'`) from the last iterate, or from the iterate of least residual (`a`
+itself at a large `tau`) where the iterates ran away, until a step moves `x` by at most
+`rtol max|a| |J|_inf` (the residual's round-off grows with `J`; measured, the steps' floor stays
+at most 1.1 `|J|_inf` ulps of `max|a|` up to `tau |N'|` ~ 100), at most `max_steps` of them. Both are
+`lax.while_loop`s; the gradient does not go through them (below). A step whose Newton iteration does
+not converge (or diverges) is a failure, `RESULTS.max_steps_reached`, never an unsolved step passed on.
+
+Step-size limit. `N' = dN/dx`, the advection's Jacobian in the coefficients, has the size of the
+largest vorticity (measured on the unit sphere, `|N'(a)|_2` lies between 0.5 and 1.8 `max |w|`: the
+inverse turnover time). The fixed-point map contracts where `tau/2 |N'| < 1` (`|D^{-1}| <= 1`), so it
+alone solves steps with `tau |N'| < 2`. Newton converges quadratically from `x_0` when (Kantorovich)
+`|J_0^{-1}|^2 tau/2 |N''| |R(x_0)| <= 1/2`, `N''` the constant bilinear advection tensor; from
+`x_0 = a`, `R(a) = -tau/2 N(a)` (inviscid) and `|N''| |N(a)| ~ |N'(a)|^2`, so this guarantee holds for
+`tau |N'(a)|` of order 1. Newton reaches much further in practice: on the unit sphere (12 random
+vorticities of degrees 1 to 3 with unit normal coefficients, 20 steps at each `tau`; icosphere(2),
+k = 16 and icosphere(3), k = 36 and 64) every step converged, in 5-7 Newton steps (up to ~30 near the
+limit), while `tau |N'(a)|_2 <= 10`; the first failures came at `tau |N'(a)|_2` = 13 (k = 36), 21
+(k = 64) and 80 (k = 16); at `tau` = 100 on icosphere(2), k = 16, 13 of 20 such runs fail (the rest
+keep energy and enstrophy to 1e-14). Beyond the limit the midpoint equation still has a solution
+(energy conservation makes `R` coercive: `<R(x), x>_E >= |x|_E^2 - |a|_E |x|_E` in the energy inner
+product, so a root lies in `|x|_E <= |a|_E`), but not a unique one, and Newton from `a` wanders:
+lower `tau` (raising `max_steps` rarely helps).
+
+The rule conserves every quadratic invariant of the ODE, for any root of `R`; with the alternating
+tensor these are the kinetic energy `1/2 sum lambda b^2` and the enstrophy of the absolute vorticity
+`1/2 sum (a + f)^2` (the relative enstrophy `1/2 sum a^2` without rotation). Measured on the unit sphere
+(icosphere(3), k = 36, 200 steps of a random vorticity of degrees 1 to 3 with unit normal
 coefficients), the largest relative drift of energy and enstrophy is 2e-15 at `tau` = 0.01, 0.05, 0.2
-and 0.5 (round-off; a fixed count of 1 or 2 Newton steps drifts 1e-7 to 1e-2 and 7e-16 to 1e-6). The
+and 0.5 (round-off; a fixed count of 1 or 2 Newton steps drifts 1e-7 to 1e-2 and 7e-16 to 1e-6, and
+a fixed 3, as before, drifted 3e-4 at `tau` = 10 on icosphere(2), k = 16, unreported). The
 dye's midpoint step is linear (a Cayley transform of the antisymmetric `sum_i W_kij b_i`): its `L^2`
 norm is kept exactly.
 
@@ -58,7 +81,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int, Real
 
 from .._compile import device_array, kernel
-from .._errors import DDGInputError, check_choice, is_traced
+from .._errors import DDGInputError, check_choice, check_count, check_positive, is_traced
 from .._loop import (
     Failure,
     check_progress,
@@ -76,14 +99,14 @@ from .._results import RESULTS, Record, raise_if_failed
 from ..mesh import Mesh, require_mesh
 from ._basis import FluidBasis, check_basis_size, fluid_basis, inverse_values
 
-#: At most this many fixed-point iterations per implicit midpoint step, then at most `NEWTON_STEPS`
+#: At most this many fixed-point iterations per implicit midpoint step, then at most `max_steps`
 #: Newton steps (module docstring).
 FIXED_POINT_STEPS = 10
-NEWTON_STEPS = 3
 #: Fixed-point iterations go on while each moves the midpoint at most this fraction of the last move
 #: (10 iterations then reach round-off; a slower contraction hands over to Newton).
 CONTRACTION = 0.01
-#: The midpoint is converged when an iteration moves it by at most this many ulps of the state's size.
+#: `euler_flow`'s default `rtol`, in ulps of the dtype: the midpoint is converged when an iteration moves
+#: it by at most this many ulps of the state's size (a Newton step: times the Newton matrix's norm).
 CONVERGENCE = 16
 
 
@@ -104,9 +127,16 @@ class EulerFlowResult(Record):
         enstrophy: `(s,)` `1/2 int w^2 = 1/2 sum a_i^2` (of the relative vorticity).
         times: `(s,)` flow times `step * tau`.
         steps: `(s,)` the step numbers of the saved states.
+        fixed_point_steps: `(s,)` int, the most fixed-point iterations of one implicit midpoint step
+            among the steps since the previous saved state (0 for the initial state).
+        newton_steps: `(s,)` int, likewise the most Newton steps (at most `max_steps`; 0 where the
+            fixed point converged alone, as at small `tau`).
         tau: the time step.
-        result: the outcome of the first failing step (`ddgjax.RESULTS`): `successful` or `nonfinite`.
-            `euler_flow(..., throw=True)` (the default) raises instead of returning it.
+        result: the outcome of the first failing step (`ddgjax.RESULTS`): `successful`,
+            `max_steps_reached` (the step's midpoint equation was not solved to `rtol` within
+            `max_steps` Newton steps, or the iteration diverged: `tau` above the Newton limit of the
+            module docstring; that step's state is the unconverged one, possibly not finite) or
+            `nonfinite`. `euler_flow(..., throw=True)` (the default) raises instead of returning it.
         first_failure_step: int scalar, that step's number (`1, ..., steps`; 0 for non-finite traced
             input), `steps + 1` when none failed. Later saved states repeat the failed state.
     """
@@ -120,6 +150,8 @@ class EulerFlowResult(Record):
     enstrophy: Float[Array, " s"]
     times: Float[Array, " s"]
     steps: Int[Array, " s"]
+    fixed_point_steps: Int[Array, " s"]
+    newton_steps: Int[Array, " s"]
     tau: Float[Array, ""]
     result: RESULTS
     first_failure_step: Int[Array, ""]
@@ -131,8 +163,16 @@ class EulerFlowResult(Record):
 
     @property
     def stats(self) -> dict[str, Array]:
-        """The run's history per saved state: `times`, `steps`, `kinetic_energy`, `enstrophy`, as the fields hold them."""
-        return {"times": self.times, "steps": self.steps, "kinetic_energy": self.kinetic_energy, "enstrophy": self.enstrophy}
+        """The run's history per saved state, as the fields hold it: `times`, `steps`, `kinetic_energy`,
+        `enstrophy`, `fixed_point_steps`, `newton_steps`."""
+        return {
+            "times": self.times,
+            "steps": self.steps,
+            "kinetic_energy": self.kinetic_energy,
+            "enstrophy": self.enstrophy,
+            "fixed_point_steps": self.fixed_point_steps,
+            "newton_steps": self.newton_steps,
+        }
 
 
 def euler_flow(
@@ -149,6 +189,8 @@ def euler_flow(
     k: int = 64,
     basis: FluidBasis | None = None,
     method: str = "spectral",
+    max_steps: int = 32,
+    rtol: float | None = None,
     progress: bool = False,
     throw: bool = True,
 ) -> EulerFlowResult:
@@ -157,7 +199,10 @@ def euler_flow(
     `dw/dt + u . grad(w + 2 Omega z) = nu Delta w`, `u = n x grad psi`, `Delta psi = w`, reduced to
     the first `k` Laplacian eigenfunctions (Azencot et al. 2014) and integrated by implicit midpoint
     steps (solved to round-off), which conserve energy and enstrophy of the inviscid,
-    non-rotating flow to round-off. One compiled `lax.scan` over saved chunks, differentiable:
+    non-rotating flow to round-off. The step's nonlinear solve reaches up to `tau |N'| ~ 10`, `|N'|`
+    the advection's rate, of the order of the largest vorticity `max |w|` (module docstring, step-size
+    limit); a step beyond it that does not converge fails with `RESULTS.max_steps_reached`. One
+    compiled `lax.scan` over saved chunks, differentiable:
 
         basis = fluid_basis(mesh, 36)
         jax.grad(lambda w0: loss(euler_flow(mesh, w0, tau=0.01, steps=100, basis=basis).value))(w0)
@@ -178,19 +223,30 @@ def euler_flow(
         k: number of eigenfunctions when `basis` is None (default 64 = 8^2: degrees up to 7 on a sphere).
         basis: a `FluidBasis` of this mesh (`fluid_basis`), kept for repeated runs; `k` is then its own.
         method: `"spectral"` (the only one).
+        max_steps: the most Newton steps of one implicit midpoint step, after at most
+            `FIXED_POINT_STEPS` = 10 fixed-point iterations (default 32; 5-7 are typical where Newton
+            is needed, up to ~30 near its limit). A step that does not converge within them fails
+            with `RESULTS.max_steps_reached`.
+        rtol: the midpoint is solved when a fixed-point iteration moves it by at most `rtol * max|x_0|`,
+            or a Newton step by at most `rtol * max|x_0| * |J|_inf` (`x_0` the state before the step,
+            `J` the Newton matrix, whose size scales the residual's round-off). Default 16 ulps of the
+            dtype (`CONVERGENCE`): round-off, so that energy and enstrophy are kept to round-off.
         progress: a tqdm progress bar over the saved chunks (concrete inputs only).
-        throw: raise when a state is not finite (default), or return the record to inspect `result`.
+        throw: raise when a step fails (default): its midpoint equation unsolved (`max_steps_reached`) or
+            a state not finite (`nonfinite`); or return the record to inspect `result`.
 
     Returns:
         `EulerFlowResult`: `vorticity`, `stream_function`, `dye` `(s, nv)`, `coefficients` `(s, k)`,
-        `harmonic` `(s, 2 g)`, `kinetic_energy`, `enstrophy`, `times`, `steps` `(s,)`, `value` (the final vorticity),
-        `tau`, `result`, `first_failure_step`.
+        `harmonic` `(s, 2 g)`, `kinetic_energy`, `enstrophy`, `times`, `steps`, `fixed_point_steps`,
+        `newton_steps` `(s,)`, `value` (the final vorticity), `tau`, `result`, `first_failure_step`, `stats`.
 
     Raises:
         DDGInputError: `mesh` not a `Mesh`; `vorticity` or `dye` not of shape `(nv,)` or not finite;
             bad `tau`, `steps`, `save_every`, `rotation`, `viscosity` (< 0), `harmonic`, `k`, `basis`, `method`,
-            `progress` with traced input; a mesh `fluid_basis` refuses.
-        equinox.EquinoxRuntimeError: with `throw=True`, a non-finite state (`RESULTS.nonfinite`).
+            `max_steps`, `rtol`, `progress` with traced input; a mesh `fluid_basis` refuses.
+        equinox.EquinoxRuntimeError: with `throw=True`, a step whose midpoint equation was not solved
+            (`RESULTS.max_steps_reached`: lower `tau`, module docstring) or a non-finite state
+            (`RESULTS.nonfinite`).
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("method", method, ("spectral",))
@@ -202,6 +258,10 @@ def euler_flow(
     tau = check_time_step(tau, dtype)
     rotation = _scalar("rotation", rotation, dtype)
     viscosity = _scalar("viscosity", viscosity, dtype, nonnegative=True)
+    # Device scalars, not static: one program serves every max_steps and rtol.
+    max_steps = jax.device_put(np.asarray(check_count("max_steps", max_steps), np.int32))
+    rtol = CONVERGENCE * np.finfo(dtype).eps if rtol is None else check_positive("rtol", rtol)
+    rtol = jax.device_put(np.asarray(rtol, dtype))
     progress = check_progress(progress, vorticity, dye, harmonic, tau, rotation, viscosity, basis)
     if basis is None:
         basis = fluid_basis(mesh, check_basis_size(mesh, k))
@@ -221,10 +281,10 @@ def euler_flow(
         raise DDGInputError(f"harmonic: expected finite values, got {np.asarray(harmonic)}")
     run = functools.partial(_states, progress=True) if progress else _run
     state = _initial_state(basis, vorticity, device_array(harmonic, dtype), dye)
-    (coefficients, harmonic, dye_coefficients), failure = run(
-        basis, state, tau, rotation, viscosity, steps=steps, save_every=save_every
+    (coefficients, harmonic, dye_coefficients), counts, failure = run(
+        basis, state, tau, rotation, viscosity, max_steps, rtol, steps=steps, save_every=save_every
     )
-    flow = _flow_record(basis, coefficients, harmonic, dye_coefficients, tau, failure, steps=steps, save_every=save_every)
+    flow = _flow_record(basis, coefficients, harmonic, dye_coefficients, counts, tau, failure, steps=steps, save_every=save_every)
     return raise_if_failed(flow, flow.result, throw)
 
 
@@ -237,7 +297,9 @@ def _initial_state(basis: FluidBasis, vorticity, harmonic, dye):
 
 
 @kernel(static_argnames=("steps", "save_every"))
-def _flow_record(basis: FluidBasis, coefficients, harmonic, dye_coefficients, tau, failure, *, steps: int, save_every: int):
+def _flow_record(
+    basis: FluidBasis, coefficients, harmonic, dye_coefficients, counts, tau, failure, *, steps: int, save_every: int
+):
     """The `EulerFlowResult` of the saved states' coefficients (module docstring: energy and enstrophy)."""
     saved = save_every * jnp.arange(steps // save_every + 1, dtype=jnp.int32)
     stream = basis.stream_coefficients(coefficients)
@@ -251,6 +313,8 @@ def _flow_record(basis: FluidBasis, coefficients, harmonic, dye_coefficients, ta
         enstrophy=0.5 * jnp.sum(coefficients**2, axis=-1),
         times=tau * saved.astype(tau.dtype),
         steps=saved,
+        fixed_point_steps=counts[:, 0],
+        newton_steps=counts[:, 1],
         tau=tau,
         result=failure.result,
         first_failure_step=first_failure_step(failure, steps),
@@ -338,50 +402,69 @@ class _Dynamics(eqx.Module):
 
 
 @jax.custom_vjp
-def _midpoint(dynamics: _Dynamics, start):
-    """The implicit midpoint `x = (x_0 + x_1) / 2`, `R(x) = 0` to round-off (module docstring)."""
-    tolerance = CONVERGENCE * jnp.finfo(start.dtype).eps * jnp.max(jnp.abs(start))
+def _midpoint(dynamics: _Dynamics, start, max_steps, rtol, active):
+    """The implicit midpoint `x = (x_0 + x_1) / 2`, `R(x) = 0` to `rtol` (module docstring).
+
+    Returns `(x, counts, converged)`: `counts` the fixed-point iterations and Newton steps taken
+    (int32 `(2,)`), `converged` whether the last iteration met the tolerance. With `active` false
+    (a flow stopped by an earlier failure) nothing is iterated.
+    """
+    tolerance = rtol * jnp.max(jnp.abs(start))
+    zero = jnp.zeros((), jnp.int32)
 
     def contracting(carry):
-        count, _, change, fast = carry
-        return (count < FIXED_POINT_STEPS) & (change > tolerance) & fast
+        count, _, _, _, change, fast = carry
+        return active & (count < FIXED_POINT_STEPS) & (change > tolerance) & fast
 
     def fixed_point(carry):
-        count, x, change, _ = carry
+        count, x, best, smallest, change, _ = carry
         new = (start + dynamics.half * dynamics.rate(x)) / dynamics.damping
         new_change = jnp.max(jnp.abs(new - x))
-        improves = new_change < change  # an iterate that moved less than the last one is kept for Newton
-        fast = new_change < CONTRACTION * change
-        return count + 1, jnp.where(improves, new, x), jnp.where(improves, new_change, change), fast
+        # R(x) = D (x - new): each iteration measures the residual of the iterate it starts from.
+        residual = jnp.max(jnp.abs(dynamics.damping * (x - new)))
+        better = residual < smallest
+        best, smallest = jnp.where(better, x, best), jnp.where(better, residual, smallest)
+        return count + 1, new, best, smallest, new_change, new_change < CONTRACTION * change
 
     infinite = jnp.asarray(jnp.inf, start.dtype)
-    _, x, change, _ = jax.lax.while_loop(contracting, fixed_point, (0, start, infinite, jnp.asarray(True)))
+    fixed_steps, x, best, _, change, fast = jax.lax.while_loop(
+        contracting, fixed_point, (zero, start, start, infinite, infinite, jnp.asarray(True))
+    )
+    # Newton goes on from the last iterate where the iteration converged or still contracted; from the
+    # iterate of least residual (the state itself, at a large tau) where it did not: the iterates then run away.
+    x = jnp.where(fast | (change <= tolerance), x, best)
 
     def unconverged(carry):
-        count, _, change = carry
-        return (count < NEWTON_STEPS) & (change > tolerance)
+        count, x, converged = carry
+        # A diverging iteration stops at its first non-finite iterate rather than at max_steps.
+        return active & (count < max_steps) & ~converged & jnp.all(jnp.isfinite(x))
 
     def newton(carry):
         count, x, _ = carry
-        step = jnp.linalg.solve(dynamics.system(x), dynamics.residual(x, start))
-        return count + 1, x - step, jnp.max(jnp.abs(step))
+        system = dynamics.system(x)
+        step = jnp.linalg.solve(system, dynamics.residual(x, start))
+        # The residual's round-off grows with the Newton matrix (tau times the advection's size), and so
+        # does the steps' floor: measured at most 1.1 |system|_inf ulps of max|x_0| (tau <= 100, k <= 64).
+        converged = jnp.max(jnp.abs(step)) <= tolerance * jnp.max(jnp.sum(jnp.abs(system), axis=1))
+        return count + 1, x - step, converged
 
-    _, midpoint, _ = jax.lax.while_loop(unconverged, newton, (0, x, change))
-    return midpoint
+    newton_steps, midpoint, converged = jax.lax.while_loop(unconverged, newton, (zero, x, change <= tolerance))
+    return midpoint, jnp.stack([fixed_steps, newton_steps]), converged
 
 
-def _midpoint_forward(dynamics, start):
-    midpoint = _midpoint(dynamics, start)
-    return midpoint, (dynamics, start, midpoint)
+def _midpoint_forward(dynamics, start, max_steps, rtol, active):
+    solved = _midpoint(dynamics, start, max_steps, rtol, active)
+    return solved, (dynamics, start, solved[0])
 
 
-def _midpoint_backward(saved, cotangent):
+def _midpoint_backward(saved, cotangents):
     # The implicit function theorem on R(x, p) = 0: one transposed solve with the converged Newton
-    # matrix, instead of reverse mode through the Newton iterations.
+    # matrix, instead of reverse mode through the Newton iterations. The counts, the flag and the
+    # iteration's limits carry no derivative.
     dynamics, start, midpoint = saved
-    adjoint = jnp.linalg.solve(dynamics.system(midpoint).T, cotangent)
+    adjoint = jnp.linalg.solve(dynamics.system(midpoint).T, cotangents[0])
     _, pullback = jax.vjp(lambda dynamics, start: dynamics.residual(midpoint, start), dynamics, start)
-    return jax.tree.map(jnp.negative, pullback(adjoint))
+    return (*jax.tree.map(jnp.negative, pullback(adjoint)), None, None, None)
 
 
 _midpoint.defvjp(_midpoint_forward, _midpoint_backward)
@@ -403,45 +486,49 @@ def _dynamics(basis: FluidBasis, tau, coriolis, viscosity) -> _Dynamics:
     )
 
 
-def _midpoint_step(dynamics: _Dynamics, state):
-    """One implicit midpoint step of `(a, c, g)` (module docstring)."""
+def _midpoint_step(dynamics: _Dynamics, state, max_steps, rtol, active):
+    """One implicit midpoint step of `(a, c, g)` (module docstring): `(state, counts, converged)` as `_midpoint`."""
     vorticity, harmonic, dye = state
     start = jnp.concatenate([vorticity, harmonic])
-    midpoint = _midpoint(dynamics, start)
+    midpoint, counts, converged = _midpoint(dynamics, start, max_steps, rtol, active)
     new_vorticity, new_harmonic = dynamics.split(2.0 * midpoint - start)
     if dye is None:
-        return new_vorticity, new_harmonic, None
+        return (new_vorticity, new_harmonic, None), counts, converged
     # The dye's step is linear: a Cayley transform of the antisymmetric midpoint transport.
     transport = dynamics.half * dynamics.transport(*dynamics.split(midpoint))
     identity = jnp.eye(transport.shape[0], dtype=transport.dtype)
-    return new_vorticity, new_harmonic, jnp.linalg.solve(identity - transport, dye + transport @ dye)
+    new_dye = jnp.linalg.solve(identity - transport, dye + transport @ dye)
+    return (new_vorticity, new_harmonic, new_dye), counts, converged
 
 
 @kernel(static_argnames=("count",))
-def _advance(basis: FluidBasis, state, failure: Failure, start, tau, rotation, viscosity, *, count):
-    """Steps `start + 1, ..., start + count`: `((state, failure), state)`."""
+def _advance(basis: FluidBasis, state, failure: Failure, start, tau, rotation, viscosity, max_steps, rtol, *, count):
+    """Steps `start + 1, ..., start + count`: `((state, failure), (state, counts))`, `counts` the most
+    fixed-point iterations and Newton steps of one of these steps."""
     dynamics = _dynamics(basis, tau, rotation * basis.coriolis, viscosity)
 
     def step(carry, k):
-        state, failure = carry
+        state, failure, most = carry
         # After a failure the flow stops (the failed state is kept): a select, as a branch per step
-        # costs as much as the step itself on small states.
+        # costs as much as the step itself on small states; the stopped steps iterate nothing.
         stopped = failed_before(failure, k)
-        state = jax.tree.map(functools.partial(jnp.where, stopped), state, _midpoint_step(dynamics, state))
-        return (state, record(failure, k, finite_outcome(state))), None
+        new, counts, converged = _midpoint_step(dynamics, state, max_steps, rtol, ~stopped)
+        state = jax.tree.map(functools.partial(jnp.where, stopped), state, new)
+        outcome = RESULTS.where(converged, finite_outcome(state), RESULTS.max_steps_reached)
+        return (state, record(failure, k, outcome), jnp.maximum(most, counts)), None
 
-    carry, _ = scan_steps(step, (state, failure), start, count)
-    return carry, carry[0]
+    (state, failure, most), _ = scan_steps(step, (state, failure, jnp.zeros(2, jnp.int32)), start, count)
+    return (state, failure), (state, most)
 
 
-def _states(basis, state, tau, rotation, viscosity, *, steps, save_every, progress):
-    """The saved states (stacked, the initial one first) and the first `Failure`."""
+def _states(basis, state, tau, rotation, viscosity, max_steps, rtol, *, steps, save_every, progress):
+    """The saved states (stacked, the initial one first), their chunks' iteration counts `(s, 2)` and the first `Failure`."""
 
     def chunk(carry, start):
-        return _advance(basis, *carry, start, tau, rotation, viscosity, count=save_every)
+        return _advance(basis, *carry, start, tau, rotation, viscosity, max_steps, rtol, count=save_every)
 
     start = (state, record(no_failure(), 0, finite_outcome(state)))
-    (_, failure), frames = run_chunks(
+    (_, failure), (frames, counts) = run_chunks(
         # Checkpointed chunks: reverse mode keeps one state per chunk and recomputes the chunk's steps.
         chunk if progress else jax.checkpoint(chunk, prevent_cse=False),
         start,
@@ -451,10 +538,10 @@ def _states(basis, state, tau, rotation, viscosity, *, steps, save_every, progre
         description="euler flow",
     )
     saved = jax.tree.map(lambda first, rest: jnp.concatenate([first[None], rest]), state, frames)
-    return saved, failure
+    return saved, jnp.concatenate([jnp.zeros((1, 2), jnp.int32), counts]), failure
 
 
 @kernel(static_argnames=("steps", "save_every"))
-def _run(basis, state, tau, rotation, viscosity, *, steps, save_every):
+def _run(basis, state, tau, rotation, viscosity, max_steps, rtol, *, steps, save_every):
     """`_states` as one compiled program (the path without a progress bar)."""
-    return _states(basis, state, tau, rotation, viscosity, steps=steps, save_every=save_every, progress=False)
+    return _states(basis, state, tau, rotation, viscosity, max_steps, rtol, steps=steps, save_every=save_every, progress=False)

@@ -13,6 +13,7 @@ import hashlib
 import os
 import pathlib
 import tempfile
+import warnings
 from collections.abc import Iterable
 
 import equinox as eqx
@@ -33,7 +34,8 @@ from ..spectral import smallest_eigenpairs
 from ._gradient import gradient_frames_and_weights, neighbor_table
 
 #: Changes whenever what a cache file holds or how it is computed changes; part of every file's name.
-CACHE_FORMAT_VERSION = 1
+#: 2: each file holds its own `cache_key` (`"key"`), compared on load.
+CACHE_FORMAT_VERSION = 2
 
 
 class DiffusionOperators(eqx.Module):
@@ -91,11 +93,15 @@ def diffusion_operators(
             (`robust=True` flips edges on the host and needs concrete positions). The gradient and the
             frames use the mesh's own one-rings either way.
         cache_dir: a folder where the operators are kept, one `.npz` file per mesh and settings, named
-            by the SHA-256 of the vertices' and faces' bytes and dtypes, `k`, `mass`, `robust` and
-            `CACHE_FORMAT_VERSION`. A hit loads without computing; an unreadable file is recomputed and
-            rewritten; files are written to a temporary name and renamed, so parallel readers never see
-            half a file. Only concrete (untraced) meshes, `robust=True` / `False` and successful
-            results are cached.
+            by `cache_key`: the SHA-256 of the vertices' and faces' bytes, shapes and dtypes, `k`,
+            `mass`, `robust` and `CACHE_FORMAT_VERSION`. Each file also holds that key, and a file is
+            used only when its key, its arrays' shapes (`nv`, `k`, the mesh's one-ring table), their
+            dtypes (the vertices') and finite values all match; anything else (an unreadable, corrupt,
+            stale or foreign file) is recomputed and rewritten. Files are written to a temporary name
+            and renamed, so parallel readers never see half a file. A folder that cannot be written
+            (read-only, a regular file, an impossible path) costs the caching only: the operators are
+            returned, with one `UserWarning` naming the folder and the reason. Only concrete
+            (untraced) meshes, `robust=True` / `False` and successful results are cached.
         throw: as `ddgjax.spectral.eigenpairs`: a failed eigensolve raises, or with `throw=False` the
             operators come in a `ddgjax.Solution` with `.result`.
 
@@ -105,6 +111,16 @@ def diffusion_operators(
         (`frames, mass, L, evals, evecs, gradX, gradY`; its gradient is a sparse complex matrix, here a
         fixed-degree table).
     """
+    operators, unwritable = _cached_operators(mesh, k, mass=mass, robust=robust, cache_dir=cache_dir, throw=throw)
+    if unwritable is not None:
+        warnings.warn(unwritable, stacklevel=2)
+    return operators
+
+
+def _cached_operators(
+    mesh: Mesh, k: int, *, mass: str, robust: bool | IntrinsicTriangulation, cache_dir, throw: bool
+) -> tuple[DiffusionOperators | Solution, str | None]:
+    """`diffusion_operators`' answer and, when its cache file could not be written, the warning to give."""
     mesh = require_mesh("mesh", mesh)
     mass = check_mass(mass, LUMPED_MASS_MATRICES)
     if not isinstance(robust, IntrinsicTriangulation):
@@ -113,17 +129,37 @@ def diffusion_operators(
     k = check_count("k", k)
     if k >= nv:
         raise DDGInputError(f"k: expected fewer eigenpairs than the mesh's {nv} vertices, got {k}")
-    path = None
+    path = key = None
     if cache_dir is not None and not is_traced(mesh.vertices) and not isinstance(robust, IntrinsicTriangulation):
-        path = pathlib.Path(cache_dir) / f"{cache_key(mesh, k, mass=mass, robust=robust)}.npz"
-        cached = _load(path)
+        key = cache_key(mesh, k, mass=mass, robust=robust)
+        path = pathlib.Path(cache_dir) / f"{key}.npz"
+        cached = _matching(_load(path), mesh, k, key)
         if cached is not None:
-            return outcome(cached, RESULTS.successful, throw)
+            return outcome(cached, RESULTS.successful, throw), None
     operators, result, stats = _compute(mesh, k, mass=mass, robust=robust)
+    unwritable = None
     # The item's index (equinox's `_value`) is read on the host rather than compared by a dispatched JAX op.
     if path is not None and bool(np.all(np.asarray(result._value) == RESULTS.successful._value)):
-        _save(path, operators)
-    return outcome(operators, result, throw, stats)
+        try:
+            _save(path, operators, key)
+        except (OSError, ValueError) as error:  # ValueError: a path with a NUL byte
+            unwritable = (
+                f"cache_dir: cannot write the operators' cache file in {os.fsdecode(cache_dir)!r} "
+                f"({_reason(error, path.parent)}); the operators are returned without being cached"
+            )
+    return outcome(operators, result, throw, stats), unwritable
+
+
+def _reason(error: Exception, folder: pathlib.Path) -> str:
+    """Why `folder` took no file, in words: the OS's message without the temporary file's name."""
+    try:
+        if folder.exists() and not folder.is_dir():
+            return "it is a regular file, not a folder"
+    except (OSError, ValueError):
+        pass
+    if isinstance(error, OSError) and error.strerror:
+        return error.strerror
+    return str(error)
 
 
 def _compute(mesh: Mesh, k: int, *, mass: str, robust: bool | IntrinsicTriangulation) -> tuple[DiffusionOperators, RESULTS, dict]:
@@ -189,30 +225,69 @@ def _arrays(operators: DiffusionOperators) -> dict[str, Array]:
     }
 
 
-def _load(path: pathlib.Path) -> DiffusionOperators | None:
-    """The operators stored at `path`, or `None` when it is missing or unreadable (then they are recomputed)."""
+def _load(path: pathlib.Path) -> tuple[str, dict[str, np.ndarray]] | None:
+    """The key and arrays stored at `path`, or `None` when it is missing, unreadable or not a cache file."""
     try:
-        with np.load(path, allow_pickle=False) as stored:
-            a = {name: jnp.asarray(stored[name]) for name in _FIELDS}
-        return DiffusionOperators(
-            mass=a["mass"],
-            values=a["values"],
-            vectors=a["vectors"],
-            frames=TangentBases(a["e1"], a["e2"], a["normal"]),
-            gradient_neighbors=a["gradient_neighbors"],
-            gradient_weights=a["gradient_weights"],
-        )
+        # Opened here: `np.load` leaves its own handle open when the zip is truncated.
+        with open(path, "rb") as file, np.load(file, allow_pickle=False) as stored:
+            if sorted(stored.files) != sorted((*_FIELDS, "key")):
+                return None
+            key = stored["key"]
+            if key.dtype.kind != "U" or key.shape != ():
+                return None
+            return str(key), {name: stored[name] for name in _FIELDS}
     except Exception:  # a truncated, corrupt or foreign file is a miss, not an error
         return None
 
 
-def _save(path: pathlib.Path, operators: DiffusionOperators) -> None:
-    """Write `operators` to `path` atomically: a temporary file in the same folder, then a rename."""
+def _matching(stored: tuple[str, dict[str, np.ndarray]] | None, mesh: Mesh, k: int, key: str) -> DiffusionOperators | None:
+    """The stored operators if they are `mesh`'s for `k` under `key`, else `None` (then they are recomputed).
+
+    The key (content and settings) is compared first; the shapes against `nv`, `k` and the mesh's
+    one-ring table, the floats' dtype against the vertices' and their finiteness guard against a file
+    written with the right key by something else.
+    """
+    if stored is None or stored[0] != key:
+        return None
+    a = stored[1]
+    nv, dtype = mesh.n_vertices, np.dtype(mesh.vertices.dtype)
+    neighbors = neighbor_table(mesh.topology)
+    d = neighbors.shape[1]
+    shapes = {
+        "mass": (nv,),
+        "values": (k,),
+        "vectors": (nv, k),
+        "e1": (nv, 3),
+        "e2": (nv, 3),
+        "normal": (nv, 3),
+        "gradient_neighbors": (nv, d),
+        "gradient_weights": (nv, d, 2),
+    }
+    for name, shape in shapes.items():
+        if a[name].shape != shape:
+            return None
+        if name != "gradient_neighbors" and (a[name].dtype != dtype or not np.all(np.isfinite(a[name]))):
+            return None
+    if a["gradient_neighbors"].dtype.kind not in "iu" or not np.array_equal(a["gradient_neighbors"], neighbors):
+        return None
+    return DiffusionOperators(
+        mass=jnp.asarray(a["mass"]),
+        values=jnp.asarray(a["values"]),
+        vectors=jnp.asarray(a["vectors"]),
+        frames=TangentBases(jnp.asarray(a["e1"]), jnp.asarray(a["e2"]), jnp.asarray(a["normal"])),
+        gradient_neighbors=device_array(neighbors),
+        gradient_weights=jnp.asarray(a["gradient_weights"]),
+    )
+
+
+def _save(path: pathlib.Path, operators: DiffusionOperators, key: str) -> None:
+    """Write `operators` and their `key` to `path` atomically: a temporary file in the same folder, then a rename."""
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
     try:
         with os.fdopen(handle, "wb") as file:
-            np.savez(file, **{name: np.asarray(value) for name, value in _arrays(operators).items()})
+            arrays = {name: np.asarray(value) for name, value in _arrays(operators).items()}
+            np.savez(file, key=np.asarray(key), **arrays)
         os.replace(temporary, path)
     except BaseException:
         pathlib.Path(temporary).unlink(missing_ok=True)
@@ -233,9 +308,18 @@ def diffusion_operators_of_meshes(
 
     A folder of files: `diffusion_operators_of_meshes(map(ddgjax.io.load_mesh, sorted(folder.glob("*.obj"))), k,
     cache_dir=folder / "operators")`. A host loop; batch the results with `stack_diffusion_operators`.
+    A `cache_dir` that cannot be written gives one warning for the whole dataset.
     """
     if progress:  # imported only when asked for: tqdm.auto warns in a Jupyter kernel without ipywidgets
         from tqdm.auto import tqdm
 
         meshes = tqdm(meshes, desc="diffusion operators")
-    return [diffusion_operators(mesh, k, mass=mass, robust=robust, cache_dir=cache_dir, throw=throw) for mesh in meshes]
+    results, unwritable = [], None
+    for mesh in meshes:
+        operators, failed = _cached_operators(mesh, k, mass=mass, robust=robust, cache_dir=cache_dir, throw=throw)
+        results.append(operators)
+        unwritable = unwritable or failed
+    # One warning for the dataset, not one a mesh: a read-only folder refuses every file alike.
+    if unwritable is not None:
+        warnings.warn(unwritable, stacklevel=2)
+    return results

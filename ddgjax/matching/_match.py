@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._compile import kernel
@@ -82,6 +83,15 @@ def match_shapes(
     near-isometric pairs of a few thousand vertices to a mean geodesic error under 0.03 of
     `sqrt(area)` (tests/test_matching_pipeline.py).
 
+    Supported: two connected surfaces (one connected component each, vertices joined by edges),
+    near-isometric, either may have a boundary. A mesh of several components is refused
+    (`DDGInputError`, before anything is computed): each component adds a zero eigenvalue, whose
+    eigenvectors are any mix of the components' indicator functions, while step 3 fixes the map's
+    first column as if `phi_0` were the constant function on both shapes. One component matched to
+    two gives a fit with entries of 50 to 500 in the rows of the zero eigenvalues (a sphere against
+    two spheres; at most 1 between isometric shapes); two against two maps each component to
+    whichever one the eigensolver's basis pairs it with. Match the components one by one.
+
     Args:
         source_mesh: the source mesh (pyFM's mesh1).
         target_mesh: the target mesh (pyFM's mesh2).
@@ -121,6 +131,14 @@ def match_shapes(
         if mesh.n_vertices <= n_eigenpairs:
             raise DDGInputError(
                 f"{name}: {mesh.n_vertices} vertices are too few for {n_eigenpairs} eigenpairs: lower k and k_final"
+            )
+        n_components = _vertex_components(mesh)
+        if n_components > 1:
+            raise DDGInputError(
+                f"{name}: match_shapes matches connected surfaces, and this mesh has {n_components} connected "
+                f"components: each adds a zero eigenvalue whose eigenvector the functional map cannot place (its "
+                "first column maps the constant function alone). Match each component on its own: build its mesh "
+                "with ddgjax.Mesh.from_arrays from the faces of one label of mesh.topology.face_components"
             )
     source_solution = spectral_shape(source_mesh, n_eigenpairs, robust=robust, throw=False)
     target_solution = spectral_shape(target_mesh, n_eigenpairs, robust=robust, throw=False)
@@ -165,6 +183,26 @@ def match_shapes(
         },
     )
     return raise_if_failed(match, match.result, throw)
+
+
+def _vertex_components(mesh: Mesh) -> int:
+    """The connected components of the mesh's referenced vertices, joined by edges: the multiplicity of `L`'s zero eigenvalue.
+
+    Counted on the host topology (linear in the edges). Faces that share only a vertex are one
+    component here (the Laplacian couples them through it), unlike `topology.n_components`.
+    """
+    topology = mesh.topology
+    if topology is None:  # `Mesh.without_topology()` (what kernels trace): nothing on the host to count
+        return 1
+    # Imported on first use, as ddgjax.mesh does: scipy.sparse.csgraph is slow to import.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = np.asarray(topology.edges)
+    n = topology.n_vertices
+    graph = coo_matrix((np.ones(edges.shape[0], np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return int(np.unique(labels[np.asarray(topology.faces).ravel()]).size)
 
 
 @kernel

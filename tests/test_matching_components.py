@@ -1,0 +1,98 @@
+"""`match_shapes` matches connected surfaces: a mesh of several components is refused before anything is computed."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ddgjax.matching._match as match_module
+from ddgjax import RESULTS, DDGInputError
+from ddgjax.io import load_mesh
+from ddgjax.matching import descriptors, functional_map, match_shapes, spectral_shape
+from ddgjax.mesh import Mesh, icosphere
+
+from conftest import data_path
+
+
+def _two_copies(mesh: Mesh, shift=(3.0, 0.0, 0.0)) -> Mesh:
+    """`mesh` and a translated copy of it, disjoint: two connected components."""
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    return Mesh.from_arrays(np.concatenate([V, V + np.asarray(shift)]), np.concatenate([F, F + len(V)]))
+
+
+def _touching_at_a_vertex(mesh: Mesh) -> Mesh:
+    """`mesh` and its mirror image through its vertex of largest x, sharing that vertex only (a bowtie)."""
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    n, tip = len(V), int(np.argmax(V[:, 0]))
+    mirrored = V * np.array([-1.0, 1.0, 1.0]) + np.array([2 * V[tip, 0], 0.0, 0.0])
+    others = np.setdiff1d(np.arange(n), [tip])
+    index = np.full(n, tip)
+    index[others] = n + np.arange(others.size)
+    return Mesh.from_arrays(np.concatenate([V, mirrored[others]]), np.concatenate([F, index[F][:, ::-1]]))
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    return icosphere(3)
+
+
+@pytest.fixture(scope="module")
+def spot():
+    return load_mesh(data_path("meshes", "spot.obj"))
+
+
+@pytest.mark.parametrize("which", ["target", "source", "both"])
+@pytest.mark.parametrize("shape", ["icosphere", "spot"])
+def test_a_mesh_of_two_components_is_refused_before_anything_is_computed(sphere, spot, monkeypatch, which, shape):
+    one = sphere if shape == "icosphere" else spot
+    two = _two_copies(one)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("computed before refusing")
+
+    monkeypatch.setattr(match_module, "spectral_shape", refuse)
+    source, target = {"target": (one, two), "source": (two, one), "both": (two, _two_copies(one, (0.0, 5.0, 0.0)))}[which]
+    refused = "source_mesh" if which != "target" else "target_mesh"
+    for throw in (True, False):
+        with pytest.raises(DDGInputError, match=f"{refused}: match_shapes matches connected surfaces.* 2 connected components"):
+            match_shapes(source, target, throw=throw)
+
+
+@pytest.mark.slow
+def test_why_one_component_against_two_has_no_functional_map():
+    """What the refusal prevents: the target's two zero eigenvalues have rows of the map that the fit blows up.
+
+    A sphere against two spheres fits map entries of 50 to 500 (k = 10 to 30) where a map between
+    isometric shapes has entries of at most 1 in magnitude, as the sphere against itself does.
+    """
+    sphere = icosphere(2)
+    source, target = spectral_shape(sphere, 20), spectral_shape(_two_copies(sphere), 20)
+    assert abs(source.values[0]) < 1e-10 and source.values[1] > 1  # one zero eigenvalue ...
+    assert np.all(np.abs(np.asarray(target.values[:2])) < 1e-10) and target.values[2] > 1  # ... against two
+
+    def fitted(target_shape):
+        return np.asarray(
+            functional_map(source, target_shape, descriptors(source), descriptors(target_shape), k_source=10, k_target=10)
+        )
+
+    C = fitted(target)
+    assert np.abs(C).max() > 10
+    assert np.unravel_index(np.abs(C).argmax(), C.shape)[0] in (0, 1)  # in a row of a zero eigenvalue of the target
+    assert np.abs(fitted(source)).max() < 1 + 1e-6
+
+
+@pytest.mark.slow
+def test_components_that_share_a_vertex_are_one_and_are_matched(sphere):
+    """A bowtie's two spheres are joined through their shared vertex: one zero eigenvalue, not refused."""
+    bowtie = _touching_at_a_vertex(icosphere(2))
+    assert bowtie.topology.n_components == 2  # two edge-connected components of faces ...
+    rng = np.random.default_rng(0)
+    moved = bowtie.with_vertices(
+        jnp.asarray(np.asarray(bowtie.vertices) * (1 + 0.02 * rng.standard_normal((bowtie.n_vertices, 1))))
+    )
+    result = match_shapes(bowtie, moved, k=10, k_final=20, throw=False)
+    values = np.asarray(result.source.values)
+    assert abs(values[0]) < 1e-10 and values[1] > 1e-3  # ... but one component of the Laplacian
+    assert result.result == RESULTS.successful
+    assert np.abs(np.asarray(result.initial_functional_map)).max() < 1.1
