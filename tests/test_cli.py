@@ -18,7 +18,7 @@ from ddgjax._compile import clear_programs
 from ddgjax.cli import main
 from ddgjax.geodesics import heat_distance
 from ddgjax.io import load_mesh, save_mesh
-from ddgjax.mesh import disk, icosphere
+from ddgjax.mesh import disk
 
 PACKAGE = pathlib.Path(ddgjax.__file__).parent
 #: Modules that serve the command line, files and figures; every other module is mathematics.
@@ -83,12 +83,12 @@ def test_a_second_run_compiles_nothing(user_cache, capsys):
 
 
 @pytest.mark.slow  # compiles the heat method's programs (its figures run in the full suite)
-def test_warmup_keeps_the_programs_a_later_process_reads(user_cache, tmp_path, capsys, monkeypatch):
+def test_warmup_keeps_the_programs_a_later_process_reads(user_cache, tmp_path, capsys, monkeypatch, icosphere2):
     """`ddgjax warmup FOLDER`: once per distinct size; a later process's first call reads every kernel from the store."""
     folder = tmp_path / "meshes"
     folder.mkdir()
-    save_mesh(folder / "a.obj", icosphere(2))
-    save_mesh(folder / "b.off", icosphere(2))  # the same size: warmed once
+    save_mesh(folder / "a.obj", icosphere2)
+    save_mesh(folder / "b.off", icosphere2)  # the same size: warmed once
     save_mesh(folder / "c.ply", disk(5))
     (folder / "notes.txt").write_text("not a mesh")
     assert main(["warmup", str(folder), "--only", "laplacian,heat"]) == 0

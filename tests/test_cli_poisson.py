@@ -15,7 +15,7 @@ from matplotlib.collections import PolyCollection, TriMesh
 from matplotlib.figure import Figure
 
 from ddgjax import RESULTS, DDGInputError, Solution
-from ddgjax.mesh import disk, icosphere
+from ddgjax.mesh import disk
 from ddgjax.plot import TOP_VIEW, is_flat, plot_mesh_function
 from ddgjax.volume import TetMesh, save_tet_mesh, tet_ball
 
@@ -241,7 +241,7 @@ def test_a_tet_mesh_file_round_trip(tmp_path, suffix):
     status, built_in, err = _run(["poisson", "ball", "--resolution", "3", "--harmonic", "--no-plot"])
     assert status == 0, err
     assert _without_mesh_and_time(rows) == _without_mesh_and_time(_table(built_in))
-    assert _number(rows["error"]) < 0.05
+    assert _number(rows["error"]) < 0.05  # the discretisation error of 3 layers: measured 4.1e-2 (2.9e-2 at 4)
 
 
 def test_a_tet_mesh_file_without_exact_solution(tmp_path):
@@ -301,8 +301,8 @@ def axes():
     return figure.add_subplot()
 
 
-def test_plot_mesh_function_vertex_values_gouraud(axes):
-    mesh = icosphere(1)
+def test_plot_mesh_function_vertex_values_gouraud(axes, icosphere1):
+    mesh = icosphere1
     values = np.asarray(mesh.vertices)[:, 2]
     collection = plot_mesh_function(axes, mesh, values, cmap="magma")
     assert isinstance(collection, TriMesh)
@@ -312,8 +312,8 @@ def test_plot_mesh_function_vertex_values_gouraud(axes):
     axes.figure.canvas.draw()
 
 
-def test_plot_mesh_function_paints_back_to_front(axes):
-    mesh = icosphere(1)
+def test_plot_mesh_function_paints_back_to_front(axes, icosphere1):
+    mesh = icosphere1
     values = np.arange(mesh.n_faces, dtype=float)  # one value per face: flat shading
     collection = plot_mesh_function(axes, mesh, values, view=TOP_VIEW, vmin=0, vmax=100, edgecolor="k")
     assert isinstance(collection, PolyCollection)
@@ -326,8 +326,8 @@ def test_plot_mesh_function_paints_back_to_front(axes):
     np.testing.assert_array_equal(np.sort(painted), values)
 
 
-def test_plot_mesh_function_views(axes):
-    flat, round_ = disk(3), icosphere(1)
+def test_plot_mesh_function_views(axes, icosphere1):
+    flat, round_ = disk(3), icosphere1
     assert is_flat(flat) and not is_flat(round_)
     values = np.asarray(flat.vertices)[:, 0]
     plot_mesh_function(axes, flat, values, shading="flat")  # flat mesh: seen from above, so x spans the width

@@ -29,6 +29,8 @@ from ddgjax.curves import (
 )
 from ddgjax.curves._flow_step import _explicit_step, _flow_weights, _semi_implicit_step
 
+from finite_differences import central_difference
+
 
 @pytest.fixture(scope="module")
 def polygon():
@@ -110,7 +112,8 @@ def test_no_flow_keeps_all_three(shape_runs):
     name, _, runs = shape_runs
     if name not in RANDOM_SHAPES:
         # A symmetric shape keeps its centroid under every flow (by symmetry): the test needs no symmetry.
-        assert np.abs(np.asarray(runs["D"].centroid[-1]) - np.asarray(runs["D"].centroid[0])).max() < 1e-8
+        # Round-off over 3,000-4,000 steps: measured <= 8e-15.
+        assert np.abs(np.asarray(runs["D"].centroid[-1]) - np.asarray(runs["D"].centroid[0])).max() < 1e-12
         return
 
     def drift(run):
@@ -223,7 +226,7 @@ def test_self_intersection_is_reported():
     assert int(saved.first_failure_step) == int(saved.steps[first_saved])
     # the exact step lies after the last simple saved state and no later than the first non-simple one
     assert int(saved.steps[first_saved - 1]) < int(every.first_failure_step) <= int(saved.first_failure_step)
-    assert float(every.first_failure_time) == pytest.approx(0.4 * int(every.first_failure_step))
+    assert float(every.first_failure_time) == pytest.approx(0.4 * int(every.first_failure_step), rel=1e-15)
     assert int(certified.first_failure_step) == int(every.first_failure_step)
 
 
@@ -374,7 +377,9 @@ def test_semi_implicit_is_stable_far_beyond_the_explicit_limit(polygon):
 def test_semi_implicit_agrees_with_explicit_to_first_order(polygon):
     difference = jax.jit(lambda P, tau: jnp.abs(_explicit_step(P, tau, True, "D") - _semi_implicit_step(P, tau, True, "D")).max())
     errors = [float(difference(polygon.points, tau)) for tau in (4e-4, 2e-4)]
-    assert errors[0] / errors[1] == pytest.approx(4.0, rel=0.05)  # one step differs by O(tau^2)
+    # One step differs by O(tau^2); the O(tau^3) term of the stiff D operator (~1 / l^2, shortest edge
+    # l ~ 0.06) moves the ratio by a few % at these tau: measured 3.84.
+    assert errors[0] / errors[1] == pytest.approx(4.0, rel=0.05)
 
 
 @pytest.mark.slow
@@ -417,11 +422,10 @@ def test_gradient_through_the_whole_flow_matches_finite_differences(small, metho
     P, tau = small.points, jnp.asarray(0.01)
     g_points, g_tau = value_and_grad(P, tau)[1]
     v = jnp.asarray(np.random.default_rng(0).normal(size=P.shape))
-    eps = 1e-6
-    numeric = (loss(P + eps * v, tau) - loss(P - eps * v, tau)) / (2 * eps)
+    numeric = central_difference(lambda Q: loss(Q, tau), P, v, eps=1e-6)
     # central differences: error ~eps^2 + ulp/eps ~1e-10 relative
     np.testing.assert_allclose(jnp.sum(g_points * v), numeric, rtol=1e-7)
-    numeric_tau = (loss(P, tau + eps * 1e-2) - loss(P, tau - eps * 1e-2)) / (2 * eps * 1e-2)
+    numeric_tau = central_difference(lambda t: loss(P, t), tau, 1.0, eps=1e-8)
     np.testing.assert_allclose(g_tau, numeric_tau, rtol=1e-6)  # step 1e-8 on tau: round-off ~1e-8 relative
 
 

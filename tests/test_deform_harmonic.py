@@ -107,9 +107,9 @@ def test_identity_and_translation(k):
 
 @pytest.mark.slow  # compiling the forward- and reverse-mode programs takes ~8 s
 @pytest.mark.parametrize("k", [2, 3])
-def test_gradients_in_the_handles_and_the_rest_positions(k):
+def test_gradients_in_the_handles_and_the_rest_positions(k, icosphere1):
     """Forward and reverse mode against finite differences (the solve differentiates implicitly)."""
-    mesh = icosphere(1)
+    mesh = icosphere1
     V = np.asarray(mesh.vertices)
     b = np.array([0, 5, 9])
     bc = V[b] + np.array([[0.1, 0.2, -0.1], [0.0, 0.3, 0.1], [-0.2, 0.0, 0.0]])
@@ -148,9 +148,9 @@ def test_throw_false_returns_a_solution():
 
 
 @pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
-def test_every_vertex_a_handle_and_unused_vertices():
+def test_every_vertex_a_handle_and_unused_vertices(icosphere0):
     """All vertices fixed: the handles' values, nothing solved. A vertex used by no face stays where it is."""
-    mesh = icosphere(0)
+    mesh = icosphere0
     V = np.asarray(mesh.vertices)
     everything = np.arange(V.shape[0])
     np.testing.assert_array_equal(biharmonic_deformation(mesh, fixed_vertices=everything, fixed_values=V + 1), V + 1)
@@ -191,12 +191,12 @@ def test_bad_input_names_the_argument(without_type_checker):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["arap", "biharmonic_deformation"])
-def test_degenerate_geometry_keeps_values_and_gradients_finite(name):
+def test_degenerate_geometry_keeps_values_and_gradients_finite(name, icosphere2):
     """Two vertices at one point (zero-length edge, zero-area faces): answers and handle gradients stay finite."""
     import ddgjax.deform as deform
 
     function = getattr(deform, name)
-    sphere = icosphere(2)
+    sphere = icosphere2
     collapsed = sphere.with_vertices(sphere.vertices.at[1].set(sphere.vertices[0]))
     fixed = jnp.array([10, 11, 12])
     values = collapsed.vertices[fixed] + 0.1

@@ -33,8 +33,8 @@ def _bumpy(mesh, seed: int, amplitude: float = 0.05):
 
 
 @pytest.fixture(scope="module")
-def meshes_and_operators():
-    meshes = [_bumpy(icosphere(2), 0), _bumpy(torus(n_major=20, n_minor=8), 1), _bumpy(disk(5), 2)]
+def meshes_and_operators(icosphere2):
+    meshes = [_bumpy(icosphere2, 0), _bumpy(torus(n_major=20, n_minor=8), 1), _bumpy(disk(5), 2)]
     return meshes, [diffusion_operators(mesh, 12) for mesh in meshes]
 
 

@@ -70,8 +70,9 @@ def _assert_good_match(source: Mesh, target: Mesh, truth: np.ndarray, pyfm_orien
     assert result.functional_map.shape == (100, 100)
     assert np.all(np.isfinite(np.asarray(result.functional_map)))
     error = geodesic_error(source, result.point_map, truth)
-    assert error < 0.03
+    assert error < 0.03  # a good match: within about one edge length (~0.03 of sqrt(area) here) on average
     pyfm = _pyfm_point_map(source, target, orientation_weight=pyfm_orientation_weight)
+    # The pipelines' eigensolvers differ: a few vertices may land on a neighbour of pyFM's choice.
     assert error <= geodesic_error(source, pyfm, truth) + 1e-3
     # The left-right flip is avoided: far below the mirror map's error (300 vertices estimate it well).
     assert error < 0.2 * geodesic_error(source, _mirror_map(source)[truth], truth, n_samples=300)
@@ -111,6 +112,8 @@ def test_geodesic_error_against_potpourri3d(spot):
     solver = pp3d.MeshHeatMethodDistanceSolver(V, F)
     expected = np.mean([solver.compute_distance(t)[p] for t, p in zip(true, predicted)])
     expected /= np.sqrt(np.sum(igl.doublearea(V, F)) / 2)
+    # Both heat methods (t = h^2) but ours raises a distance below the chord to the chord (a few short pairs
+    # here), and potpourri3d builds its own (intrinsic Delaunay) Laplacian: first-order errors of each differ.
     np.testing.assert_allclose(geodesic_error(spot, predicted, true), expected, rtol=2e-2)
     assert geodesic_error(spot, true, true) == 0.0
 
@@ -134,6 +137,8 @@ def test_geodesic_error_against_exact_geodesics(spot):
     sqrt_area = np.sqrt(np.sum(igl.doublearea(V, F)) / 2)
     predicted = np.stack([neighbours, few_edges, far], axis=1)
     exact = np.array([igl.exact_geodesic(V, F, VS=np.array([t]), VT=p) for t, p in zip(true, predicted)])
+    # The heat method's first-order error in the edge length (after the chord bound): within 1% of the
+    # exact mean over near pairs, 2% over distant ones (geodesic_error's documented accuracy).
     for column, rtol in ((0, 1e-2), (1, 1e-2), (2, 2e-2)):
         np.testing.assert_allclose(
             geodesic_error(spot, predicted[:, column], true), np.mean(exact[:, column]) / sqrt_area, rtol=rtol
@@ -155,6 +160,7 @@ def test_geodesic_error_on_a_sphere_is_the_great_circle_distance_over_sqrt_4_pi_
     true, predicted = rng.integers(0, len(V), 30), rng.integers(0, len(V), 30)
     cosines = np.clip(np.sum(V[true] * V[predicted], axis=1) / radius**2, -1.0, 1.0)
     expected = np.mean(radius * np.arccos(cosines)) / np.sqrt(4 * np.pi * radius**2)
+    # The inscribed polyhedron is shorter than the sphere (and the heat method first order): measured 0.8% low.
     np.testing.assert_allclose(geodesic_error(mesh, predicted, true), expected, rtol=1e-2)
 
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from ddgjax import DDGInputError, MeshDataError
 from ddgjax.cli import main
 from ddgjax.io import load_mesh
-from ddgjax.mesh import Mesh, check_mesh, face_areas, icosphere
+from ddgjax.mesh import Mesh, check_mesh, face_areas
 from ddgjax.mesh.internal import default_area_tol
 
 from conftest import data_path
@@ -168,8 +168,8 @@ def test_check_mesh_names_duplicate_faces():
     assert doubled.duplicate_faces.tolist() == [faces.shape[0]] and check_mesh(bob).is_clean
 
 
-def test_check_mesh_finds_zero_area_faces_at_current_positions():
-    sphere = icosphere(0)
+def test_check_mesh_finds_zero_area_faces_at_current_positions(icosphere0):
+    sphere = icosphere0
     assert check_mesh(sphere).zero_area_faces.size == 0
     V = np.asarray(sphere.vertices).copy()
     V[11] = V[0]  # faces 0 and 4 collapse

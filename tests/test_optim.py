@@ -56,14 +56,14 @@ def _bumpy(mesh: Mesh) -> Mesh:
 
 
 @pytest.mark.slow
-def test_willmore_sphere_converges_to_4pi_at_second_order():
+def test_willmore_sphere_converges_to_4pi_at_second_order(icosphere2):
     errors = [abs(float(willmore_energy(icosphere(s))) - 4 * np.pi) for s in (2, 3, 4)]
     rates = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     # measured: errors 0.235, 0.0596, 0.0150 (rates 1.98, 1.99): O(h^2), h halving per subdivision
     assert errors[-1] < 0.02
     assert np.all(rates > 1.9)
     scaled = icosphere(2, radius=3.7)
-    assert float(willmore_energy(scaled)) == pytest.approx(float(willmore_energy(icosphere(2))), rel=1e-12)
+    assert float(willmore_energy(scaled)) == pytest.approx(float(willmore_energy(icosphere2)), rel=1e-12)
 
 
 @pytest.mark.slow
@@ -76,12 +76,12 @@ def test_willmore_torus_closed_form_and_clifford_torus():
         abs(float(willmore_energy(torus(major_radius=np.sqrt(2), minor_radius=1.0, n_major=2 * n, n_minor=n))) - 2 * np.pi**2)
         for n in (24, 48)
     ]
-    # measured: 0.228, 0.058 (rate 1.97)
+    # measured: 0.228, 0.058 (rate 1.97): the O(h^2) discretisation error, h halving from n = 24 to 48
     assert errors[1] < 0.07 and np.log2(errors[0] / errors[1]) > 1.9
 
 
-def test_willmore_matches_libigl_formula():
-    mesh = _bumpy(icosphere(2))
+def test_willmore_matches_libigl_formula(icosphere2):
+    mesh = _bumpy(icosphere2)
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     M = igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI).diagonal()
     HN = -(igl.cotmatrix(V, F) @ V) / (2 * M[:, None])  # pointwise H N
@@ -109,8 +109,8 @@ def test_regularisers_closed_form():
     assert float(laplacian_smoothing_loss(octahedron, weights="cotan")) == pytest.approx(1.0, rel=1e-14)
 
 
-def test_laplacian_smoothing_cotan_matches_libigl_weights():
-    mesh = _bumpy(icosphere(1))
+def test_laplacian_smoothing_cotan_matches_libigl_weights(icosphere1):
+    mesh = _bumpy(icosphere1)
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     L = -igl.cotmatrix(V, F)
     expected = np.mean(np.linalg.norm(L @ V, axis=1) / L.diagonal())
@@ -118,8 +118,8 @@ def test_laplacian_smoothing_cotan_matches_libigl_weights():
 
 
 @pytest.mark.slow
-def test_objective_gradients_against_finite_differences():
-    mesh = _bumpy(icosphere(1))
+def test_objective_gradients_against_finite_differences(icosphere1):
+    mesh = _bumpy(icosphere1)
     for objective in (
         willmore_energy,
         edge_length_loss,
@@ -131,10 +131,10 @@ def test_objective_gradients_against_finite_differences():
 
 
 @pytest.mark.slow
-def test_laplacian_smoothing_cotan_gradient_holds_the_weights_fixed():
+def test_laplacian_smoothing_cotan_gradient_holds_the_weights_fixed(icosphere1):
     # PyTorch3D's convention: the cotan weights are constants, so the gradient is that of the same
     # formula with libigl's matrix of the current mesh frozen.
-    mesh = _bumpy(icosphere(1))
+    mesh = _bumpy(icosphere1)
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     L = jnp.asarray((-igl.cotmatrix(V, F)).toarray())
     frozen = lambda X: jnp.mean(jnp.linalg.norm(L @ X, axis=1) / jnp.diag(L))
@@ -146,8 +146,8 @@ def test_laplacian_smoothing_cotan_gradient_holds_the_weights_fixed():
 
 
 @pytest.mark.slow
-def test_sample_points_on_surface_uniform_and_differentiable():
-    sphere = icosphere(3)
+def test_sample_points_on_surface_uniform_and_differentiable(icosphere0, icosphere3):
+    sphere = icosphere3
     key = jax.random.key(4)
     sampled = sample_points(sphere, 10000, key=key, return_normals=True)
     points, normals = sampled  # a named result still unpacks
@@ -160,17 +160,18 @@ def test_sample_points_on_surface_uniform_and_differentiable():
     assert np.abs(np.asarray(points).mean(axis=0)).max() < 0.02
     square = grid(3, 3)  # [-1/2, 1/2]^2, uniform samples: mean 0, variance 1/12 per axis
     flat = np.asarray(sample_points(square, 10000, key=key))[:, :2]
+    # Monte Carlo noise of 10000 samples: standard deviations 0.003 (mean) and 0.0007 (variance), ~3.5 and 7 sigma
     np.testing.assert_allclose(flat.mean(axis=0), 0.0, atol=0.01)
     np.testing.assert_allclose(flat.var(axis=0), 1 / 12, atol=0.005)
-    small = icosphere(0)
+    small = icosphere0
     check_grads(lambda V: sample_points(small.with_vertices(V), 50, key=key), (small.vertices,), order=1, modes=("rev",))
 
 
 # --- Large Steps -----------------------------------------------------------------------------------
 
 
-def test_large_steps_map_against_dense_algebra():
-    mesh = _bumpy(icosphere(1))
+def test_large_steps_map_against_dense_algebra(icosphere1):
+    mesh = _bumpy(icosphere1)
     V = np.asarray(mesh.vertices)
     for weights, L in (("uniform", None), ("cotan", -igl.cotmatrix(V, np.asarray(mesh.faces)).toarray())):
         if L is None:
@@ -188,11 +189,11 @@ def test_large_steps_map_against_dense_algebra():
         # The VJP of the solve is the solve of the cotangent (A symmetric).
         g = np.random.default_rng(5).normal(size=V.shape)
         _, vjp = jax.vjp(jax.jit(lambda U, r=reparam: r.from_parameters(U)), U)
-        np.testing.assert_allclose(vjp(jnp.asarray(g))[0], np.linalg.solve(A, g), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(vjp(jnp.asarray(g))[0], np.linalg.solve(A, g), rtol=1e-12, atol=1e-12)
 
 
-def test_large_steps_fixed_vertices_stay_and_free_block_is_dirichlet():
-    mesh = _bumpy(icosphere(1))
+def test_large_steps_fixed_vertices_stay_and_free_block_is_dirichlet(icosphere1):
+    mesh = _bumpy(icosphere1)
     fixed = np.array([0, 5, 7])
     reparam = large_steps(mesh, lambda_=2.0, fixed_vertices=fixed)
     U = reparam.to_parameters(mesh.vertices)
@@ -237,16 +238,17 @@ def test_catenoid_between_two_rings():
 
 
 @pytest.mark.slow
-def test_willmore_minimisation_of_a_bumpy_sphere_at_fixed_volume():
-    sphere = icosphere(2)
+def test_willmore_minimisation_of_a_bumpy_sphere_at_fixed_volume(icosphere2):
+    sphere = icosphere2
     bumpy = _bumpy(sphere)
     volume = float(enclosed_volume(bumpy))
     optimizer = adam_uniform(optax.exponential_decay(3e-2, 1000, 0.01))
     result = minimize_shape(willmore_energy, bumpy, steps=150, optimizer=optimizer, constraint="volume", progress=False)
     V = np.asarray(result.value)
     radii = np.linalg.norm(V - V.mean(axis=0), axis=1)
-    # measured: W from 13.96 to 4 pi - 0.23, the discrete energy of the round icosphere(2) itself
-    # (4 pi - 0.235, the O(h^2) error of the first test); radii spread 0.7 %.
+    # measured: W from 13.96 to 4 pi - 0.24, 0.009 below the discrete energy of the round icosphere(2) itself
+    # (4 pi - 0.235, the O(h^2) error of the first test): the discrete minimiser is not exactly the round mesh,
+    # and 150 steps do not converge it (radii spread 1.2 %, 0.65 % after 400 steps).
     assert float(result.loss_history[0]) > 13.9
     assert abs(float(result.loss_history[-1]) - float(willmore_energy(sphere))) < 0.02
     assert (radii.max() - radii.min()) / radii.mean() < 0.015
@@ -254,22 +256,22 @@ def test_willmore_minimisation_of_a_bumpy_sphere_at_fixed_volume():
 
 
 @pytest.mark.slow
-def test_mesh_fitting_chamfer_pytorch3d_style():
-    target_mesh = icosphere(4)
+def test_mesh_fitting_chamfer_pytorch3d_style(icosphere2, icosphere4):
+    target_mesh = icosphere4
     target_mesh = target_mesh.with_vertices(target_mesh.vertices * jnp.array([1.3, 1.0, 0.7]))
     target = sample_points(target_mesh, 600, key=jax.random.key(1))
 
     fit = mesh_fitting_loss(target, n_samples=600, edge_weight=0.05)
-    points = sample_points(icosphere(2), 600, key=jax.random.key(3))
+    points = sample_points(icosphere2, 600, key=jax.random.key(3))
     expected = (
         chamfer_distance(points, target)
-        + 0.05 * edge_length_loss(icosphere(2))
-        + 0.01 * normal_consistency_loss(icosphere(2))
-        + 0.1 * laplacian_smoothing_loss(icosphere(2))
+        + 0.05 * edge_length_loss(icosphere2)
+        + 0.01 * normal_consistency_loss(icosphere2)
+        + 0.1 * laplacian_smoothing_loss(icosphere2)
     )
-    assert float(fit(icosphere(2), jax.random.key(3))) == pytest.approx(float(expected), rel=1e-14)
+    assert float(fit(icosphere2, jax.random.key(3))) == pytest.approx(float(expected), rel=1e-14)
 
-    source = icosphere(2)
+    source = icosphere2
     optimizer = adam_uniform(optax.exponential_decay(5e-2, 150, 0.1))
     result = minimize_shape(fit, source, steps=150, optimizer=optimizer, key=jax.random.key(0), progress=False)
     reference = sample_points(target_mesh, 2000, key=jax.random.key(8))
@@ -297,7 +299,7 @@ def test_minimize_shape_vertices_parametrisation_and_chunks():
     np.testing.assert_allclose(chunked.value, one.value, rtol=1e-13, atol=1e-14)
     np.testing.assert_allclose(chunked.loss_history, one.loss_history, rtol=1e-13)
     assert chunked.loss_history.shape == (24,) and float(chunked.loss_history[-1]) == pytest.approx(
-        float(total_area(chunked.mesh()))
+        float(total_area(chunked.mesh())), rel=1e-12
     )
     np.testing.assert_array_equal(np.asarray(one.value)[rings], np.asarray(mesh.vertices)[rings])
     # The same loss and optimiser objects reuse the compiled program; the progress bar runs the same chunks.
@@ -312,10 +314,10 @@ def test_minimize_shape_vertices_parametrisation_and_chunks():
 
 @pytest.mark.parametrize("parametrization", ["vertices", "large_steps"])
 @pytest.mark.slow
-def test_bounds_keep_an_inflating_sphere_in_the_box(parametrization):
+def test_bounds_keep_an_inflating_sphere_in_the_box(parametrization, icosphere1):
     """Maximising the enclosed volume of a sphere of radius 0.8 inside the box [-1.1, 1.1]^2 x [-1.1, 0.9]:
     every iterate is clipped into it, so the sphere presses against the lid."""
-    sphere = icosphere(1).with_vertices(0.8 * icosphere(1).vertices)  # inside the box
+    sphere = icosphere1.with_vertices(0.8 * icosphere1.vertices)  # inside the box
     lower, upper = jnp.array([-1.1, -1.1, -1.1]), jnp.array([1.1, 1.1, 0.9])
     result = minimize_shape(
         lambda mesh: -enclosed_volume(mesh),
@@ -336,8 +338,8 @@ def test_bounds_keep_an_inflating_sphere_in_the_box(parametrization):
         minimize_shape(lambda m: -enclosed_volume(m), sphere, steps=1, bounds=(-0.5, 0.5))
 
 
-def test_minimize_shape_reports_nonfinite_loss():
-    mesh = icosphere(1)
+def test_minimize_shape_reports_nonfinite_loss(icosphere1):
+    mesh = icosphere1
     # Finite until the sphere has grown past radius 1.05, then NaN.
     loss = lambda m: jnp.where(jnp.max(m.vertices) > 1.05, jnp.nan, -total_area(m))
     settings = {"steps": 40, "parametrization": "vertices", "optimizer": optax.sgd(0.05), "progress": False}
@@ -350,8 +352,8 @@ def test_minimize_shape_reports_nonfinite_loss():
         minimize_shape(loss, mesh, **settings)
 
 
-def test_bad_input():
-    mesh = icosphere(0)
+def test_bad_input(icosphere0):
+    mesh = icosphere0
     with pytest.raises(DDGInputError, match="parametrization"):
         minimize_shape(total_area, mesh, steps=1, parametrization="pixels")
     with pytest.raises(DDGInputError, match="fixed_vertices"):

@@ -15,7 +15,7 @@ import ddgjax.laplacian
 from ddgjax import DDGInputError
 from ddgjax.dec import divergence, gradient
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
-from ddgjax.mesh import Mesh, disk, icosphere, vertex_dual_areas
+from ddgjax.mesh import Mesh, disk, vertex_dual_areas
 from ddgjax.pde._energies import (
     dirichlet_energy,
     gradient_fitting_energy,
@@ -80,11 +80,11 @@ def _union(*meshes: Mesh) -> Mesh:
 
 
 @pytest.fixture(scope="module")
-def case():
+def case(icosphere2):
     """A closed surface and a flat mesh with boundary, as one disjoint union: the energies and the
     libigl matrices are sums over faces, so each identity below holds on both parts at once, and one
     compiled program per energy serves both."""
-    return Case(_union(icosphere(2), disk()))
+    return Case(_union(icosphere2, disk()))
 
 
 def test_dirichlet_energy_is_the_laplacian_one(case):
@@ -173,8 +173,8 @@ def _bordered_solve(L: sp.spmatrix, b: np.ndarray) -> np.ndarray:
     return spla.spsolve(system, np.append(b, 0.0))[:n]
 
 
-def test_minimiser_on_a_closed_sphere():
-    case = Case(icosphere(3))
+def test_minimiser_on_a_closed_sphere(icosphere3):
+    case = Case(icosphere3)
     M = case.M["voronoi"]
     rho = case.rho - np.sum(M @ case.rho) / M.sum()  # compatible: zero mean for M
     b = M @ rho
@@ -222,17 +222,18 @@ def test_sign_matches_the_ddg_exercises_poisson_reference():
     rho = rho - np.sum(mass * rho) / np.sum(mass)
     scale = np.abs(mass * rho).max()
     grad = np.asarray(_poisson(mesh, phi, rho, mass="barycentric")[1])
-    # -1e-8 phi: the reference's regularisation. The opposite sign would give 2 M rho instead.
+    # -1e-8 phi: the reference's regularisation. The opposite sign would give 2 M rho instead. Zero up to
+    # the reference's single-precision areas (3.5e-8 relative) and its own solve (3e-10).
     np.testing.assert_allclose(grad, -1e-8 * phi, atol=1e-7 * scale)
     assert np.abs(np.asarray(_poisson(mesh, phi, -rho, mass="barycentric")[1])).max() > scale
 
 
 @pytest.mark.slow
-def test_vertex_gradients_against_finite_differences():
+def test_vertex_gradients_against_finite_differences(icosphere1):
     """Forward and reverse mode in the vertex positions against central differences (what
     jax.test_util.check_grads does at order 1), on a closed icosphere and a disk with boundary joined
     into one mesh: one compiled program for both."""
-    mesh = _union(icosphere(1), disk(n_rings=2))
+    mesh = _union(icosphere1, disk(n_rings=2))
     rng = np.random.default_rng(2)
     # Off the symmetric positions, so no corner sits on the right angle where the Voronoi area switches formula.
     V = mesh.vertices + 0.05 * jnp.asarray(rng.standard_normal(mesh.vertices.shape))
@@ -261,6 +262,7 @@ def test_vertex_gradients_against_finite_differences():
     forward, reverse = derivatives(V, tangent, cotangent)
     eps = 1e-4
     finite = central_difference(energies, V, tangent, eps)
+    # Central differences of step 1e-4: O(eps^2) ~1e-8 relative truncation; check_grads' float64 tolerance.
     np.testing.assert_allclose(forward, finite, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(jnp.vdot(reverse, tangent), jnp.vdot(cotangent, finite), rtol=1e-5, atol=1e-5)
 
@@ -281,8 +283,8 @@ def test_hessian_vector_products_in_the_unknowns(case):
 
 
 @pytest.mark.slow
-def test_jit_and_vmap_equal_eager():
-    case = Case(icosphere(1))
+def test_jit_and_vmap_equal_eager(icosphere1):
+    case = Case(icosphere1)
     mesh = case.mesh
     phi, rho, X = (jnp.asarray(a) for a in (case.phi, case.rho, case.field))
 
@@ -342,8 +344,8 @@ def test_degenerate_faces_give_finite_values_and_gradients():
         assert np.all(np.isfinite(jacobian))
 
 
-def test_bad_input(without_type_checker):
-    mesh = icosphere(0)
+def test_bad_input(without_type_checker, icosphere0):
+    mesh = icosphere0
     nv, nf = mesh.n_vertices, mesh.n_faces
     phi = jnp.zeros(nv)
     with pytest.raises(DDGInputError, match=r"phi: expected shape \(12,\) or \(12, k\), got \(11,\)"):

@@ -38,10 +38,10 @@ def test_plot_flow_overlays_snapshots_and_the_centroid_path(axes):
     lines = axes.get_lines()
     # start, three later snapshots, final vertices, centroid path, its two ends
     assert len(lines) == 1 + 3 + 1 + 1 + 2
-    np.testing.assert_allclose(lines[0].get_xydata(), polyline(result.points[0]))
-    np.testing.assert_allclose(lines[3].get_xydata(), polyline(result.points[-1]))
+    np.testing.assert_allclose(lines[0].get_xydata(), polyline(result.points[0]), rtol=1e-15)
+    np.testing.assert_allclose(lines[3].get_xydata(), polyline(result.points[-1]), rtol=1e-15)
     assert not np.allclose(lines[1].get_color(), lines[3].get_color())  # early snapshots lighter than the last
-    np.testing.assert_allclose(lines[5].get_xydata(), np.asarray(result.centroid))
+    np.testing.assert_allclose(lines[5].get_xydata(), np.asarray(result.centroid), rtol=1e-15)
     assert axes.get_aspect() == 1.0
 
 
@@ -52,12 +52,12 @@ def test_plot_curve_refuses_points_with_what_to_call(axes, without_type_checker)
         plot_curve(axes, np.zeros((4, 2)))
 
 
-def test_plot_direction_field_draws_the_front_strokes_in_the_mesh_view(axes):
+def test_plot_direction_field_draws_the_front_strokes_in_the_mesh_view(axes, icosphere2):
     from ddgjax import DDGInputError
-    from ddgjax.mesh import grid, icosphere
+    from ddgjax.mesh import grid
     from ddgjax.plot import TOP_VIEW, plot_direction_field
 
-    sphere = icosphere(2)
+    sphere = icosphere2
     normals = np.asarray(sphere.vertices)  # the unit sphere's normals: tangent strokes along z x p
     tangents = np.cross([0.0, 0.0, 1.0], normals) + 1e-3
     strokes = plot_direction_field(axes, sphere, np.stack([tangents, -tangents], axis=1), view=TOP_VIEW)

@@ -26,6 +26,7 @@ def test_auto_takes_cholmod_where_installed_else_superlu_then_pyamg_by_size(monk
     monkeypatch.setattr(_linear, "SUPERLU_LIMIT", MESH.n_vertices - 1)  # this system counts as large
     large = linear_solve(A, B)
     assert large.solver == "pyamg" and int(large.num_steps) > 0
+    # pyamg's CG stops at linear_solve's default relative residual 1e-10, times A's condition number.
     for solution in (small, large):
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
@@ -38,6 +39,7 @@ def test_one_solve_above_the_iterative_limit_takes_pyamg_and_a_kept_factorisatio
     monkeypatch.setattr(_linear, "ITERATIVE_LIMIT", MESH.n_vertices - 1)  # this system counts as large
     one = linear_solve(A, B, rtol=1e-12)
     assert one.solver == "pyamg" and int(one.num_steps) > 0
+    # CG to a relative residual of 1e-12 (rtol above) times A's condition number; SuperLU's round-off.
     np.testing.assert_allclose(one.value, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
     kept = _linear.factorize(A)
     assert kept.solver == direct
@@ -84,4 +86,5 @@ def test_auto_on_an_accelerator_is_cg_with_amg_outside_a_trace_and_jacobi_inside
     for solve in (linear_solve, jax.jit(linear_solve)):
         solution = solve(A, B)
         assert solution.solver == "cg" and int(solution.num_steps) > 0
+        # CG stops at linear_solve's default relative residual 1e-10, times A's condition number.
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())

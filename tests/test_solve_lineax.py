@@ -82,7 +82,7 @@ def test_newton_on_a_quadratic_energy_is_the_direct_solve(method):
     (_, jitted), grad = jax.jit(jax.value_and_grad(loss, has_aux=True))(RHO)
     np.testing.assert_allclose(jitted, direct, rtol=0, atol=1e-10 * np.abs(direct).max())
     expected = jax.grad(lambda rho: jnp.sum(linear_solve(L + screening * M, M @ rho).value ** 2))(RHO)
-    np.testing.assert_allclose(grad, expected, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(grad, expected, rtol=1e-10, atol=1e-12)  # measured 4e-15 (either backend)
 
 
 @pytest.mark.slow
