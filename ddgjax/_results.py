@@ -46,9 +46,10 @@ class RESULTS(eqx.Enumeration):
     )
     max_steps_reached = (
         "The iteration did not reach its tolerance within `max_steps` iterations (an iterative linear "
-        "solve's, or the function's own loop: ARAP's local-global steps, ICP's refinements). Raise "
-        '`max_steps` or loosen `rtol`; for a linear solve, a direct backend (`solver="cholesky"`) '
-        "avoids the iteration. Pass `throw=False` to inspect the result."
+        "solve's, or the function's own loop: ARAP's local-global steps, ICP's refinements, the "
+        "Newton solve of an implicit time step). Raise `max_steps` or loosen `rtol`; for a linear solve, "
+        'a direct backend (`solver="cholesky"`) avoids the iteration; for a time step that does not '
+        "converge (`euler_flow`), a smaller `tau`. Pass `throw=False` to inspect the result."
     )
     singular = (
         "The solution does not solve the system to `residual_tolerance`: the matrix is singular (a "

@@ -276,6 +276,7 @@ TERMS: tuple[Term, ...] = (
         "`max_steps=`, `rtol=`",
         "an integer; a relative tolerance (each function says of what)",
         '`linear_solve`, `factorize` (`"cg"`, `"pyamg"`), `arap`, `functional_map` (`"cg"`), `icp_refine`, '
+        "`euler_flow` (Newton steps per time step), "
         "`geodesic_centroid` (`max_steps=` only: its walk over vertices ends exactly)",
         synonyms=("max_iter", "maxiter", "max_iters", "max_iterations", "tol", "tolerance", "rel_tol"),
     ),

@@ -97,7 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=0.0,
         help="how far the top handles move sideways, along the axis after --up (z -> x, x -> y, y -> z; default 0)",
     )
-    parser.add_argument("--steps", type=int, default=1000, help="the most ARAP local-global steps (default 1000)")
+    parser.add_argument("--steps", type=int, default=5000, help="the most ARAP local-global steps (default 5000, arap's)")
     parser.add_argument("--output", default="deform.png", help="figure file (default deform.png)")
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
     parser.set_defaults(run=run)

@@ -174,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         rows.append(("haurwitz", _haurwitz_rate(flow, mesh, basis, args) if succeeded else "not measured (the flow failed)"))
     rows += [
         ("time", f"{elapsed:.3g} s (basis, flow, compilation included)"),
-        ("result", "successful" if succeeded else f"failure: non-finite state at step {int(flow.first_failure_step)}"),
+        ("result", "successful" if succeeded else f"failure at step {int(flow.first_failure_step)}: {_failure(flow)}"),
     ]
     print("\n".join(f"{key:10s} {value}" for key, value in rows))
     if not _draw_all(flow, mesh, name, args):
@@ -288,6 +288,13 @@ def _dye(mesh: Mesh, pattern: str) -> np.ndarray:
         return np.sin(5 * np.arcsin(np.clip(z, -1.0, 1.0)))
     checker = (4 * x**3 * y - 4 * x * y**3) * z  # Im((x + i y)^4) z
     return checker / np.abs(checker).max()
+
+
+def _failure(flow) -> str:
+    """A failed flow's outcome in words."""
+    if flow.result == RESULTS.max_steps_reached:
+        return "a time step's Newton solve did not converge (try a smaller --tau)"
+    return "non-finite state"
 
 
 def _draw_all(flow, mesh: Mesh, name: str, args) -> bool:

@@ -62,8 +62,20 @@ in `max_steps` (`max_steps_reached`). A failed factorisation's solves are NaN. W
 (default) a failure raises through `equinox.error_if` with the item's message, as everywhere in
 ddgjax: `equinox.EquinoxRuntimeError` eagerly and under `equinox.filter_jit`, a
 `jax.errors.JaxRuntimeError` with the same message under a plain `jax.jit` (both `RuntimeError`s);
-with `throw=False` the caller inspects `result`. The backends that do not need definiteness
-(SuperLU, CG, pyamg) solve a nonsingular indefinite system and report success.
+with `throw=False` the caller inspects `result`.
+
+Which symmetric systems each backend accepts (measured in tests/test_solve_backends.py):
+
+| system                            | `"cholesky"`            | `"superlu"` | `"cg"`, `"pyamg"`                         |
+|-----------------------------------|-------------------------|-------------|-------------------------------------------|
+| positive definite                 | solved                  | solved      | solved                                    |
+| nonsingular indefinite / negative | `not_positive_definite` | solved      | solved here, not assured                  |
+| singular (a closed surface's `L`) | `singular`              | `singular`  | `singular` or `max_steps_reached`         |
+
+Only CHOLMOD checks definiteness; SuperLU factors any nonsingular matrix; CG and pyamg's
+preconditioned CG are only proven for positive definite matrices (on an indefinite one they may
+converge, as they do on a shifted Laplacian, or stall into `max_steps_reached`). The flag a
+`SparseMatrix` carries (`positive_semidefinite`) is a promise for `"auto"`'s choice, not checked.
 
 Precision: a float32 system (JAX's default while `jax_enable_x64` is off) carries round-off of
 ~1e-7 relative, enough for a well-posed mesh system to miss `residual_tolerance` or to look
@@ -188,7 +200,8 @@ def linear_solve(
             definite by the caller's promise.
         b: `(n,)` or `(n, k)` right-hand side(s), real or complex.
         solver: the backend, one of `ddgjax.LINEAR_SOLVERS`: `"cholesky"`, `"superlu"`, `"cg"`,
-            `"pyamg"` or `"auto"` (default; module docstring).
+            `"pyamg"` or `"auto"` (default; module docstring, with the table of which systems each
+            accepts: an indefinite `A` fails on `"cholesky"` only).
         preconditioner: for `"cg"`: `"jacobi"` (default), `"amg"` (a smoothed-aggregation hierarchy
             built on the host from `A`'s concrete values) or an `AMGHierarchy` from `amg_hierarchy`
             (built once outside `jit`, passed in; for a complex `A`, of its real form above). Giving
