@@ -92,3 +92,16 @@ def test_zero_weights_eagerly_give_zero_on_the_cut_piece(weights):
     )
     expected = [2.0, 2.0, 0.0, 0.0] if weights[0] else [2.0, 0.0, 0.0, 0.0]
     np.testing.assert_array_equal(np.asarray(f), expected)
+
+
+def test_spectral_layout_counts_components_of_positive_weight():
+    """A graph held together only by zero-weight edges is disconnected for the layout too: refused by name, as a
+    graph of several components is (it used to fail inside the eigensolver with a message about meshes)."""
+    from ddgjax import DDGInputError
+    from ddgjax.graph import spectral_layout
+
+    edges = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [0, 2]])
+    with pytest.raises(DDGInputError, match="2 connected components .counting only edges of positive weight"):
+        spectral_layout(edges, n_vertices=4, edge_weights=np.array([1.0, 0.0, 1.0, 0.0, 0.0]))
+    layout = spectral_layout(edges, n_vertices=4, edge_weights=np.array([1.0, 1.0, 0.0, 1.0, 1.0]))
+    assert np.isfinite(np.asarray(layout)).all()

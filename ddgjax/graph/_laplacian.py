@@ -126,6 +126,24 @@ def _structure(edge_bytes: bytes, ne: int, n_vertices: int) -> GraphStructure:
     return GraphStructure(pairs, pair_of_edge.reshape(-1), n_vertices)
 
 
+def weighted_components(structure: GraphStructure, edge_weights) -> tuple[int, np.ndarray, bytes]:
+    """`(n_components, labels, key)` of the graph whose edges have positive weight: an edge of weight 0 joins
+    nothing, so a piece it alone connects to a fixed vertex is a component of its own (and gets 0, as a
+    piece with no edges does). The edges' components (`key` empty) where every weight is positive, and
+    for traced weights (no host values: a cut there leaves the system singular, a failed outcome)."""
+    if is_traced(edge_weights):
+        return structure.n_components, structure.labels, b""
+    pair_weights = np.bincount(np.asarray(structure.plan.pair_of_edge), np.asarray(edge_weights), structure.pairs.shape[0])
+    cut = pair_weights <= 0
+    if not cut.any():
+        return structure.n_components, structure.labels, b""
+    kept = structure.pairs[~cut]
+    n = structure.n_vertices
+    adjacency = sp.coo_matrix((np.ones(kept.shape[0]), (kept[:, 0], kept[:, 1])), shape=(n, n))
+    n_components, labels = csgraph.connected_components(adjacency, directed=False)
+    return n_components, labels, np.packbits(cut).tobytes()
+
+
 def check_weights(edge_weights, n_edges: int) -> Float[Array, " ne"]:
     """`edge_weights` as a floating JAX array of shape `(ne,)` (ones when `None`); concrete ones checked `>= 0` and finite."""
     if edge_weights is None:

@@ -30,7 +30,7 @@ from .._errors import DDGInputError, check_count, check_vertex_indices, first_in
 from .._results import Solution, outcome
 from ..sparse import diagonal_matrix
 from ..spectral import smallest_eigenpairs
-from ._laplacian import check_weights, graph_structure, laplacian_from_plan
+from ._laplacian import check_weights, graph_structure, laplacian_from_plan, weighted_components
 from ._learning import harmonic_interpolation
 
 
@@ -73,9 +73,11 @@ def spectral_layout(
         raise DDGInputError(
             f"n_vertices: a {dim}-d spectral layout needs at least dim + 2 = {dim + 2} vertices, got {n_vertices}"
         )
-    if structure.n_components > 1:
+    n_components, _, cut = weighted_components(structure, edge_weights)
+    if n_components > 1:
+        joined = " (counting only edges of positive weight: an edge of weight 0 joins nothing)" if cut else ""
         raise DDGInputError(
-            f"edges: the graph has {structure.n_components} connected components; a spectral layout needs a connected "
+            f"edges: the graph has {n_components} connected components{joined}; a spectral layout needs a connected "
             "graph (lay out each component apart)"
         )
     laplacian = laplacian_from_plan(edge_weights, structure.plan)

@@ -29,9 +29,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
-from scipy.sparse import csgraph
 
 from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_vertex_indices, is_traced
@@ -39,7 +37,7 @@ from .._options import check_solver
 from .._results import RESULTS, Solution, outcome
 from ..solve import linear_solve
 from ..sparse import DirichletPlan, NonNegative, dirichlet_blocks, dirichlet_plan, nonnegative
-from ._laplacian import GraphPlan, GraphStructure, check_weights, graph_structure, laplacian_from_plan
+from ._laplacian import GraphPlan, GraphStructure, check_weights, graph_structure, laplacian_from_plan, weighted_components
 
 # Dirichlet plans kept per edge list (one per fixed vertex set): re-solving with new values or edge weights skips them.
 _PLANS_KEPT = 8
@@ -89,7 +87,7 @@ def harmonic_interpolation(
         )
     if not jnp.issubdtype(values.dtype, jnp.floating):
         values = device_array(fixed_values, edge_weights.dtype)  # host data converted on the host
-    plan, n_pinned = _dirichlet(structure, fixed, _weighted_components(structure, edge_weights))
+    plan, n_pinned = _dirichlet(structure, fixed, weighted_components(structure, edge_weights))
     if plan is None:  # every vertex fixed: nothing to solve
         f = jnp.zeros((structure.n_vertices,) + values.shape[1:], values.dtype).at[fixed].set(values)
         return outcome(f, RESULTS.successful, throw, _no_solve_stats(values.dtype))
@@ -197,29 +195,11 @@ def _tikhonov_system(edge_weights, signal, alpha, graph: GraphPlan, *, checked: 
     return system, signal.astype(system.dtype)
 
 
-def _weighted_components(structure: GraphStructure, edge_weights) -> tuple[int, np.ndarray, bytes]:
-    """`(n_components, labels, key)` of the graph whose edges have positive weight: an edge of weight 0 joins
-    nothing, so a piece it alone connects to a fixed vertex is a component of its own (and gets 0, as a
-    piece with no edges does). The edges' components (`key` empty) where every weight is positive, and
-    for traced weights (no host values: a cut there leaves the system singular, a failed outcome)."""
-    if is_traced(edge_weights):
-        return structure.n_components, structure.labels, b""
-    pair_weights = np.bincount(np.asarray(structure.plan.pair_of_edge), np.asarray(edge_weights), structure.pairs.shape[0])
-    cut = pair_weights <= 0
-    if not cut.any():
-        return structure.n_components, structure.labels, b""
-    kept = structure.pairs[~cut]
-    n = structure.n_vertices
-    adjacency = sp.coo_matrix((np.ones(kept.shape[0]), (kept[:, 0], kept[:, 1])), shape=(n, n))
-    n_components, labels = csgraph.connected_components(adjacency, directed=False)
-    return n_components, labels, np.packbits(cut).tobytes()
-
-
 def _dirichlet(
     structure: GraphStructure, fixed: np.ndarray, components: tuple[int, np.ndarray, bytes]
 ) -> tuple[DirichletPlan | None, int]:
     """`(plan, n_pinned)`: the Dirichlet plan of `[fixed | one pinned vertex per unlabelled component]` (cached
-    per fixed set and set of cut edges), the components `(n_components, labels, key)` of `_weighted_components`."""
+    per fixed set and set of cut edges), the components `(n_components, labels, key)` of `weighted_components`."""
     n_components, labels, cut_key = components
     key = (fixed.tobytes(), cut_key)
     if key in structure.dirichlet:
