@@ -42,7 +42,8 @@ from .._compile import kernel
 from .._errors import check_choice
 from .._indexing import take_rows
 from .._numerics import safe_div, safe_normalize
-from ..mesh import Mesh, corner_angles, scatter_corners_to_vertices, vertex_normals
+from ..mesh import Mesh, corner_angles, face_area_vectors, scatter_corners_to_vertices
+from ..mesh.internal import nondegenerate_face_mask
 from ._plan import FieldPlan, field_plan
 
 BOUNDARY_SCALINGS = ("geodesic", "unscaled")
@@ -216,7 +217,11 @@ class TangentBases(NamedTuple):
 
 @kernel
 def planned_tangent_bases(mesh: Mesh, plan: FieldPlan) -> TangentBases:
-    normals = vertex_normals(mesh, weighting="angle")
+    area_vectors = face_area_vectors(mesh)
+    # A face of (near-)zero area has no normal: left out (`nondegenerate_face_mask`), so a flat cap's angle
+    # of pi at its middle vertex cannot turn that vertex's normal.
+    weights = jnp.where(nondegenerate_face_mask(mesh)[:, None], corner_angles(mesh), 0.0)
+    normals = safe_normalize(scatter_corners_to_vertices(mesh, weights[:, :, None] * safe_normalize(area_vectors)[:, None, :]))
     edges = take_rows(mesh.vertices, plan.reference_neighbor) - mesh.vertices
     e1 = safe_normalize(edges - jnp.sum(edges * normals, axis=-1, keepdims=True) * normals)
     return TangentBases(e1, jnp.cross(normals, e1), normals)
@@ -225,7 +230,8 @@ def planned_tangent_bases(mesh: Mesh, plan: FieldPlan) -> TangentBases:
 def tangent_bases(mesh: Mesh) -> TangentBases:
     """Per-vertex orthonormal frames `TangentBases(e1, e2, normal)`, each `(nv, 3)`, matching the polar coordinates.
 
-    `normal` is the angle-weighted vertex normal (`vertex_normals(mesh, weighting="angle")`), `e1` the
+    `normal` is the angle-weighted vertex normal (`vertex_normals(mesh, weighting="angle")`, leaving out
+    faces of zero or near-zero area, whose normal is undefined: `ddgjax.mesh.check_mesh`), `e1` the
     vertex's reference outgoing edge (polar angle 0) projected to the tangent plane and normalised,
     `e2 = normal x e1`, so that a tangent vector `z` at the vertex is the 3D vector
     `Re(z) e1 + Im(z) e2` and positive angles turn counterclockwise seen from the normal. The

@@ -78,6 +78,7 @@ from ..mesh import (
     require_mesh,
     scatter_corners_to_vertices,
 )
+from ..mesh.internal import nondegenerate_face_mask
 from ..solve import Factorization, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
 from ..sparse import SparseMatrix
@@ -270,7 +271,9 @@ def _heat_system(mesh: Mesh, L, M, edge_slots, field: FieldPlan, vertex: Triangu
     # With `robust=`, the intrinsic Delaunay weights of the mesh's edges (module docstring).
     weights = None if edge_slots is None else -take_rows_or_zero(L.values, edge_slots)
     A = planned_connection_laplacian(mesh, field, vertex, 1.0, boundary_scaling="unscaled", edge_weights=weights)
-    return t, M + t * A, face_areas(mesh)[:, None, None] * face_hat_gradients(mesh)
+    # A face of (near-)zero area has no plane for the field to lie in: it is left out of the divergence.
+    area_gradients = face_areas(mesh)[:, None, None] * face_hat_gradients(mesh)
+    return t, M + t * A, jnp.where(nondegenerate_face_mask(mesh)[:, None, None], area_gradients, 0.0)
 
 
 def _heat_factor(mesh: Mesh, L, M, edge_slots, field: FieldPlan, vertex: TriangulationPlan, t_coef, solver: str):

@@ -249,3 +249,21 @@ def _duplicate_faces(faces: np.ndarray) -> np.ndarray:
 
 def _yes_no(flag: bool) -> str:
     return "yes" if flag else "no"
+
+
+def nondegenerate_face_mask(mesh: Mesh):
+    """`(nf,)` bool, in JAX (traced positions too): faces whose area exceeds `default_area_tol * l_max^2`.
+
+    What a computation that needs a face's normal or its plane uses to leave out the faces that have
+    none (a flat cap's normal is any direction across its line, and turns arbitrarily fast as it moves).
+    The test is a threshold, held out of differentiation (`stop_gradient`): the derivative is the one
+    of the configuration with those faces left out.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    from ._geometry import face_area_vectors, face_edge_lengths_sq
+
+    areas = jnp.linalg.norm(face_area_vectors(mesh), axis=-1)
+    longest_sq = jnp.max(face_edge_lengths_sq(mesh), axis=1)
+    return jax.lax.stop_gradient(areas > default_area_tol(areas.dtype) * longest_sq)

@@ -5,6 +5,7 @@ As `lineax.internal`: plain re-exports, visible to import graphs and type checke
 
 from ._check import default_area_tol as default_area_tol
 from ._check import degenerate_faces as degenerate_faces
+from ._check import nondegenerate_face_mask as nondegenerate_face_mask
 from ._check import require_nondegenerate as require_nondegenerate
 from ._geometry import face_geometry_from_corners as face_geometry_from_corners
 from ._mesh import as_float_vertices as as_float_vertices
