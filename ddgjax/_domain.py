@@ -10,7 +10,10 @@ host-side topology, after the checks an operation declares).
 
 from __future__ import annotations
 
-from typing import ClassVar, TypeVar
+import threading
+import weakref
+from collections.abc import Callable
+from typing import Any, ClassVar, TypeVar
 
 import equinox as eqx
 
@@ -20,6 +23,11 @@ _DomainT = TypeVar("_DomainT", bound="Domain")
 
 #: The domain class each kernel first-parameter name stands for, filled as subclasses are defined.
 _BY_PARAMETER: dict[str, type[Domain]] = {}
+
+#: Host facts measured once per domain object (`Domain.host_fact`), keyed by the object's id and the fact's
+#: name; an entry leaves with its object (`weakref.finalize`).
+_HOST_FACTS: dict[tuple[int, str], Any] = {}
+_HOST_FACTS_LOCK = threading.Lock()
 
 
 class Domain(eqx.Module):
@@ -52,12 +60,35 @@ class Domain(eqx.Module):
         given = f"an array of shape {tuple(shape)}" if shape is not None else f"a {type(value).__name__}"
         raise DDGInputError(f"{name}: expected a ddgjax {cls.__name__}, got {given}; {cls.how_to_build(value)}")
 
+    def host_fact(self, name: str, measure: Callable[[], Any]) -> Any:
+        """`measure()`, computed once per domain object and kept beside it (its degenerate cells, measured on
+        the host at its positions: a domain's arrays never change, `with_vertices` makes a new object).
+
+        Kept outside the object: equinox flattens an instance's extra attributes into its pytree structure,
+        so a fact stored on the object would change its treedef and make every `jit` taking it retrace.
+        """
+        key = (id(self), name)
+        with _HOST_FACTS_LOCK:
+            if key in _HOST_FACTS:
+                return _HOST_FACTS[key]
+        value = measure()
+        with _HOST_FACTS_LOCK:
+            if key not in _HOST_FACTS:
+                _HOST_FACTS[key] = value
+                weakref.finalize(self, _forget, key)
+            return _HOST_FACTS[key]
+
     def for_kernel(self: _DomainT, operation: str | None) -> _DomainT:
         """What a compiled kernel traces: the arrays without host-only data, after the checks `operation` needs.
 
         `operation` names an operation that needs a consistently oriented domain (for the error), or is None.
         """
         return self
+
+
+def _forget(key: tuple[int, str]) -> None:
+    with _HOST_FACTS_LOCK:
+        _HOST_FACTS.pop(key, None)
 
 
 def domain_for_parameter(name: str | None) -> type[Domain] | None:

@@ -54,3 +54,27 @@ def test_nan_positions_set_past_the_checks_are_named(kind, icosphere2):
     ):
         with pytest.raises(MeshDataError, match=r"1 of its \d+ vertices have NaN or inf coordinates \(vertices \[3\]"):
             run()
+
+
+def test_host_checks_leave_the_pytree_structure_alone(icosphere2):
+    """The facts measured on the host once per mesh (degenerate faces, unusable tets) are kept beside the object,
+    not on it: equinox flattens extra attributes into the treedef, so a mesh that had been checked used to make a
+    user's `jit` compile a second program for the same connectivity."""
+    import jax
+
+    from ddgjax.mesh import check_mesh
+    from ddgjax.pde import dirichlet_energy
+
+    mesh = Mesh.from_arrays(np.asarray(icosphere2.vertices), np.asarray(icosphere2.faces))
+    structure = jax.tree_util.tree_structure(mesh)
+    check_mesh(mesh)
+    heat_distance(mesh, [0])
+    assert jax.tree_util.tree_structure(mesh) == structure
+    energy = jax.jit(lambda m: dirichlet_energy(m, m.vertices))
+    energy(mesh)
+    energy(Mesh.from_arrays(2 * np.asarray(mesh.vertices), np.asarray(mesh.faces)))
+    assert energy._cache_size() == 1
+    solid = tet_ball(2)
+    solid_structure = jax.tree_util.tree_structure(solid)
+    solve_poisson(solid, np.ones(solid.n_vertices))
+    assert jax.tree_util.tree_structure(solid) == solid_structure

@@ -195,12 +195,11 @@ def degenerate_faces(mesh: Mesh) -> np.ndarray | None:
     mesh = require_mesh("mesh", mesh)
     if is_traced(mesh.vertices):
         return None
-    found = mesh.__dict__.get(_DEGENERATE_FACES)
-    if found is None:
-        faces = mesh.topology.faces if mesh.topology is not None else np.asarray(mesh.faces)
-        found = _zero_area_faces(np.asarray(mesh.vertices, dtype=np.float64), faces, default_area_tol(mesh.vertices.dtype))
-        object.__setattr__(mesh, _DEGENERATE_FACES, found)  # a cache beside the pytree's fields, not one of them
-    return found
+    faces = mesh.topology.faces if mesh.topology is not None else np.asarray(mesh.faces)
+    return mesh.host_fact(
+        "degenerate_faces",
+        lambda: _zero_area_faces(np.asarray(mesh.vertices, dtype=np.float64), faces, default_area_tol(mesh.vertices.dtype)),
+    )
 
 
 def require_nondegenerate(mesh: Mesh) -> None:
@@ -223,7 +222,6 @@ def require_nondegenerate(mesh: Mesh) -> None:
 
 
 # The attribute a `Mesh` object keeps `degenerate_faces` in (not a pytree field: lost when JAX rebuilds it).
-_DEGENERATE_FACES = "_degenerate_faces"
 
 
 def _zero_area_faces(vertices: np.ndarray, faces: np.ndarray, area_tol: float) -> np.ndarray:

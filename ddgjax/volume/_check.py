@@ -217,15 +217,15 @@ def require_tet_problem(tet_mesh: TetMesh, robust: object) -> None:
         )
     if is_traced(tet_mesh.vertices) or tet_mesh.topology is None:
         return
-    found = tet_mesh.__dict__.get("_unusable_tets")
-    if found is None:
+
+    def measure():
         signed, longest, _ = _unit_signed_volumes_and_longest_edges(
             np.asarray(tet_mesh.vertices, dtype=np.float64), tet_mesh.topology.tets
         )
         flat = np.abs(signed) <= default_volume_tol(tet_mesh.vertices.dtype) * longest**3
-        found = (np.flatnonzero(flat), np.flatnonzero(~flat & (signed < 0)))
-        object.__setattr__(tet_mesh, "_unusable_tets", found)  # a cache beside the pytree's fields
-    degenerate, inverted = found
+        return np.flatnonzero(flat), np.flatnonzero(~flat & (signed < 0))
+
+    degenerate, inverted = tet_mesh.host_fact("unusable_tets", measure)
     if degenerate.size:
         raise MeshDataError(
             f"tet_mesh: tets {_first(degenerate)} have zero or near-zero volume (|volume| <= "
