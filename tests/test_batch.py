@@ -156,9 +156,9 @@ def test_operators_work_inside_a_callers_jit_and_vmap(batch, values):
     np.testing.assert_allclose(twice[1], 2 * eager, rtol=0, atol=1e-12)
 
 
-def test_one_program_per_bucket(meshes):
+def test_one_program_per_bucket(meshes, icosphere1):
     first = db.MeshBatch.from_meshes(meshes)
-    second = db.MeshBatch.from_meshes([_jittered(m, 10 + i) for i, m in enumerate(MESHES[::-1])][:3] + [dm.icosphere(1)])
+    second = db.MeshBatch.from_meshes([_jittered(m, 10 + i) for i, m in enumerate(MESHES[::-1])][:3] + [icosphere1])
     assert jax.tree_util.tree_structure(first) == jax.tree_util.tree_structure(second)
     kernel = db._operators._laplacian
     before = kernel._cache_size()

@@ -7,7 +7,6 @@ import pytest
 
 from ddgjax._cli.param import hemisphere
 from ddgjax.io import save_mesh
-from ddgjax.mesh import icosphere
 from ddgjax.param import boundary_first_flattening, map_distortion
 
 from conftest import run_cli
@@ -32,14 +31,14 @@ def test_param_on_the_built_in_hemisphere_writes_a_figure(tmp_path):
 
 
 @pytest.mark.slow
-def test_param_of_a_mesh_file_by_lscm_and_bad_input(tmp_path):
+def test_param_of_a_mesh_file_by_lscm_and_bad_input(tmp_path, icosphere1):
     path = tmp_path / "patch.obj"
     save_mesh(path, hemisphere(6))
     status, out, err = run_cli(["param", str(path), "--method", "lscm", "--no-plot"])
     assert status == 0, err
     assert "least squares conformal map" in _row(out, "method") and _row(out, "flipped") == "0 faces"
     closed = tmp_path / "sphere.obj"
-    save_mesh(closed, icosphere(1))
+    save_mesh(closed, icosphere1)
     status, _, err = run_cli(["param", str(closed), "--no-plot"])
     assert status == 2 and "needs a topological disk" in err and "no boundary" in err
     status, _, err = run_cli(["param", "--checks", "0", "--no-plot"])

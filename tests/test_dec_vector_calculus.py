@@ -240,11 +240,10 @@ def test_degenerate_faces_and_derivatives():
     np.testing.assert_allclose(batched[1], 0.5 * batched[0], rtol=1e-14)
 
 
-def test_gradient_matrix_is_libigls_grad_eagerly_and_under_jit_one_program_per_size():
+def test_gradient_matrix_is_libigls_grad_eagerly_and_under_jit_one_program_per_size(icosphere2):
     from ddgjax.dec._gradient_matrix import _gradient_values
-    from ddgjax.mesh import icosphere
 
-    mesh = icosphere(2)
+    mesh = icosphere2
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     nf = mesh.n_faces
     # igl.grad stacks all x rows, then y, then z: our row 3 f + c is its row c nf + f.

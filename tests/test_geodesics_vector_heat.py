@@ -14,7 +14,7 @@ from ddgjax import RESULTS, DDGInputError
 from ddgjax.fields import tangent_bases
 from ddgjax.geodesics import geodesic_centroid, log_map, parallel_transport, vector_heat_solver
 from ddgjax.io import load_mesh
-from ddgjax.mesh import Mesh, icosphere
+from ddgjax.mesh import Mesh
 
 from conftest import data_path
 from finite_differences import central_difference
@@ -34,9 +34,8 @@ def _sphere_closed_forms(V, source):
 
 
 @pytest.fixture(scope="module")
-def sphere():
-    mesh = icosphere(4)
-    return mesh, vector_heat_solver(mesh)
+def sphere(icosphere4):
+    return icosphere4, vector_heat_solver(icosphere4)
 
 
 @pytest.mark.slow
@@ -55,6 +54,8 @@ def test_log_map_on_the_sphere_is_arc_length_along_the_tangent_direction(sphere)
     world = log[:, :1] * e1[source] + log[:, 1:] * e2[source]
     angle = np.arccos(np.clip(np.sum(world / norm[:, None].clip(1e-300) * towards, axis=1), -1.0, 1.0))
     assert angle[away].max() < 0.006 and angle[away].mean() < 0.0015
+    # The distance is shifted to 0 at the source where the source is its minimum (measured: exactly 0), else
+    # to its minimum: then the source keeps the heat method's O(h) error (mean edge 0.075 on level 4).
     assert np.linalg.norm(log[source]) < 0.02
 
 
@@ -111,8 +112,8 @@ def test_matches_potpourri3d_on_spot():
 
 
 @pytest.mark.slow
-def test_several_sources_match_potpourri3d_and_keep_the_nearest_sources_magnitude():
-    mesh = icosphere(3)
+def test_several_sources_match_potpourri3d_and_keep_the_nearest_sources_magnitude(icosphere3):
+    mesh = icosphere3
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     north, south = int(np.argmax(V[:, 2])), int(np.argmin(V[:, 2]))
     theirs = pp3d.MeshVectorHeatSolver(V, F, use_intrinsic_delaunay=False)
@@ -124,7 +125,8 @@ def test_several_sources_match_potpourri3d_and_keep_the_nearest_sources_magnitud
     norm = np.linalg.norm(transported, axis=1)
     np.testing.assert_allclose(norm, np.linalg.norm(expected, axis=1), rtol=1e-10)  # measured 4e-15
     cosine = np.sum(transported * expected, axis=1) / norm / np.linalg.norm(expected, axis=1)
-    assert np.percentile(np.arccos(np.clip(cosine, -1.0, 1.0)), 95) < 0.03
+    # The same method; the frames and vertex normals differ slightly (as on spot): measured 2.6e-4 rad.
+    assert np.percentile(np.arccos(np.clip(cosine, -1.0, 1.0)), 95) < 1e-3
     # The diffused magnitudes over the diffused indicator: measured 0.08% (north) and 0.3% (south) off where |z| > 0.5.
     np.testing.assert_allclose(norm[V[:, 2] > 0.5], 2.0, rtol=0.005)
     np.testing.assert_allclose(norm[V[:, 2] < -0.5], 0.5, rtol=0.01)
@@ -133,8 +135,8 @@ def test_several_sources_match_potpourri3d_and_keep_the_nearest_sources_magnitud
 
 
 @pytest.mark.slow
-def test_queries_run_under_jit_with_a_traced_source_and_report_outcomes():
-    mesh = icosphere(2)
+def test_queries_run_under_jit_with_a_traced_source_and_report_outcomes(icosphere2):
+    mesh = icosphere2
     solver = vector_heat_solver(mesh)
     eager = solver.log_map(5)
     traced = jax.jit(lambda solver, source: solver.log_map(source))(solver, jnp.asarray(5))
@@ -142,14 +144,15 @@ def test_queries_run_under_jit_with_a_traced_source_and_report_outcomes():
     batched = jax.vmap(lambda source: solver.transport(source, jnp.array([1.0, 0.0, 0.0])))(jnp.arange(3))
     np.testing.assert_allclose(batched[2], solver.transport(2, [1.0, 0.0, 0.0]), rtol=0, atol=1e-12)
     solution = solver.log_map(5, throw=False)
+    # A CPU's "auto" solves are direct (measured 6e-15); on an accelerator CG stops at 1e-10 per component.
     assert solution.result == RESULTS.successful and float(solution.stats["residual"]) < 1e-8
 
 
 @pytest.mark.slow
-def test_gradient_in_the_vertex_positions_matches_finite_differences():
-    mesh = icosphere(2)
+def test_gradient_in_the_vertex_positions_matches_finite_differences(icosphere2):
+    mesh = icosphere2
     V0 = mesh.vertices * jnp.asarray([1.0, 1.3, 0.8])
-    distance = np.arccos(np.clip(np.asarray(icosphere(2).vertices) @ np.asarray(icosphere(2).vertices)[0], -1, 1))
+    distance = np.arccos(np.clip(np.asarray(mesh.vertices) @ np.asarray(mesh.vertices)[0], -1, 1))
     # Off the source (undefined direction) and far from the cut locus.
     mask = jnp.asarray((distance > 0.3) & (distance < 1.8), float)
     weights = jnp.asarray(np.random.default_rng(0).standard_normal((mesh.n_vertices, 2)))
@@ -164,14 +167,15 @@ def test_gradient_in_the_vertex_positions_matches_finite_differences():
     gradient = jax.grad(loss)(V0)
     assert np.all(np.isfinite(gradient))
     direction = np.random.default_rng(1).standard_normal(V0.shape)
-    eps = 1e-6
-    finite = central_difference(loss, V0, direction, eps)
+    finite = central_difference(loss, V0, direction, eps=1e-6)
+    # Step 1e-6: truncation and round-off ~1e-9 with a CPU's direct solves (measured 9e-10); on an accelerator
+    # the solves are CG's (relative residual 1e-10), whose error in the loss is divided by the step.
     np.testing.assert_allclose(jnp.vdot(gradient, direction), finite, rtol=1e-6)
 
 
 @pytest.mark.slow
-def test_centroid_of_two_points_on_the_sphere_is_the_arc_midpoint():
-    mesh = icosphere(3)
+def test_centroid_of_two_points_on_the_sphere_is_the_arc_midpoint(icosphere3):
+    mesh = icosphere3
     V = np.asarray(mesh.vertices)
     distance = np.arccos(np.clip(V @ V[0], -1.0, 1.0))
     b = int(np.argmin(np.abs(distance - 1.5)))
@@ -191,9 +195,9 @@ def test_centroid_of_two_points_on_the_sphere_is_the_arc_midpoint():
 
 
 @pytest.mark.slow
-def test_a_sliver_face_keeps_finite_values():
+def test_a_sliver_face_keeps_finite_values(icosphere2):
     """A nearly collapsed edge makes its two faces needles (area 1e-4 of their neighbours')."""
-    mesh = icosphere(2)
+    mesh = icosphere2
     V = np.array(mesh.vertices)
     F = np.asarray(mesh.faces)
     a, b, c = F[0]
@@ -206,11 +210,11 @@ def test_a_sliver_face_keeps_finite_values():
 
 
 @pytest.mark.slow
-def test_robust_handles_flat_caps_and_zero_area_faces():
+def test_robust_handles_flat_caps_and_zero_area_faces(icosphere3):
     """A vertex moved onto the midpoint of its opposite edge: a face of zero area with an angle of pi, whose
     cotan weight is unbounded. `robust=True` takes the intrinsic Delaunay weights (non-negative) into the
     connection Laplacian too: finite, and close to the transport on the unmoved mesh away from the cap."""
-    mesh = icosphere(3)
+    mesh = icosphere3
     V = np.array(mesh.vertices)
     F = np.asarray(mesh.faces)
     a, b, c = F[0]
@@ -227,8 +231,8 @@ def test_robust_handles_flat_caps_and_zero_area_faces():
     assert np.all(np.isfinite(np.asarray(vector_heat_solver(cap, robust=True).log_map(source))))
 
 
-def test_bad_input(without_type_checker):
-    mesh = icosphere(1)
+def test_bad_input(without_type_checker, icosphere1):
+    mesh = icosphere1
     cases = [
         (lambda: log_map(mesh, mesh.n_vertices), "source"),
         (lambda: log_map(mesh, -1), "source"),

@@ -283,6 +283,7 @@ def test_torus_obj_curvatures_against_analytic_and_libigl(real):
     ours = part["principal"]
     assert np.median(np.abs(ours[:, 0] - 1 / r)) < np.median(np.abs(igl_max - 1 / r))
     assert np.median(np.abs(ours[:, 1] - K * r)) < np.median(np.abs(igl_min - K * r))
+    # Two discretisations of k2 (libigl's fits a quadric per vertex): measured correlation 0.9993.
     assert np.corrcoef(ours[:, 1], igl_min)[0, 1] > 0.99
 
 
@@ -363,8 +364,9 @@ WEIGHTED_OUTPUTS = jax.jit(weighted_outputs)
 
 @pytest.mark.slow
 def test_gradients_match_finite_differences():
-    # Central differences in float64 with eps=1e-6: agreement to ~1e-6 is the expected accuracy.
-    check_grads(WEIGHTED_OUTPUTS, (SMALL.vertices,), order=1, modes=("rev",), eps=1e-6, atol=1e-6, rtol=1e-6)
+    # Central differences in float64 with eps=1e-6: truncation ~1e-12, round-off ~1e-16 |f| / eps ~1e-10
+    # relative (measured 1.4e-10).
+    check_grads(WEIGHTED_OUTPUTS, (SMALL.vertices,), order=1, modes=("rev",), eps=1e-6, atol=1e-8, rtol=1e-8)
 
 
 SMALL_BATCH = jnp.stack([SMALL.vertices, 2.0 * SMALL.vertices, SMALL.vertices[:, ::-1], DEGENERATE_VERTICES])

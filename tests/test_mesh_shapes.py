@@ -97,13 +97,13 @@ def test_areas_converge_at_second_order():
         assert 1.9 < rate < 2.1, (name, rate, errors)
 
 
-def test_icosphere_matches_trimesh_up_to_numbering():
+def test_icosphere_matches_trimesh_up_to_numbering(icosphere4):
     """Level 4 (5,120 faces): the same vertices (matched by position) and the same oriented faces as
     trimesh's icosphere. Speed (a vectorised subdivision) is measured in benchmarks/, not here."""
     import trimesh
     from scipy.spatial import cKDTree
 
-    mesh = icosphere(4)
+    mesh = icosphere4
     reference = trimesh.creation.icosphere(subdivisions=4)
     distance, match = cKDTree(reference.vertices).query(np.asarray(mesh.vertices))
     # trimesh's base icosahedron differs from ours by 3.3e-8 (measured at level 0); subdivision keeps it.

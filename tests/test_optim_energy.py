@@ -11,7 +11,7 @@ import scipy.sparse.linalg as spla
 from ddgjax import DDGInputError
 from ddgjax.dec import gradient as face_gradients
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
-from ddgjax.mesh import disk, face_areas, icosphere
+from ddgjax.mesh import disk, face_areas
 from ddgjax.optim import minimize_energy
 from ddgjax.pde import dirichlet_energy, screened_dirichlet_energy
 
@@ -47,8 +47,8 @@ def test_dirichlet_with_boundary_values_is_one_step_and_the_direct_answer():
 
 
 @pytest.mark.slow
-def test_screened_poisson_on_a_closed_surface_matches_spsolve():
-    sphere = icosphere(2)
+def test_screened_poisson_on_a_closed_surface_matches_spsolve(icosphere2):
+    sphere = icosphere2
     s = 3.0
     rho = jnp.asarray(np.random.default_rng(0).standard_normal(sphere.n_vertices))
     M = mass_matrix(sphere)

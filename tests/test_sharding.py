@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 from ddgjax import DDGInputError
-from ddgjax.mesh import icosphere
 from ddgjax.sharding import batch_sharding, partition_vertices, shard_batch, sharded_cg, sharded_laplacian_apply
 
 from conftest import REPO
@@ -96,14 +95,15 @@ def test_the_amg_preconditioned_partitioned_cg_converges_in_far_fewer_steps():
     report = _report()["amg"]
     assert len(report["levels"]) >= 2
     for name in ("jacobi", "amg", "hierarchy"):
-        # CG stops at a relative residual of 1e-10 whatever the preconditioner.
+        # CG stops at a relative residual of 1e-10 whatever the preconditioner; the solution's error is that
+        # times the condition number (~1e2), as in test_the_partitioned_cg_converges_to_scipy_spsolve.
         assert report[name]["residual"] < 1e-10
         assert report[name]["relative_difference"] < 1e-8
         assert report[name]["spec"] == VERTICES
         assert report[name]["shards"] == 8
     for name in ("amg", "hierarchy"):
         assert report[name]["num_steps"] <= report["jacobi"]["num_steps"] / 3
-    assert report["b_gradient"] < 1e-8
+    assert report["b_gradient"] < 1e-8  # the adjoint CG solve: the same 1e-10 times the condition number
     assert report["jit_argument_steps"] == report["amg"]["num_steps"]
 
 
@@ -121,8 +121,8 @@ def test_a_bad_amg_preconditioner_is_refused():
     assert errors["unknown"] is not None and "'ilu'" in errors["unknown"]
 
 
-def test_on_one_device_the_partition_is_the_whole_mesh():
-    mesh = icosphere(1)
+def test_on_one_device_the_partition_is_the_whole_mesh(icosphere1):
+    mesh = icosphere1
     partition = partition_vertices(mesh)
     assert partition.n_devices == 1 and partition.n_padded == mesh.n_vertices
     u = np.linspace(0.0, 1.0, mesh.n_vertices)
@@ -133,8 +133,8 @@ def test_on_one_device_the_partition_is_the_whole_mesh():
     assert sharded_cg(partition, partition.shard(u), shift=1.0, preconditioner="amg").num_steps <= 2
 
 
-def test_bad_input_is_refused(without_type_checker):
-    partition = partition_vertices(icosphere(1))
+def test_bad_input_is_refused(without_type_checker, icosphere1):
+    partition = partition_vertices(icosphere1)
     with pytest.raises(DDGInputError, match="partition_vertices"):
         sharded_laplacian_apply(np.zeros(42), np.zeros(42))
     with pytest.raises(DDGInputError, match=r"\(42,\)"):

@@ -15,7 +15,7 @@ import scipy.sparse.linalg as spla
 from ddgjax import DDGInputError
 from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
-from ddgjax.mesh import disk, icosphere
+from ddgjax.mesh import disk
 from ddgjax.solve import factorize, linear_solve
 from ddgjax.solve._amg import (
     amg_hierarchy,
@@ -43,11 +43,11 @@ def camelhead():
 
 
 @pytest.fixture(scope="module")
-def heat():
+def heat(icosphere3):
     """`(mesh, A, hierarchy)`: the heat operator of icosphere(3) with a long time step and its hierarchy
     with a small coarsest level, three levels (642, 42, 4), so the recursion is exercised; built once
     for the module, whose tests share its compiled programs (built for these level sizes)."""
-    mesh = icosphere(3)
+    mesh = icosphere3
     A = _heat_operator(mesh, scale=100.0)
     hierarchy = amg_hierarchy(A, max_coarse=30)
     assert len(hierarchy.sizes) >= 3
@@ -152,6 +152,7 @@ def test_amg_cg_matches_spsolve_on_heat_operator(heat):
     expected = spla.spsolve(A.to_scipy().tocsc(), np.asarray(b))
     assert _relative_residual(A, x, b) <= 1e-10
     assert num_steps <= 40  # measured: 22 (Jacobi-preconditioned CG: 64; on icosphere(4), 23 and 125)
+    # A relative residual of 1e-10 bounds the error by that times the condition number (~7e3 here).
     np.testing.assert_allclose(x, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
 
 
@@ -184,13 +185,14 @@ def test_refresh_reproduces_the_build_and_follows_new_values(heat, refreshable):
     A_new = _heat_operator(stretched, scale=100.0)
     x, refreshed = refresh_and_solve(hierarchy, A_new, b)
     expected = spla.spsolve(A_new.to_scipy().tocsc(), np.asarray(b))
+    # CG's relative residual of 1e-10 times the condition number (~2.5e3 here).
     np.testing.assert_allclose(x, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
     _assert_symmetric_positive_definite(_dense_preconditioner(refreshed))
 
 
-def test_semidefinite_laplacian_gets_a_semidefinite_preconditioner():
+def test_semidefinite_laplacian_gets_a_semidefinite_preconditioner(icosphere3):
     # The Laplacian of a closed surface is singular (constants); the coarsest level is pseudo-inverted.
-    L = cotan_laplacian(icosphere(3))
+    L = cotan_laplacian(icosphere3)
     B = _dense_preconditioner(amg_hierarchy(L, max_coarse=30))
     eigenvalues = np.linalg.eigvalsh((B + B.T) / 2)
     assert np.all(np.isfinite(B))
@@ -215,6 +217,7 @@ def test_linear_solve_with_amg_on_camelhead_in_jax_and_on_the_host(camelhead):
     # backend: pyamg's symmetric strength, 3-4x the iterations here for a 2-4x faster set-up)
     for solution, most_steps in ((solve(A, b, built), 40), (linear_solve(A, b, rtol=1e-10, solver="pyamg"), 90)):
         assert solution.residual <= 1e-10 and 0 < int(solution.num_steps) <= most_steps
+        # The relative residual of 1e-10 times the condition number (~1e4), as above.
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 
@@ -228,7 +231,7 @@ def test_float32_hierarchy_keeps_the_dtype(heat):
 
 
 @pytest.mark.usefixtures("without_type_checker")
-def test_bad_input(heat, refreshable):
+def test_bad_input(heat, refreshable, icosphere2):
     _, A, hierarchy = heat
     with pytest.raises(DDGInputError, match="SparseMatrix"):
         amg_hierarchy(A.to_scipy())
@@ -244,7 +247,7 @@ def test_bad_input(heat, refreshable):
         amg_refresh(hierarchy, A)
     with pytest.raises(DDGInputError, match="r: expected shape"):
         amg_v_cycle(hierarchy, jnp.ones(A.shape[0] + 1))
-    small = _heat_operator(icosphere(2))  # 162 unknowns
+    small = _heat_operator(icosphere2)  # 162 unknowns
     with pytest.raises(DDGInputError, match="pattern"):
         amg_refresh(refreshable, small)
     with pytest.raises(DDGInputError, match="preconditioner: 'amg' builds its hierarchy on the host"):
