@@ -22,7 +22,8 @@ from jaxtyping import Array, ArrayLike, Float
 from .._compile import kernel
 from .._errors import DDGInputError, is_traced
 from .._indexing import take_rows
-from ..laplacian import LaplacianAndMass, cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
+from ..laplacian import LaplacianAndMass, TriangulationPlan, cotan_laplacian_from_lengths_sq, mass_matrix_from_lengths_sq
+from ..sparse import SparseMatrix, diagonal_matrix
 from ._triangulation import (
     PointCloudTriangulation,
     check_neighbors,
@@ -74,14 +75,33 @@ def point_cloud_laplacian(
     robust_laplacian: `L, M = point_cloud_laplacian(P, mollify_factor=1e-5, n_neighbors=30)`.
     """
     triangulation = _triangulation_for(points, triangulation, n_neighbors=n_neighbors, mollify_factor=mollify_factor)
-    return laplacian_and_mass_from_lengths_sq(triangulation.face_lengths_sq(points), triangulation)
+    return _operators(*_point_cloud_values(check_points(points), triangulation), triangulation)
 
 
 def laplacian_and_mass_from_lengths_sq(lengths_sq, triangulation: PointCloudTriangulation) -> LaplacianAndMass:
     """`point_cloud_laplacian`'s `(L, M)` from the cover's replayed squared lengths (`face_lengths_sq`)."""
-    L = cotan_laplacian_from_lengths_sq(lengths_sq, triangulation.plan) / _COVER_MULTIPLICITY
-    M = mass_matrix_from_lengths_sq(lengths_sq, triangulation.plan, mass="barycentric") / _COVER_MULTIPLICITY
-    return LaplacianAndMass(L, M)
+    return _operators(*_cover_values(lengths_sq, triangulation.plan), triangulation)
+
+
+# One program per cloud size from the points to both operators' values, where the replay, `L`, `M` and
+# the two divisions were five kept per size (issue 41; figures: benchmarks/README.md, "Memory").
+@kernel
+def _point_cloud_values(points: Float[Array, "n 3"], triangulation: PointCloudTriangulation):
+    return _cover_values(triangulation.face_lengths_sq(points), triangulation.plan)
+
+
+@kernel
+def _cover_values(lengths_sq: Float[Array, "n_cover 3"], plan: TriangulationPlan):
+    """The values of `L` (on `plan.pattern`) and of the diagonal `M` of the cover, divided by its multiplicity."""
+    L = cotan_laplacian_from_lengths_sq(lengths_sq, plan) / _COVER_MULTIPLICITY
+    M = mass_matrix_from_lengths_sq(lengths_sq, plan, mass="barycentric") / _COVER_MULTIPLICITY
+    return L.values, M.values
+
+
+def _operators(laplacian, mass, triangulation: PointCloudTriangulation) -> LaplacianAndMass:
+    """`(L, M)` as `SparseMatrix`es from `_cover_values`' values, flagged as `L / 6` and `M / 6` are."""
+    L = SparseMatrix(laplacian, triangulation.plan.pattern, symmetric=True, positive_semidefinite=True)
+    return LaplacianAndMass(L, diagonal_matrix(mass, positive_semidefinite=True))
 
 
 def point_cloud_normals(points: ArrayLike, *, n_neighbors: int = 30, neighbors=None) -> Float[Array, "n 3"]:
