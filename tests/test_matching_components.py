@@ -1,4 +1,4 @@
-"""`match_shapes` matches connected surfaces: a mesh of several components is refused before anything is computed."""
+"""`match_shapes` and `functional_map` match connected surfaces: a mesh of several components is refused before anything is computed."""
 
 from __future__ import annotations
 
@@ -59,27 +59,19 @@ def test_a_mesh_of_two_components_is_refused_before_anything_is_computed(sphere,
             match_shapes(source, target, throw=throw)
 
 
-@pytest.mark.slow
-def test_why_one_component_against_two_has_no_functional_map():
-    """What the refusal prevents: the target's two zero eigenvalues have rows of the map that the fit blows up.
-
-    A sphere against two spheres fits map entries of 50 to 500 (k = 10 to 30) where a map between
-    isometric shapes has entries of at most 1 in magnitude, as the sphere against itself does.
-    """
-    sphere = icosphere(2)
-    source, target = spectral_shape(sphere, 20), spectral_shape(_two_copies(sphere), 20)
-    assert abs(source.values[0]) < 1e-10 and source.values[1] > 1  # one zero eigenvalue ...
-    assert np.all(np.abs(np.asarray(target.values[:2])) < 1e-10) and target.values[2] > 1  # ... against two
-
-    def fitted(target_shape):
-        return np.asarray(
-            functional_map(source, target_shape, descriptors(source), descriptors(target_shape), k_source=10, k_target=10)
-        )
-
-    C = fitted(target)
-    assert np.abs(C).max() > 10
-    assert np.unravel_index(np.abs(C).argmax(), C.shape)[0] in (0, 1)  # in a row of a zero eigenvalue of the target
-    assert np.abs(fitted(source)).max() < 1 + 1e-6
+@pytest.mark.parametrize("which", ["source", "target"])
+def test_functional_map_called_directly_refuses_a_shape_of_two_components(which):
+    """The refusal also guards a direct `functional_map` call: the two spheres' two zero eigenvalues
+    (measured without the refusal: map entries of 50 to 500 at k = 10 to 30 in the rows of the
+    target's zero eigenvalues, where a map between isometric shapes has entries of at most 1)."""
+    sphere = icosphere(1)
+    one, two = spectral_shape(sphere, 8), spectral_shape(_two_copies(sphere), 8)
+    assert np.all(np.abs(np.asarray(two.values[:2])) < 1e-10) and two.values[2] > 1  # two zero eigenvalues
+    source, target = (two, one) if which == "source" else (one, two)
+    with pytest.raises(DDGInputError, match=f"{which}: functional_map matches connected surfaces.* 2 connected"):
+        functional_map(source, target, descriptors(source), descriptors(target))
+    fitted = np.asarray(functional_map(one, one, descriptors(one), descriptors(one)))
+    assert np.abs(fitted).max() < 1 + 1e-6  # one component against itself: entries of an isometry's map
 
 
 @pytest.mark.slow

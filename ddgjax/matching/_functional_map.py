@@ -28,7 +28,7 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_choice
 from .._numerics import safe_div, safe_norm
 from .._results import RESULTS, Solution, outcome
-from ._shape import SpectralShape, require_spectral_shape
+from ._shape import SpectralShape, require_connected, require_spectral_shape
 
 ORIENTATIONS = ("preserving", "reversing")
 FUNCTIONAL_MAP_METHODS = ("auto", "cholesky", "cg")
@@ -85,6 +85,9 @@ def functional_map(
     symmetries apart (with symmetric descriptors and no orientation term the minimiser is not unique). The map is smooth in
     the descriptors and in the shapes' arrays and differentiates through the solve (lineax's
     implicit differentiation); it works under `jit` and `vmap` (over batched descriptors).
+    Each shape's mesh is one connected surface: a mesh of several components is refused
+    (`DDGInputError`, as `match_shapes` does), because its extra zero eigenvalues leave the fixed first
+    column meaningless.
 
     Args:
         source, target: `SpectralShape`s (pyFM's mesh1 and mesh2).
@@ -117,6 +120,8 @@ def functional_map(
     of functional map computations" (2019).
     """
     source, target = require_spectral_shape("source", source), require_spectral_shape("target", target)
+    require_connected("source", source.mesh, "functional_map")
+    require_connected("target", target.mesh, "functional_map")
     k_s = _basis_size("k_source", k_source, source)
     k_t = _basis_size("k_target", k_target, target)
     F_s = _descriptor_array("source_descriptors", source_descriptors, source)

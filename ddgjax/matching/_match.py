@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._compile import kernel
@@ -14,7 +13,7 @@ from ._descriptors import descriptors
 from ._functional_map import functional_map
 from ._point_map import point_map
 from ._refine import icp_refine, zoomout_refine
-from ._shape import SpectralShape, spectral_shape
+from ._shape import SpectralShape, require_connected, spectral_shape
 
 #: The values of `refine=` of `match_shapes`.
 REFINEMENTS = ("zoomout", "icp", None)
@@ -132,14 +131,7 @@ def match_shapes(
             raise DDGInputError(
                 f"{name}: {mesh.n_vertices} vertices are too few for {n_eigenpairs} eigenpairs: lower k and k_final"
             )
-        n_components = _vertex_components(mesh)
-        if n_components > 1:
-            raise DDGInputError(
-                f"{name}: match_shapes matches connected surfaces, and this mesh has {n_components} connected "
-                f"components: each adds a zero eigenvalue whose eigenvector the functional map cannot place (its "
-                "first column maps the constant function alone). Match each component on its own: build its mesh "
-                "with ddgjax.Mesh.from_arrays from the faces of one label of mesh.topology.face_components"
-            )
+        require_connected(name, mesh, "match_shapes")
     source_solution = spectral_shape(source_mesh, n_eigenpairs, robust=robust, throw=False)
     target_solution = spectral_shape(target_mesh, n_eigenpairs, robust=robust, throw=False)
     source, target = source_solution.value, target_solution.value
@@ -183,26 +175,6 @@ def match_shapes(
         },
     )
     return raise_if_failed(match, match.result, throw)
-
-
-def _vertex_components(mesh: Mesh) -> int:
-    """The connected components of the mesh's referenced vertices, joined by edges: the multiplicity of `L`'s zero eigenvalue.
-
-    Counted on the host topology (linear in the edges). Faces that share only a vertex are one
-    component here (the Laplacian couples them through it), unlike `topology.n_components`.
-    """
-    topology = mesh.topology
-    if topology is None:  # `Mesh.without_topology()` (what kernels trace): nothing on the host to count
-        return 1
-    # Imported on first use, as ddgjax.mesh does: scipy.sparse.csgraph is slow to import.
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    edges = np.asarray(topology.edges)
-    n = topology.n_vertices
-    graph = coo_matrix((np.ones(edges.shape[0], np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
-    return int(np.unique(labels[np.asarray(topology.faces).ravel()]).size)
 
 
 @kernel

@@ -8,6 +8,7 @@ source to those of its image on the target, `C a` (Ovsjanikov et al. 2012, secti
 from __future__ import annotations
 
 import equinox as eqx
+import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import DDGInputError
@@ -67,3 +68,40 @@ def require_spectral_shape(name: str, value) -> SpectralShape:
             f"got {type(value).__name__}"
         )
     return value
+
+
+def require_connected(name: str, mesh: Mesh, caller: str) -> None:
+    """`DDGInputError` unless the mesh's referenced vertices form one component (joined by edges).
+
+    A functional map fixes its first column as if `phi_0` were the constant function on both shapes;
+    each further component adds a zero eigenvalue whose eigenvector is any mix of the components'
+    indicators, which that column cannot place. Counted once per mesh on the host.
+    """
+    n_components = mesh.host_fact("vertex_components", lambda: _vertex_components(mesh))
+    if n_components > 1:
+        raise DDGInputError(
+            f"{name}: {caller} matches connected surfaces, and this mesh has {n_components} connected "
+            f"components: each adds a zero eigenvalue whose eigenvector the functional map cannot place (its "
+            "first column maps the constant function alone). Match each component on its own: build its mesh "
+            "with ddgjax.Mesh.from_arrays from the faces of one label of mesh.topology.face_components"
+        )
+
+
+def _vertex_components(mesh: Mesh) -> int:
+    """The connected components of the mesh's referenced vertices, joined by edges: the multiplicity of `L`'s zero eigenvalue.
+
+    Counted on the host topology (linear in the edges). Faces that share only a vertex are one
+    component here (the Laplacian couples them through it), unlike `topology.n_components`.
+    """
+    topology = mesh.topology
+    if topology is None:  # `Mesh.without_topology()` (what kernels trace): nothing on the host to count
+        return 1
+    # Imported on first use, as ddgjax.mesh does: scipy.sparse.csgraph is slow to import.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    edges = np.asarray(topology.edges)
+    n = topology.n_vertices
+    graph = coo_matrix((np.ones(edges.shape[0], np.int8), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return int(np.unique(labels[np.asarray(topology.faces).ravel()]).size)
