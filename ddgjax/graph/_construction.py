@@ -169,5 +169,7 @@ def _distinct_pairs(tails: np.ndarray, heads: np.ndarray, n: int) -> np.ndarray:
     """`(ne, 2)` the distinct undirected pairs `low < high` of `(tails, heads)`, sorted."""
     low = np.minimum(tails, heads).astype(np.int64)
     high = np.maximum(tails, heads).astype(np.int64)
-    keys = np.unique(low * n + high)
+    # A sort and a comparison of neighbours: NumPy 2's `np.unique` of a million keys takes ~10x as long.
+    keys = np.sort(low * n + high)
+    keys = keys[np.concatenate([[True], keys[1:] != keys[:-1]])] if keys.size else keys
     return np.stack([keys // n, keys % n], axis=1)
