@@ -85,7 +85,8 @@ def check_vertex_indices(name: str, values, n_vertices: int, *, minimum: int = 0
         raise DDGInputError(
             f"{name}: vertex indices must lie in [0, {n_vertices}); out of range at positions {first_indices(outside)}"
         )
-    if np.unique(array).size != array.size:
+    ordered = np.sort(array)  # not `np.unique`, which NumPy 2.4 hashes: ~15x slower on many distinct indices
+    if np.any(ordered[1:] == ordered[:-1]):
         raise DDGInputError(f"{name}: expected distinct vertices, got repeated ones")
     return array
 
