@@ -86,7 +86,8 @@ class PointCloudHeatSolver(eqx.Module):
         areas: `(n_cover,)` each cover face's area.
         frames: the points' oriented tangent frames (`tangent_frames`).
         vector_heat: factorisation of the vector heat operator `M + t A` (its free block as `heat`),
-            `A` the complex connection Laplacian (`ddgjax.pointcloud._transport`).
+            `A` the complex connection Laplacian (`ddgjax.pointcloud._transport`); `None` when made with
+            `vector_heat=False` (distances only).
     """
 
     points: Float[Array, "n 3"]
@@ -100,7 +101,7 @@ class PointCloudHeatSolver(eqx.Module):
     cotangents: Float[Array, "n_cover 3"]
     areas: Float[Array, " n_cover"]
     frames: TangentBases
-    vector_heat: Factorization
+    vector_heat: Factorization | None
 
     @property
     def tangent_frames(self) -> TangentBases:
@@ -138,6 +139,7 @@ class PointCloudHeatSolver(eqx.Module):
         potpourri3d: `PointCloudHeatSolver(P).transport_tangent_vector(i, [x, y])` (`(n, 2)` in its
         own frames) / `transport_tangent_vectors(idx, vectors)`.
         """
+        self._require_vector_heat("transport")
         corners, _ = _sources(self.points.shape[0], source, self.points.dtype, "source")
         sources = jnp.asarray(corners[:, 0])
         value, result, stats = _transport(self, sources, source_vectors(vector, sources.shape[0], self.points.dtype))
@@ -156,11 +158,19 @@ class PointCloudHeatSolver(eqx.Module):
 
         potpourri3d: `PointCloudHeatSolver(P).compute_log_map(i)` (in its own frame at `i`).
         """
+        self._require_vector_heat("log_map")
         if np.ndim(source) != 0:
             raise DDGInputError(f"source: expected one point index, got {source!r}")
         corners, weights = _sources(self.points.shape[0], source, self.points.dtype, "source")
         value, result, stats = _log_map(self, corners, weights)
         return outcome(value, result, throw, stats)
+
+    def _require_vector_heat(self, query: str) -> None:
+        if self.vector_heat is None:
+            raise DDGInputError(
+                f"solver: {query} needs the vector heat factorisation, and this solver was made with "
+                "vector_heat=False (distances only): make it with point_cloud_heat_solver(points, vector_heat=True)"
+            )
 
 
 def point_cloud_heat_solver(
@@ -171,6 +181,7 @@ def point_cloud_heat_solver(
     mollify_factor: float = 1e-5,
     triangulation: PointCloudTriangulation | None = None,
     solver: str = "auto",
+    vector_heat: bool = True,
 ) -> PointCloudHeatSolver:
     """Factor the heat method's systems for a point cloud once (module docstring); query with `.distance(sources)`.
 
@@ -182,27 +193,34 @@ def point_cloud_heat_solver(
         mollify_factor: the triangulation's mollification (keyword-only; default `1e-5`).
         triangulation: `point_cloud_triangulation(points, ...)` to reuse (needed under `jit` / `grad`).
         solver: the backend of the kept factorisations (`ddgjax.LINEAR_SOLVERS`).
+        vector_heat: also factor the vector heat operator, for `.transport` and `.log_map` (default);
+            `False` makes a solver for `.distance` alone, which skips the costliest of the three
+            factorisations (the complex system's real form, twice the size: benchmarks/README.md).
 
     Returns:
         `PointCloudHeatSolver`: `.distance(sources)`, `.transport(source, vector)`, `.log_map(source)`,
         `.tangent_frames`. It holds three factorisations (`M + t L`, the pinned `L`, the complex
-        `M + t A`).
+        `M + t A`), or the first two with `vector_heat=False`.
 
-    potpourri3d: `PointCloudHeatSolver(P, t_coef=1.0)` (its neighbourhood size is fixed at 30).
+    potpourri3d: `PointCloudHeatSolver(P, t_coef=1.0)` (its neighbourhood size is fixed at 30; it
+    factors each system on the first query that needs it).
     """
     points = check_points(points)
     check_solver(solver)
     check_t_coef(t_coef)
+    if not isinstance(vector_heat, (bool, np.bool_)):
+        raise DDGInputError(f"vector_heat: expected True or False, got {vector_heat!r}")
     triangulation = _triangulation_for(points, triangulation, n_neighbors=n_neighbors, mollify_factor=mollify_factor)
     heat_plan, poisson_plan, components = _plans(triangulation, triangulation.plan.pattern)
     parents, trees = orientation_tree(triangulation)
     with cholmod_analysis(kept_analysis(points.shape[0])):
         # The matrices from one compiled program, factored outside it (the definiteness check on the
         # host), so that the program can be kept across processes (`ddgjax._program_store`).
-        t, heat, poisson, cotangents, areas, frames, vector_heat = _systems(
-            points, triangulation, heat_plan, poisson_plan, parents, trees, float(t_coef)
+        t, heat, poisson, cotangents, areas, frames, vector_system = _systems(
+            points, triangulation, heat_plan, poisson_plan, parents, trees, float(t_coef), vector_heat=bool(vector_heat)
         )
-        heat, poisson, vector_heat = (factorize(matrix, solver=solver) for matrix in (heat, poisson, vector_heat))
+        heat, poisson = (factorize(matrix, solver=solver) for matrix in (heat, poisson))
+        vector_heat = None if vector_system is None else factorize(vector_system, solver=solver)
         if at_top_level():
             jax.block_until_ready((heat, poisson, vector_heat))
     return PointCloudHeatSolver(
@@ -252,7 +270,13 @@ def point_cloud_heat_distance(
     """
     _sources(np.shape(points)[0] if np.ndim(points) == 2 else 0, sources, np.float64)  # refuse bad sources first
     solver_ = point_cloud_heat_solver(
-        points, n_neighbors=n_neighbors, t_coef=t_coef, mollify_factor=mollify_factor, triangulation=triangulation, solver=solver
+        points,
+        n_neighbors=n_neighbors,
+        t_coef=t_coef,
+        mollify_factor=mollify_factor,
+        triangulation=triangulation,
+        solver=solver,
+        vector_heat=False,
     )
     return solver_.distance(sources, throw=throw)
 
@@ -346,15 +370,30 @@ def _plans(triangulation: PointCloudTriangulation, pattern) -> tuple[DirichletPl
     )
 
 
-@kernel
-def _systems(points, triangulation, heat_plan, poisson_plan, parents, trees, t_coef):
-    """`(t, M + t L, pinned L, cotangents, areas, frames, M + t A)`, the matrices' free blocks (module docstring)."""
+@kernel(static_argnames=("vector_heat",))
+def _systems(points, triangulation, heat_plan, poisson_plan, parents, trees, t_coef, *, vector_heat: bool):
+    """`(t, M + t L, pinned L, cotangents, areas, frames, M + t A)`, the matrices' free blocks (module
+    docstring); `M + t A` is `None` without `vector_heat`."""
     lengths_sq = triangulation.face_lengths_sq(points)
     L, M = laplacian_and_mass_from_lengths_sq(lengths_sq, triangulation)
     t = t_coef * jnp.mean(safe_sqrt(lengths_sq)) ** 2  # each cover edge is in two faces: the mean over edges
     areas = face_areas_from_lengths_sq(lengths_sq)
     cotangents = corner_cotangents_from_lengths_sq(lengths_sq, areas=areas)
     frames = oriented_frames(points, triangulation.neighbors, parents, trees)
+    vector_system = _vector_heat_system(L, M, t, frames, heat_plan) if vector_heat else None
+    return (
+        t,
+        held_block(M + t * L, heat_plan),
+        held_block(L, poisson_plan),
+        cotangents,
+        areas,
+        frames,
+        vector_system,
+    )
+
+
+def _vector_heat_system(L, M, t, frames, heat_plan) -> SparseMatrix:
+    """`M + t A` (its free block when points are held), `A` the complex connection Laplacian."""
     A = point_cloud_connection_laplacian(L, frames)
     vector_heat = M + t * A
     if heat_plan is not None:  # the free block, from the real and imaginary parts (`dirichlet_blocks` takes real values)
@@ -365,15 +404,7 @@ def _systems(points, triangulation, heat_plan, poisson_plan, parents, trees, t_c
         vector_heat = SparseMatrix(
             jax.lax.complex(real.values, imag.values), real.pattern, hermitian=True, positive_semidefinite=True
         )
-    return (
-        t,
-        held_block(M + t * L, heat_plan),
-        held_block(L, poisson_plan),
-        cotangents,
-        areas,
-        frames,
-        vector_heat,
-    )
+    return vector_heat
 
 
 @kernel
