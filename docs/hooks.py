@@ -3,8 +3,65 @@
 The notebooks' kernels inherit this process's environment: `PLOTLY_RENDERER` makes `ddgjax.plot.show`'s figures
 HTML that loads plotly.js from its CDN (plotly >= 6 otherwise writes only a mimetype nbconvert cannot render,
 and `"notebook"` would embed ~5 MB of plotly.js in every page with a figure).
+
+Maths is typeset when the site is built, not in the reader's browser: `$...$` (inline) and `$$...$$`
+(display) in the text of a page (notebook Markdown cells, Markdown pages, docstrings) become MathML by
+`latex2mathml`, which every current browser renders natively. So a page needs no script and no CDN,
+works offline and prints as it shows; code, preformatted text and scripts are left alone, and
+nbconvert's empty MathJax loader is dropped.
 """
 
+from __future__ import annotations
+
 import os
+import re
+
+import bs4
+from latex2mathml.converter import convert
 
 os.environ.setdefault("PLOTLY_RENDERER", "notebook_connected")
+
+# `$$...$$` first (it may span lines), then `$...$` that opens before and closes after a non-space (so
+# prices and shell prompts in prose stay text), never an escaped `\$`.
+_MATH = re.compile(r"\$\$(?P<display>.+?)\$\$|(?<![\\$])\$(?P<inline>[^\s$](?:[^$]*?[^\s\\$])?)\$(?!\$)", re.DOTALL)
+_LEAVE_ALONE = {"code", "pre", "script", "style", "textarea", "math"}
+
+
+def typeset(text: str) -> str | None:
+    """`text` with its TeX as MathML (an HTML fragment), or None when it holds no maths."""
+    if "$" not in text:
+        return None
+    pieces, end = [], 0
+    for match in _MATH.finditer(text):
+        display = match.group("display") is not None
+        tex = match.group("display") if display else match.group("inline")
+        pieces += [_escape(text[end : match.start()]), convert(tex.strip(), display="block" if display else "inline")]
+        end = match.end()
+    if not pieces:
+        return None
+    return "".join(pieces) + _escape(text[end:])
+
+
+def typeset_html(html: str) -> str:
+    """Every text node's maths typeset (`typeset`), outside code, scripts and existing MathML."""
+    soup = bs4.BeautifulSoup(html, "html.parser")
+    for script in soup.find_all("script", src=""):  # nbconvert's MathJax loader without a URL
+        script.decompose()
+    for script in soup.find_all("script", type="text/x-mathjax-config"):
+        script.decompose()
+    for node in list(soup.find_all(string=True)):
+        if isinstance(node, bs4.element.PreformattedString) or any(p.name in _LEAVE_ALONE for p in node.parents):
+            continue
+        fragment = typeset(str(node))
+        if fragment is not None:
+            node.replace_with(bs4.BeautifulSoup(fragment, "html.parser"))
+    return str(soup)
+
+
+def on_post_page(output: str, page, config) -> str:
+    """Typeset the maths of each page that has any (MkDocs event)."""
+    return typeset_html(output) if _MATH.search(output) else output
+
+
+def _escape(text: str) -> str:
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
