@@ -85,13 +85,18 @@ def _host_divide(numerator: np.ndarray, denominator: np.ndarray) -> np.ndarray:
     return np.divide(numerator, denominator, out=np.zeros_like(numerator), where=denominator != 0)
 
 
-def _delaunay_defects(corners: np.ndarray, twins: np.ndarray, face_edges: np.ndarray, lengths_sq: np.ndarray) -> np.ndarray:
+def _delaunay_defects(
+    corners: np.ndarray, twins: np.ndarray, face_edges: np.ndarray, lengths_sq: np.ndarray, weight_tolerance: float | None = None
+) -> np.ndarray:
     """How far each edge (a corner and its twin) is from Delaunay: `> 0` means flip it, larger is worse.
 
     With `n = l_{k+1}^2 + l_{k+2}^2 - l_k^2 = 4 A cot(alpha)` at each of the two opposite corners,
     `cot a + cot b = (n_f A_g + A_f n_g) / (4 A_f A_g)`: the numerator has its sign and needs no
     division (so a zero-area face with a straight angle opposite the edge counts as non-Delaunay). That sum is compared with its rounding error, `DELAUNAY_TOLERANCE (s_f A_g + A_f s_g)`
-    with `s` the sum of a face's squared lengths (`s / (4 A)` is the sum of its cotangents).
+    with `s` the sum of a face's squared lengths (`s / (4 A)` is the sum of its cotangents). With
+    `weight_tolerance`, the edge's weight `(cot a + cot b) / 2` is compared with `-weight_tolerance`
+    instead (geometry-central `flipToDelaunay`'s `delaunayEPS`): `> 0` where
+    `-(n_f A_g + A_f n_g) > 8 weight_tolerance A_f A_g`.
     """
     values = []
     for corner in (corners, twins):
@@ -101,11 +106,18 @@ def _delaunay_defects(corners: np.ndarray, twins: np.ndarray, face_edges: np.nda
         total = face_lengths_sq.sum(axis=1)
         values.append((total - 2.0 * opposite, total, _host_face_areas(face_lengths_sq)))
     (n_f, s_f, area_f), (n_g, s_g, area_g) = values
+    if weight_tolerance is not None:
+        return -(n_f * area_g + area_f * n_g) - 8.0 * weight_tolerance * area_f * area_g
     return -(n_f * area_g + area_f * n_g) - DELAUNAY_TOLERANCE * (s_f * area_g + area_f * s_g)
 
 
-def flip_to_delaunay(topology: MeshTopology, lengths_sq: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+def flip_to_delaunay(
+    topology: MeshTopology, lengths_sq: np.ndarray, *, weight_tolerance: float | None = None
+) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """Lawson flips in rounds of independent flips (module docstring); `lengths_sq` per edge is updated in place.
+
+    `weight_tolerance`: flip only edges whose cotan weight is below `-weight_tolerance` (absolute, as
+    geometry-central's `delaunayEPS`), rather than below the rounding-sized `DELAUNAY_TOLERANCE`.
 
     The connectivity is a corner table: `faces` and `face_edges` `(nf, 3)`, and `twins[3 f + k]` the
     corner across the edge opposite corner `k` of face `f` (`-1` on the boundary). On a consistently
@@ -133,7 +145,7 @@ def flip_to_delaunay(topology: MeshTopology, lengths_sq: np.ndarray) -> tuple[np
     while candidates.size:
         if len(flips) > max_rounds:
             raise RuntimeError(f"intrinsic_delaunay: no convergence after {max_rounds} rounds of flips (please report this mesh)")
-        defects = _delaunay_defects(candidates, twins[candidates], face_edges, lengths_sq)
+        defects = _delaunay_defects(candidates, twins[candidates], face_edges, lengths_sq, weight_tolerance)
         bad = defects > 0
         # A corner whose twin lies in the same face (an edge with one face on both sides) is always Delaunay.
         bad &= candidates // 3 != twins[candidates] // 3

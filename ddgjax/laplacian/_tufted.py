@@ -12,7 +12,8 @@ boundary edge can then be flipped, unlike in `ddgjax.laplacian.intrinsic_delauna
 which keeps boundaries; the same operator on closed meshes).
 
 `tufted_delaunay(points, faces, mollify_factor)` is the whole host phase: the cover
-(`tufted_cover`), the mollified lengths of the distinct edges, Lawson flips of the cover and the
+(`tufted_cover`), the mollified lengths of the distinct edges, Lawson flips of the cover (an edge
+flipped where its cotan weight is below `-1e-6`, geometry-central `flipToDelaunay`'s test) and the
 replay layout (`ddgjax.laplacian._intrinsic`), with the replay's slots on the distinct edges, so the
 JAX replay (`replayed_lengths_sq`) reads the lengths `|p_i - p_j|^2` of the input's edges only. It
 serves `intrinsic_delaunay(mesh)` on non-manifold and non-oriented meshes (each face once) and
@@ -29,8 +30,13 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .._stdsort import std_sort_order
 from ..mesh import MeshTopology
 from ._flips import flip_to_delaunay, mollified, replay_layout
+
+# geometry-central's `flipToDelaunay` leaves an edge whose cotan weight is above this (absolute) unflipped:
+# the same tolerance gives the same cover where near co-circular quads could go either way (duplicated points).
+_GEOMETRY_CENTRAL_DELAUNAY_EPS = 1e-6
 
 
 class _CoverTopology(MeshTopology):
@@ -86,7 +92,9 @@ def tufted_delaunay(points: np.ndarray, faces: np.ndarray, mollify_factor: float
     edges, face_edges, cover, cover_edge_of = tufted_cover(points, faces)
     edge_lengths_sq = np.sum((points[edges[:, 1]] - points[edges[:, 0]]) ** 2, axis=1)
     edge_lengths_sq = mollified(edge_lengths_sq, face_edges, float(mollify_factor), np, np.sqrt, np.take)
-    cover_faces, cover_face_edges, rounds = flip_to_delaunay(cover, edge_lengths_sq[cover_edge_of])
+    cover_faces, cover_face_edges, rounds = flip_to_delaunay(
+        cover, edge_lengths_sq[cover_edge_of], weight_tolerance=_GEOMETRY_CENTRAL_DELAUNAY_EPS
+    )
     n_cover_edges = cover_edge_of.size
     flip_slots, face_length_slots = replay_layout(rounds, cover_face_edges, n_cover_edges)
     # Unflipped cover edges read their distinct edge's slot; the new diagonals' slots shift down to follow the distinct edges.
@@ -113,10 +121,11 @@ def tufted_cover(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
 
     `edges` `(ne, 2)` are the distinct vertex pairs `(low, high)`, sorted (`MeshTopology.edges`' order),
     `face_edges` `(nf, 3)` the distinct edge opposite each corner of `faces`. Cover face `f` is
-    triangle `f`, face `nf + f` its reversed copy `(a, c, b)`; around each edge
-    (its triangles sorted by the angle of their third corner about it, as geometry-central) the
-    copy running the edge backwards in one triangle is glued to the copy running it forwards in the
-    next, cyclically. `cover_edge_of[e]` is the distinct edge of cover edge `e`.
+    triangle `f`, face `nf + f` its reversed copy `(a, c, b)`; around each edge (its triangles
+    sorted by the angle of their third corner about it, ties as geometry-central's sort leaves them:
+    `_fan_angles_and_ties`) the copy running the edge against its first half-edge in one triangle is
+    glued to the copy running it along in the next, cyclically. `cover_edge_of[e]` is the distinct
+    edge of cover edge `e`.
     """
     nf = faces.shape[0]
     n = points.shape[0]
@@ -124,22 +133,20 @@ def tufted_cover(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     low, high = np.minimum(tails, heads), np.maximum(tails, heads)
     keys = low * n + high
     opposite = faces.reshape(-1)  # the corner opposite each half-edge
-    # The angle of each triangle about its edge, in a basis orthogonal to the edge.
-    edge_vectors = points[high] - points[low]
-    helper = np.where(
-        np.abs(edge_vectors[:, :1]) < 0.9 * np.linalg.norm(edge_vectors, axis=1, keepdims=True), [[1.0, 0, 0]], [[0, 1.0, 0]]
-    )
-    b1 = np.cross(edge_vectors, helper)
-    b2 = np.cross(edge_vectors, b1)
-    out = points[opposite] - points[low]
-    angles = np.arctan2(
-        np.einsum("ij,ij->i", b2, out) * np.linalg.norm(b1, axis=1), np.einsum("ij,ij->i", b1, out) * np.linalg.norm(b2, axis=1)
-    )
-    # Clockwise about the edge (low -> high): the copy running it forwards faces the next triangle that way.
-    order = np.lexsort((-angles, keys))
+    angles, rank, first_tail = _fan_angles_and_ties(points, faces, tails, heads, opposite, keys)
+    # Clockwise about the edge's first half-edge (geometry-central's descending sort), ties in its order.
+    order = np.lexsort((rank, -angles, keys))
     sorted_keys = keys[order]
     starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
     sizes = np.diff(np.r_[starts, sorted_keys.size])
+    # Past 16 triangles its sort is a quicksort, and a NaN angle (a zero-length edge) stops its insertion
+    # sort: there the order is replayed from the sibling cycle.
+    unsorted = np.isnan(angles[order])
+    replayed = (sizes > 16) | (np.add.reduceat(unsorted, starts) > 0 if starts.size else np.zeros(0, dtype=bool))
+    for start, size in zip(starts[replayed], sizes[replayed]):
+        members = order[start : start + size]
+        members = members[np.argsort(rank[members], kind="stable")]
+        order[start : start + size] = members[std_sort_order((-angles[members]).tolist())]
     edge_of_sorted = np.repeat(np.arange(starts.size), sizes)
     edges = np.stack([sorted_keys[starts] // n, sorted_keys[starts] % n], axis=1).astype(np.int32)
     face_edges = np.empty(3 * nf, dtype=np.int32)
@@ -147,8 +154,8 @@ def tufted_cover(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
     # Corner c = 3 f + k of the triangle; its reversed copy holds that vertex at position (0, 2, 1)[k].
     front = order
     back = 3 * nf + 3 * (order // 3) + np.array([0, 2, 1])[order % 3]
-    forwards = tails[order] == low[order]
-    plus = np.where(forwards, front, back)  # the copy running the edge low -> high
+    forwards = tails[order] == first_tail[order]
+    plus = np.where(forwards, front, back)  # the copy running the edge as its first half-edge does
     minus = np.where(forwards, back, front)
     position = np.arange(order.size)
     next_in_fan = np.where(position + 1 < np.repeat(starts + sizes, sizes), position + 1, np.repeat(starts, sizes))
@@ -166,3 +173,44 @@ def tufted_cover(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.
         edge_face_counts=np.full(n_cover_edges, 2, dtype=np.int32),
     )
     return edges, face_edges.reshape(-1, 3), cover, edge_of_sorted.astype(np.int32)
+
+
+def _fan_angles_and_ties(points, faces, tails, heads, opposite, keys) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(angles, rank, tail)` per half-edge: the angle of its triangle about its edge, its place among equal
+    angles, and the tail of its edge's first half-edge.
+
+    As geometry-central's `buildIntrinsicTuftedCover` computes them, to the bit, since triangles repeated in a
+    point cloud's union (and coplanar ones) tie exactly or to round-off: about the edge's first half-edge
+    (in face order, a face's half-edges `(v0, v1), (v1, v2), (v2, v0)`), in the basis of
+    `Vector3::buildTangentBasis`; equal angles keep the order of its edge's sibling cycle (the first
+    half-edge, then the others from the last back), which its sort (an insertion sort up to 16 faces)
+    keeps.
+    """
+    nf = faces.shape[0]
+    # Half-edge 3 f + k is opposite corner k; geometry-central's half-edge j of a face runs v_j -> v_{j+1}.
+    sequence = 3 * (np.arange(3 * nf) // 3) + (np.arange(3 * nf) % 3 + 1) % 3
+    by_edge = np.lexsort((sequence, keys))
+    sorted_keys = keys[by_edge]
+    starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
+    sizes = np.diff(np.r_[starts, sorted_keys.size])
+    occurrence = np.arange(keys.size) - np.repeat(starts, sizes)
+    rank = np.empty(keys.size, dtype=np.int64)
+    rank[by_edge] = np.where(occurrence == 0, 0, np.repeat(sizes, sizes) - occurrence)
+    first = np.repeat(by_edge[starts], sizes)
+    tail, tip = np.empty(keys.size, dtype=np.int64), np.empty(keys.size, dtype=np.int64)
+    tail[by_edge], tip[by_edge] = tails[first], heads[first]
+
+    def dot(a, b):
+        return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+    def normalize(a):
+        # A zero-length edge or a corner on its tail gives NaN angles, as there; the sort replays them.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return a * (1.0 / np.sqrt(dot(a, a)))[:, None]
+
+    direction = normalize(points[tip] - points[tail])
+    test = np.where(np.abs(direction[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    basis_x = normalize(np.cross(test, direction))
+    basis_y = normalize(np.cross(direction, basis_x))
+    out = normalize(points[opposite] - points[tail])
+    return np.arctan2(dot(basis_y, out), dot(basis_x, out)), rank, tail

@@ -108,8 +108,8 @@ def point_cloud_normals(points: ArrayLike, *, n_neighbors: int = 30, neighbors=N
     """`(n, 3)` unit PCA normals: the direction of least spread of each point's `k` nearest neighbours.
 
     The eigenvector of the smallest eigenvalue of `sum_j (p_j - c)(p_j - c)^T` over the neighbours
-    `j`, with `c` their mean (robust_laplacian 1.1's), so these are the normals of
-    `point_cloud_laplacian`'s tangent planes. Not oriented: each normal's sign is
+    `j`, with `c` their mean (translation invariant; `point_cloud_laplacian`'s tangent planes follow
+    robust_laplacian 1.1 instead, whose `c` is their sum over `k + 1`). Not oriented: each normal's sign is
     arbitrary (consistent orientation needs a global propagation, e.g. along a minimum spanning
     tree; not done here). Differentiable in `points` for the fixed neighbourhoods where the two
     smallest eigenvalues differ (pass `neighbors` under `jit` / `grad`).
@@ -123,8 +123,7 @@ def point_cloud_normals(points: ArrayLike, *, n_neighbors: int = 30, neighbors=N
     Returns:
         `(n, 3)` unit normals.
 
-    robust_laplacian / geometry-central `generate_normals` (the same normals up to sign); Open3D
-    `estimate_normals`.
+    Open3D `estimate_normals`; robust_laplacian's `generate_normals` (about the offset centroid above).
     """
     points = check_points(points)
     if neighbors is None:

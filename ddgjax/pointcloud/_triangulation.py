@@ -1,40 +1,41 @@
 """The tufted intrinsic Delaunay triangulation of a point cloud, built on the host, replayed in JAX.
 
-Sharp & Crane 2020 (section 5.7), robust_laplacian's `point_cloud_laplacian`, in these steps:
+Sharp & Crane 2020 (section 5.7): robust_laplacian 1.1's `point_cloud_laplacian`, step for step, so
+that the operators equal its own entry by entry (to round-off) wherever its choices are decided by
+the data, and its tie-breaking is replayed where they are not:
 
-1. the `k` nearest neighbours of each point (itself excluded; SciPy's `cKDTree`);
-2. a normal per point by PCA: the direction of least spread of the neighbours about their mean
-   (robust_laplacian 1.1's);
-3. the neighbours projected to the point's tangent plane, and the triangles of the 2-D Delaunay
-   triangulation of the point and its projected neighbours that have the point as a corner (its
-   1-ring). Vectorised over all points at once: an inversion about the point maps the circles
-   through it to lines, so a triangle `(0, a, b)` has an empty circumcircle exactly when the inverted
-   `a*`, `b*` are consecutive corners of the convex hull of the inverted neighbours with the origin
-   on the hull's side of the line `a* b*`. The neighbours are sorted by angle (inversion keeps
-   angles) and a Graham scan of every point at once pops the reflex corners of that star polygon,
-   starting from a hull corner: the nearest neighbour, or, where an angular gap of about `pi` or
-   more opens (a boundary, robust_laplacian's test), the neighbour after it. Consecutive hull
-   corners less than `pi` apart (seen from the point) give the triangles. robust_laplacian walks
-   the angular order with an `O(k^2)` emptiness test per point and a `1e-4` tolerance on the
-   circumcircles; both give the Delaunay 1-ring in general position (the same `L` to 1e-15 on a
-   jittered icosphere) and may differ on nearly co-circular neighbours (1-2% of the triangles of
-   uniform samples), where either choice is a Delaunay 1-ring;
-4. the union of all points' triangles, each kept as often as it appears (a triangle found by its
-   three corners is there three times), is a non-manifold mesh; its edge lengths are mollified
-   (`ddgjax.laplacian._intrinsic`: every edge lengthened by the smallest `delta` giving each triangle
-   the triangle inequality with margin `mollify_factor` times the mean edge length), then its
-   *tufted cover* is built: two copies of every triangle, one per orientation, glued around each
-   edge in the angular order of the triangles about it (geometry-central
-   `buildIntrinsicTuftedCover`), a closed oriented surface; then intrinsic Delaunay edge flips
-   (`ddgjax.laplacian._intrinsic`'s rounds of independent flips). Steps 4's cover and flips are
-   `ddgjax.laplacian._tufted`'s, which also serves `intrinsic_delaunay` on non-manifold meshes. Around an edge, triangles at the
-   same angle (copies of one triangle) are glued in list order; geometry-central's order there is
-   its sort's, so near coincident points, where such ties and flips interact, the two covers may
-   differ (both intrinsic Delaunay: every weight `>= 0`; 10% of the entries of `L` on 2,000 uniform
-   samples, with the same spectrum to 1e-3);
+1. the `k` nearest neighbours of each point, itself excluded, ties (duplicated points, grids) in
+   nanoflann's order (`_kdtree`: SciPy finds them, a replica of nanoflann's tree orders the ties);
+2. a normal per point: the smallest left singular vector of the neighbours' offsets from
+   `sum_j p_j / (k + 1)` (robust_laplacian's centroid, over `k + 1` though only the `k` neighbours
+   are summed), signed as Eigen's `JacobiSVD` signs it (`_jacobi_svd`): the sign decides which way
+   step 3's walk turns, and so which of nearly co-circular triangles it keeps;
+3. the neighbours projected to geometry-central's tangent basis of that normal; those within `1e-7`
+   of the farthest neighbour's projected distance pushed out to `1e-6` of it; sorted by angle
+   (`std::sort`, its order among equal angles replayed: `ddgjax._stdsort`); a walk from the nearest
+   neighbour (or, after an angular gap of at least `pi - 1e-5` between sorted neighbours, from the
+   neighbour after it, without closing the fan) that joins the current neighbour to the first one
+   after it, not within `1e-5` radians, whose circumcircle with the point holds no other neighbour
+   by more than `1e-4` of the farthest distance, and goes on from there: the point's fan
+   `(i, a, b)` (`local_triangles`);
+4. the union of all fans, each triangle kept as often as it is found, is a non-manifold mesh; its
+   edge lengths are mollified (`ddgjax.laplacian._intrinsic`: every edge lengthened by the smallest
+   `delta` giving each triangle the triangle inequality with margin `mollify_factor` times the mean
+   edge length), then its tufted cover is built and flipped to intrinsic Delaunay
+   (`ddgjax.laplacian._tufted`: triangles glued around each edge in geometry-central's angular order,
+   its ties and NaN angles as its sort leaves them; an edge is flipped where its cotan weight is below
+   `-1e-6`, its `flipToDelaunay` tolerance);
 5. `L` and `M` (lumped, a third of each triangle's area per corner) of that cover, divided by 2
    (the cover has every triangle twice) and by 3 (each triangle is there about three times), as
    geometry-central `buildTuftedLaplacian` and robust_laplacian do.
+
+What remains different: the flips run in rounds of independent flips, geometry-central's one at a
+time from a queue. Where both end Delaunay but differently (quads within the tolerance of
+co-circular, at coincident points), `L` agrees to 1e-10 and `M` moves area between the coincident
+copies (the sum over them agrees): 30 of 2,500 rows of `M` on 2,000 samples of spot with 500 of them
+duplicated; none on 50,000 bunny samples, mesh-vertex clouds or coplanar points. A point in no
+triangle keeps an empty row and a zero mass here, where robust_laplacian strips it and gives it
+`L_ii = 1` and a thousandth of the smallest mass.
 
 Steps 1-4 depend on the positions only through comparisons and run once on the host; the result, a
 `PointCloudTriangulation`, replays the metric in JAX: the squared lengths of the mesh's edges from
@@ -43,27 +44,33 @@ kernel), so `L` and `M` are differentiable functions of the positions for the fi
 graph and flips (exact away from the measure-zero positions where a comparison ties).
 
 References: N. Sharp, K. Crane, "A Laplacian for nonmanifold triangle meshes", Computer Graphics
-Forum 39(5) (SGP 2020). robust_laplacian `point_cloud_laplacian(P, mollify_factor=1e-5, n_neighbors=30)`;
-potpourri3d `PointCloudLocalTriangulation(P).get_local_triangulation()` (the local triangles).
+Forum 39(5) (SGP 2020). robust_laplacian `point_cloud_laplacian(P, mollify_factor=1e-5, n_neighbors=30)`
+(its `point_cloud_utilities.cpp`: `generate_knn`, `generate_normals`, `generate_coords_projection`,
+`build_delaunay_triangulations`); potpourri3d `PointCloudLocalTriangulation(P)` builds fans too, by
+another walk (geometry-central `buildLocalTriangulations`).
 """
 
 from __future__ import annotations
 
 import equinox as eqx
 import numpy as np
-import scipy.spatial
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._compile import device_array
 from .._errors import DDGInputError, check_count, check_finite, check_float_shape, is_traced
+from .._stdsort import std_sort_order
 from ..laplacian import TriangulationPlan, triangulation_plan
 from ..laplacian.internal import replayed_lengths_sq, tufted_delaunay
+from ._jacobi_svd import smallest_left_singular_vectors
+from ._kdtree import nanoflann_neighbors
 
-# robust_laplacian's thresholds, relative to the neighbourhood radius (its farthest neighbour): a
-# neighbour this close to the centre is pushed out to it, and two neighbours within this angle
-# (seen from the centre, radians) form no triangle.
+# robust_laplacian's thresholds: a neighbour closer to the centre than this (relative to the farthest
+# neighbour's projected distance) is pushed out; two neighbours within this angle (radians, seen from
+# the centre) form no triangle; a circumcircle is empty when no neighbour is inside it by more than
+# this (relative, as the first).
 _COINCIDENT = 1e-7
 _COLLINEAR = 1e-5
+_OUTSIDE = 1e-4
 
 
 class PointCloudTriangulation(eqx.Module):
@@ -136,99 +143,142 @@ def check_neighbors(n_points: int, n_neighbors) -> int:
 
 
 def nearest_neighbor_graph(points: np.ndarray, n_neighbors: int) -> np.ndarray:
-    """`(n, k)` the `k` nearest other points of each point, nearest first (SciPy `cKDTree`, every core).
+    """`(n, k)` the `k` nearest other points of each point, nearest first, ties in nanoflann's order (`_kdtree`).
 
-    A point is not its own neighbour, also where coincident points tie with it (geometry-central's
-    `NearestNeighborFinder.kNearestNeighbors(i, k)`).
+    Its `k + 1` nearest with the point itself taken out, or the farthest where coincident points hid it
+    (geometry-central's `NearestNeighborFinder.kNearestNeighbors(i, k)`).
     """
     n = points.shape[0]
-    _, found = scipy.spatial.cKDTree(points).query(points, k=n_neighbors + 1, workers=-1)
+    found = nanoflann_neighbors(points, n_neighbors)
     others = found != np.arange(n)[:, None]
     # Each row holds its own index at most once: drop it, or the farthest when a tie hid it.
     others[others.all(axis=1), -1] = False
     return found[others].reshape(n, n_neighbors).astype(np.int32)
 
 
-def _host_normals(points: np.ndarray, neighbors: np.ndarray) -> np.ndarray:
-    """`(n, 3)` PCA normals (module docstring, step 2), on the host: the triangulation's tangent planes."""
+def tangent_coordinates(points: np.ndarray, neighbors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`(x, y)` `(n, k)`: each point's neighbours projected to its tangent plane (module docstring, steps 2-3).
+
+    The normal is the smallest left singular vector of the offsets `p_j - c` from `c = sum_j p_j / (k + 1)`
+    (robust_laplacian's centroid: the neighbours' sum over `k + 1`), with Eigen's sign (`_jacobi_svd`);
+    the tangent basis is geometry-central's `Vector3::buildTangentBasis` of it, and each offset
+    `p_j - p_i` loses its normal component before its two coordinates are taken.
+    """
+    n, k = neighbors.shape
     around = points[neighbors]
-    centred = around - around.mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    return vectors[:, :, 0]
+    centroid = around.sum(axis=1) / (k + 1)
+    normals = smallest_left_singular_vectors(np.swapaxes(around - centroid[:, None, :], 1, 2))
+    test = np.where(np.abs(normals[:, :1]) > 0.9, [[0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0]])
+    basis_x = _normalized(np.cross(test, normals))
+    basis_y = _normalized(np.cross(normals, basis_x))
+    offsets = around - points[:, None, :]
+    offsets = offsets - normals[:, None, :] * _dot(normals[:, None, :], offsets)[..., None]
+    return _dot(basis_x[:, None, :], offsets), _dot(basis_y[:, None, :], offsets)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    # Summed left to right, as geometry-central's `dot`: the walk's decisions compare such values.
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def _normalized(vectors: np.ndarray) -> np.ndarray:
+    return vectors * (1.0 / np.sqrt(_dot(vectors, vectors)))[..., None]
 
 
 def local_triangles(points: np.ndarray, neighbors: np.ndarray) -> np.ndarray:
-    """`(nf, 3)` the union of each point's local Delaunay 1-ring triangles `(i, a, b)` (module docstring, step 3).
+    """`(nf, 3)` the union of each point's local triangles `(i, a, b)` (module docstring, step 3), robust_laplacian's.
 
-    Counterclockwise about each point's normal; a triangle found from several of its corners is
-    listed once per corner (robust_laplacian keeps them all).
+    Point after point, each point's triangles in the order its walk finds them (the tufted cover's ties
+    follow this order); a triangle found from several of its corners is listed once per corner.
     """
     n, k = neighbors.shape
-    normals = _host_normals(points, neighbors)
-    # An orthonormal tangent basis per point: any one serves (only angles and circles are compared).
-    helper = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    e1 = np.cross(normals, helper)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(normals, e1)
-    offsets = points[neighbors] - points[:, None, :]
-    x, y = np.einsum("nkd,nd->nk", offsets, e1), np.einsum("nkd,nd->nk", offsets, e2)
-    radius_sq = x * x + y * y
-    scale = np.sqrt(radius_sq.max(axis=1, keepdims=True))
-    # Neighbours (nearly) at the centre are pushed out to a tiny distance, spread by index, as robust_laplacian does.
-    close = radius_sq < (_COINCIDENT * scale) ** 2
+    x, y = tangent_coordinates(points, neighbors)
+    scale = np.sqrt(x[:, -1] ** 2 + y[:, -1] ** 2)  # the farthest neighbour's projected distance
+    radius = np.sqrt(x * x + y * y)
+    close = radius < scale[:, None] * _COINCIDENT
     if close.any():
+        # Pushed out along their own direction, or (where they sit on the centre) one spread by index.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inverse = 1.0 / radius
+            direction_x, direction_y = x * inverse, y * inverse
+        undefined = ~(np.isfinite(direction_x) & np.isfinite(direction_y))
         spread = 2.0 * np.pi * np.arange(k) / k
-        angle = np.where(radius_sq > 0, np.arctan2(y, x), spread)
-        pushed = (1.0 + np.arange(k) / k) * scale * _COINCIDENT * 10.0
-        x, y = np.where(close, pushed * np.cos(angle), x), np.where(close, pushed * np.sin(angle), y)
-        radius_sq = x * x + y * y
+        direction_x = np.where(undefined, np.cos(spread), direction_x)
+        direction_y = np.where(undefined, np.sin(spread), direction_y)
+        pushed = (1.0 + np.arange(k) / k) * scale[:, None] * _COINCIDENT * 10.0
+        x, y = np.where(close, pushed * direction_x, x), np.where(close, pushed * direction_y, y)
+        radius = np.sqrt(x * x + y * y)
+    nearest = np.argmin(radius, axis=1)
     angles = np.arctan2(y, x)
-    order = np.argsort(angles, axis=1, kind="stable")
+    order = angular_order(angles)
     rows = np.arange(n)[:, None]
-    angles = angles[rows, order]
-    # A gap of about pi or more between angularly consecutive neighbours is the boundary (robust_laplacian's test):
-    # the scan then starts after it and does not close; otherwise it starts at the nearest neighbour (a hull corner).
-    gaps = np.diff(angles, axis=1, append=angles[:, :1] + 2.0 * np.pi)
+    sorted_angles = angles[rows, order]
+    # The widest gap between angular neighbours, the wrap-around one left out (robust_laplacian's loop never
+    # counts it); one of about pi or more is the boundary, and the walk starts after it and does not close.
+    gaps = np.diff(sorted_angles, axis=1)
     widest = np.argmax(gaps, axis=1)
-    boundary = gaps[np.arange(n), widest] > np.pi - _COLLINEAR
-    nearest = np.argmin(radius_sq[rows, order], axis=1)
-    first = np.where(boundary, (widest + 1) % k, nearest)
+    boundary = gaps[rows[:, 0], widest] > np.pi - _COLLINEAR
+    first = np.where(boundary, widest + 1, np.argmax(order == nearest[:, None], axis=1))
     order = order[rows, (first[:, None] + np.arange(k)) % k]
-    x, y, radius_sq = x[rows, order], y[rows, order], radius_sq[rows, order]
-    # Inverted about the centre, the 1-ring is the hull of these (docstring), found by a Graham scan of every row at once.
-    u, v = x / radius_sq, y / radius_sq
-    unit_x, unit_y = x / np.sqrt(radius_sq), y / np.sqrt(radius_sq)
-    # Flat (row-major) copies: one 1-d gather per quantity is several times faster than 2-d fancy indexing.
-    flat_u, flat_v, flat_ux, flat_uy = (np.ravel(a) for a in (u, v, unit_x, unit_y))
-    stack = np.zeros((n, k + 1), dtype=np.int64)  # flat indices into the row-major (n, k) arrays
-    stack[:, 0] = np.arange(n) * k
-    size = np.ones(n, dtype=np.int64)
-    every = np.arange(n)
-    for j in range(1, k + 1):
-        live = every if j < k else every[~boundary]
-        q = live * k + j % k
-        while live.size:
-            top, below = stack[live, size[live] - 1], stack[live, size[live] - 2]
-            ut, vt, ub, vb, uq, vq = flat_u[top], flat_v[top], flat_u[below], flat_v[below], flat_u[q], flat_v[q]
-            # Pop a top inside the triangle (centre, below, q): a right or no turn, below and q less than pi apart.
-            turn = (ut - ub) * (vq - vt) - (vt - vb) * (uq - ut)
-            within_pi = flat_ux[below] * flat_uy[q] - flat_uy[below] * flat_ux[q] > 0
-            pop = (size[live] >= 2) & (turn <= 0) & within_pi
-            size[live[pop]] -= 1
-            pushed = ~pop
-            stack[live[pushed], size[live[pushed]]] = q[pushed]
-            size[live[pushed]] += 1
-            live, q = live[pop], q[pop]
-    stack %= k  # back to slots (entries past each size are unused)
-    # Consecutive hull corners less than pi apart (seen from the centre) form a triangle with it.
-    a, b = stack[:, :-1], stack[:, 1:]
-    cross = unit_x[rows, a] * unit_y[rows, b] - unit_y[rows, a] * unit_x[rows, b]
-    keep = (np.arange(k)[None, :] < size[:, None] - 1) & (cross > _COLLINEAR)
-    point, slot = np.nonzero(keep)
-    sorted_neighbors = neighbors[rows, order]
-    return np.stack([point, sorted_neighbors[point, a[point, slot]], sorted_neighbors[point, b[point, slot]]], axis=1).astype(
-        np.int32
-    )
+    # The walk reads the neighbours in their walking order: slot s of a row is its s-th neighbour from the start.
+    x, y = x[rows, order], y[rows, order]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / np.sqrt(x * x + y * y)
+    flat_x, flat_y, flat_ux, flat_uy = (np.ravel(a) for a in (x, y, x * inverse, y * inverse))
+    last = np.where(boundary, k, k + 1)
+    tolerance = scale * _OUTSIDE
+    start, end, count = np.zeros(n, dtype=np.int64), np.ones(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+    found: list[tuple[np.ndarray, ...]] = []
+    live = np.flatnonzero(np.isfinite(scale) & (scale > 0))  # no triangle at a hopeless neighbourhood
+    while live.size:
+        # Flat (row-major) indices: 1-d gathers are several times faster than 2-d fancy indexing.
+        a, b = live * k + start[live], live * k + end[live] % k
+        ax, ay, bx, by = flat_x[a], flat_y[a], flat_x[b], flat_y[b]
+        adx, ady, bdx, bdy = flat_ux[a], flat_uy[a], flat_ux[b], flat_uy[b]
+        collinear = np.abs(adx * bdy - ady * bdx) < _COLLINEAR
+        # The circumcentre meets the two bisectors, as geometry-central's `rayRayIntersection` does.
+        v1x, v1y = 0.5 * ax - 0.5 * bx, 0.5 * ay - 0.5 * by
+        # Collinear pairs (refused below) divide by zero here.
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (bdy * v1y - -bdx * v1x) / (bdy * -adx + -bdx * -ady)
+            centre_x, centre_y = 0.5 * ax + t * -ady, 0.5 * ay + t * adx
+            circumradius = np.sqrt(centre_x * centre_x + centre_y * centre_y)
+            distance_sq = (centre_x[:, None] - np.take(x, live, axis=0)) ** 2 + (
+                centre_y[:, None] - np.take(y, live, axis=0)
+            ) ** 2
+        local = np.arange(live.size) * k
+        distance_sq.ravel()[local + a % k] = np.inf
+        distance_sq.ravel()[local + b % k] = np.inf
+        # Accepted when no other neighbour is inside the circle by more than the tolerance.
+        accept = ~collinear & (np.sqrt(distance_sq.min(axis=1)) + tolerance[live] > circumradius)
+        taken = live[accept]
+        found.append((taken, count[taken], a[accept] % k, b[accept] % k))
+        count[taken] += 1
+        start[taken] = end[taken]
+        missed = live[~accept]
+        end[missed] += 1
+        exhausted = missed[end[missed] >= last[missed]]
+        start[exhausted] += 1
+        end[taken], end[exhausted] = start[taken] + 1, start[exhausted] + 1
+        live = live[start[live] < k]
+    point, sequence, a, b = (np.concatenate(parts) for parts in zip(*found)) if found else (np.zeros(0, np.int64),) * 4
+    listed = np.lexsort((sequence, point))
+    point, a, b = point[listed], a[listed], b[listed]
+    walked = neighbors[rows, order]
+    return np.stack([point, walked[point, a], walked[point, b]], axis=1).astype(np.int32)
+
+
+def angular_order(angles: np.ndarray) -> np.ndarray:
+    """`(n, k)` each row's slots by increasing angle, equal angles where libstdc++'s `std::sort` leaves them.
+
+    robust_laplacian sorts the slots `0..k-1` with `std::sort` (not stable); rows without equal angles
+    need no more than NumPy's sort, the others are sorted as libstdc++ does (`ddgjax._stdsort`).
+    """
+    order = np.argsort(angles, axis=1, kind="stable")
+    ordered = np.take_along_axis(angles, order, axis=1)
+    for row in np.flatnonzero(np.any(ordered[:, 1:] == ordered[:, :-1], axis=1)):
+        order[row] = std_sort_order(angles[row].tolist())
+    return order
 
 
 def point_cloud_triangulation(
