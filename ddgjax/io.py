@@ -23,9 +23,13 @@ write never damages an existing file.
 
 from __future__ import annotations
 
+import bz2
+import gzip
 import io
+import lzma
 import os
 import pathlib
+import tempfile
 from collections.abc import Callable
 
 import numpy as np
@@ -41,10 +45,12 @@ _FORMATS = ("obj", "off", "ply", "stl")
 
 
 def load_mesh(path: str | os.PathLike, *, dtype=None) -> Mesh:
-    """Read a triangle mesh from an OBJ, OFF, PLY or STL file (format from the extension).
+    """Read a triangle mesh from an OBJ, OFF, PLY or STL file (format from the extension), compressed or not.
 
     Args:
-        path: file path; the extension (case-insensitive) selects the format.
+        path: file path; the extension (case-insensitive) selects the format. A file compressed with
+            xz, gzip or bzip2 (`spot.obj.xz`, `bunny.ply.gz`, `mesh.off.bz2`) is read through the
+            extension before its compression's.
         dtype: float dtype of `mesh.vertices` (e.g. `jnp.float64`); default: JAX's default float
             (float64 when x64 is enabled, as geometry wants; DESIGN.md).
 
@@ -60,6 +66,19 @@ def load_mesh(path: str | os.PathLike, *, dtype=None) -> Mesh:
     Equivalent: `igl.read_triangle_mesh(path)` (same vertex order for OBJ, OFF and PLY).
     """
     path = pathlib.Path(path)
+    opener = _DECOMPRESSORS.get(path.suffix.lower())
+    if opener is not None:
+        _format_of(path.with_suffix(""))  # an unknown inner format is refused before anything is read
+        if not path.is_file():
+            raise FileNotFoundError(f"path: no such mesh file: {str(path)!r}")
+        # Unpacked beside nothing the user sees: a temporary folder, under the inner name (the readers want a path).
+        with tempfile.TemporaryDirectory(prefix="ddgjax-mesh-") as folder, opener(path, "rb") as packed:
+            unpacked = pathlib.Path(folder) / path.with_suffix("").name
+            try:
+                unpacked.write_bytes(packed.read())
+            except (OSError, EOFError, lzma.LZMAError) as error:
+                raise DDGInputError(f"path: {str(path)!r} could not be decompressed ({error})") from None
+            return load_mesh(unpacked, dtype=dtype)
     fmt = _format_of(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no such mesh file: {str(path)!r}")
@@ -151,6 +170,10 @@ _WRITERS: dict[str, Callable[[io.BufferedIOBase, np.ndarray, np.ndarray], None]]
     "ply": _write_ply,
     "stl": _write_stl,
 }
+
+
+# Compressed files `load_mesh` reads, by their last extension.
+_DECOMPRESSORS = {".xz": lzma.open, ".gz": gzip.open, ".bz2": bz2.open}
 
 
 def _format_of(path: pathlib.Path) -> str:

@@ -286,3 +286,30 @@ def test_non_finite_vertices_are_refused_before_anything_is_written(tmp_path):
         Mesh.from_arrays(np.asarray(broken), np.asarray(mesh.faces))
     with pytest.raises(DDGInputError, match="vertices"):
         mesh.with_vertices(broken)
+
+
+@pytest.mark.parametrize("compression", ["xz", "gz", "bz2"])
+def test_a_compressed_mesh_file_reads_as_the_file_it_holds(tmp_path, compression):
+    import bz2
+    import gzip
+    import lzma
+
+    compress = {"xz": lzma.compress, "gz": gzip.compress, "bz2": bz2.compress}[compression]
+    plain = data_path("meshes", "spot.obj")
+    packed = tmp_path / f"spot.obj.{compression}"
+    packed.write_bytes(compress(plain.read_bytes()))
+    read, expected = load_mesh(packed), load_mesh(plain)
+    np.testing.assert_array_equal(np.asarray(read.vertices), np.asarray(expected.vertices))
+    np.testing.assert_array_equal(np.asarray(read.faces), np.asarray(expected.faces))
+    assert not list(tmp_path.glob("spot.obj")) and len(list(tmp_path.iterdir())) == 1  # unpacked elsewhere, removed
+
+
+def test_a_compressed_file_that_is_not_a_mesh_or_not_compressed_is_refused(tmp_path):
+    not_xz = tmp_path / "spot.obj.xz"
+    not_xz.write_bytes(b"v 0 0 0\n")
+    with pytest.raises(DDGInputError, match="could not be decompressed"):
+        load_mesh(not_xz)
+    with pytest.raises(DDGInputError, match="unknown mesh format '.txt'"):
+        load_mesh(tmp_path / "notes.txt.gz")
+    with pytest.raises(FileNotFoundError, match="no such mesh file"):
+        load_mesh(tmp_path / "missing.ply.gz")
