@@ -2,7 +2,8 @@
 
 `python docs/check_site.py SITE_DIR` exits 1 naming each page where maths was left as typed (a `$...$`
 in a text node outside code: `docs/hooks.py` missed it), a notebook page without typeset maths where
-its notebook has some, or a `<script src="">` (a loader without a URL). Not a page (`exclude_docs`).
+its notebook has some, a `<script src="">` (a loader without a URL), or a script loaded from another
+site (the pages work offline: plotly.js is served by the site, `docs/hooks.py`). Not a page (`exclude_docs`).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import sys
 import bs4
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from hooks import _LEAVE_ALONE, _MATH  # noqa: E402
+from hooks import _LEAVE_ALONE, _MATH
 
 DOCS = pathlib.Path(__file__).resolve().parent
 
@@ -36,6 +37,12 @@ def problems(site: pathlib.Path) -> list[str]:
             found.append(f"{name}: maths left as typed: {raw[:3]}")
         if soup.find("script", src=""):
             found.append(f"{name}: a <script> without a URL")
+        for script in soup.find_all("script", src=True):
+            source = script["src"]
+            if source.startswith(("http:", "https:", "//")):
+                found.append(f"{name}: a script from another site: {source}")
+            elif source and not ((site if source.startswith("/") else page.parent) / source.split("?")[0].lstrip("/")).is_file():
+                found.append(f"{name}: a script the site does not hold: {source}")
     for notebook in sorted((DOCS / "notebooks").glob("*.ipynb")):
         cells = json.loads(notebook.read_text(encoding="utf-8"))["cells"]
         has_math = any(cell["cell_type"] == "markdown" and _MATH.search("".join(cell["source"])) for cell in cells)
@@ -47,5 +54,5 @@ def problems(site: pathlib.Path) -> list[str]:
 
 if __name__ == "__main__":
     issues = problems(pathlib.Path(sys.argv[1]))
-    print("\n".join(issues) or "site checks: maths typeset on every page")
+    print("\n".join(issues) or "site checks: maths typeset on every page, every script served by the site")
     sys.exit(1 if issues else 0)

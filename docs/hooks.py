@@ -2,7 +2,10 @@
 
 The notebooks' kernels inherit this process's environment: `PLOTLY_RENDERER` makes `ddgjax.plot.show`'s figures
 HTML that loads plotly.js from its CDN (plotly >= 6 otherwise writes only a mimetype nbconvert cannot render,
-and `"notebook"` would embed ~5 MB of plotly.js in every page with a figure).
+and `"notebook"` would embed ~5 MB of plotly.js in every page with a figure). The site then serves that
+script itself: the plotly package's own `plotly.min.js` is copied into the site once, and each page's CDN
+address becomes that copy's (with the MathJax loader plotly adds for axis labels, which none here has), so
+the 3-D views work offline.
 
 Maths is typeset when the site is built, not in the reader's browser: `$...$` (inline) and `$$...$$`
 (display) in the text of a page (notebook Markdown cells, Markdown pages, docstrings) become MathML by
@@ -14,9 +17,12 @@ nbconvert's empty MathJax loader is dropped.
 from __future__ import annotations
 
 import os
+import pathlib
 import re
+import shutil
 
 import bs4
+import plotly
 from latex2mathml.converter import convert
 
 os.environ.setdefault("PLOTLY_RENDERER", "notebook_connected")
@@ -25,6 +31,8 @@ os.environ.setdefault("PLOTLY_RENDERER", "notebook_connected")
 # prices and shell prompts in prose stay text), never an escaped `\$`.
 _MATH = re.compile(r"\$\$(?P<display>.+?)\$\$|(?<![\\$])\$(?P<inline>[^\s$](?:[^$]*?[^\s\\$])?)\$(?!\$)", re.DOTALL)
 _LEAVE_ALONE = {"code", "pre", "script", "style", "textarea", "math"}
+_PLOTLY_CDN = re.compile(r"^https://cdn\.plot\.ly/plotly-[\w.-]+\.min\.js$")
+_PLOTLY_COPY = "assets/javascripts/plotly.min.js"  # where the site keeps plotly.js, from its root
 
 
 def typeset(text: str) -> str | None:
@@ -42,13 +50,19 @@ def typeset(text: str) -> str | None:
     return "".join(pieces) + _escape(text[end:])
 
 
-def typeset_html(html: str) -> str:
-    """Every text node's maths typeset (`typeset`), outside code, scripts and existing MathML."""
+def self_contained(html: str, root: str = "") -> str:
+    """The page with its maths typeset (`typeset`, outside code, scripts and existing MathML) and its
+    scripts served by the site: plotly.js from `root + _PLOTLY_COPY`, no MathJax loader."""
     soup = bs4.BeautifulSoup(html, "html.parser")
     for script in soup.find_all("script", src=""):  # nbconvert's MathJax loader without a URL
         script.decompose()
     for script in soup.find_all("script", type="text/x-mathjax-config"):
         script.decompose()
+    for script in soup.find_all("script", src=True):
+        if _PLOTLY_CDN.match(script["src"]):
+            script.attrs = {"charset": "utf-8", "src": root + _PLOTLY_COPY}
+        elif "mathjax" in script["src"].lower():
+            script.decompose()
     for node in list(soup.find_all(string=True)):
         if isinstance(node, bs4.element.PreformattedString) or any(p.name in _LEAVE_ALONE for p in node.parents):
             continue
@@ -59,8 +73,17 @@ def typeset_html(html: str) -> str:
 
 
 def on_post_page(output: str, page, config) -> str:
-    """Typeset the maths of each page that has any (MkDocs event)."""
-    return typeset_html(output) if _MATH.search(output) else output
+    """Typeset each page's maths and serve its scripts from the site (MkDocs event)."""
+    if not (_MATH.search(output) or "cdn.plot.ly" in output or '<script src="">' in output):
+        return output
+    return self_contained(output, root="../" * page.url.count("/"))
+
+
+def on_post_build(config) -> None:
+    """Copy the plotly package's plotly.js into the site, where `self_contained` points the pages (MkDocs event)."""
+    target = pathlib.Path(config["site_dir"]) / _PLOTLY_COPY
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(pathlib.Path(plotly.__file__).parent / "package_data" / "plotly.min.js", target)
 
 
 def _escape(text: str) -> str:
