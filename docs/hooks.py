@@ -7,6 +7,11 @@ script itself: the plotly package's own `plotly.min.js` is copied into the site 
 address becomes that copy's (with the MathJax loader plotly adds for axis labels, which none here has), so
 the 3-D views work offline.
 
+Search ranks the API reference and the guides above the notebooks: a notebook page's code cells and
+outputs carry Material's `data-search-exclude` and its entries a lower boost (`_NOTEBOOK_SEARCH_BOOST`),
+so a query such as "heat distance" finds the API entry first, not a cell that happens to call it
+(Material's parser still files some cells' code under a notebook's first entry, hence the boost).
+
 Maths is typeset when the site is built, not in the reader's browser: `$...$` (inline) and `$$...$$`
 (display) in the text of a page (notebook Markdown cells, Markdown pages, docstrings) become MathML by
 `latex2mathml`, which every current browser renders natively. So a page needs no script and no CDN,
@@ -31,6 +36,7 @@ os.environ.setdefault("PLOTLY_RENDERER", "notebook_connected")
 # prices and shell prompts in prose stay text), never an escaped `\$`.
 _MATH = re.compile(r"\$\$(?P<display>.+?)\$\$|(?<![\\$])\$(?P<inline>[^\s$](?:[^$]*?[^\s\\$])?)\$(?!\$)", re.DOTALL)
 _LEAVE_ALONE = {"code", "pre", "script", "style", "textarea", "math"}
+_NOTEBOOK_SEARCH_BOOST = 0.25
 _PLOTLY_CDN = re.compile(r"^https://cdn\.plot\.ly/plotly-[\w.-]+\.min\.js$")
 _PLOTLY_COPY = "assets/javascripts/plotly.min.js"  # where the site keeps plotly.js, from its root
 
@@ -70,6 +76,23 @@ def self_contained(html: str, root: str = "") -> str:
         if fragment is not None:
             node.replace_with(bs4.BeautifulSoup(fragment, "html.parser"))
     return str(soup)
+
+
+def searchable_prose(html: str) -> str:
+    """A notebook page's code cells and outputs excluded from the search index (`data-search-exclude`)."""
+    soup = bs4.BeautifulSoup(html, "html.parser")
+    for block in soup.select(".jp-InputArea, .jp-OutputArea, .jp-Cell-outputWrapper"):
+        block["data-search-exclude"] = ""
+    return str(soup)
+
+
+def on_page_content(html: str, page, config, files) -> str:
+    """Notebook pages: their code and outputs left out of search, their entries ranked lower (MkDocs event,
+    before search indexes the page)."""
+    if not page.file.src_uri.endswith(".ipynb"):
+        return html
+    page.meta.setdefault("search", {}).setdefault("boost", _NOTEBOOK_SEARCH_BOOST)
+    return searchable_prose(html)
 
 
 def on_post_page(output: str, page, config) -> str:
