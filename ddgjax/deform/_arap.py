@@ -12,10 +12,14 @@ handles held at `fixed_values`, by the local-global iteration:
 
 - local step: `R_i = argmax_{R in SO(3)} tr(R S_i)`, `S_i = sum_j w_ij (v_i - v_j)(v'_i - v'_j)^T`;
   with `S_i = U diag(s) W^T`, `R_i = W D U^T`, `D = diag(1, 1, det(W U^T))` (the sign fix flips the
-  direction of the smallest singular value, so `R_i` is a rotation, never a reflection);
+  direction of the smallest singular value, so `R_i` is a rotation, never a reflection); computed for all
+  vertices at once by a closed-form 3 x 3 SVD of elementwise operations (`_rotations.rotation_svd`, ~8x
+  faster than LAPACK's batched SVD under XLA:CPU), with `S_i = sum_c K^c V'` three sparse products with
+  the Laplacian's pattern (`_spokes`, libigl's covariance scatter matrix);
 - global step: `L_ff V'_f = b_f - L_fc V'_c` with `b_i = sum_j w_ij (R_i + R_j) / 2 (v_i - v_j)`,
   the stationarity condition of `E` in `V'` at fixed rotations (`grad_{V'} E = 4 (L V' - b)`),
-  solved with ONE factorisation of the free-free block `L_ff`, kept for every iteration.
+  solved with ONE factorisation of the free-free block `L_ff`, kept for every iteration; `b` is three
+  more sparse products with the same `K^c`.
 
 Each step does not increase `E_hat`, and the iteration stops when the largest displacement of a
 step, over the rest mesh's bounding-box diagonal, falls below `rtol` (or after `max_steps` steps:
@@ -31,7 +35,7 @@ the gradient of `E_hat` (by the envelope theorem the rotations' own derivative d
 gradient: `F` is `E`'s gradient at the optimal rotations). `jax.lax.custom_root` differentiates
 this condition implicitly, `dV'_f = -(dF/dV'_f)^{-1} dF/dtheta dtheta`, never through the
 iterations: `dF/dV'_f` is the Hessian of `E_hat / 4` (symmetric; it does include the derivative of
-the optimal rotations, given by the polar decomposition's derivative `_rotations`), solved by
+the optimal rotations, given by the polar decomposition's derivative, `_rotations.fit_rotations`), solved by
 conjugate gradients on its Hessian-vector products, preconditioned by the kept factor of `L_ff`
 (the Hessian at frozen rotations). `custom_root` rather than `optimistix.ImplicitAdjoint`: it takes
 the local-global loop as the solver without wrapping it as an optimistix solver class, and gives
@@ -40,7 +44,10 @@ both modes through a symmetric `lax.custom_linear_solve`.
 How it runs: eagerly, one compiled program assembles `L_ff`, `ddgjax.solve.factorize` factors it
 outside every program (its definiteness check on the host) and a second program takes the
 factorisation and iterates, so both programs can be kept across processes (`ddgjax._program_store`);
-under `jit` / `grad` / `vmap` all of it is traced into the caller's program.
+under `jit` / `grad` / `vmap` all of it is traced into the caller's program. The whole iteration is one
+`lax.while_loop` with the kept factor's solve inside; its first pass also gives the start's energy and
+one last pass (no step) the answer's, so the rotation fit has a single call site in the program (each
+call site of it adds ~3-4 s of XLA:CPU compilation on 2 cores).
 
 Reference: O. Sorkine, M. Alexa, "As-Rigid-As-Possible Surface Modeling", SGP 2007 (eqs. 3-9).
 libigl: `data = igl.ARAPData(); data.energy = igl.ARAP_ENERGY_TYPE_SPOKES; data.max_iter = n;
@@ -49,7 +56,6 @@ igl.arap_precomputation(V, F, 3, b, data); U = igl.arap_solve(bc, data, U0)`.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import jax
@@ -64,10 +70,11 @@ from .._results import RESULTS, Solution, first_failure, outcome
 from ..discretization.internal import DirichletData
 from ..laplacian import TriangulationPlan, cotan_laplacian_from_lengths_sq
 from ..laplacian.internal import vertex_plan
-from ..mesh import Mesh, corner_cotangents, face_edge_lengths_sq, require_mesh
+from ..mesh import Mesh, face_edge_lengths_sq, require_mesh
 from ..solve import Factorization, factorize
 from ..solve.internal import cholmod_analysis, kept_analysis
-from ..sparse import DirichletBlocks, DirichletPlan, SparseMatrix, dirichlet_blocks
+from ..sparse import DirichletPlan, SparseMatrix, dirichlet_blocks
+from ._rotations import fit_rotations
 
 
 def arap(
@@ -157,7 +164,7 @@ def arap(
     if initial.shape != (mesh.n_vertices, 3):
         raise DDGInputError(f"initial: expected shape ({mesh.n_vertices}, 3), got {initial.shape}")
     if dirichlet.plan is None:  # every vertex is a handle (or unused): nothing to solve, nothing to factor
-        positions, stats = _held(mesh, dirichlet.values, initial, device_array(dirichlet.fixed, dtype=jnp.int32))
+        positions, stats = _held(mesh, plan, dirichlet.values, initial, device_array(dirichlet.fixed, dtype=jnp.int32))
         return outcome(positions, RESULTS.successful, throw, stats)
     # Kept for every global step: simplicial up to `SIMPLICIAL_LIMIT` unknowns, the faster solves.
     with cholmod_analysis(kept_analysis(mesh.n_vertices)):
@@ -175,10 +182,11 @@ def arap(
     return outcome(positions, result, throw, stats)
 
 
-def _rest_blocks(mesh: Mesh, rest: Float[Array, "nv 3"], plan: TriangulationPlan, blocks: DirichletPlan) -> DirichletBlocks:
-    """`(L_ff, L_fc)` of the cotan Laplacian of the rest positions `rest`."""
+def _rest_pieces(mesh: Mesh, rest: Float[Array, "nv 3"], plan: TriangulationPlan, blocks: DirichletPlan) -> tuple:
+    """`(L_ff, L_fc, L, spokes)` of the rest positions `rest`: the cotan Laplacian, its Dirichlet blocks and `_spokes`."""
     laplacian = cotan_laplacian_from_lengths_sq(face_edge_lengths_sq(mesh.with_vertices(rest)), plan)
-    return dirichlet_blocks(laplacian, blocks)
+    free_free, free_fixed = dirichlet_blocks(laplacian, blocks)
+    return free_free, free_fixed, laplacian, _spokes(laplacian, rest)
 
 
 def _working_dtype(mesh: Mesh, values: Real[Array, "n_fixed 3"]) -> jnp.dtype:
@@ -190,20 +198,21 @@ def _working_dtype(mesh: Mesh, values: Real[Array, "n_fixed 3"]) -> jnp.dtype:
 def _free_block(mesh: Mesh, plan: TriangulationPlan, blocks: DirichletPlan, values: Real[Array, "n_fixed 3"]) -> SparseMatrix:
     """`L_ff`, the matrix `_arap` takes factored, without derivatives (the iterations run on values only)."""
     rest = mesh.vertices.astype(_working_dtype(mesh, values))
-    return jax.lax.stop_gradient(_rest_blocks(mesh, rest, plan, blocks).free_free)
+    laplacian = cotan_laplacian_from_lengths_sq(face_edge_lengths_sq(mesh.with_vertices(rest)), plan)
+    return jax.lax.stop_gradient(dirichlet_blocks(laplacian, blocks).free_free)
 
 
 @kernel
 def _held(
-    mesh: Mesh, values: Real[Array, "n_fixed 3"], initial: Real[Array, "nv 3"], fixed: Int[Array, " nv"]
+    mesh: Mesh, plan: TriangulationPlan, values: Real[Array, "n_fixed 3"], initial: Real[Array, "nv 3"], fixed: Int[Array, " nv"]
 ) -> tuple[Float[Array, "nv 3"], dict[str, Array]]:
     """`(V', stats)` of `arap` when every vertex is held: `fixed` is the handles, then the unreferenced vertices."""
     dtype = _working_dtype(mesh, values)
     held = jnp.concatenate([values.astype(dtype), initial.astype(dtype)[fixed[values.shape[0] :]]])
     positions = jnp.zeros((mesh.n_vertices, 3), dtype).at[fixed].set(held)
     rest = jax.lax.stop_gradient(mesh.vertices.astype(dtype))
-    weights = corner_cotangents(mesh.with_vertices(rest)) / 2
-    energy, _ = _fitted(_face_edges(rest, mesh.faces), weights, mesh.faces, jax.lax.stop_gradient(positions))
+    laplacian = cotan_laplacian_from_lengths_sq(face_edge_lengths_sq(mesh.with_vertices(rest)), plan)
+    energy, _ = _fitted(laplacian, _spokes(laplacian, rest), rest, jax.lax.stop_gradient(positions))
     zero = jnp.zeros((), dtype)
     return positions, {"num_steps": jnp.zeros((), jnp.int32), "energy": energy, "initial_energy": energy, "relative_change": zero}
 
@@ -224,48 +233,61 @@ def _arap(
     dtype = _working_dtype(mesh, values)
     values, initial = values.astype(dtype), initial.astype(dtype)
     rest = mesh.vertices.astype(dtype)
-    faces = mesh.faces
     n_handles = values.shape[0]
     fixed_positions = jnp.concatenate([values, initial[blocks.fixed[n_handles:]]])
     scale = jnp.linalg.norm(jnp.max(rest, axis=0) - jnp.min(rest, axis=0))
 
-    def pieces(rest):
-        """The rest-shape data `F` needs, differentiable in `rest`: `L_ff`, `L_fc`, edge vectors and weights."""
-        free_free, free_fixed = _rest_blocks(mesh, rest, plan, blocks)
-        return free_free, free_fixed, _face_edges(rest, faces), corner_cotangents(mesh.with_vertices(rest)) / 2
-
     def residual(free):
         """`F = L_ff V'_f + L_fc V'_c - b_f`, the gradient of `E_hat / 4` in the free positions (module docstring)."""
-        free_free, free_fixed, rest_edges, weights = pieces(rest)
-        deformed = blocks.join(free, fixed_positions)
-        rotations = _rotations(_covariances(rest_edges, _face_edges(deformed, faces), weights, faces, rest.shape[0]))
-        rhs = _rotated_rhs(rotations, rest_edges, weights, faces, rest.shape[0])
-        return free_free @ free + free_fixed @ fixed_positions - rhs[blocks.free]
+        free_free, free_fixed, _, spokes = _rest_pieces(mesh, rest, plan, blocks)
+        rotations = fit_rotations(_covariances(spokes, blocks.join(free, fixed_positions)))
+        return free_free @ free + free_fixed @ fixed_positions - _rotated_rhs(spokes, rotations)[blocks.free]
 
     # The local-global loop runs on values only: `custom_root` differentiates `residual` instead.
-    _, free_fixed, rest_edges, weights = jax.lax.stop_gradient(pieces(rest))
+    _, free_fixed, laplacian, spokes = jax.lax.stop_gradient(_rest_pieces(mesh, rest, plan, blocks))
     fixed_stopped = jax.lax.stop_gradient(fixed_positions)
     constant = free_fixed @ fixed_stopped
-
-    energy = functools.partial(_fitted, rest_edges, weights, faces)
+    rest_stopped = jax.lax.stop_gradient(rest)
 
     def local_global(start):
+        """The steps, and the energies of the start and of the answer from the rotations the loop fits anyway:
+        every call site of the rotation fit is compiled apart (~3 s each on 2 cores), so there is one."""
+
         def step(state):
-            free, _, steps, result = state
-            _, rotations = energy(blocks.join(free, fixed_stopped))
-            rhs = _rotated_rhs(rotations, rest_edges, weights, faces, rest.shape[0])[blocks.free] - constant
+            free, change, steps, result, energies, _ = state
+            deformed = blocks.join(free, fixed_stopped)
+            rotations = fit_rotations(_covariances(spokes, deformed))
+            going = (change > rtol) & (steps < max_steps) & (result == RESULTS.successful)
+            # The first pass fits the start's rotations, the last (which takes no step) the answer's.
+            energy = jax.lax.cond(
+                (steps == 0) | ~going,
+                lambda: _spokes_energy(laplacian, rest_stopped, deformed, rotations),
+                lambda: jnp.zeros((), rest.dtype),
+            )
+            energies = jnp.where(jnp.stack([steps == 0, ~going]), energy, energies)
+            rhs = _rotated_rhs(spokes, rotations)[blocks.free] - constant
             solution = factorization.solve(rhs, throw=False)
-            change = jnp.max(jnp.abs(solution.value - free)) / scale
-            return solution.value, change, steps + 1, first_failure(result, solution.result)
+            moved = jnp.max(jnp.abs(solution.value - free)) / scale
+            return (
+                jnp.where(going, solution.value, free),
+                jnp.where(going, moved, change),
+                steps + going.astype(steps.dtype),
+                RESULTS.where(going, first_failure(result, solution.result), result),
+                energies,
+                ~going,
+            )
 
-        def running(state):
-            _, change, steps, result = state
-            return (change > rtol) & (steps < max_steps) & (result == RESULTS.successful)
-
-        state = (start, jnp.asarray(jnp.inf, rest.dtype), jnp.zeros((), jnp.int32), factorization.result)
-        free, change, steps, result = jax.lax.while_loop(running, step, state)
+        state = (
+            start,
+            jnp.asarray(jnp.inf, rest.dtype),
+            jnp.zeros((), jnp.int32),
+            factorization.result,
+            jnp.zeros((2,), rest.dtype),
+            jnp.asarray(False),
+        )
+        free, change, steps, result, energies, _ = jax.lax.while_loop(lambda state: ~state[-1], step, state)
         result = RESULTS.where((result == RESULTS.successful) & (change > rtol), RESULTS.max_steps_reached, result)
-        return free, change, steps, result
+        return free, change, steps, result, energies
 
     def tangent_solve(jacobian, rhs):
         """`J x = rhs` for the symmetric Hessian `J` of `E_hat / 4`: CG preconditioned by the kept `L_ff` factor."""
@@ -277,92 +299,58 @@ def _arap(
         return jax.lax.custom_linear_solve(jacobian, rhs, cg, symmetric=True)
 
     start = jax.lax.stop_gradient(initial)[blocks.free]
-    initial_energy, _ = energy(blocks.join(start, fixed_stopped))
-    solved, change, steps, result = local_global(start)
+    solved, change, steps, result, (initial_energy, final_energy) = local_global(start)
     # The root is found above (its integer outcome cannot pass through `custom_root`'s aux output);
     # `custom_root` only attaches the implicit derivative of `residual(solved) = 0` to it.
     free = jax.lax.custom_root(residual, start, lambda _, __: solved, tangent_solve)
     positions = blocks.join(free, fixed_positions)
-    final_energy, _ = energy(jax.lax.stop_gradient(positions))
     stats = {"num_steps": steps, "energy": final_energy, "initial_energy": initial_energy, "relative_change": change}
     return positions, result, stats
 
 
-def _fitted(rest_edges, weights, faces, deformed: Float[Array, "nv 3"]) -> tuple[Float[Array, ""], Float[Array, "nv 3 3"]]:
-    """`(E_hat(V'), R*(V'))`: the local step's rotations for the deformed positions and the energy at them."""
-    deformed_edges = _face_edges(deformed, faces)
-    rotations = _rotations(_covariances(rest_edges, deformed_edges, weights, faces, deformed.shape[0]))
-    return _energy(rotations, rest_edges, deformed_edges, weights, faces), rotations
+def _spokes(laplacian: SparseMatrix, rest: Float[Array, "nv 3"]) -> tuple[SparseMatrix, SparseMatrix, SparseMatrix]:
+    """`K^a`, `a = 0, 1, 2`: the matrices with `S_i[a, :] = (K^a V')_i` (libigl's covariance scatter matrix).
 
-
-def _face_edges(positions: Float[Array, "nv 3"], faces: Int[Array, "nf 3"]) -> Float[Array, "nf 3 3"]:
-    """`e_k = p_{k+1} - p_{k+2}` per face: the edge opposite corner `k` (its weight is `cot(corner k) / 2`)."""
-    corners = positions[faces]
-    return jnp.roll(corners, -1, axis=1) - jnp.roll(corners, -2, axis=1)
-
-
-def _edge_ends(faces: Int[Array, "nf 3"]) -> tuple[Int[Array, "nf 3"], Int[Array, "nf 3"]]:
-    """The vertices `(i, j)` of each `e_k = p_i - p_j` of `_face_edges`."""
-    return jnp.roll(faces, -1, axis=1), jnp.roll(faces, -2, axis=1)
-
-
-def _covariances(rest_edges, deformed_edges, weights, faces, n_vertices: int) -> Float[Array, "nv 3 3"]:
-    """`S_i = sum_j w_ij e_ij e'_ij^T`: each face edge adds `w e e'^T` to both of its ends (the spokes)."""
-    outer = weights[..., None, None] * rest_edges[..., :, None] * deformed_edges[..., None, :]
-    i, j = _edge_ends(faces)
-    ends = jnp.concatenate([i.ravel(), j.ravel()])
-    return jax.ops.segment_sum(jnp.concatenate([outer.reshape(-1, 3, 3)] * 2), ends, n_vertices)
-
-
-def _rotated_rhs(rotations, rest_edges, weights, faces, n_vertices: int) -> Float[Array, "nv 3"]:
-    """`b_i = sum_j w_ij (R_i + R_j) / 2 (v_i - v_j)` (Sorkine & Alexa eq. 8's right-hand side)."""
-    i, j = _edge_ends(faces)
-    rotated = jnp.einsum("fkab,fkb->fka", rotations[i] + rotations[j], rest_edges) * (weights / 2)[..., None]
-    ends = jnp.concatenate([i.ravel(), j.ravel()])
-    return jax.ops.segment_sum(jnp.concatenate([rotated.reshape(-1, 3), -rotated.reshape(-1, 3)]), ends, n_vertices)
-
-
-def _energy(rotations, rest_edges, deformed_edges, weights, faces) -> Float[Array, ""]:
-    """The spokes energy: each face edge counts once for each end's rotation."""
-    i, j = _edge_ends(faces)
-    total = 0.0
-    for ends in (i, j):
-        misfit = deformed_edges - jnp.einsum("fkab,fkb->fka", rotations[ends], rest_edges)
-        total = total + jnp.sum(weights * jnp.sum(misfit**2, axis=-1))
-    return total
-
-
-@jax.custom_jvp
-def _rotations(covariances: Float[Array, "n 3 3"]) -> Float[Array, "n 3 3"]:
-    """`R = argmax_{R in SO(3)} tr(R S)` per matrix: `S = U diag(s) W^T`, `R = W diag(1, 1, det(W U^T)) U^T`."""
-    return _polar(covariances)[0]
-
-
-def _polar(covariances):
-    """`(R, U, signed singular values)` of the sign-fixed polar factor of `S^T` (`S^T = R U diag(s') U^T`)."""
-    u, s, wt = jnp.linalg.svd(covariances)
-    w = jnp.swapaxes(wt, -1, -2)
-    sign = jnp.sign(jnp.linalg.det(w @ jnp.swapaxes(u, -1, -2)))
-    sign = jnp.where(sign == 0, 1.0, sign)
-    flip = jnp.concatenate([jnp.ones(s.shape[:-1] + (2,), s.dtype), sign[..., None]], axis=-1)
-    rotation = (w * flip[..., None, :]) @ jnp.swapaxes(u, -1, -2)
-    return rotation, u, s * flip
-
-
-@_rotations.defjvp
-def _rotations_jvp(primals, tangents):
-    """`dR = R U Omega U^T`, `Omega_ab = M_ab / (s'_a + s'_b)`, `M = U^T (R^T dA - dA^T R) U`, `A = S^T`.
-
-    From `A = R P` with `P = U diag(s') U^T` symmetric: the skew part of `R^T dA` is `Omega P + P Omega`
-    for the skew `Omega = R^T dR`. Defined while `s'_a + s'_b > 0` (the maximiser is isolated); a
-    zero denominator (an unused vertex, `S = 0`) gives 0.
+    `S_i = sum_j w_ij e_ij (v'_i - v'_j)^T = (L V)_i v'_i^T + sum_{j != i} L_ij e_ij v'_j^T` with
+    `e_ij = v_i - v_j` and `w_ij = -L_ij`, as `sum_j w_ij e_ij = (L V)_i`. So `K^a` has `L`'s pattern, the
+    values `L_ij (e_ij)_a` off the diagonal and `(L V)_{ia}` on it. Built once from the rest shape; each
+    local step is then three sparse products, with no per-face scatter.
     """
-    (covariances,), (dcov,) = primals, tangents
-    rotation, u, s = _polar(covariances)
-    da = jnp.swapaxes(dcov, -1, -2)
-    rt_da = jnp.swapaxes(rotation, -1, -2) @ da
-    m = jnp.swapaxes(u, -1, -2) @ (rt_da - jnp.swapaxes(rt_da, -1, -2)) @ u
-    denominator = s[..., :, None] + s[..., None, :]
-    safe = jnp.where(denominator == 0, 1.0, denominator)
-    omega = jnp.where(denominator == 0, 0.0, m / safe)
-    return rotation, rotation @ u @ omega @ jnp.swapaxes(u, -1, -2)
+    pattern = laplacian.pattern
+    spokes = laplacian.values[:, None] * (rest[pattern.rows] - rest[pattern.cols])  # 0 on the diagonal and padding
+    # The vertex pattern is diagonal-first (`TriangulationPlan`): its first `nv` slots hold the diagonal.
+    spokes = spokes.at[: rest.shape[0]].add(laplacian @ rest)
+    return tuple(SparseMatrix(spokes[:, a], pattern) for a in range(3))
+
+
+def _covariances(spokes, deformed: Float[Array, "nv 3"]) -> Float[Array, "nv 3 3"]:
+    """`S_i = sum_j w_ij e_ij e'_ij^T`, the spokes' covariances (`_spokes`)."""
+    return jnp.stack([scatter @ deformed for scatter in spokes], axis=1)
+
+
+def _rotated_rhs(spokes, rotations: Float[Array, "nv 3 3"]) -> Float[Array, "nv 3"]:
+    """`b_i = sum_j w_ij (R_i + R_j) / 2 (v_i - v_j)` (Sorkine & Alexa eq. 8's right-hand side).
+
+    `= sum_c [K^c_ii R_i[:, c] - (K^c R[:, :, c])_i / 2]` with `_spokes`' `K^c` (its diagonal `sum_j w_ij e_ij`
+    carries `R_i`'s half, the off-diagonal `-w_ij e_ij` the neighbours' `R_j` half, and `K^c`'s diagonal counted
+    by the product is taken back)."""
+    n = rotations.shape[0]
+    return sum(
+        scatter.values[:n, None] * rotations[:, :, c] - (scatter @ rotations[:, :, c]) / 2 for c, scatter in enumerate(spokes)
+    )
+
+
+def _fitted(
+    laplacian: SparseMatrix, spokes, rest, deformed: Float[Array, "nv 3"]
+) -> tuple[Float[Array, ""], Float[Array, "nv 3 3"]]:
+    """`(E_hat(V'), R*(V'))`: the local step's rotations for the deformed positions and the spokes energy at them."""
+    rotations = fit_rotations(_covariances(spokes, deformed))
+    return _spokes_energy(laplacian, rest, deformed, rotations), rotations
+
+
+def _spokes_energy(laplacian: SparseMatrix, rest, deformed, rotations) -> Float[Array, ""]:
+    """`sum_i sum_{j != i} w_ij |e'_ij - R_i e_ij|^2` over the Laplacian's off-diagonal slots (`w_ij = -L_ij`; its
+    diagonal and padding slots add 0)."""
+    rows, cols = laplacian.pattern.rows, laplacian.pattern.cols
+    misfit = deformed[rows] - deformed[cols] - jnp.einsum("sab,sb->sa", rotations[rows], rest[rows] - rest[cols])
+    return -jnp.sum(laplacian.values * jnp.sum(misfit**2, axis=-1))
