@@ -201,10 +201,7 @@ def _program(function: Callable, static_positions, options: dict[str, str], key:
     traced_before = _trace_counts()
     lowered = jitted.lower(*args, **kwargs)
     _forget_traces(traced_before)
-    compiled = lowered.compile()
-    if entry is not None:
-        _program_store.save(entry, lowered, compiled)
-    return compiled
+    return _program_store.compile_and_save(entry, lowered)
 
 
 def _trace_caches() -> tuple:

@@ -127,6 +127,30 @@ def _bind_host_kernels() -> None:
         import sparsax  # noqa: F401
 
 
+def compile_and_save(key: str | None, lowered: jax.stages.Lowered) -> jax.stages.Compiled:
+    """`lowered.compile()`, stored under `key` (None: not stored) unless JAX's own persistent cache served it.
+
+    An XLA:CPU executable that JAX loaded from its persistent compilation cache serializes without the
+    code of some of its functions (jaxlib 0.10: the entry loads, then its first call fails with
+    "Function ... not found"); only programs compiled here are stored, so a process whose JAX cache
+    answered leaves the entry to the next one that compiles it.
+    """
+    hits = _JAX_CACHE_HITS[0]
+    compiled = lowered.compile()
+    if key is not None and _JAX_CACHE_HITS[0] == hits:
+        save(key, lowered, compiled)
+    return compiled
+
+
+def _count_jax_cache_hits(event: str, **_) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _JAX_CACHE_HITS[0] += 1
+
+
+_JAX_CACHE_HITS = [0]
+jax.monitoring.register_event_listener(_count_jax_cache_hits)
+
+
 def save(key: str, lowered: jax.stages.Lowered, compiled: jax.stages.Compiled) -> None:
     """Store `compiled` under `key` unless it holds a host callback; any failure is one warning, then ignored."""
     if _host_callbacks(lowered):

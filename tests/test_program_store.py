@@ -70,6 +70,26 @@ def test_a_fresh_process_reads_the_program_an_earlier_one_compiled(tmp_path):
     assert second["sum"] == first["sum"] and not second["warnings"]
 
 
+def test_a_program_jaxs_own_cache_served_is_not_stored(tmp_path):
+    # With JAX's persistent cache on (as the command line has it), a process that finds the program there
+    # must not store it: such an executable serializes incomplete on XLA:CPU (a later load fails on its
+    # first call). The next process that compiles it stores it, and a process after that reads it.
+    jax_cache = {
+        "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "jax"),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES": "-1",
+    }
+    first = _fresh_process(tmp_path, **jax_cache)
+    assert len(_entries(tmp_path)) >= 1 and any((tmp_path / "jax").iterdir())
+    for entry in _entries(tmp_path):
+        entry.unlink()
+    served = _fresh_process(tmp_path, **jax_cache)  # JAX's cache answers every compilation
+    assert not _entries(tmp_path) and served["sum"] == first["sum"]
+    _fresh_process(tmp_path)  # compiles (JAX's cache off), so it stores
+    assert len(_entries(tmp_path)) >= 1
+    assert _fresh_process(tmp_path, **jax_cache)["sum"] == first["sum"]
+
+
 def test_a_stored_program_that_calls_lapack_runs_in_a_fresh_process(tmp_path):
     first = _fresh_process(tmp_path, CALL_LAPACK)
     assert _fresh_process(tmp_path, CALL_LAPACK)["sum"] == first["sum"]  # read from disk: no crash, same values
