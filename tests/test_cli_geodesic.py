@@ -36,18 +36,14 @@ def test_geodesic_on_the_built_in_torus_writes_a_figure(tmp_path):
 
 
 @pytest.mark.slow
-def test_log_map_reaches_the_heat_distance(sphere_obj):
-    status, out, err = run_cli(["geodesic", sphere_obj, "--no-plot"])
-    assert status == 0, err
-    largest = _numbers(out, "distance")[0]
+def test_log_map_reaches_the_antipode(sphere_obj):
     status, out, err = run_cli(["geodesic", sphere_obj, "--log-map", "--cells", "4", "--no-plot"])
     assert status == 0, err
     radius, mean = _numbers(out, "log")[0], _numbers(out, "log")[1]
-    # The log map's radius is the heat-method distance (same flow, same time): the same 4 digits printed.
-    assert radius == pytest.approx(largest, rel=1e-3)
-    # The heat method's error at 162 vertices: measured 3.045 (3.1 % short) and 1.526 (2.9 %).
-    assert radius == pytest.approx(np.pi, rel=0.05)  # the antipode of the unit sphere
-    assert mean == pytest.approx(np.pi / 2, rel=0.05)  # the mean great-circle distance on the sphere
+    # The radial field integrated at 162 vertices: measured 2.959 at the antipode (5.8 % short: the cut locus,
+    # where the radial field turns) and 1.548 on average (1.5 % short).
+    assert radius == pytest.approx(np.pi, rel=0.08)  # the antipode of the unit sphere
+    assert mean == pytest.approx(np.pi / 2, rel=0.03)  # the mean great-circle distance on the sphere
 
 
 @pytest.mark.slow
