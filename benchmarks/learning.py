@@ -240,7 +240,8 @@ def throughput(args) -> None:
     print(
         f"# {len(meshes)} meshes, {min(m.n_vertices for m in meshes)}..{max(m.n_vertices for m in meshes)} vertices "
         f"({total} in all), padded to B x nvp = {batch.batch_size} x {batch.n_padded_vertices}, "
-        f"nfp = {batch.n_padded_faces}, corners per vertex w = {batch.vertex_corners.shape[2]}, columns = {args.columns}"
+        f"nfp = {batch.n_padded_faces}, overflow corner rows R = {batch.overflow_vertices.shape[1]}, "
+        f"overflow edges K = {batch.overflow_edges.shape[1]}, columns = {args.columns}"
     )
 
     single_apply = jit(laplacian_apply)  # a user's jit keeps every size's program (the eager kernel keeps 8)

@@ -13,12 +13,17 @@ Padding: padded vertices sit at the origin and belong to no face; padded faces r
 from an out-of-range index (a gather of zeros), so they are degenerate at the origin and every
 operator gives them exactly zero, with finite values and gradients (`ddgjax.batch._operators`).
 
-The index plan is built on the host from the faces alone (DESIGN.md, two phases): `vertex_corners`
-lists the corners `3 f + k` at each vertex (ELL, padded with `3 nfp`), and its transpose is the
-faces themselves, so both the corner -> vertex sum and the vertex -> corner gather are
-`ddgjax.sparse.gather_sum` calls whose derivatives are fixed gathers (no scatter-add); the
-Laplacian's directed-edge slots (`vertex_neighbors`, `slot_corners`, `corner_slots`) come from each
-mesh's edges, as `ddgjax.laplacian`'s storage plan does for one mesh.
+The index plan is built on the host from the faces alone (DESIGN.md, two phases), with widths that
+are constants and overflow parts whose lengths are functions of `(nvp, nfp)`, so the shapes of a
+batch depend on its bucket only, never on its meshes' local structure (valence, degree,
+non-manifold edges), as the single-mesh Laplacian's ELL-plus-tail pattern (`ddgjax.sparse`) does
+for one mesh. `vertex_corners` lists the corners `3 f + k` at each vertex, eight per row, with
+overflow rows for high-valence vertices, and `corner_rows` is its transpose, so both the corner ->
+row sum and the row -> corner gather are `ddgjax.sparse.gather_sum` calls whose derivatives are
+fixed gathers; the overflow rows fold into their vertices with one sorted `segment_sum` of `R` rows
+(`overflow_vertices`). The Laplacian's directed-edge slots (`vertex_neighbors`: six per vertex,
+slot-major ELL; `overflow_edges`: the rest, sorted by tail; `slot_corners` / `corner_slots`: at most
+two corners per slot) come from each mesh's edges, as `ddgjax.laplacian`'s storage plan does for one mesh.
 """
 
 from __future__ import annotations
@@ -38,8 +43,19 @@ from .._errors import DDGInputError, check_count, check_float_array, is_traced
 from ..mesh import Mesh
 from ._bucket import bucket
 
-#: The smallest padded width of the vertex -> corner lists (the bucket ladder from 4: 4, 5, 6, 7, 8, 10, ...).
-_MIN_CORNERS_PER_VERTEX = 4
+#: Widths of the per-vertex tables, constants so that a batch's shapes depend on its padded sizes only:
+#: eight corners per row of `vertex_corners` (a vertex of higher valence continues in overflow
+#: rows) and six directed edges per vertex in `vertex_neighbors` (the rest in `overflow_edges`), so
+#: regular meshes (valence 6) need no overflow. The overflow lengths cover the meshes measured
+#: (the shared kitten, spot, armadillo, nefertiti, fertility, beetle, camelhead, bunny, teddy; convex
+#: hulls of random points on a sphere, 100 to 5,000): at most 7.1 % of their vertices need an overflow
+#: row of corners (`nvp // 8` rows are kept) and at most 0.51 nv directed edges overflow (the random
+#: hulls; armadillo 0.47 nv; `3 nfp // 8`, about `0.75 nvp`, are kept: `nfp // 4` gave 5 of 60
+#: batches of random hulls a bucket of their own).
+CORNERS_PER_ROW = 8
+NEIGHBORS_PER_VERTEX = 6
+#: The fewest overflow rows / directed edges kept, so small meshes with a high-valence vertex fit.
+_MIN_OVERFLOW = 16
 
 
 class PackedMeshes(NamedTuple):
@@ -73,15 +89,28 @@ class MeshBatch(Domain):
         n_vertices: `(B,)` int32 vertex count of each mesh (arrays, not static ints: the tree structure
             stays the same across a bucket).
         n_faces: `(B,)` int32 face count of each mesh.
-        vertex_corners: `(B, nvp, w)` int32 the corners `3 f + k` of each vertex, padded with `3 nfp`
-            (`w = bucket(largest number of corners at a vertex, minimum=4)`).
-        vertex_neighbors: `(B, nvp, d)` int32 the vertices joined to each vertex by an edge, padded
-            with `nvp` (`d = bucket(largest degree, minimum=4)`): the directed edge `i -> j` of slot
-            `(i, s)` is slot `i d + s`.
-        slot_corners: `(B, nvp d, m)` int32 the corners opposite the edge of each slot, padded with
-            `3 nfp` (`m`: the most faces at an edge, 2 on manifold meshes).
-        corner_slots: `(B, 3 nfp, 2)` int32 its transpose: the two slots (`i -> j`, `j -> i`) of each
-            corner's opposite edge, `nvp d` on padding faces.
+        vertex_corners: `(B, nvp + R, 8)` int32 the corners `3 f + k` at each vertex, eight per row
+            (`CORNERS_PER_ROW`), padded with `3 nfp`: row `i < nvp` holds vertex `i`'s first eight, a
+            vertex of higher valence continues in overflow rows `nvp + r` (`R = max(16, nvp // 8)`,
+            or the bucket of what a batch needs where it needs more: rare, a new program).
+        corner_rows: `(B, nfp, 3)` int32 its transpose: the row of `vertex_corners` that lists each
+            corner, `nvp + R` on padding faces.
+        overflow_vertices: `(B, R)` int32 the vertex of each overflow row (increasing), `nvp` pads.
+        vertex_neighbors: `(B, 6, nvp)` int32 the first six directed edges `i -> j` leaving each
+            vertex (`NEIGHBORS_PER_VERTEX`), slot-major ELL: slot `s nvp + i` holds head `j` at
+            `[s, i]`, `nvp` pads.
+        overflow_edges: `(B, K, 2)` int32 the directed edges beyond six per vertex as `(tail, head)`
+            sorted by tail, slot `6 nvp + k` (`K = max(16, 3 nfp // 8)`, or the bucket of a batch's
+            need), `nvp` pads. A non-manifold edge with `n` faces has `ceil(n / 2)` parallel
+            directed edges each way, so every slot has at most two corners.
+        slot_corners: `(B, 6 nvp + K, 2)` int32 the corners opposite the edge of each slot, padded
+            with `3 nfp`.
+        corner_slots: `(B, 3 nfp, 2)` int32 its transpose: the two slots (`i -> j`, `j -> i`) holding
+            each corner, `6 nvp + K` on padding faces.
+
+    Every width is a constant and `R`, `K` are functions of `(nvp, nfp)`, so batches of one bucket
+    share shapes (and one compiled program) whatever their meshes' valences, degrees and
+    non-manifold edges.
     """
 
     vertices: Float[Array, "B nvp 3"]
@@ -90,9 +119,12 @@ class MeshBatch(Domain):
     face_mask: Bool[Array, "B nfp"]
     n_vertices: Int[Array, " B"]
     n_faces: Int[Array, " B"]
-    vertex_corners: Int[Array, "B nvp w"]
-    vertex_neighbors: Int[Array, "B nvp d"]
-    slot_corners: Int[Array, "B n_slots m"]
+    vertex_corners: Int[Array, "B n_rows 8"]
+    corner_rows: Int[Array, "B nfp 3"]
+    overflow_vertices: Int[Array, "B R"]
+    vertex_neighbors: Int[Array, "B 6 nvp"]
+    overflow_edges: Int[Array, "B K 2"]
+    slot_corners: Int[Array, "B n_slots 2"]
     corner_slots: Int[Array, "B n_corners 2"]
 
     parameter_name = "batch"
@@ -140,8 +172,8 @@ class MeshBatch(Domain):
             faces[b, : mesh.n_faces] = host_faces[b]
         vertex_mask = np.arange(nvp)[None, :] < counts[:, :1]
         face_mask = np.arange(nfp)[None, :] < counts[:, 1:]
-        vertex_corners = _vertex_corners(host_faces, nvp, nfp)
-        vertex_neighbors, slot_corners, corner_slots = _edge_slots(items, nvp, nfp)
+        vertex_corners, corner_rows, overflow_vertices = _corner_rows(host_faces, nvp, nfp)
+        vertex_neighbors, overflow_edges, slot_corners, corner_slots = _edge_slots(items, nvp, nfp)
         arrays = jax.device_put(
             {
                 "vertices": vertices,
@@ -151,7 +183,10 @@ class MeshBatch(Domain):
                 "n_vertices": counts[:, 0],
                 "n_faces": counts[:, 1],
                 "vertex_corners": vertex_corners,
+                "corner_rows": corner_rows,
+                "overflow_vertices": overflow_vertices,
                 "vertex_neighbors": vertex_neighbors,
+                "overflow_edges": overflow_edges,
                 "slot_corners": slot_corners,
                 "corner_slots": corner_slots,
             }
@@ -303,51 +338,85 @@ def _as_meshes(meshes) -> list[Mesh]:
     return items
 
 
-def _vertex_corners(faces: list[np.ndarray], nvp: int, nfp: int) -> np.ndarray:
-    """`(B, nvp, w)` the corners `3 f + k` at each vertex in increasing order, padded with `3 nfp` (one stable sort per mesh)."""
-    orders, valences = [], []
-    for host in faces:
-        corner_vertex = host.reshape(-1)
-        order = np.argsort(corner_vertex, kind="stable")
-        orders.append((corner_vertex[order], order))
-        valences.append(np.bincount(corner_vertex, minlength=nvp))
-    width = bucket(max(int(v.max(initial=0)) for v in valences), minimum=_MIN_CORNERS_PER_VERTEX)
-    table = np.full((len(faces), nvp, width), 3 * nfp, np.int32)
-    for b, ((sorted_vertices, order), valence) in enumerate(zip(orders, valences)):
-        starts = np.concatenate([[0], np.cumsum(valence)[:-1]])
-        table[b, sorted_vertices, np.arange(order.size) - starts[sorted_vertices]] = order
-    return table
+def _ell_places(owners: np.ndarray, n_owners: int, width: int, overflow_width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each entry goes in an ELL table of `width` columns per owner plus overflow rows of `overflow_width`.
+
+    Entries are listed per owner in their given order (one stable sort): owner `i`'s first `width`
+    go to row `i`, the rest to overflow rows `n_owners + r`, `overflow_width` per row, the rows of
+    one owner consecutive and the owners in increasing order (so the overflow rows' owners are sorted).
+
+    Returns:
+        `(row, column, overflow_owners)`: per entry its row and column, and the owner of each overflow row.
+    """
+    order = np.argsort(owners, kind="stable")
+    counts = np.bincount(owners, minlength=n_owners)
+    starts = np.cumsum(counts) - counts
+    position = np.empty(owners.size, np.int64)
+    position[order] = np.arange(owners.size) - starts[owners[order]]
+    extra = -(-np.maximum(counts - width, 0) // overflow_width)
+    extra_starts = np.cumsum(extra) - extra
+    beyond = position - width
+    row = np.where(beyond < 0, owners, n_owners + extra_starts[owners] + beyond // overflow_width)
+    column = np.where(beyond < 0, position, beyond % overflow_width)
+    return row, column, np.repeat(np.arange(n_owners), extra)
 
 
-def _edge_slots(meshes: list[Mesh], nvp: int, nfp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`(vertex_neighbors, slot_corners, corner_slots)` of `MeshBatch` from each mesh's edges (one stable sort per mesh)."""
-    directed = []
+def _overflow_size(needed: int, default: int) -> int:
+    """`default` (a function of the padded sizes) unless a batch needs more; then the bucket of the need (a rare new program)."""
+    return default if needed <= default else bucket(needed)
+
+
+def _corner_rows(faces: list[np.ndarray], nvp: int, nfp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(vertex_corners, corner_rows, overflow_vertices)` of `MeshBatch` (one stable sort per mesh)."""
+    places = [_ell_places(host.reshape(-1).astype(np.int64), nvp, CORNERS_PER_ROW, CORNERS_PER_ROW) for host in faces]
+    n_rows = nvp + _overflow_size(max(owners.size for _, _, owners in places), max(_MIN_OVERFLOW, nvp // 8))
+    table = np.full((len(faces), n_rows, CORNERS_PER_ROW), 3 * nfp, np.int32)
+    corner_rows = np.full((len(faces), 3 * nfp), n_rows, np.int32)
+    overflow_vertices = np.full((len(faces), n_rows - nvp), nvp, np.int32)
+    for b, (row, column, owners) in enumerate(places):
+        table[b, row, column] = np.arange(row.size)
+        corner_rows[b, : row.size] = row
+        overflow_vertices[b, : owners.size] = owners
+    return table, corner_rows.reshape(len(faces), nfp, 3), overflow_vertices
+
+
+def _edge_slots(meshes: list[Mesh], nvp: int, nfp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`(vertex_neighbors, overflow_edges, slot_corners, corner_slots)` of `MeshBatch` from each mesh's edges.
+
+    An edge with `k` faces gets `ceil(k / 2)` directed-edge entries each way, each holding (up to) two
+    of its opposite corners: one on a manifold edge, parallel entries with the same head on a
+    non-manifold one (their weights add up in `L u`). Entries are placed per tail vertex by `_ell_places`.
+    """
+    built = []
     for mesh in meshes:
         topology = mesh.topology
         edges = np.asarray(topology.edges, np.int64)
-        tails, heads = np.concatenate([edges[:, 0], edges[:, 1]]), np.concatenate([edges[:, 1], edges[:, 0]])
-        degrees = np.bincount(tails, minlength=nvp)
-        directed.append((tails, heads, degrees))
-    width = bucket(max(int(degrees.max(initial=0)) for _, _, degrees in directed), minimum=_MIN_CORNERS_PER_VERTEX)
-    faces_per_edge = max(2, *(mesh.topology.edge_faces.shape[1] for mesh in meshes))
-    n_slots = nvp * width
-    neighbors = np.full((len(meshes), nvp, width), nvp, np.int32)
-    slot_corners = np.full((len(meshes), n_slots, faces_per_edge), 3 * nfp, np.int32)
+        corners = np.where(topology.edge_faces >= 0, 3 * topology.edge_faces.astype(np.int64) + topology.edge_face_corners, -1)
+        counts = np.sum(corners >= 0, axis=1)
+        chunks = (counts + 1) // 2
+        entry_edge = np.repeat(np.arange(edges.shape[0]), chunks)
+        entry_first = 2 * (np.arange(entry_edge.size) - np.repeat(np.cumsum(chunks) - chunks, chunks))
+        padded = np.concatenate([corners, np.full((corners.shape[0], 2), -1)], axis=1)
+        entry_corners = np.stack([padded[entry_edge, entry_first], padded[entry_edge, entry_first + 1]], axis=1)
+        tails = np.concatenate([edges[entry_edge, 0], edges[entry_edge, 1]])
+        heads = np.concatenate([edges[entry_edge, 1], edges[entry_edge, 0]])
+        built.append((tails, heads, entry_corners, _ell_places(tails, nvp, NEIGHBORS_PER_VERTEX, 1)))
+    n_overflow = _overflow_size(max(place[2].size for *_, place in built), max(_MIN_OVERFLOW, 3 * nfp // 8))
+    n_slots = NEIGHBORS_PER_VERTEX * nvp + n_overflow
+    neighbors = np.full((len(meshes), NEIGHBORS_PER_VERTEX * nvp), nvp, np.int32)
+    overflow_edges = np.full((len(meshes), n_overflow, 2), nvp, np.int32)
+    slot_corners = np.full((len(meshes), n_slots, 2), 3 * nfp, np.int32)
     corner_slots = np.full((len(meshes), 3 * nfp, 2), n_slots, np.int32)
-    for b, (mesh, (tails, heads, degrees)) in enumerate(zip(meshes, directed)):
-        topology = mesh.topology
-        order = np.argsort(tails, kind="stable")
-        starts = np.concatenate([[0], np.cumsum(degrees)[:-1]])
-        slots = np.empty(tails.size, np.int64)
-        slots[order] = tails[order] * width + np.arange(order.size) - starts[tails[order]]
-        neighbors[b].reshape(-1)[slots] = heads
-        ne = topology.edges.shape[0]
-        corners = np.where(
-            topology.edge_faces >= 0, 3 * topology.edge_faces.astype(np.int64) + topology.edge_face_corners, 3 * nfp
-        )
-        m = corners.shape[1]
-        slot_corners[b, slots[:ne], :m] = corners
-        slot_corners[b, slots[ne:], :m] = corners
-        edge_slots = np.stack([slots[:ne], slots[ne:]], axis=1)
-        corner_slots[b, : 3 * mesh.n_faces] = edge_slots[np.asarray(topology.face_edges).reshape(-1)]
-    return neighbors, slot_corners, corner_slots
+    for b, (tails, heads, entry_corners, (row, column, _)) in enumerate(built):
+        in_ell = row < nvp
+        slots = np.where(in_ell, column * nvp + row, NEIGHBORS_PER_VERTEX * nvp + row - nvp)
+        neighbors[b, slots[in_ell]] = heads[in_ell]
+        overflow_edges[b, row[~in_ell] - nvp] = np.stack([tails[~in_ell], heads[~in_ell]], axis=1)
+        both = np.concatenate([entry_corners, entry_corners])
+        slot_corners[b, slots] = np.where(both >= 0, both, 3 * nfp)
+        # Each corner sits in one entry: its two directed slots (tail -> head, head -> tail).
+        n_entries = entry_corners.shape[0]
+        entry_slots = np.stack([slots[:n_entries], slots[n_entries:]], axis=1)
+        valid = entry_corners >= 0
+        corner_slots[b, entry_corners[valid]] = entry_slots[np.nonzero(valid)[0]]
+    return neighbors.reshape(len(meshes), NEIGHBORS_PER_VERTEX, nvp), overflow_edges, slot_corners, corner_slots

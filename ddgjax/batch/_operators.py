@@ -11,12 +11,16 @@ scratch memory XLA:CPU reuses between calls (about 4x slower for 16 meshes of up
 
 Layout (the reason for the plan of `MeshBatch`): per face, one gather of its three corners'
 positions (and values), arithmetic coordinate by coordinate on `(nfp,)` arrays as the single-mesh
-kernels do, and one fixed gather of the per-corner results into each vertex (`vertex_corners`). Both
-gathers are `ddgjax.sparse.gather_sum`, whose transpose is the other gather, so the reverse pass has
-no scatter-add either. The Laplacian, as the single-mesh `laplacian_apply`, puts each corner's
-`cot / 2` on the directed edges `i -> j` of its opposite edge (`slot_corners`, a `gather_sum`) and
-sums `W_ij (u_i - u_j)` over each vertex's neighbours (`vertex_neighbors`, ELL): an `(nvp, k)` `u`
-is read once per directed edge, not materialised per corner.
+kernels do, and one fixed gather of the per-corner results into the rows of `vertex_corners` (eight
+corners per row; a high-valence vertex's overflow rows are folded into it with one sorted
+`segment_sum` of a few rows). Both gathers are `ddgjax.sparse.gather_sum`, whose transpose is the
+other gather, so the reverse pass has no scatter-add beyond the overflow rows' fold. The Laplacian,
+as the single-mesh `laplacian_apply`, puts each corner's `cot / 2` on the directed edges `i -> j`
+of its opposite edge (`slot_corners`, a `gather_sum`) and sums `W_ij (u_i - u_j)` over each
+vertex's first six neighbours (`vertex_neighbors`, slot-major ELL) and over the overflow edges (a
+sorted `segment_sum`, as the COO tail of the single-mesh pattern): an `(nvp, k)` `u` is read once
+per directed edge, not materialised per corner. Every table has a constant width and overflow
+lengths fixed by `(nvp, nfp)`, so one program serves a bucket whatever its meshes' structure.
 
 Every function compiles at top level with `ddgjax._compile.kernel` (one program per bucket and
 option, the most recent kept) and is traced into a caller's `jit` / `grad` / `vmap` otherwise.
@@ -50,44 +54,101 @@ _NORMAL_WEIGHTINGS = ("area", "angle", "uniform")
 class _Faces:
     """One mesh's padded faces as gathers: corners from vertices and back (module docstring)."""
 
-    def __init__(
-        self, faces: Int[Array, "nfp 3"], face_mask: Bool[Array, " nfp"], vertex_corners: Int[Array, "nvp w"], edges=None
-    ):
-        self.n_faces = faces.shape[0]
-        self.edges = edges  # (vertex_neighbors, slot_corners, corner_slots)
+    def __init__(self, face_mask: Bool[Array, " nfp"], corners: tuple, edges: tuple):
         self.face_mask = face_mask
-        self.vertex_corners = vertex_corners
-        # A padding face reads index nvp (out of range: zeros) and belongs to no vertex's list.
-        self.corner_vertex = jnp.where(face_mask[:, None], faces, vertex_corners.shape[0]).reshape(-1, 1)
+        self.n_faces = face_mask.shape[0]
+        # (vertex_corners (nvp + R, 8), corner_rows (nfp, 3), overflow_vertices (R,))
+        self.vertex_corners, corner_rows, self.overflow_vertices = corners
+        self.corner_rows = corner_rows.reshape(-1, 1)
+        self.edges = edges  # (vertex_neighbors (6, nvp), overflow_edges (K, 2), slot_corners, corner_slots)
+
+    def _has_overflow_rows(self) -> Bool[Array, ""]:
+        """Whether a vertex of this mesh continues in an overflow row (valence above eight; padding rows read `nvp`)."""
+        return self.overflow_vertices[0] < self.vertex_corners.shape[0] - self.overflow_vertices.shape[0]
 
     def at_corners(self, x: Float[Array, "nvp *rest"]) -> Float[Array, "nfp 3 *rest"]:
-        """`x[F]` (zeros on padding faces)."""
-        return gather_sum(x, self.corner_vertex, self.vertex_corners).reshape((self.n_faces, 3) + x.shape[1:])
+        """`x[F]` (zeros on padding faces).
+
+        With overflow rows, the gather reads `x` extended by its overflow rows' vertices (a sorted
+        gather of `R` rows, whose transpose is the fold of `to_vertices`); without (`lax.cond`, so
+        meshes of low valence skip it), every corner's row is its vertex and `x` is read as it is.
+        """
+        n = x.shape[0]
+
+        def with_overflow(x):
+            rows = jnp.concatenate([x, _take_sorted(x, self.overflow_vertices)])
+            return gather_sum(rows, self.corner_rows, self.vertex_corners)
+
+        def without_overflow(x):
+            return gather_sum(x, self.corner_rows, self.vertex_corners[:n])
+
+        values = jax.lax.cond(self._has_overflow_rows(), with_overflow, without_overflow, x)
+        return values.reshape((self.n_faces, 3) + x.shape[1:])
 
     def to_vertices(self, corner_values: Float[Array, "nfp 3 *rest"]) -> Float[Array, "nvp *rest"]:
-        """`sum` of the per-corner values at each vertex (0 on padded vertices)."""
+        """`sum` of the per-corner values at each vertex (0 on padded vertices); overflow rows fold into their vertex."""
         flat = corner_values.reshape((3 * self.n_faces,) + corner_values.shape[2:])
-        return gather_sum(flat, self.vertex_corners, self.corner_vertex)
+        n = self.vertex_corners.shape[0] - self.overflow_vertices.shape[0]
+
+        def with_overflow(flat):
+            rows = gather_sum(flat, self.vertex_corners, self.corner_rows)
+            return rows[:n] + _sum_sorted(rows[n:], self.overflow_vertices, n)
+
+        def without_overflow(flat):
+            return gather_sum(flat, self.vertex_corners[:n], self.corner_rows)
+
+        return jax.lax.cond(self._has_overflow_rows(), with_overflow, without_overflow, flat)
 
     def edge_sum(self, weights: Float[Array, "nfp 3"], x: Float[Array, "nvp *k"]) -> Float[Array, "nvp *k"]:
         """`sum_j W_ij (x_i - x_j)` per vertex, `W_ij` the sum of `weights` at the corners opposite the edge `ij`.
 
         The per-corner weights land on the directed-edge slots with one fixed gather (`gather_sum`),
-        then each vertex gathers its neighbours' rows of `x` (ELL; a padding slot has weight 0 and
-        reads 0), so an `(nvp, k)` `x` is read once per directed edge, as the single-mesh `laplacian_apply` does.
+        then each vertex gathers its first six neighbours' rows of `x` (slot-major ELL: each slot
+        column is contiguous and `x_i` needs no gather; a padding slot has weight 0 and reads 0) and
+        the overflow edges add theirs with one sorted `segment_sum`, as the single-mesh
+        `laplacian_apply` does, so an `(nvp, k)` `x` is read once per directed edge. A mesh without
+        overflow edges (every vertex of degree 6 or less) skips their slots (`lax.cond`: on CPU, where
+        the batch is mapped mesh by mesh, regular meshes do not pay for the overflow part).
         """
-        neighbors, slot_corners, corner_slots = self.edges
-        slot_weights = gather_sum(weights.reshape(-1), slot_corners, corner_slots).reshape(neighbors.shape)
+        neighbors, overflow_edges, slot_corners, corner_slots = self.edges
+        width, n = neighbors.shape
+        tails, heads = overflow_edges[:, 0], overflow_edges[:, 1]
         extra = (None,) * (x.ndim - 1)
-        result = jnp.zeros_like(x)
-        for s in range(neighbors.shape[1]):
-            result = result + slot_weights[(slice(None), s, *extra)] * (x - take_rows_or_zero(x, neighbors[:, s]))
-        return result
+
+        def ell(slot_weights, x):
+            ell_weights = slot_weights[: width * n].reshape(width, n)
+            result = jnp.zeros_like(x)
+            for s in range(width):
+                result = result + ell_weights[(s, slice(None), *extra)] * (x - take_rows_or_zero(x, neighbors[s]))
+            return result
+
+        def with_overflow(weights, x):
+            slot_weights = gather_sum(weights.reshape(-1), slot_corners, corner_slots)
+            differences = slot_weights[width * n :][(slice(None), *extra)] * (
+                _take_sorted(x, tails) - take_rows_or_zero(x, heads)
+            )
+            return ell(slot_weights, x) + _sum_sorted(differences, tails, n)
+
+        def without_overflow(weights, x):
+            # Every corner's slots lie in the ELL part here, so its rows alone are the whole incidence.
+            return ell(gather_sum(weights.reshape(-1), slot_corners[: width * n], corner_slots), x)
+
+        return jax.lax.cond(tails[0] < n, with_overflow, without_overflow, weights, x)
 
     def geometry(self, vertices: Float[Array, "nvp 3"]):
         """Edge coordinates `e[k][c]` (edge opposite corner `k`), squared lengths `(nfp, 3)`, areas `(nfp,)`, corner positions."""
         corners = self.at_corners(vertices)
         return (*face_geometry_from_corners(corners), corners)  # as ddgjax.mesh.face_areas / face_edge_lengths_sq
+
+
+def _take_sorted(x: Float[Array, "n *rest"], index: Int[Array, " r"]) -> Float[Array, "r *rest"]:
+    """`x[index]` for increasing `index`, 0 where `index >= n` (padding); its transpose is `_sum_sorted`."""
+    return x.at[index].get(mode="fill", fill_value=0, indices_are_sorted=True)
+
+
+def _sum_sorted(values: Float[Array, "r *rest"], index: Int[Array, " r"], n: int) -> Float[Array, "n *rest"]:
+    """`sum` of `values` per `index` (increasing; `index >= n` dropped): a sorted `segment_sum` of the few overflow entries."""
+    return jax.ops.segment_sum(values, index, num_segments=n, indices_are_sorted=True)
 
 
 def _area_vectors(corners: Float[Array, "nfp 3 3"]) -> Float[Array, "nfp 3"]:
@@ -117,11 +178,20 @@ def _vmapped(body):
     """`body(faces: _Faces, *per_mesh_args)` over the batch: `f(batch, *batched_args)` (module docstring: map or vmap)."""
 
     def over_batch(batch: MeshBatch, *args):
-        def one(vertices, faces, face_mask, vertex_corners, neighbors, slot_corners, corner_slots, *rest):
-            return body(_Faces(faces, face_mask, vertex_corners, (neighbors, slot_corners, corner_slots)), vertices, *rest)
+        def one(vertices, face_mask, vertex_corners, corner_rows, overflow_vertices, *rest):
+            edges, rest = rest[:4], rest[4:]
+            return body(_Faces(face_mask, (vertex_corners, corner_rows, overflow_vertices), edges), vertices, *rest)
 
-        plan = (batch.vertex_corners, batch.vertex_neighbors, batch.slot_corners, batch.corner_slots)
-        arrays = (batch.vertices, batch.faces, batch.face_mask, *plan, *args)
+        plan = (
+            batch.vertex_corners,
+            batch.corner_rows,
+            batch.overflow_vertices,
+            batch.vertex_neighbors,
+            batch.overflow_edges,
+            batch.slot_corners,
+            batch.corner_slots,
+        )
+        arrays = (batch.vertices, batch.face_mask, *plan, *args)
         if jax.default_backend() == "cpu":
             # One mesh at a time: XLA:CPU materialises the corner gathers, and a whole batch's scratch memory
             # passes glibc's mmap threshold (fresh pages faulted in on every call; ddgjax.laplacian._cotan).
