@@ -1,6 +1,6 @@
 """Execute the ```python code blocks of every Markdown page under `docs/`, so the documentation never lies.
 
-One test per page (`docs/**/*.md`): its blocks run in order in one shared namespace, as a reader
+One test per page (`docs/**/*.md`, and the README): its blocks run in order in one shared namespace, as a reader
 pasting them one after another into one Python session would (a doctest session). A block whose first
 line is a comment `# not run: <reason>` is shown on the page and not executed: it is for code of a
 peer library that cannot be installed beside ddgjax (PyTorch3D), whose other side the page checks in
@@ -24,6 +24,7 @@ import jax
 import pytest
 
 DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs"
+README = DOCS.parent / "README.md"
 
 # Pages whose blocks take more than about 2 s together, listed so the tiers are decided statically, not
 # by timing: the home page's tour eigensolves and compiles its first kernels; the guides differentiate through
@@ -31,6 +32,8 @@ DOCS = pathlib.Path(__file__).resolve().parents[1] / "docs"
 SLOW_PAGES = frozenset(
     {
         "index.md",
+        "tour.md",
+        "README.md",
         "guides/differentiating.md",
         "guides/from-libigl.md",
         "guides/from-potpourri3d.md",
@@ -63,11 +66,12 @@ def python_blocks(text: str) -> list[tuple[int, str]]:
 
 
 def _pages() -> list[pathlib.Path]:
-    return sorted(DOCS.glob("**/*.md"))
+    """Every page of the site, and the README (its ten-line example is the first code a newcomer runs)."""
+    return [*sorted(DOCS.glob("**/*.md")), README]
 
 
 def _page_id(path: pathlib.Path) -> str:
-    return path.relative_to(DOCS).as_posix()
+    return "README.md" if path == README else path.relative_to(DOCS).as_posix()
 
 
 def _params():
@@ -87,7 +91,6 @@ def test_page_code_blocks_run(page, tmp_path, monkeypatch):
     """Run the page's ```python blocks in order in one namespace; `# not run:` blocks are skipped."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("MPLBACKEND", "Agg")
-    name = _page_id(page)
     namespace = {"__name__": "__docs__"}
     x64 = jax.config.jax_enable_x64
     jax.config.update("jax_enable_x64", False)  # JAX's default: the page must enable float64 itself
@@ -100,6 +103,6 @@ def test_page_code_blocks_run(page, tmp_path, monkeypatch):
             try:
                 exec(program, namespace)
             except Exception:
-                pytest.fail(f"docs/{name}, block at line {line} failed:\n{traceback.format_exc()}", pytrace=False)
+                pytest.fail(f"{page.relative_to(DOCS.parent)}, block at line {line} failed:\n{traceback.format_exc()}", pytrace=False)
     finally:
         jax.config.update("jax_enable_x64", x64)

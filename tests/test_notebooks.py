@@ -1,51 +1,51 @@
-"""Execute every notebook in `notebooks/` top to bottom; a cell that raises fails the test.
+"""The notebooks in `notebooks/`: committed with outputs made from their code as it reads, and still running.
 
-The kernel is a throw-away kernelspec that runs *this* interpreter (so a `python3` kernelspec of
-another environment cannot shadow it), with the repository on `PYTHONPATH` (so the notebooks import
-the checked-out `ddgjax` even when it is not pip-installed) and a temporary working directory (so
-files the notebooks write land there).
+`notebooks/refresh.py` executes them in place and stores the digest of their code; the fast check
+here compares that digest with the code (a notebook edited and not refreshed fails it), and the slow
+one executes each notebook again top to bottom (a cell that raises fails it) in a throw-away kernel of
+this interpreter, the repository first on `PYTHONPATH` and a temporary working directory. The site
+shows the stored outputs, so this is the one run of each notebook in CI.
 """
 
 from __future__ import annotations
 
-import os
+import importlib.util
 import pathlib
 
 import pytest
 
-# The slow tier (pyproject.toml): each notebook runs a kernel of its own, end to end.
-pytestmark = pytest.mark.slow
-
 REPO = pathlib.Path(__file__).resolve().parents[1]
-NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
+_SPEC = importlib.util.spec_from_file_location("notebooks_refresh", REPO / "notebooks" / "refresh.py")
+refresh = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(refresh)
+NOTEBOOKS = refresh.NOTEBOOKS
+
+
+def test_there_are_notebooks():
+    assert len(NOTEBOOKS) >= 12, [path.name for path in NOTEBOOKS]
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
+def test_stored_outputs_come_from_the_code_as_it_reads(path):
+    nbformat = pytest.importorskip("nbformat")
+    notebook = nbformat.read(path, as_version=4)
+    code_cells = [cell for cell in notebook.cells if cell.cell_type == "code" and cell.source.strip()]
+    assert refresh.stored_digest(notebook) == refresh.code_digest(notebook), (
+        f"{path.name}: its code changed since its outputs were made: python notebooks/refresh.py {path.name}"
+    )
+    assert all(cell.execution_count is not None for cell in code_cells), f"{path.name}: a code cell without its outputs"
 
 
 @pytest.fixture(scope="module")
 def kernel_name(tmp_path_factory):
-    """Name of a kernelspec that launches `sys.executable -m ipykernel_launcher`."""
     pytest.importorskip("nbclient", reason="nbclient is needed to execute notebooks (pip install -e .[test])")
-    kernelspec = pytest.importorskip("ipykernel.kernelspec", reason="ipykernel is needed to run a kernel")
-    prefix = tmp_path_factory.mktemp("kernel")
-    name = "ddgjax-test-python"
-    kernelspec.install(kernel_name=name, prefix=str(prefix))
-    patch = pytest.MonkeyPatch()
-    patch.setenv(
-        "JUPYTER_PATH", os.pathsep.join(filter(None, [str(prefix / "share" / "jupyter"), os.environ.get("JUPYTER_PATH")]))
-    )
-    patch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])))
-    yield name
-    patch.undo()
+    with refresh.kernel(tmp_path_factory.mktemp("kernel")) as name:
+        yield name
 
 
-@pytest.mark.skipif(not NOTEBOOKS, reason="no notebooks in notebooks/")
+@pytest.mark.slow  # each notebook runs a kernel of its own, end to end
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.name for p in NOTEBOOKS])
 def test_notebook_runs(path, kernel_name, tmp_path):
-    import nbclient
     import nbformat
 
-    notebook = nbformat.read(path, as_version=4)
-    client = nbclient.NotebookClient(
-        notebook, kernel_name=kernel_name, timeout=300, resources={"metadata": {"path": str(tmp_path)}}
-    )
-    # Raises nbclient's CellExecutionError, with the cell and its traceback, on the first failing cell.
-    client.execute()
+    refresh.execute(nbformat.read(path, as_version=4), kernel_name, tmp_path, timeout=300)

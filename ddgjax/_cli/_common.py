@@ -44,6 +44,12 @@ def load_cli_mesh(path: str, *, solids: bool = False) -> tuple[str, Mesh | TetMe
         raise type(error)(f"{path}: {error}{read_as}") from error
 
 
+def add_output_argument(parser, command: str, what: str = "figure file") -> None:
+    """`--output` / `-o`, default `ddgjax_COMMAND.png`: every command names its figure one way."""
+    default = f"ddgjax_{command}.png"
+    parser.add_argument("--output", "-o", default=default, help=f"{what} (default {default})")
+
+
 def write_figure(figure, output: str, command: str) -> bool:
     """Save `figure` to `output` and say so; on failure print `ddgjax COMMAND: error: ...` and return False."""
     try:

@@ -24,7 +24,7 @@ from .._errors import DDGInputError, MeshDataError
 from .._results import RESULTS
 from ..deform import arap, biharmonic_deformation
 from ..mesh import Mesh, cylinder
-from ._common import load_cli_mesh, write_figure
+from ._common import add_output_argument, load_cli_mesh, write_figure
 
 _DEFAULT_SHAPE = "built-in cylinder (radius 0.5, height 2, 32 x 16 quads split in two) standing on the up axis"
 _AXES = {"x": 0, "y": 1, "z": 2}
@@ -98,7 +98,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="how far the top handles move sideways, along the axis after --up (z -> x, x -> y, y -> z; default 0)",
     )
     parser.add_argument("--steps", type=int, default=5000, help="the most ARAP local-global steps (default 5000, arap's)")
-    parser.add_argument("--output", default="deform.png", help="figure file (default deform.png)")
+    add_output_argument(parser, "deform")
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
     parser.set_defaults(run=run)
 

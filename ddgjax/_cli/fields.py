@@ -20,7 +20,7 @@ import numpy as np
 from .._errors import DDGInputError, MeshDataError
 from ..fields import field_singularities, field_to_vectors, principal_curvature_alignment, smoothest_field
 from ..mesh import Mesh, icosphere
-from ._common import load_cli_mesh, write_figure
+from ._common import add_output_argument, load_cli_mesh, write_figure
 
 _DEFAULT_SHAPE = "built-in icosphere(3)"
 
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--align", type=float, default=None, metavar="WEIGHT", help="align to the principal curvature directions with this weight"
     )
-    parser.add_argument("--output", default="fields.png", help="figure file (default fields.png)")
+    add_output_argument(parser, "fields")
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
     parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the axis that points up in the view")
     parser.set_defaults(run=run)

@@ -39,7 +39,7 @@ from ..curves import (
     regular_polygon,
     star,
 )
-from ._common import positive, write_figure
+from ._common import add_output_argument, positive, write_figure
 
 SHAPES = ("figure3", "flower", "star", "random", "regular")
 # One colour per kind, the same in every panel.
@@ -111,7 +111,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "limit shape shows (none: watch it shrink)",
     )
     parser.add_argument("--snapshots", type=positive(int), default=6, help="snapshots overlaid in each flow's panel")
-    parser.add_argument("--output", "-o", default="ddgjax_flow.png", help="PNG file to write the figure to")
+    add_output_argument(parser, "flow")
     parser.add_argument("--no-plot", action="store_true", help="print the table only, write no figure")
     parser.add_argument("--progress", action="store_true", help="show a progress bar over the steps of each flow (for long runs)")
     parser.set_defaults(run=run_flow)

@@ -50,7 +50,7 @@ from .._results import RESULTS
 from ..fluids import euler_flow, fluid_basis
 from ..geodesics import heat_distance_solver
 from ..mesh import Mesh, icosphere, total_area
-from ._common import load_cli_mesh, positive, write_figure
+from ._common import add_output_argument, load_cli_mesh, positive, write_figure
 
 _SUBDIVISIONS = 4
 _DEFAULT_SHAPE = f"built-in unit icosphere({_SUBDIVISIONS})"
@@ -110,7 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="bands",
         help="passive dye advected along: latitude bands (default), a checker, or none",
     )
-    parser.add_argument("--output", default="fluid.png", help="figure of four saved states (default fluid.png)")
+    add_output_argument(parser, "fluid", "figure of four saved states")
     parser.add_argument("--frames", default=None, metavar="DIR", help="also write one PNG per saved state into DIR")
     parser.add_argument(
         "--animation", default=None, metavar="FILE.gif", help="also write the saved states as a GIF (needs Pillow)"

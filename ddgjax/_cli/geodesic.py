@@ -4,8 +4,8 @@ One mode per run, the default the distance from `--source` by the heat method dr
 
 - `--log-map`: the logarithmic map at the source (`ddgjax.geodesics.vector_heat_solver(mesh).log_map`),
   drawn as a polar-grid decal (rings of equal geodesic radius crossed by sectors of equal angle at the
-  source, a checkerboard in the `(r, angle)` coordinates, out to half the largest distance) beside the angle; prints the largest radius,
-  which is the heat-method distance's maximum;
+  source, a checkerboard in the `(r, angle)` coordinates, out to half the largest distance) beside the angle, the source
+  marked; prints the largest and the mean radius (the geodesic distance integrated from the radial field);
 - `--transport`: the source's unit tangent vector at `--angle` degrees from its frame's `e1`
   (`ddgjax.fields.tangent_bases`) transported to every vertex along shortest geodesics
   (`VectorHeatSolver.transport`), drawn as strokes over the distance; prints the transported lengths
@@ -42,13 +42,14 @@ from ._common import write_figure
 from .spectral import _common, _distance_summary, _draw, _mesh
 
 _MODES = ("log_map", "transport", "signed", "point_cloud")
-_CELLS, _SECTORS, _DECAL = 8, 16, 0.5
-"""The log map's polar grid: rings (default; `--cells`), sectors, and its radius over the largest distance."""
+_CELLS, _SECTORS, _DECAL, _SUBDIVISION = 8, 16, 0.5, 4
+"""The log map's polar grid: rings (default; `--cells`), sectors, its radius over the largest distance, and the
+subdivision of each face it is drawn on."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `ddgjax geodesic`; its action is `run`."""
-    _common(parser, "geodesic.png")
+    _common(parser, "geodesic")
     parser.add_argument("--source", type=int, default=0, help="source vertex (default 0)")
     parser.add_argument("--t-coef", type=float, default=1.0, help="heat time in units of the squared mean edge length")
     parser.add_argument("--bands", type=int, default=12, help="number of colour bands, whose edges are the isolines")
@@ -127,7 +128,7 @@ def _log_map(mesh: Mesh, args):
     rows = [
         (
             "log map",
-            f"max radius {radius[reached].max():.4g} (the heat-method distance's maximum), mean {radius[reached].mean():.4g}",
+            f"max radius {radius[reached].max():.4g} (the geodesic distance's maximum), mean {radius[reached].mean():.4g}",
         ),
     ]
     return rows, lambda name: _draw_log_map(mesh, coordinates, name, args)
@@ -268,21 +269,65 @@ def ball_boundary(mesh: Mesh, inside: np.ndarray) -> list[list[int]]:
 def _draw_log_map(mesh: Mesh, coordinates: np.ndarray, name: str, args) -> bool:
     from matplotlib.colors import ListedColormap
 
-    faces = np.asarray(mesh.faces)
-    # Per face, at the mean of its corners' log coordinates: each cell of the grid is one colour.
-    centre = coordinates[faces].mean(axis=1)
-    radius, angle = np.linalg.norm(centre, axis=1), np.arctan2(centre[:, 1], centre[:, 0])
-    reach = np.max(radius, where=np.isfinite(radius), initial=0.0)
-    rings = np.floor(radius / (_DECAL * reach / (args.cells or _CELLS)))
-    sectors = np.floor((angle + np.pi) / (2 * np.pi / _SECTORS))
-    # 0 / 1 the grid's cells inside the decal, 0.5 (grey) beyond it and where the source does not reach.
-    grid = np.where(np.isfinite(radius) & (radius < _DECAL * reach), (rings + sectors) % 2, 0.5)
-    colours = ListedColormap(["tab:orange", "0.75", "0.97"])
+    # A texture's way: each face split into _SUBDIVISION^2 triangles with the log coordinates interpolated
+    # linearly, and on them a smooth function whose sign is the checkerboard, interpolated per pixel
+    # (Gouraud) and cut by a two-colour map, so the cells' edges are smooth curves, not the mesh's staircase.
+    fine, fine_coordinates = _subdivided(mesh, coordinates, _SUBDIVISION)
+    radius = np.linalg.norm(fine_coordinates, axis=1)
+    angle = np.arctan2(fine_coordinates[:, 1], fine_coordinates[:, 0])
+    reach = np.max(np.linalg.norm(coordinates, axis=1), where=np.isfinite(coordinates).all(axis=1), initial=0.0)
+    checker = np.sin(np.pi * radius / (_DECAL * reach / (args.cells or _CELLS))) * np.sin(_SECTORS / 2 * angle)
+    # Beyond the decal (a triangle with a corner past its radius) and where the source does not reach: exactly
+    # 0, the grey of the map's one middle entry; inside, +-1 but near the cells' edges.
+    beyond = ~(np.isfinite(radius) & (radius < _DECAL * reach))[np.asarray(fine.faces)].all(axis=1)
+    values = np.clip(40.0 * np.nan_to_num(checker), -1.0, 1.0)
+    values[np.asarray(fine.faces)[beyond].reshape(-1)] = 0.0
+    colours = ListedColormap(["tab:orange"] * 500 + ["0.75"] + ["0.97"] * 500)
+
+    def source(axes):
+        screen = _screen(mesh, args.up)[args.source]
+        axes.scatter([screen[0]], [screen[2]], s=28, c="black", zorder=3)
+        axes.annotate("source", (screen[0], screen[2]), xytext=(6, 6), textcoords="offset points", fontsize=8)
+
     panels = [
-        _panel("log map: a polar grid decal in ($r$, angle) at the source", grid, colours, limits=(0.0, 1.0), colorbar=False),
-        _panel("log map: the angle at the source (radians)", np.arctan2(coordinates[:, 1], coordinates[:, 0]), "twilight"),
+        _panel(
+            "log map: a polar grid decal in ($r$, angle) at the source",
+            values,
+            colours,
+            extra=source,
+            limits=(-1.0, 1.0),
+            colorbar=False,
+            mesh=fine,
+        ),
+        _panel(
+            "log map: the angle at the source (radians)",
+            np.arctan2(coordinates[:, 1], coordinates[:, 0]),
+            "twilight",
+            extra=source,
+        ),
     ]
     return _figure(mesh, panels, name, args)
+
+
+def _subdivided(mesh: Mesh, values: np.ndarray, n: int) -> tuple[Mesh, np.ndarray]:
+    """Each face split into `n^2` triangles, each with its own three corners (for drawing only: a triangle's
+    colour never bleeds into its neighbours'), the positions and the per-vertex `values` interpolated linearly."""
+    lattice = [(a, b) for a in range(n + 1) for b in range(n + 1 - a)]  # points (a, b) of one face, a + b <= n
+    index = {point: k for k, point in enumerate(lattice)}
+    i, j = np.array(lattice).T
+    small = []
+    for a in range(n):
+        for b in range(n - a):
+            small.append((index[a, b], index[a + 1, b], index[a, b + 1]))
+            if a + b < n - 1:
+                small.append((index[a + 1, b], index[a + 1, b + 1], index[a, b + 1]))
+    weights = np.stack([n - i - j, i, j], axis=1) / n  # barycentric weights of the corners 0, 1, 2
+    faces = np.asarray(mesh.faces)
+    points = np.einsum("pk,fkd->fpd", weights, np.asarray(mesh.vertices)[faces]).reshape(-1, 3)
+    interpolated = np.einsum("pk,fkd->fpd", weights, values[faces]).reshape(-1, values.shape[1])
+    corners = (np.arange(faces.shape[0])[:, None, None] * weights.shape[0] + np.asarray(small)[None]).reshape(-1)
+    triangles = np.arange(corners.size).reshape(-1, 3)
+    return Mesh.from_arrays(points[corners], triangles), interpolated[corners]
 
 
 def _draw_transport(mesh: Mesh, field: np.ndarray, distance: np.ndarray, name: str, args) -> bool:
@@ -358,10 +403,11 @@ def _facing(mesh: Mesh, up: str) -> np.ndarray:
     return (np.asarray(vertex_normals(mesh)) @ rotation.T)[:, 1] <= 0  # the viewer looks along +depth
 
 
-def _panel(title, values, cmap, *, extra=None, limits=(None, None), colorbar=True) -> dict:
-    """One panel of `_figure`: `values` drawn by `plot_mesh_function` (flat shading for face values), then `extra(axes)`;
-    `values=None`: `extra(axes)` draws and returns the colour bar's mappable."""
-    return {"title": title, "values": values, "cmap": cmap, "extra": extra, "limits": limits, "colorbar": colorbar}
+def _panel(title, values, cmap, *, extra=None, limits=(None, None), colorbar=True, mesh=None) -> dict:
+    """One panel of `_figure`: `values` drawn by `plot_mesh_function` (flat shading for face values, on `mesh`
+    when given, else the figure's), then `extra(axes)`; `values=None`: `extra(axes)` draws and returns the colour
+    bar's mappable."""
+    return {"title": title, "values": values, "cmap": cmap, "extra": extra, "limits": limits, "colorbar": colorbar, "mesh": mesh}
 
 
 def _figure(mesh: Mesh, panels: list[dict], name: str, args) -> bool:
@@ -379,7 +425,12 @@ def _figure(mesh: Mesh, panels: list[dict], name: str, args) -> bool:
             mappable = panel["extra"](axes)
         else:
             vmin, vmax = panel["limits"]
-            mappable = plot_mesh_function(axes, mesh, panel["values"], up=args.up, cmap=panel["cmap"], vmin=vmin, vmax=vmax)
+            drawn = mesh if panel["mesh"] is None else panel["mesh"]
+            # Face colours drawn on their edges too: antialiased seams would let the back of the surface show through.
+            edges = {"edgecolor": "face"} if (drawn.n_faces,) == np.shape(panel["values"]) else {}
+            mappable = plot_mesh_function(
+                axes, drawn, panel["values"], up=args.up, cmap=panel["cmap"], vmin=vmin, vmax=vmax, **edges
+            )
             if panel["extra"] is not None:
                 panel["extra"](axes)
         axes.set_title(panel["title"], fontsize=10)

@@ -29,7 +29,7 @@ from ..deform import arap
 from ..matching import geodesic_error, match_shapes
 from ..matching import point_map as matching_point_map
 from ..mesh import Mesh, icosphere, uv_sphere
-from ._common import load_cli_mesh, write_figure
+from ._common import add_output_argument, load_cli_mesh, write_figure
 
 _DEFAULT_PAIR = "built-in lumpy sphere: an icosphere (source) and a UV sphere bent by ARAP (target), ground truth known"
 # Four bumps (direction, height, width) at generic directions: the surface has no symmetry a map could flip to.
@@ -99,7 +99,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--cells", type=float, default=8.0, help="checkerboard squares across the source (default 8)")
     parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the axis drawn upwards (default z)")
-    parser.add_argument("--output", default="match.png", help="figure file (default match.png)")
+    add_output_argument(parser, "match")
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
     parser.set_defaults(run=run)
 

@@ -36,7 +36,7 @@ from ..optim import (
     total_area,
     willmore_energy,
 )
-from ._common import write_figure
+from ._common import add_output_argument, write_figure
 
 EXAMPLES = ("willmore", "catenoid", "fit")
 DEFAULT_STEPS = {"willmore": 300, "catenoid": 400, "fit": 300}
@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `ddgjax optimize`; its action is `run`."""
     parser.add_argument("--example", choices=EXAMPLES, default="willmore", help="the example to run (default willmore)")
     parser.add_argument("--steps", type=int, default=None, help="optimiser steps (default: 300, 400 for catenoid)")
-    parser.add_argument("--output", default="optimize.png", help="figure file (default optimize.png)")
+    add_output_argument(parser, "optimize")
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run)

@@ -19,7 +19,7 @@ import numpy as np
 from .._errors import DDGInputError, MeshDataError
 from ..mesh import Mesh, disk
 from ..param import boundary_first_flattening, harmonic_map, lscm, map_distortion, spectral_conformal_map, tutte_embedding
-from ._common import load_cli_mesh, write_figure
+from ._common import add_output_argument, load_cli_mesh, write_figure
 
 _DEFAULT_SHAPE = "built-in hemisphere (disk(24) lifted onto the unit sphere)"
 # Each method: the call that flattens, and a line on what it keeps.
@@ -53,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--method", choices=tuple(METHODS), default="bff", help="the flattening (default bff)")
     parser.add_argument("--checks", type=int, default=10, help="checkerboard squares across the map (default 10)")
-    parser.add_argument("--output", default="param.png", help="figure file (default param.png)")
+    add_output_argument(parser, "param")
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
     parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the axis that points up in the 3D view")
     parser.set_defaults(run=run)

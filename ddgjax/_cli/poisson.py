@@ -42,7 +42,7 @@ from ..mesh import Mesh, disk, icosphere
 from ..pde import solve_poisson
 from ..solve.internal import auto_solver
 from ..volume import TetMesh, tet_ball
-from ._common import SURFACE_SUFFIXES, load_cli_mesh, write_figure
+from ._common import SURFACE_SUFFIXES, add_output_argument, load_cli_mesh, write_figure
 
 SHAPES = {"disk": "unit disk (with boundary)", "sphere": "unit icosphere (closed)", "ball": "unit ball (a solid: tets)"}
 DEFAULT_RESOLUTION = {"disk": 24, "sphere": 4, "ball": 8}
@@ -149,7 +149,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="z",
         help="the mesh's up axis in the figure (y for spot.obj); a solid is sliced across it",
     )
-    parser.add_argument("--output", "-o", default="ddgjax_poisson.png", help="PNG file to write the figure to")
+    add_output_argument(parser, "poisson")
     parser.add_argument("--no-plot", action="store_true", help="print the table only, write no figure")
     parser.set_defaults(run=run_poisson)
 

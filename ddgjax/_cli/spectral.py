@@ -19,24 +19,24 @@ import numpy as np
 from .._errors import DDGInputError, MeshDataError
 from ..mesh import Mesh, torus
 from ..spectral import eigenpairs
-from ._common import load_cli_mesh, write_figure
+from ._common import add_output_argument, load_cli_mesh, write_figure
 
 _DEFAULT_SHAPE = "built-in torus(major_radius=1.0, minor_radius=0.4, n_major=64, n_minor=24)"
 
 
 def add_spectrum_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `ddgjax spectrum`; its action is `run_spectrum`."""
-    _common(parser, "spectrum.png")
+    _common(parser, "spectrum")
     parser.add_argument("-k", type=int, default=8, help="number of eigenpairs (default 8; up to 6 non-constant ones drawn)")
     parser.add_argument("--boundary", choices=("neumann", "dirichlet"), default="neumann", help="boundary condition")
     parser.set_defaults(run=run_spectrum)
 
 
-def _common(parser: argparse.ArgumentParser, output: str) -> None:
+def _common(parser: argparse.ArgumentParser, command: str) -> None:
     parser.add_argument(
         "mesh", nargs="?", default=None, help=f"mesh file (.obj, .off, .ply, .stl); default: the {_DEFAULT_SHAPE}"
     )
-    parser.add_argument("--output", default=output, help=f"figure file (default {output})")
+    add_output_argument(parser, command)
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")
     parser.add_argument("--up", choices=("x", "y", "z"), default="z", help="the axis that points up in the view")
 
