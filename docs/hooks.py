@@ -17,12 +17,22 @@ Maths is typeset when the site is built, not in the reader's browser: `$...$` (i
 `latex2mathml`, which every current browser renders natively. So a page needs no script and no CDN,
 works offline and prints as it shows; code, preformatted text and scripts are left alone, and
 nbconvert's empty MathJax loader is dropped.
+
+Every public name written as code (`linear_solve`, `ddgjax.solve.linear_solve`, `solve.linear_solve`,
+`linear_solve()`) links to its entry in the API reference, on every page: guides, the conventions table,
+notebooks' prose and the docstrings themselves (`crosslink`). A short name that two packages share
+(`cotan_laplacian` in `laplacian` and `volume`) links only where it is qualified, or on the reference
+page of a package that has it.
 """
 
 from __future__ import annotations
 
+import functools
+import importlib
+import inspect
 import os
 import pathlib
+import pkgutil
 import re
 import shutil
 
@@ -86,17 +96,113 @@ def searchable_prose(html: str) -> str:
     return str(soup)
 
 
+@functools.cache
+def public_names() -> dict[str, tuple[str, ...]]:
+    """`{written form: (reference entry, ...)}` of every public object of ddgjax's packages and top level.
+
+    Each object has one entry, where its reference page documents it: the package it is defined in (a re-export
+    such as `ddgjax.Mesh` or `ddgjax.io.Mesh` links there too), else the top level's page (the errors, results
+    and vocabularies). Its forms: `ddgjax.solve.linear_solve`, `solve.linear_solve`, the re-exports' paths, and
+    the short name `linear_solve`, which may map to several entries (`cotan_laplacian`)."""
+    import ddgjax
+
+    exported = [("", name, getattr(ddgjax, name)) for name in dir(ddgjax) if not name.startswith("_")]
+    for module in pkgutil.iter_modules(ddgjax.__path__):
+        if not module.name.startswith("_") and module.name != "cli":
+            package = importlib.import_module(f"ddgjax.{module.name}")
+            exported += [(module.name, name, value) for name, value in vars(package).items() if not name.startswith("_")]
+    exported = [item for item in exported if not inspect.ismodule(item[2]) and item[1] != "annotations"]
+    found: dict = {}  # id(object), or (package, name) of a constant -> (its entry, the paths it is exported at)
+    for package, name, value in exported:  # constants (no home module): where exported, the top level's first
+        if name.isupper() and not hasattr(value, "__module__"):
+            key = ("", name) if hasattr(ddgjax, name) else (package, name)
+            found.setdefault(
+                key, (f"reference/{package + '/' if key[0] else ''}#{'.'.join(filter(None, ('ddgjax', key[0], name)))}", [])
+            )
+    exported = [item for item in exported if hasattr(item[2], "__module__")]
+    for package, name, value in exported:  # first where each object is defined
+        home = value.__module__ or ""
+        if package and (home == f"ddgjax.{package}" or home.startswith(f"ddgjax.{package}.")):
+            found.setdefault(id(value), (f"reference/{package}/#ddgjax.{package}.{name}", []))
+    for package, name, value in exported:  # the top level's own: errors, results, vocabularies
+        if not package and id(value) not in found and (name.isupper() or (value.__module__ or "").startswith("ddgjax")):
+            found[id(value)] = (f"reference/#ddgjax.{name}", [])
+    for package, name, value in exported:
+        if id(value) in found:
+            found[id(value)][1].append(f"ddgjax.{package}.{name}" if package else f"ddgjax.{name}")
+    for key, (_, paths) in found.items():
+        if isinstance(key, tuple):
+            paths.append(".".join(filter(None, ("ddgjax", *key))))
+    names: dict[str, set[str]] = {}
+    for entry, paths in found.values():
+        for path in paths:
+            for form in (path, path.removeprefix("ddgjax."), path.rsplit(".", 1)[1]):
+                names.setdefault(form, set()).add(entry)
+    for module in pkgutil.iter_modules(ddgjax.__path__):  # the packages themselves: `ddgjax.solve`
+        if not module.name.startswith("_") and module.name != "cli":
+            names.setdefault(f"ddgjax.{module.name}", set()).add(f"reference/{module.name}/")
+    return {form: tuple(sorted(entries)) for form, entries in names.items()}
+
+
+def crosslink(html: str, page_url: str) -> str:
+    """`<code>` holding a public name, outside links, code blocks and headings, made a link to its reference entry.
+
+    `page_url` is the page's site-relative URL (`reference/solve/`), for relative links and for picking a
+    shared short name's own package on its reference page."""
+    names = public_names()
+    soup = bs4.BeautifulSoup(html, "html.parser")
+    content = soup.find("article") or soup
+    root = "../" * page_url.count("/")
+    changed = False
+    for code in content.find_all("code"):
+        text = code.get_text().strip()
+        if not text or code.find_parent(["a", "pre", "h1", "h2", "h3", "h4", "h5", "h6"]) is not None:
+            continue
+        if code.find_parent(class_=["doc-signature", "doc-heading"]) is not None:
+            continue
+        targets = names.get(text.removesuffix("()"))
+        if not targets:
+            continue
+        if len(targets) > 1:  # a short name several packages share: this page's own, else none
+            targets = tuple(t for t in targets if t.startswith(page_url + "#")) if page_url.startswith("reference/") else ()
+            if len(targets) != 1:
+                continue
+        link = soup.new_tag("a", href=root + targets[0])
+        code.wrap(link)
+        changed = True
+    return str(soup) if changed else html
+
+
+def repaired_headings(html: str, toc) -> None:
+    """Point the table of contents of a notebook page at its headings' ids: mkdocs-jupyter's entries drop a
+    heading's code spans from the slug (`...-batching-with`) where nbconvert's id keeps them (`...-with-vmap`).
+    An entry whose id the page lacks takes the one heading id that extends it."""
+    ids = re.findall(r'\bid="([^"]+)"', html)
+    stack = list(toc)
+    while stack:
+        entry = stack.pop()
+        stack.extend(entry.children)
+        if entry.id in ids:
+            continue
+        extending = [i for i in ids if i.startswith(entry.id + "-")]
+        if len(extending) == 1:
+            entry.id = extending[0]  # the entry's `url` is `"#" + id`
+
+
 def on_page_content(html: str, page, config, files) -> str:
-    """Notebook pages: their code and outputs left out of search, their entries ranked lower (MkDocs event,
-    before search indexes the page)."""
+    """Notebook pages: their table of contents pointed at their headings, their code and outputs left out of
+    search, their entries ranked lower (MkDocs event, before search indexes the page)."""
     if not page.file.src_uri.endswith(".ipynb"):
         return html
+    repaired_headings(html, page.toc)
     page.meta.setdefault("search", {}).setdefault("boost", _NOTEBOOK_SEARCH_BOOST)
     return searchable_prose(html)
 
 
 def on_post_page(output: str, page, config) -> str:
-    """Typeset each page's maths and serve its scripts from the site (MkDocs event)."""
+    """Link each page's public names to their entries, typeset its maths and serve its scripts from the site
+    (MkDocs event)."""
+    output = crosslink(output, page.url)
     if not (_MATH.search(output) or "cdn.plot.ly" in output or '<script src="">' in output):
         return output
     return self_contained(output, root="../" * page.url.count("/"))

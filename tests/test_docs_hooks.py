@@ -47,3 +47,51 @@ def test_a_page_without_maths_or_foreign_scripts_is_left_byte_for_byte():
 
     page = "<html><body><p>No maths &amp; no scripts here.</p><br></body></html>"
     assert hooks.on_post_page(page, Page(), {}) is page
+
+
+def test_public_names_written_as_code_link_to_their_reference_entries():
+    page = (
+        "<article><p>Call <code>linear_solve</code>, <code>ddgjax.solve.factorize()</code> or <code>ddgjax.Mesh</code>;"
+        " a shared name <code>cotan_laplacian</code>, a package <code>ddgjax.spectral</code>, not a name <code>x + 1</code>."
+        '</p><pre><code>linear_solve</code></pre><a href="#"><code>factorize</code></a><h2><code>eigenpairs</code></h2></article>'
+    )
+    soup = bs4.BeautifulSoup(hooks.crosslink(page, "guides/x/"), "html.parser")
+    links = {a.get_text(): a["href"] for a in soup.find_all("a") if a["href"] != "#"}
+    assert links == {
+        "linear_solve": "../../reference/solve/#ddgjax.solve.linear_solve",
+        "ddgjax.solve.factorize()": "../../reference/solve/#ddgjax.solve.factorize",
+        "ddgjax.Mesh": "../../reference/mesh/#ddgjax.mesh.Mesh",  # where it is documented, not where re-exported
+        "ddgjax.spectral": "../../reference/spectral/",
+    }  # the shared short name, code blocks, existing links and headings are left alone
+    # On a reference page, a shared short name is that package's own.
+    on_volume = bs4.BeautifulSoup(
+        hooks.crosslink("<article><code>cotan_laplacian</code></article>", "reference/volume/"), "html.parser"
+    )
+    assert on_volume.find("a")["href"] == "../../reference/volume/#ddgjax.volume.cotan_laplacian"
+
+
+def test_a_notebook_table_of_contents_points_at_its_headings_ids():
+    from mkdocs.structure.toc import AnchorLink
+
+    entry, kept = AnchorLink("7. Batching with", "7-batching-with", 1), AnchorLink("Intro", "intro", 1)
+    html = '<h2 id="intro">Intro</h2><h2 id="7-batching-with-vmap">7. Batching with <code>vmap</code></h2>'
+    hooks.repaired_headings(html, [entry, kept])
+    assert (entry.url, kept.url) == ("#7-batching-with-vmap", "#intro")
+
+
+def test_the_site_check_names_broken_links_and_anchors(tmp_path):
+    spec = importlib.util.spec_from_file_location("check_site", pathlib.Path(hooks.__file__).parent / "check_site.py")
+    check_site = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(check_site)
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "index.html").write_text('<h2 id="here">x</h2><a href="../b/#there">b</a><a href="#here">ok</a>')
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "index.html").write_text('<a href="../a/#here">a</a><a href="../c/">c</a><a href="https://x.org">x</a>')
+    pages = {page: page.read_text() for page in sorted(tmp_path.rglob("*.html"))}
+    ids = {page: {tag["id"] for tag in bs4.BeautifulSoup(text, "html.parser").find_all(id=True)} for page, text in pages.items()}
+    found = [
+        check_site._broken(link["href"], page, tmp_path, ids)
+        for page, text in pages.items()
+        for link in bs4.BeautifulSoup(text, "html.parser").find_all("a", href=True)
+    ]
+    assert [item for item in found if item] == ["../b/#there (no such anchor)", "../c/ (no such file)"]

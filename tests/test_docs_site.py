@@ -56,6 +56,25 @@ def test_every_public_package_has_a_reference_page():
         assert f"::: ddgjax.{name}" in (DOCS / page).read_text()
 
 
+def test_each_reference_page_lists_its_package_in_its_own_order():
+    # The pages list their members explicitly, entry points first (mkdocstrings renders them in that order); a
+    # public name added to a package and not to its page would be missing from the site, and links to it broken.
+    spec = importlib.util.spec_from_file_location("docs_hooks", DOCS / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    entries = {entry for targets in hooks.public_names().values() for entry in targets}
+    for page in sorted((DOCS / "reference").glob("*.md")):
+        if page.stem == "index":
+            continue
+        listed = re.findall(r"^ {8}- (\w+)$", page.read_text(), flags=re.MULTILINE)
+        documented = {entry.rsplit(".", 1)[1] for entry in entries if entry.startswith(f"reference/{page.stem}/#")}
+        assert len(listed) == len(set(listed)), f"{page.name} lists a member twice"
+        assert set(listed) == documented, (
+            f"docs/reference/{page.name}: add {sorted(documented - set(listed))} to its members, "
+            f"remove {sorted(set(listed) - documented)}"
+        )
+
+
 def test_every_notebook_is_on_the_site():
     pages = set(_navigation())
     for notebook in sorted((REPO / "notebooks").glob("*.ipynb")):

@@ -3,10 +3,10 @@
 - `linear_solve(A, b, *, solver=...)` and `factorize(A, *, solver=...).solve(b)`: symmetric (or
   complex Hermitian) positive definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD
   through `sparsax`), SciPy's SuperLU, a pure-JAX conjugate gradient preconditioned by Jacobi or an
-  algebraic-multigrid V-cycle, or pyamg's CG on the host (`method` one of `ddgjax.LINEAR_SOLVERS`);
+  algebraic-multigrid V-cycle, or pyamg's CG on the host (`solver` one of `ddgjax.LINEAR_SOLVERS`);
   all usable inside `jit` / `scan` / `vmap`, differentiable in `b` and in the matrix values by
   implicit differentiation; the answer is a `LinearSolution` with `value`, `result` (an item of
-  `ddgjax.RESULTS`), `residual` and `num_steps` (`throw=`). Every failure is a result, on every backend;
+  `ddgjax.RESULTS`) and `stats` (`residual`, `num_steps`; `throw=`). Every failure is a result, on every backend;
   a float32 system warns once per process (`PrecisionWarning`).
 - `amg_hierarchy`, `amg_refresh`, `amg_v_cycle`, `amg_preconditioner`: a smoothed-aggregation
   multigrid hierarchy built by pyamg on the host, applied in pure JAX (any device).
