@@ -111,6 +111,14 @@ class MeshBatch(Domain):
     Every width is a constant and `R`, `K` are functions of `(nvp, nfp)`, so batches of one bucket
     share shapes (and one compiled program) whatever their meshes' valences, degrees and
     non-manifold edges.
+
+    Examples:
+        >>> import ddgjax
+        >>> batch = ddgjax.batch.MeshBatch.from_meshes([ddgjax.mesh.icosphere(1), ddgjax.mesh.icosphere(2)])
+        >>> batch.batch_size, batch.vertices.shape, batch.n_vertices.tolist()
+        (2, (2, 192, 3), [42, 162])
+        >>> [round(float(area), 2) for area in ddgjax.batch.face_areas(batch).sum(axis=1)]
+        [11.67, 12.33]
     """
 
     vertices: Float[Array, "B nvp 3"]

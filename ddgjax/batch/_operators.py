@@ -240,6 +240,16 @@ def laplacian_apply(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], /) -> Floa
     Returns:
         `L u` per mesh, the shape of `u`. PyTorch3D: `cot_laplacian` (with the opposite sign and
         without the 1/2, `ddgjax.laplacian.to_pytorch3d_cot_laplacian`) on the packed mesh.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> meshes = [ddgjax.mesh.icosphere(1), ddgjax.mesh.icosphere(2)]
+        >>> batch = ddgjax.batch.MeshBatch.from_meshes(meshes)
+        >>> Lz = ddgjax.batch.laplacian_apply(batch, batch.vertices[..., 2])
+        >>> one = ddgjax.laplacian.cotan_laplacian(meshes[1]) @ meshes[1].vertices[:, 2]
+        >>> Lz.shape, bool(jnp.allclose(Lz[1, :162], one))
+        ((2, 192), True)
     """
     batch = require_batch("batch", batch)
     return _laplacian(batch, _vertex_values(batch, u))

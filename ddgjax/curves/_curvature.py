@@ -224,6 +224,15 @@ def curvature(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Floa
 
     On a regular `n`-gon of circumradius `r`: `kappa^D = 1 / r` exactly and every pointwise form
     tends to `1 / r` as `n` grows. Equivalent: `curvey.Curve.curvature` is the pointwise A form.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> hexagon = ddgjax.curves.regular_polygon(6, radius=2.0)
+        >>> bool(jnp.allclose(ddgjax.curves.curvature(hexagon, kind="D"), 0.5))  # 1 / r exactly
+        True
+        >>> round(float(ddgjax.curves.curvature(hexagon, kind="A").sum() / jnp.pi), 6)  # turning angles: 2 pi
+        2.0
     """
     check_choice("kind", kind, KINDS)
     kappa, _ = _curvature_and_normals(curve.points, curve.closed, kind)

@@ -39,6 +39,15 @@ class Curve(Domain):
             that coincide (including the last and the first point of a closed curve). The values of
             traced points (inside jit, grad or vmap) cannot be checked: there the functions stay
             finite on degenerate input; their shape is checked all the same.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> square = ddgjax.Curve(jnp.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
+        >>> float(ddgjax.curves.length(square)), float(ddgjax.curves.enclosed_area(square))
+        (4.0, 1.0)
+        >>> int(ddgjax.curves.turning_number(square))
+        1
     """
 
     points: Float[Array, "n 2"]

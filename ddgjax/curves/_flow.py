@@ -280,6 +280,15 @@ def curve_shortening_flow(
 
     Equivalent: curvey's `CurveShorteningFlow(resample_mode=None, curvature_fn=...)` (explicit,
     with curvey's finite-difference normals, host loop); no libigl / gpytoolbox counterpart.
+
+    Examples:
+        >>> import ddgjax
+        >>> flower = ddgjax.curves.flower(64)
+        >>> run = ddgjax.curves.curve_shortening_flow(flower, kind="B", tau=1e-3, steps=100, save_every=10)
+        >>> run.points.shape, run.value.shape
+        ((11, 64, 2), (64, 2))
+        >>> bool(ddgjax.curves.length(ddgjax.Curve(run.value)) < ddgjax.curves.length(flower))
+        True
     """
     check_choice("kind", kind, KINDS)
     check_choice("method", method, METHODS)

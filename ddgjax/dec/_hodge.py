@@ -109,6 +109,25 @@ def hodge1(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> Spars
     docstring). Works on every mesh. Reference: Crane et al. 2013, section 3.8; Desbrun et al.,
     *Discrete Exterior Calculus* (2005). DDG exercises: `DEC::buildHodgeStar1Form`; gpytoolbox:
     `dec_h1` (circumcentric, its own edge order).
+
+    Args:
+        mesh: any triangle mesh.
+        dual: the dual cells, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"` or
+            `"barycentric"` (keyword-only).
+        inverse: `True` for `*1^{-1}` (keyword-only).
+
+    Returns:
+        `(ne, ne)` diagonal `SparseMatrix`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(1)
+        >>> star1 = ddgjax.dec.hodge1(sphere)
+        >>> d0 = ddgjax.dec.d0(sphere).todense()
+        >>> L = ddgjax.laplacian.cotan_laplacian(sphere).todense()
+        >>> star1.shape, bool(jnp.allclose(d0.T @ star1.todense() @ d0, L))  # L = d0^T *1 d0
+        ((120, 120), True)
     """
     mesh = require_mesh("mesh", mesh)
     return diagonal_matrix(hodge_star_entries(mesh, degree=1, dual=dual, inverse=inverse))

@@ -26,6 +26,22 @@ def d0(mesh: Mesh) -> SparseMatrix:
     Exterior Calculus* (SIGGRAPH course 2013), section 3.6. DDG exercises:
     `DEC::buildExteriorDerivative0Form` (opposite global sign). gpytoolbox: `dec_d0`, on its own edge
     order and orientation `E` (`halfedge_edge_map`) and with the opposite sign, `u[E0] - u[E1]`.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(ne, nv)` `SparseMatrix` with entries `-1, +1`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(1)
+        >>> d0, d1 = ddgjax.dec.d0(sphere), ddgjax.dec.d1(sphere)
+        >>> d0.shape, d1.shape
+        ((120, 42), (80, 120))
+        >>> bool(jnp.all(d1.todense() @ d0.todense() == 0))  # d d = 0
+        True
     """
     mesh = require_mesh("mesh", mesh)
     values = jnp.broadcast_to(jnp.asarray([-1.0, 1.0], mesh.vertices.dtype), mesh.edges.shape)

@@ -136,6 +136,18 @@ def arap(
     Reference: Sorkine & Alexa 2007. libigl: `igl.arap_precomputation(V, F, 3, b, data)` with
     `data.energy = igl.ARAP_ENERGY_TYPE_SPOKES`, then `igl.arap_solve(bc, data, U)` (a fixed `data.max_iter`
     steps, no tolerance).
+
+    Examples:
+        >>> import numpy as np
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> strip = ddgjax.mesh.grid(8, 2)
+        >>> x = np.asarray(strip.vertices[:, 0])
+        >>> ends = np.flatnonzero((x == x.min()) | (x == x.max()))
+        >>> turn = jnp.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # a quarter turn about z
+        >>> deformed = ddgjax.deform.arap(strip, fixed_vertices=ends, fixed_values=strip.vertices[ends] @ turn.T)
+        >>> deformed.shape, bool(jnp.allclose(deformed, strip.vertices @ turn.T, atol=1e-4))  # rigid handles: a rigid motion
+        ((27, 3), True)
     """
     mesh = require_mesh("mesh", mesh)
     check_solver(solver)

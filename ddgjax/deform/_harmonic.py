@@ -81,6 +81,17 @@ def biharmonic_deformation(
     on the positions themselves, is `biharmonic_deformation` plus `igl.harmonic(V, F, b, V[b], k) - V`:
     the two agree only where the rest positions are k-harmonic (a flat mesh for `k = 1`); otherwise
     the positions' version smooths the surface's detail away.
+
+    Examples:
+        >>> import numpy as np
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> square = ddgjax.mesh.grid(6, 6)
+        >>> corners = np.array([0, 6, 42, 48])
+        >>> V, up = square.vertices, jnp.array([0.0, 0.0, 0.5])
+        >>> moved = ddgjax.deform.biharmonic_deformation(square, fixed_vertices=corners, fixed_values=V[corners] + up)
+        >>> moved.shape, bool(jnp.allclose(moved, V + up))  # a translation of the handles moves everything
+        ((49, 3), True)
     """
     mesh = require_mesh("mesh", mesh)
     k = _check_order(order)

@@ -79,16 +79,16 @@ def discretize(
         `mass="barycentric"`, `robust_laplacian.mesh_laplacian(V, F)`'s pair. Differentiable in the vertex
         positions (under `jit`, `grad`, `vmap`; the host work, checks and flips, runs before).
 
-    Example:
+    Raises:
+        DDGInputError: `mesh` neither kind, a bad `mass` or `robust`. `MeshDataError`: NaN / inf
+            positions, degenerate faces (with `robust=False`), degenerate or inverted tets, on concrete positions.
+
+    Examples:
         >>> import ddgjax
         >>> from ddgjax.discretization import discretize
         >>> d = discretize(ddgjax.mesh.icosphere(1), mass="barycentric")
         >>> d.laplacian.shape, d.mass.shape, d.triangulation is None
         ((42, 42), (42, 42), True)
-
-    Raises:
-        DDGInputError: `mesh` neither kind, a bad `mass` or `robust`. `MeshDataError`: NaN / inf
-            positions, degenerate faces (with `robust=False`), degenerate or inverted tets, on concrete positions.
     """
     mesh = require_domain("mesh", mesh)
     check_mass(mass)

@@ -7,6 +7,6 @@ As `lineax.internal`: plain re-exports, visible to import graphs and type checke
 from ._dirichlet import DirichletData as DirichletData
 from ._discretization import cell_measure_gradients as cell_measure_gradients
 from ._discretization import cells as cells
-from ._discretization import intrinsic_measure_gradients as intrinsic_measure_gradients
 from ._discretization import domain_edge_lengths as domain_edge_lengths
+from ._discretization import intrinsic_measure_gradients as intrinsic_measure_gradients
 from ._discretization import require_domain as require_domain

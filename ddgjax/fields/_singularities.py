@@ -69,6 +69,14 @@ def field_singularities(
 
     Returns:
         `(nf,)` face indices.
+
+    Examples:
+        >>> import ddgjax
+        >>> torus = ddgjax.mesh.torus(n_major=24, n_minor=8)
+        >>> field = ddgjax.fields.smoothest_field(torus, n=1).field
+        >>> indices = ddgjax.fields.field_singularities(torus, field, n=1)
+        >>> indices.shape, float(indices.sum())  # the Euler characteristic
+        ((384,), 0.0)
     """
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)

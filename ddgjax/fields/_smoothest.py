@@ -123,6 +123,14 @@ def smoothest_field(
     Reference: Knoeppel, Crane, Pinkall, Schroeder (2013), sections 5-6. geometry-central:
     `computeSmoothestVertexDirectionField(geometry, n)` (the unit field; its phase is arbitrary) and
     `computeCurvatureAlignedVertexDirectionField`.
+
+    Examples:
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> cross = ddgjax.fields.smoothest_field(sphere, n=4)
+        >>> indices = ddgjax.fields.field_singularities(sphere, cross.field, n=4)
+        >>> cross.field.shape, int((indices != 0).sum()), float(indices.sum())  # eight of index 1/4: chi = 2
+        ((162,), 8, 2.0)
     """
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)

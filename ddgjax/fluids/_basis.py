@@ -175,6 +175,12 @@ def fluid_basis(
         DDGInputError: `mesh` not a `Mesh`, a mesh with a boundary, bad `k` or `mass`;
             `MeshDataError` for a mesh that is not consistently oriented.
         equinox.EquinoxRuntimeError: with `throw=True`, the eigensolver or a solve failed (`ddgjax.RESULTS`).
+
+    Examples:
+        >>> import ddgjax
+        >>> basis = ddgjax.fluids.fluid_basis(ddgjax.mesh.icosphere(2), 16)
+        >>> basis.values.shape, basis.vectors.shape, basis.advection.shape
+        ((16,), (162, 16), (16, 16, 16))
     """
     mesh = require_mesh("mesh", mesh)
     check_basis_size(mesh, k)

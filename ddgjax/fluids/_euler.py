@@ -247,6 +247,15 @@ def euler_flow(
         equinox.EquinoxRuntimeError: with `throw=True`, a step whose midpoint equation was not solved
             (`RESULTS.max_steps_reached`: lower `tau`, module docstring) or a non-finite state
             (`RESULTS.nonfinite`).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> x, y, z = sphere.vertices.T
+        >>> run = ddgjax.fluids.euler_flow(sphere, x * y + z, tau=0.05, steps=20, k=16)
+        >>> run.vorticity.shape, bool(jnp.allclose(run.kinetic_energy, run.kinetic_energy[0]))  # energy is conserved
+        ((2, 162), True)
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("method", method, ("spectral",))

@@ -254,6 +254,14 @@ def signed_heat_distance(
     on edge midpoints (Crouzeix-Raviart), here on vertices (module docstring): on spot the largest
     difference is 1.5% of the bounding box's diagonal (correlation 0.9998), 4e-5 on a latitude ring of a
     uv sphere, round-off on a flat disk (tests).
+
+    Examples:
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.uv_sphere(8, 16)  # vertex 0 the north pole, 49 to 64 the equator
+        >>> equator = [*range(49, 65), 49]  # counterclockwise seen from above: the north on its left
+        >>> phi = ddgjax.geodesics.signed_heat_distance(sphere, [equator])
+        >>> round(float(phi[0]), 1), round(float(phi[-1]), 1), float(phi[49])  # +-pi/2 at the poles
+        (1.5, -1.5, 0.0)
     """
     mesh = require_mesh("mesh", mesh)
     segments, weights, held, components = _curve_data(mesh, curves, level_set)

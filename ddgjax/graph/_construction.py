@@ -64,6 +64,16 @@ def knn_graph(
     To differentiate in the points, find the edges once (here) and differentiate
     `gaussian_weights(points, edges)`: the search itself is not differentiable (it decides the edge count).
     scikit-learn: `kneighbors_graph(X, n_neighbors)` symmetrised with `maximum(A, A.T)`.
+
+    Examples:
+        >>> import numpy as np
+        >>> import ddgjax
+        >>> angles = np.linspace(0.0, 2 * np.pi, 12, endpoint=False)
+        >>> points = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        >>> graph = ddgjax.graph.knn_graph(points, n_neighbors=2)  # each point's two neighbours: a 12-cycle
+        >>> graph.edges.shape, graph.edge_weights.shape
+        ((12, 2), (12,))
+        >>> L = ddgjax.graph.graph_laplacian(graph.edges, edge_weights=graph.edge_weights, n_vertices=12)
     """
     host = _host_points(points)
     n = host.shape[0]

@@ -192,6 +192,14 @@ def graph_laplacian(
     edge_weights of the wrong shape, negative or non-finite, and `n_vertices` not a positive integer.
 
     networkx: `nx.laplacian_matrix(G, weight="weight")`; SciPy: `scipy.sparse.csgraph.laplacian(W)`.
+
+    Examples:
+        >>> import numpy as np
+        >>> import ddgjax
+        >>> path = np.array([[0, 1], [1, 2]])
+        >>> L = ddgjax.graph.graph_laplacian(path, edge_weights=np.array([1.0, 2.0]), n_vertices=3)
+        >>> L.todense().tolist()
+        [[1.0, -1.0, 0.0], [-1.0, 3.0, -2.0], [0.0, -2.0, 2.0]]
     """
     structure = graph_structure(edges, n_vertices)
     edge_weights = check_weights(edge_weights, structure.n_edges)

@@ -121,6 +121,16 @@ def tutte_layout(
     On a mesh, `ddgjax.param.tutte_embedding(mesh, shape=positions)` with the mesh's boundary loop gives
     the same drawing (its default circle spaces the boundary by arc length instead). networkx has no
     Tutte layout (`nx.planar_layout` draws by a combinatorial embedding).
+
+    Examples:
+        >>> import numpy as np
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> rim = np.arange(1, 7)  # a wheel: hub 0, rim 1 to 6
+        >>> edges = np.concatenate([np.stack([np.zeros(6, int), rim], 1), np.stack([rim, np.roll(rim, -1)], 1)])
+        >>> xy = ddgjax.graph.tutte_layout(edges, fixed_vertices=rim, n_vertices=7)
+        >>> xy.shape, bool(jnp.allclose(xy[0], 0.0))  # the hub at the centre of the rim's hexagon
+        ((7, 2), True)
     """
     structure = graph_structure(edges, n_vertices)
     n = structure.n_vertices

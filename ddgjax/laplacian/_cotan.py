@@ -73,6 +73,15 @@ def cotan_laplacian(mesh: Mesh) -> SparseMatrix:
     References: U. Pinkall, K. Polthier, "Computing discrete minimal surfaces and their conjugates"
     (1993); K. Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), ch. 6.
     libigl `cotmatrix` (negated); gpytoolbox `cotangent_laplacian`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> L = ddgjax.laplacian.cotan_laplacian(ddgjax.mesh.icosphere(2))
+        >>> L.shape, L.symmetric, L.positive_semidefinite
+        ((162, 162), True, True)
+        >>> bool(jnp.allclose(L @ jnp.ones(162), 0.0))  # constants are in the kernel
+        True
     """
     plan = vertex_plan(mesh)
     degenerate = degenerate_faces(mesh)  # None under jit

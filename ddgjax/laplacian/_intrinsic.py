@@ -183,6 +183,19 @@ def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> Intrinsic
     References: Bobenko & Springborn (2007); Fisher et al. (2007); Sharp & Crane (2020). libigl
     `intrinsic_delaunay_triangulation` (one flip at a time from a queue, no mollification; manifold
     meshes only); geometry-central `mollifyIntrinsic` then `flipToDelaunay` (`buildIntrinsicTuftedCover` first).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> flat = sphere.with_vertices(sphere.vertices * jnp.array([1.0, 1.0, 0.1]))  # obtuse triangles
+        >>> triangulation = ddgjax.laplacian.intrinsic_delaunay(flat)
+        >>> def largest_off_diagonal(L):
+        ...     return float(jnp.max(L.todense() - jnp.diag(L.diagonal())))
+        >>> largest_off_diagonal(ddgjax.laplacian.cotan_laplacian(flat)) > 0  # a negative edge weight
+        True
+        >>> largest_off_diagonal(ddgjax.laplacian.intrinsic_delaunay_laplacian(flat, triangulation=triangulation)) <= 1e-12
+        True
     """
     mesh = require_mesh("mesh", mesh)
     if not (

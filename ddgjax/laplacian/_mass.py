@@ -40,6 +40,14 @@ def mass_matrix(mesh: Mesh, *, mass: str = "voronoi") -> SparseMatrix:
         `(nv, nv)` `SparseMatrix`.
 
     Reference: Meyer, Desbrun, Schroeder, Barr (2003); libigl `massmatrix`; gpytoolbox `massmatrix`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> M = ddgjax.laplacian.mass_matrix(sphere, mass="barycentric")
+        >>> M.shape, bool(jnp.isclose(M.diagonal().sum(), ddgjax.mesh.total_area(sphere)))
+        ((162, 162), True)
     """
     check_mass(mass)
     if mass != "galerkin":

@@ -69,6 +69,14 @@ def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | Intr
 
     Reference: Sharp & Crane, "A Laplacian for nonmanifold triangle meshes" (2020). libigl:
     `-igl.cotmatrix(V, F)`, `igl.massmatrix(V, F, type)`; robust_laplacian: `mesh_laplacian(V, F)`.
+
+    Examples:
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(3)
+        >>> L, M = ddgjax.laplacian.laplacian_and_mass(sphere, mass="voronoi")
+        >>> z = sphere.vertices[:, 2]  # an eigenfunction of the unit sphere, eigenvalue 2
+        >>> round(float((z @ (L @ z)) / (z @ (M @ z))), 6)
+        2.0
     """
     triangulation = resolve_robust(mesh, robust, mass=mass)
     if triangulation is None:

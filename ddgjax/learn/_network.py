@@ -78,6 +78,23 @@ class DiffusionNet(eqx.Module):
     `model(x, operators)` maps `(nv, in_channels)` vertex features (positions, heat kernel signatures, ...)
     to `(nv, out_channels)`; `jax.vmap(model)(X, stacked_operators)` runs a padded batch (module docstring).
     Sharp et al. 2022, figure 2 (DiffusionNet's `DiffusionNet(C_in, C_out, C_width=128, N_block=4)`).
+
+    Args:
+        in_channels: the number of input features per vertex.
+        out_channels: the number of outputs per vertex.
+        width: the features per vertex inside the blocks (default 128, keyword-only).
+        n_blocks: the number of `DiffusionNetBlock`s (default 4, keyword-only).
+        key: a PRNG key for the initial weights (keyword-only).
+        dtype: the weights' float dtype (keyword-only; default JAX's default float).
+
+    Examples:
+        >>> import jax
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> operators = ddgjax.learn.diffusion_operators(sphere, 16)
+        >>> model = ddgjax.learn.DiffusionNet(3, 2, width=8, n_blocks=2, key=jax.random.key(0))
+        >>> model(sphere.vertices, operators).shape
+        (162, 2)
     """
 
     first: eqx.nn.Linear

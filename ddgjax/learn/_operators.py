@@ -110,6 +110,12 @@ def diffusion_operators(
         eigenvalues). Equivalent: DiffusionNet's `geometry.get_operators(verts, faces, k_eig)`
         (`frames, mass, L, evals, evecs, gradX, gradY`; its gradient is a sparse complex matrix, here a
         fixed-degree table).
+
+    Examples:
+        >>> import ddgjax
+        >>> operators = ddgjax.learn.diffusion_operators(ddgjax.mesh.icosphere(2), 16)
+        >>> operators.mass.shape, operators.values.shape, operators.vectors.shape
+        ((162,), (16,), (162, 16))
     """
     operators, unwritable = _cached_operators(mesh, k, mass=mass, robust=robust, cache_dir=cache_dir, throw=throw)
     if unwritable is not None:

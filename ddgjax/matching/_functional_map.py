@@ -118,6 +118,18 @@ def functional_map(
     Poulenard, P. Wonka & M. Ovsjanikov, "Continuous and orientation-preserving correspondences via
     functional maps" (2018); J. Ren, M. Panine, P. Wonka & M. Ovsjanikov, "Structured regularization
     of functional map computations" (2019).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> x, y, z = sphere.vertices.T
+        >>> bumpy = sphere.with_vertices(sphere.vertices * (1 + 0.3 * x**2 + 0.2 * y * z + 0.1 * z)[:, None])
+        >>> shape = ddgjax.matching.spectral_shape(bumpy, 20)
+        >>> F = ddgjax.matching.descriptors(shape, kind="wks", n_descriptors=20)
+        >>> C = ddgjax.matching.functional_map(shape, shape, F, F)
+        >>> C.shape, bool(jnp.allclose(C, jnp.eye(20), atol=1e-6))  # a shape onto itself: the identity
+        ((20, 20), True)
     """
     source, target = require_spectral_shape("source", source), require_spectral_shape("target", target)
     require_connected("source", source.mesh, "functional_map")

@@ -115,6 +115,17 @@ def match_shapes(
     Reference: M. Ovsjanikov et al., "Functional maps" (SIGGRAPH 2012); S. Melzi et al., "ZoomOut"
     (SIGGRAPH Asia 2019). pyFM: `FunctionalMapping(mesh1, mesh2)`, `.preprocess(n_descr=100,
     descr_type="WKS")`, `.fit(K=(k, k), w_orient=...)`, `.zoomout_refine(nit=k_final - k)`, `.get_p2p(...)`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> x, y, z = sphere.vertices.T
+        >>> bumpy = sphere.with_vertices(sphere.vertices * (1 + 0.3 * x**2 + 0.2 * y * z + 0.1 * z)[:, None])
+        >>> turned = bumpy.with_vertices(bumpy.vertices[:, jnp.array([1, 0, 2])] * jnp.array([-1.0, 1.0, 1.0]))
+        >>> match = ddgjax.matching.match_shapes(bumpy, turned, k=10, n_descriptors=20, k_final=30)
+        >>> match.point_map.shape, bool(jnp.all(match.point_map == jnp.arange(162)))  # an isometry: every vertex found
+        ((162,), True)
     """
     source_mesh = require_mesh("source_mesh", source_mesh)
     target_mesh = require_mesh("target_mesh", target_mesh)

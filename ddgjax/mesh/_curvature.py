@@ -73,6 +73,21 @@ def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
     this on interior vertices and 0 on boundary vertices
     (`jnp.where(boundary, 0, vertex_angle_defects(mesh))`). Pointwise:
     `vertex_pointwise_gaussian_curvatures`.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nv,)` angle defects `K_i` (integrated Gaussian curvature), 0 at unreferenced vertices.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> K = ddgjax.mesh.vertex_angle_defects(ddgjax.mesh.icosphere(2))
+        >>> K.shape, bool(jnp.isclose(K.sum(), 4 * jnp.pi))  # Gauss-Bonnet: 2 pi chi, chi = 2
+        ((162,), True)
+        >>> bool(jnp.isclose(ddgjax.mesh.vertex_angle_defects(ddgjax.mesh.torus()).sum(), 0.0))  # chi = 0
+        True
     """
     angle_sums = scatter_corners_to_vertices(mesh, _face_corner_angles(mesh))
     dtype = angle_sums.dtype

@@ -38,6 +38,17 @@ class Mesh(Domain):
         edge_faces, edge_face_corners: `(ne, m)` faces of each edge and the corner opposite it, -1 padded.
         topology: `MeshTopology` (static; `None` only inside ddgjax's compiled kernels, see
             `ddgjax._compile.kernel`).
+
+    Examples:
+        >>> import numpy as np
+        >>> import ddgjax
+        >>> vertices = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        >>> faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+        >>> tetrahedron = ddgjax.Mesh.from_arrays(vertices, faces)
+        >>> tetrahedron.n_vertices, tetrahedron.n_edges, tetrahedron.n_faces
+        (4, 6, 4)
+        >>> round(float(ddgjax.mesh.enclosed_volume(tetrahedron)), 6)
+        0.166667
     """
 
     vertices: Float[Array, "nv 3"]

@@ -31,6 +31,22 @@ def icosphere(subdivisions=3, *, radius=1.0, dtype=None) -> Mesh:
     (SIAM J. Numer. Anal., 1985). Equivalents: `trimesh.creation.icosphere(s, radius)` (the same faces up to
     vertex numbering, positions within 1e-7), `gpytoolbox.icosphere(s)` (same counts, another
     base icosahedron).
+
+    Args:
+        subdivisions: how many times each face is split into four, `s >= 0` (default 3).
+        radius: the sphere's radius, `> 0` (keyword-only).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `Mesh` with vertices `(10 * 4**s + 2, 3)` and faces `(20 * 4**s, 3)`.
+
+    Examples:
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> sphere.vertices.shape, sphere.faces.shape
+        ((162, 3), (320, 3))
+        >>> round(float(ddgjax.mesh.total_area(sphere)), 2)  # 4 pi = 12.566 in the limit
+        12.33
     """
     check_count("subdivisions", subdivisions, 0)
     check_positive("radius", radius)

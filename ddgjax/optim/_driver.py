@@ -284,6 +284,16 @@ def minimize_shape(
 
     References: Nicolet, Jacobson, Jakob 2021 (Large Steps); PyTorch3D's "Deform a source mesh to
     form a target mesh" tutorial (the loop it writes by hand); `largesteps.optimize.AdamUniform`.
+
+    Examples:
+        >>> import ddgjax
+        >>> def loss(mesh):
+        ...     return (ddgjax.mesh.total_area(mesh) - 6.0) ** 2
+        >>> result = ddgjax.optim.minimize_shape(loss, ddgjax.mesh.icosphere(2), steps=100)
+        >>> result.value.shape, result.loss_history.shape
+        ((162, 3), (101,))
+        >>> bool(result.loss_history[-1] < 0.1 * result.loss_history[0])
+        True
     """
     mesh = require_mesh("mesh", mesh)
     steps = check_count("steps", steps)

@@ -125,6 +125,15 @@ def large_steps(
     Built on the host from concrete vertex positions (a setup step, like a factorisation): not under
     `jit`. Reference: Nicolet et al. 2021. Equivalent: `largesteps.geometry.compute_matrix(v, f,
     lambda_)` with `to_differential` / `from_differential` (uniform weights, no fixed vertices).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(2)
+        >>> steps = ddgjax.optim.large_steps(sphere, lambda_=10.0)
+        >>> U = steps.to_parameters(sphere.vertices)  # (I + lambda L) V
+        >>> U.shape, bool(jnp.allclose(steps.from_parameters(U), sphere.vertices))
+        ((162, 3), True)
     """
     mesh = require_mesh("mesh", mesh)
     lambda_ = check_positive("lambda_", lambda_)

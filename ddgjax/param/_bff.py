@@ -116,6 +116,15 @@ def boundary_first_flattening(
         Differentiable in the vertex positions and in `boundary_scale` / `boundary_angles`.
 
     Reference: Sawhney & Crane 2017. libigl / gpytoolbox: none; the authors' `bff` command line tool.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> disk = ddgjax.mesh.disk(4)
+        >>> cap = disk.with_vertices(disk.vertices.at[:, 2].set(1.0 - jnp.sum(disk.vertices[:, :2] ** 2, axis=1)))
+        >>> uv = ddgjax.param.boundary_first_flattening(cap, shape="circle")
+        >>> uv.shape, int(ddgjax.param.map_distortion(cap, uv).flipped.sum())
+        ((61, 2), 0)
     """
     check_solver(solver)
     given = [

@@ -161,6 +161,15 @@ def lscm(
         `grad` and `vmap`.
 
     libigl: `igl.lscm(V, F, b, bc)` (the same map for `b = fixed_vertices`, `bc = fixed_values`).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> disk = ddgjax.mesh.disk(4)  # flat: its conformal maps are similarities
+        >>> uv = ddgjax.param.lscm(disk)
+        >>> i, j = disk.edges[:, 0], disk.edges[:, 1]
+        >>> uv.shape, bool(jnp.allclose(jnp.linalg.norm(uv[i] - uv[j], axis=1), ddgjax.mesh.edge_lengths(disk)))
+        ((61, 2), True)
     """
     check_solver(solver)
     disk = require_disk(mesh, "lscm")
@@ -254,6 +263,15 @@ def spectral_conformal_map(
         rotation within its double eigenvalue is removed before it is returned, so the gradient is
         exact). On CPU the eigensolve is ARPACK's on the host (through a callback): `jit` works,
         `vmap` runs sequentially.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> disk = ddgjax.mesh.disk(4)
+        >>> cap = disk.with_vertices(disk.vertices.at[:, 2].set(1.0 - jnp.sum(disk.vertices[:, :2] ** 2, axis=1)))
+        >>> uv = ddgjax.param.spectral_conformal_map(cap)
+        >>> uv.shape, int(ddgjax.param.map_distortion(cap, uv).flipped.sum())
+        ((61, 2), 0)
     """
     regularization = check_positive("regularization", regularization)
     check_choice("method", method, EIGENSOLVERS)

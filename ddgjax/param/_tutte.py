@@ -72,6 +72,16 @@ def tutte_embedding(
 
     libigl: `igl.harmonic(V, F, b, igl.map_vertices_to_circle(V, b), 1)` is the cotan version with
     the circle (libigl's `harmonic` uses `cotmatrix`); gpytoolbox: `tutte_embedding`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> disk = ddgjax.mesh.disk(4)
+        >>> cap = disk.with_vertices(disk.vertices.at[:, 2].set(1.0 - jnp.sum(disk.vertices[:, :2] ** 2, axis=1)))
+        >>> uv = ddgjax.param.tutte_embedding(cap)
+        >>> loop = cap.topology.boundary_loops[0]
+        >>> bool(jnp.allclose(jnp.linalg.norm(uv[loop], axis=1), 1.0)), int(ddgjax.param.map_distortion(cap, uv).flipped.sum())
+        (True, 0)
     """
     check_weights(weights)
     check_solver(solver)
@@ -94,6 +104,24 @@ def harmonic_map(mesh: Mesh, *, shape="circle", solver: str = "auto", throw: boo
     boundary loop on `shape` (`"circle"` by default, arc-length spacing; see `tutte_embedding`, whose
     `solver` and `throw` it takes too). Can flip triangles on meshes with obtuse angles
     (`map_distortion`). libigl: `igl.harmonic(V, F, bnd, igl.map_vertices_to_circle(V, bnd), 1)`.
+
+    Args:
+        mesh: a topological disk (else `DDGInputError`).
+        shape: the boundary's target, as `tutte_embedding`'s: `"circle"` (default), `"square"` or `(nb, 2)`
+            positions in the order of `mesh.topology.boundary_loops[0]`.
+        solver: the `ddgjax.solve.linear_solve` backend (`ddgjax.LINEAR_SOLVERS`).
+        throw: raise when the solve fails (default), or return a `ddgjax.Solution`.
+
+    Returns:
+        `(nv, 2)` positions, unreferenced vertices at the origin (in a `ddgjax.Solution` with `throw=False`).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> disk = ddgjax.mesh.disk(4)  # a flat unit disk: the map is the identity
+        >>> uv = ddgjax.param.harmonic_map(disk)
+        >>> uv.shape, bool(jnp.allclose(uv, disk.vertices[:, :2]))
+        ((61, 2), True)
     """
     check_solver(solver)
     disk = require_disk(mesh, "harmonic_map")

@@ -141,6 +141,16 @@ def hodge_decomposition(
     (`test-decomp-soln.txt`): their edges are numbered and oriented by first appearance in the
     faces, so map with `mesh.edges` and a sign; the three parts do not depend on the global sign of
     `d0` or `d1`. References: module docstring; the DDG exercises' `HodgeDecomposition`.
+
+    Examples:
+        >>> import jax
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> torus = ddgjax.mesh.torus(n_major=24, n_minor=8)
+        >>> omega = jax.random.normal(jax.random.key(0), (torus.n_edges,))
+        >>> exact, coexact, harmonic = ddgjax.pde.hodge_decomposition(torus, omega)
+        >>> bool(jnp.allclose(exact + coexact + harmonic, omega)), bool(jnp.allclose(ddgjax.dec.d1(torus) @ harmonic, 0.0))
+        (True, True)
     """
     mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.pde.hodge_decomposition")

@@ -106,6 +106,15 @@ def solve_poisson(
     Reference: the reading report, "The Poisson problem"; Crane's DDG notes, ch. 6.
     libigl: `igl.min_quad_with_fixed(L, M @ rho, known, values, ...)` with `L = -igl.cotmatrix(V, F)`
     (`V, T` for tets); gpytoolbox: `min_quad_with_fixed(L, c=M @ rho, k=known, y=values)`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> sphere = ddgjax.mesh.icosphere(3)
+        >>> z = sphere.vertices[:, 2]  # Delta z = -2 z on the unit sphere
+        >>> phi = ddgjax.pde.solve_poisson(sphere, -2 * z, fixed_vertices=jnp.array([0]), fixed_values=z[:1])
+        >>> phi.shape, bool(jnp.allclose(phi, z, atol=1e-3))
+        ((642,), True)
     """
     mesh = require_domain("mesh", mesh)
     check_solver(solver)
@@ -207,6 +216,17 @@ def harmonic_interpolation(
     Reference: the reading report, "Dirichlet energy"; Crane's DDG notes, ch. 6. libigl:
     `igl.harmonic(V, F, fixed_vertices, fixed_values, 1)`; gpytoolbox: `min_quad_with_fixed` with
     `L` and no linear term.
+
+    Examples:
+        >>> import numpy as np
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> square = ddgjax.mesh.grid(8, 8)
+        >>> x = np.asarray(square.vertices[:, 0])
+        >>> sides = np.flatnonzero((x == x.min()) | (x == x.max()))
+        >>> phi = ddgjax.pde.harmonic_interpolation(square, fixed_vertices=sides, fixed_values=x[sides])
+        >>> bool(jnp.allclose(phi, x))  # linear functions are harmonic
+        True
     """
     mesh = require_domain("mesh", mesh)
     if fixed_vertices is None or np.size(fixed_vertices) == 0:

@@ -204,6 +204,13 @@ def point_cloud_heat_solver(
 
     potpourri3d: `PointCloudHeatSolver(P, t_coef=1.0)` (its neighbourhood size is fixed at 30; it
     factors each system on the first query that needs it).
+
+    Examples:
+        >>> import ddgjax
+        >>> points = ddgjax.mesh.icosphere(3).vertices
+        >>> solver = ddgjax.pointcloud.point_cloud_heat_solver(points, n_neighbors=10)
+        >>> solver.distance(0).shape, solver.log_map(0).shape
+        ((642,), (642, 2))
     """
     points = check_points(points)
     check_solver(solver)
@@ -267,6 +274,13 @@ def point_cloud_heat_distance(
 
     potpourri3d: `PointCloudHeatSolver(P, t_coef=1.0).compute_distance(i)` /
     `compute_distance_multisource(idx)` (which shifts by the sources' mean rather than to 0).
+
+    Examples:
+        >>> import ddgjax
+        >>> points = ddgjax.mesh.icosphere(3).vertices
+        >>> distance = ddgjax.pointcloud.point_cloud_heat_distance(points, 0, n_neighbors=10)
+        >>> distance.shape, float(distance.min()), round(float(distance.max()), 1)  # pi at the antipode
+        ((642,), 0.0, 3.1)
     """
     _sources(np.shape(points)[0] if np.ndim(points) == 2 else 0, sources, np.float64)  # refuse bad sources first
     solver_ = point_cloud_heat_solver(

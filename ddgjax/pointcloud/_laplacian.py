@@ -73,6 +73,17 @@ def point_cloud_laplacian(
 
     Reference: N. Sharp, K. Crane, "A Laplacian for nonmanifold triangle meshes" (SGP 2020).
     robust_laplacian: `L, M = point_cloud_laplacian(P, mollify_factor=1e-5, n_neighbors=30)`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> points = ddgjax.mesh.icosphere(3).vertices
+        >>> L, M = ddgjax.pointcloud.point_cloud_laplacian(points, n_neighbors=10)
+        >>> L.shape, bool(jnp.allclose(L @ jnp.ones(642), 0.0))
+        ((642, 642), True)
+        >>> z = points[:, 2]  # an eigenfunction of the unit sphere, eigenvalue 2
+        >>> round(float((z @ (L @ z)) / (z @ (M @ z))), 2)
+        2.0
     """
     triangulation = _triangulation_for(points, triangulation, n_neighbors=n_neighbors, mollify_factor=mollify_factor)
     return _operators(*_point_cloud_values(check_points(points), triangulation), triangulation)

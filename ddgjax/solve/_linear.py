@@ -217,6 +217,14 @@ def linear_solve(
 
     Differentiable in `b` and `A.values` (module docstring), under `jit`, `grad`, `vmap` and inside
     `lax.scan`. Equal to `factorize(A, ...).solve(b)`. SciPy: `scipy.sparse.linalg.spsolve(A.to_scipy(), b)`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> L, M = ddgjax.laplacian.laplacian_and_mass(ddgjax.mesh.icosphere(2))
+        >>> solution = ddgjax.solve.linear_solve(M + 0.1 * L, M @ jnp.ones(162))
+        >>> bool(jnp.allclose(solution.value, 1.0)), bool(solution.residual < 1e-10)
+        (True, True)
     """
     _check_matrix(A)
     _check_rhs(A, b)
@@ -334,6 +342,30 @@ def factorize(
     `jit`, a CHOLMOD factorisation of up to `SIMPLICIAL_LIMIT` (50,000) unknowns is simplicial, whose
     solves are faster than those of the supernodal one `linear_solve` gets (`cholmod_analysis`).
     SciPy: `scipy.sparse.linalg.splu(A).solve`; cholespy: `CholeskySolverD(...).solve`.
+
+    Args:
+        A: `(n, n)` `SparseMatrix` flagged symmetric, or complex and flagged Hermitian; positive definite
+            by the caller's promise (as `linear_solve`).
+        solver: the backend, one of `ddgjax.LINEAR_SOLVERS` (`"auto"`, the default, `"cholesky"`,
+            `"superlu"`, `"cg"`, `"pyamg"`).
+        preconditioner: for `"cg"`: `"jacobi"` (default), `"amg"` or an `AMGHierarchy` (`linear_solve`).
+        rtol: relative tolerance of the CG solves; the direct solves ignore it.
+        max_steps: CG iteration limit (default `10 n`).
+        residual_tolerance: a solve with a larger relative residual is reported as `singular`.
+
+    Returns:
+        `Factorization`; `factorization.solve(b, throw=...)` returns a `LinearSolution` for `b` of shape
+        `(n,)` or `(n, k)`.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> L, M = ddgjax.laplacian.laplacian_and_mass(ddgjax.mesh.icosphere(2))
+        >>> factorization = ddgjax.solve.factorize(M + 0.1 * L)
+        >>> b = M @ jnp.ones(162)
+        >>> x1, x2 = factorization.solve(b).value, factorization.solve(2 * b).value
+        >>> bool(jnp.allclose(x1, 1.0)), bool(jnp.allclose(x2, 2.0))
+        (True, True)
     """
     return _factorize(
         A,

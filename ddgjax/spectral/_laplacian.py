@@ -87,6 +87,14 @@ def eigenpairs(
         of equal eigenvalues; any function invariant within a cluster), under `jit` and `vmap`.
 
     libigl (C++ only): `igl::eigs(-cotmatrix, massmatrix, k, igl::EIGS_TYPE_SM, U, D)` (on `V, F` or `V, T`).
+
+    Examples:
+        >>> import ddgjax
+        >>> values, vectors = ddgjax.spectral.eigenpairs(ddgjax.mesh.icosphere(3), 4)
+        >>> vectors.shape
+        (642, 4)
+        >>> [round(float(value), 3) for value in values[1:]]  # l (l + 1) = 2 on the unit sphere
+        [2.0, 2.0, 2.0]
     """
     mesh = require_domain("mesh", mesh)
     check_choice("boundary", boundary, BOUNDARY_CONDITIONS)
@@ -212,6 +220,22 @@ def heat_kernel_signature(
     Invariant within clusters of equal eigenvalues (a sum of `phi_i^2` over an eigenspace does not
     depend on its basis), so differentiable on symmetric shapes too. `values, vectors` as
     `heat_kernel` takes them: `heat_kernel_signature(*eigenpairs(mesh, 100), t=times)`.
+
+    Args:
+        values: `(k,)` eigenvalues (`eigenpairs(mesh, k).values`).
+        vectors: `(nv, k)` their M-orthonormal eigenvectors.
+        t: one time or `(n_times,)` times, `> 0` (keyword-only).
+
+    Returns:
+        `(nv, n_times)` signatures, one column per time (`(nv, 1)` for one time).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import ddgjax
+        >>> values, vectors = ddgjax.spectral.eigenpairs(ddgjax.mesh.icosphere(2), 16)
+        >>> hks = ddgjax.spectral.heat_kernel_signature(values, vectors, t=jnp.array([0.1, 1.0]))
+        >>> hks.shape, bool(jnp.all(hks[:, 0] > hks[:, 1]))  # heat spreads out with time
+        ((162, 2), True)
     """
     values, vectors, times = jnp.asarray(values), jnp.asarray(vectors), jnp.atleast_1d(jnp.asarray(t))
     return (vectors**2) @ jnp.exp(-values[:, None] * times[None, :])

@@ -43,6 +43,22 @@ def tet_ball(n_layers=8, *, radius=1.0, dtype=None) -> TetMesh:
     Reference: H. Freudenthal, "Simplizialzerlegungen von beschränkter Flachheit" (Ann. Math., 1942);
     H. Edelsbrunner, D. R. Grayson, "Edgewise subdivision of a simplex" (DCG, 2000). No libigl
     equivalent; TetGen / gmsh mesh a ball from a surface (`ddgjax.volume.tetrahedralize`).
+
+    Args:
+        n_layers: the number of shells `n >= 1` (default 8): `20 n^3` tets.
+        radius: the ball's radius, `> 0` (keyword-only).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `TetMesh` with vertices `(10 n^3 + O(n^2), 3)` and tets `(20 n^3, 4)`.
+
+    Examples:
+        >>> import ddgjax
+        >>> ball = ddgjax.volume.tet_ball(4)
+        >>> ball.vertices.shape, ball.tets.shape
+        ((309, 3), (1280, 4))
+        >>> round(float(ddgjax.volume.tet_volumes(ball).sum()), 2)  # 4/3 pi = 4.19 in the limit
+        4.05
     """
     n = check_count("n_layers", n_layers, 1)
     check_positive("radius", radius)
