@@ -9,7 +9,7 @@ decomposition, mean curvature flow, energies), `ddgjax.spectral` (Laplacian eige
 `ddgjax.geodesics` (heat-method distance), `ddgjax.param` (surface parametrisation), `ddgjax.fields`
 (direction fields), `ddgjax.optim` (shape optimisation), `ddgjax.deform` (k-harmonic and ARAP
 deformation from handles), `ddgjax.matching` (shape correspondence by functional maps), `ddgjax.fluids`
-(incompressible flow on surfaces), `ddgjax.pointcloud` (Laplacians and geodesics of point clouds), `ddgjax.graph`
+(incompressible flow on surfaces), `ddgjax.pointcloud` (Laplacians and geodesics of point clouds), `ddgjax.reconstruct` (surfaces from points: Poisson reconstruction), `ddgjax.graph`
 (graph Laplacians), `ddgjax.batch` (padded batches of meshes of different sizes), `ddgjax.learn` (operators for
 learning on meshes, a DiffusionNet), `ddgjax.volume` (tetrahedral meshes: their
 Laplacian, mass matrices and DEC), `ddgjax.sharding` (several devices), `ddgjax.io` (mesh files), `ddgjax.plot` (figures). The vocabulary every package shares (option names,
@@ -57,6 +57,7 @@ _SUBPACKAGES = (
     "pde",
     "plot",
     "pointcloud",
+    "reconstruct",
     "sharding",
     "solve",
     "sparse",
@@ -98,6 +99,7 @@ if TYPE_CHECKING:  # what static analysers and IDEs see; at run time __getattr__
     from . import pde as pde
     from . import plot as plot
     from . import pointcloud as pointcloud
+    from . import reconstruct as reconstruct
     from . import sharding as sharding
     from . import solve as solve
     from . import sparse as sparse

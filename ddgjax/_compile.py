@@ -90,9 +90,19 @@ def cpu_compiler_options(*, extra: object = None) -> dict[str, str]:
     elements (module docstring; benchmarks/README.md). Same
     effect for every `jit` of a process: `XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type=` set
     before JAX starts. Options the installed jaxlib does not accept are left out, so the result is
-    always safe to pass (and may be empty). `extra` adds options of your own (a mapping of option
-    names to string values, as `jax.jit(..., compiler_options=...)` takes them), filtered alike.
+    always safe to pass (and may be empty).
     Reference: XLA's debug options (`xla/debug_options_flags.cc`, `xla_cpu_experimental_ynn_fusion_type`).
+
+    Args:
+        extra: options of your own to add, a mapping of option names to string values as
+            `jax.jit(..., compiler_options=...)` takes them (keyword-only; default `None`, none); filtered
+            like ddgjax's, and taking precedence over them on a shared name.
+
+    Returns:
+        A new `dict` of option names to string values that the installed jaxlib accepts (possibly empty).
+
+    Raises:
+        DDGInputError: `extra` is not a mapping of strings to strings.
     """
     if extra is not None and (
         not isinstance(extra, Mapping) or not all(isinstance(item, str) for pair in extra.items() for item in pair)

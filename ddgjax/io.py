@@ -112,6 +112,9 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh) -> None:
             `igl.write_triangle_mesh(path, V, F)` and `numpy.save(file, array)` take it).
         mesh: the mesh to write.
 
+    Returns:
+        None; the file at `path` is written (replaced when it exists).
+
     Raises `DDGInputError`, before anything is written, for an unknown extension, anything but a
     `Mesh`, or vertices with NaN or inf coordinates (whatever made them: `Mesh.from_arrays` refuses
     them, but `eqx.tree_at`, a `with_vertices` under `jit` or a flow that blew up can carry them);

@@ -1,11 +1,12 @@
 """Checks on the built site's HTML that `mkdocs build --strict` does not make (CI runs it after the build).
 
-`python docs/check_site.py SITE_DIR` exits 1 naming each page where maths was left as typed (a `$...$`
-in a text node outside code: `docs/hooks.py` missed it), a notebook page without typeset maths where
+`python docs/check_site.py SITE_DIR` exits 1 naming each page where maths was left as typed (a `$...$`, or a
+stray `$$` that Markdown split from its formula, in a text node outside code: `docs/hooks.py` missed it), a notebook page without typeset maths where
 its notebook has some, a `<script src="">` (a loader without a URL), or a script loaded from another
 site (the pages work offline: plotly.js is served by the site, `docs/hooks.py`), or a link within the site to a
 page or an anchor that does not exist (the hooks' cross-links are made after mkdocs checks its own), or an
-entry of `ENTRY_POINTS` whose reference entry shows no Examples section with a `>>>` example. Not a page
+entry of `ENTRY_POINTS` whose reference entry shows no Examples section with a `>>>` example or no typeset
+formula (`<math>`, its key formula written as LaTeX in its docstring). Not a page
 (`exclude_docs`).
 """
 
@@ -101,7 +102,7 @@ def problems(site: pathlib.Path) -> list[str]:
             for node in soup.find_all(string=True)
             if not isinstance(node, bs4.element.PreformattedString)
             and not any(parent.name in _LEAVE_ALONE for parent in node.parents)
-            and _MATH.search(str(node))
+            and (_MATH.search(str(node)) or "$$" in str(node))
         ]
         if raw:
             found.append(f"{name}: maths left as typed: {raw[:3]}")
@@ -124,7 +125,8 @@ def problems(site: pathlib.Path) -> list[str]:
 
 
 def _entries_without_examples(soups: dict, site: pathlib.Path) -> list[str]:
-    """One line per `ENTRY_POINTS` entry missing from the reference or shown without an Examples section."""
+    """One line per `ENTRY_POINTS` entry missing from the reference, or shown without an Examples section or without
+    a typeset formula."""
     found = []
     for name in ENTRY_POINTS:
         page = site / "reference" / name.split(".")[1] / "index.html"
@@ -133,9 +135,19 @@ def _entries_without_examples(soups: dict, site: pathlib.Path) -> list[str]:
             heading = next((tag for tag in (soup.find(id=name) for soup in soups.values()) if tag is not None), None)
         if heading is None:
             found.append(f"{page.relative_to(site)}: no entry {name} (ENTRY_POINTS)")
-        elif not has_examples_section(heading):
-            found.append(f"{page.relative_to(site)}: the entry {name} shows no Examples section with a >>> example")
+        else:
+            if not has_examples_section(heading):
+                found.append(f"{page.relative_to(site)}: the entry {name} shows no Examples section with a >>> example")
+            if not has_typeset_maths(heading):
+                found.append(f"{page.relative_to(site)}: the entry {name} shows no typeset formula (<math>)")
     return found
+
+
+def has_typeset_maths(heading: bs4.element.Tag) -> bool:
+    """Whether the mkdocstrings entry whose heading is `heading` shows, in its own docstring (not a member's), a
+    typeset formula: a `<math>` element, which `docs/hooks.py` makes of the docstring's `$...$` or `$$...$$`."""
+    entry = heading.find_parent("div", class_="doc-object")
+    return entry is not None and any(math.find_parent("div", class_="doc-object") is entry for math in entry.find_all("math"))
 
 
 def has_examples_section(heading: bs4.element.Tag) -> bool:

@@ -1,4 +1,4 @@
-"""Batches of triangle meshes of different sizes: padded to bucketed shapes, with per-mesh operators.
+r"""Batches of triangle meshes of different sizes: padded to bucketed shapes, with per-mesh operators.
 
 - `MeshBatch.from_meshes(meshes)`: padded `(B, nvp, 3)` vertices and `(B, nfp, 3)` faces with masks,
   per-mesh counts and the index plan of the operators, all arrays with the batch axis first, so
@@ -8,6 +8,10 @@
 - Batched operators, each equal per mesh to its single-mesh namesake: `laplacian_apply`,
   `dirichlet_energy`, `lumped_mass` (the lumped mass matrix's diagonal), `mass_apply`, `face_areas`,
   `face_normals`, `vertex_normals`, `gradient`. Differentiable, jit / vmap, zero on padding.
+
+Each mesh of the batch keeps its own operators, e.g. its PSD cotan Laplacian
+
+$$\sum_j L_{ij} u_j = \tfrac12 \sum_{j \sim i} (\cot\alpha_{ij} + \cot\beta_{ij})(u_i - u_j).$$
 """
 
 from ._batch import MeshBatch as MeshBatch

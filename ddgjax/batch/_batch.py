@@ -75,11 +75,13 @@ class PackedMeshes(NamedTuple):
 
 
 class MeshBatch(Domain):
-    """`B` triangle meshes of different sizes, padded to bucketed sizes (module docstring).
+    r"""`B` triangle meshes of different sizes, padded to bucketed sizes (module docstring).
 
     Make one with `MeshBatch.from_meshes(meshes)`; differentiate with
     `jax.grad(lambda V: loss(batch.with_vertices(V)))(batch.vertices)`. Every field is an array with
     the batch axis first (no static data), so batches of one bucket share one compiled program.
+
+    Mesh $b$ holds $n_v^{(b)} \le n_{vp}$ vertices and $n_f^{(b)} \le n_{fp}$ faces; the rest is padding.
 
     Attributes:
         vertices: `(B, nvp, 3)` positions; mesh `b`'s in rows `[0, n_vertices[b])`, zeros after.
@@ -261,7 +263,18 @@ class MeshBatch(Domain):
 
 
 def require_batch(name: str, value) -> MeshBatch:
-    """`value` if it is a `MeshBatch`, else `DDGInputError` naming the argument and saying how to make one."""
+    """`value` if it is a `MeshBatch`, else `DDGInputError` naming the argument and saying how to make one.
+
+    Args:
+        name: the argument's name, for the error message.
+        value: the object to check.
+
+    Returns:
+        `value` itself, when it is a `MeshBatch`.
+
+    Raises:
+        DDGInputError: `value` is not a `MeshBatch`.
+    """
     return MeshBatch.require(name, value)
 
 

@@ -225,9 +225,11 @@ AnyBatch = object
 
 
 def laplacian_apply(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], /) -> Float[Array, "B nvp *k"]:
-    """Matrix-free `L u` per mesh, `(B, nvp)` or `(B, nvp, k)`: `ddgjax.laplacian.laplacian_apply` on each mesh.
+    r"""Matrix-free `L u` per mesh, `(B, nvp)` or `(B, nvp, k)`: `ddgjax.laplacian.laplacian_apply` on each mesh.
 
-    `(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`, the PSD weak (integrated) cotan
+    $$\sum_j L_{ij} u_j = \tfrac12 \sum_{j \sim i} (\cot\alpha_{ij} + \cot\beta_{ij})(u_i - u_j),$$
+
+    the PSD weak (integrated) cotan
     Laplacian (DESIGN.md), with the cotangents from the squared edge lengths and the cross-product
     area (`ddgjax.mesh.corner_cotangents_from_lengths_sq`), summed per corner and gathered into the
     vertices (module docstring). Padded vertices get 0; values of `u` there are never read.
@@ -266,6 +268,13 @@ def dirichlet_energy(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], /) -> Flo
     As `ddgjax.laplacian.dirichlet_energy` per mesh; differentiable in `u` (`grad_u E = L u`) and the
     positions. `jnp.sum(dirichlet_energy(batch, u))` is the loss whose gradient is each mesh's own.
     Reference: Pinkall & Polthier 1993. libigl: `0.5 * u @ (-igl.cotmatrix(V, F) @ u)`.
+
+    Args:
+        batch: `MeshBatch`.
+        u: `(B, nvp)` or `(B, nvp, k)` padded vertex values (`pad_vertex_values`; positional-only).
+
+    Returns:
+        `(B,)` energies, one per mesh (padded vertices contribute nothing).
     """
     batch = require_batch("batch", batch)
     return _energy(batch, _vertex_values(batch, u))
@@ -305,7 +314,14 @@ _energy = kernel(_energy_values)
 
 
 def face_areas(batch: AnyBatch) -> Float[Array, "B nfp"]:
-    """Area of each face, `(B, nfp)`, `|(p1 - p0) x (p2 - p0)| / 2` (`ddgjax.mesh.face_areas` per mesh); 0 on padding."""
+    """Area of each face, `(B, nfp)`, `|(p1 - p0) x (p2 - p0)| / 2` (`ddgjax.mesh.face_areas` per mesh); 0 on padding.
+
+    Args:
+        batch: `MeshBatch`.
+
+    Returns:
+        `(B, nfp)` areas, in the vertices' dtype; 0 on padded faces.
+    """
     return _face_areas(require_batch("batch", batch))
 
 
@@ -315,7 +331,14 @@ def _face_areas(batch: MeshBatch) -> Float[Array, "B nfp"]:
 
 
 def face_normals(batch: AnyBatch) -> Float[Array, "B nfp 3"]:
-    """Unit face normals, `(B, nfp, 3)` (`ddgjax.mesh.face_normals` per mesh); zero on zero-area and padding faces."""
+    """Unit face normals, `(B, nfp, 3)` (`ddgjax.mesh.face_normals` per mesh); zero on zero-area and padding faces.
+
+    Args:
+        batch: `MeshBatch`.
+
+    Returns:
+        `(B, nfp, 3)` unit normals; zero rows on zero-area and padded faces.
+    """
     return _face_normals(require_batch("batch", batch))
 
 
@@ -331,6 +354,15 @@ def vertex_normals(batch: AnyBatch, *, weighting: str = "area", normalize: bool 
     `n_i = sum_{f ni i} w_f N_f` with `w_f` the face area (`"area"`, default), the corner angle
     (`"angle"`) or 1 (`"uniform"`), then normalised unless `normalize=False`; zero on padded
     vertices. libigl: `per_vertex_normals`; PyTorch3D: `Meshes.verts_normals_padded()` (area weighted).
+
+    Args:
+        batch: `MeshBatch`.
+        weighting: how the faces around a vertex are weighted: `"area"` (default), `"angle"` or `"uniform"`
+            (keyword-only, static; as `ddgjax.mesh.vertex_normals`).
+        normalize: whether to scale each sum to unit length (default `True`; keyword-only, static).
+
+    Returns:
+        `(B, nvp, 3)` vertex normals; zero rows on padded vertices and where the sum vanishes.
     """
     check_choice("weighting", weighting, _NORMAL_WEIGHTINGS)
     return _vertex_normals(require_batch("batch", batch), weighting=weighting, normalize=bool(normalize))
@@ -360,10 +392,17 @@ def _vertex_normals(batch: MeshBatch, *, weighting: str, normalize: bool) -> Flo
 def lumped_mass(batch: AnyBatch, *, mass: str = "voronoi") -> Float[Array, "B nvp"]:
     """The lumped mass matrix of each mesh as its diagonal, `(B, nvp)` (0 on padded vertices).
 
-    `mass="voronoi"` (default; mixed Voronoi areas, Meyer et al. 2003) or `"barycentric"` (a third
-    of each incident face): `ddgjax.laplacian.mass_matrix(mesh, mass=mass).diagonal` per mesh, from
-    the corner shares of `ddgjax.mesh.corner_dual_areas_from_lengths_sq`. `"galerkin"` is not
-    diagonal: apply it with `mass_apply`. libigl: `massmatrix(V, F, MASSMATRIX_TYPE_VORONOI).diagonal()`.
+    `ddgjax.laplacian.mass_matrix(mesh, mass=mass).diagonal` per mesh, from the corner shares of
+    `ddgjax.mesh.corner_dual_areas_from_lengths_sq`. libigl: `massmatrix(V, F, MASSMATRIX_TYPE_VORONOI).diagonal()`.
+
+    Args:
+        batch: `MeshBatch`.
+        mass: one of `ddgjax.LUMPED_MASS_MATRICES`: `"voronoi"` (default; mixed Voronoi areas, Meyer et al. 2003)
+            or `"barycentric"` (a third of each incident face) (keyword-only). `"galerkin"` is not diagonal and
+            is refused: apply it with `mass_apply`.
+
+    Returns:
+        `(B, nvp)` vertex masses (dual areas), in the vertices' dtype; 0 on padded vertices.
     """
     check_mass(mass, LUMPED_MASS_MATRICES)
     return _lumped_mass(require_batch("batch", batch), mass=mass)
@@ -386,6 +425,14 @@ def mass_apply(batch: AnyBatch, u: Float[ArrayLike, "B nvp *k"], /, *, mass: str
     FEM mass matrix `M_ij = int phi_i phi_j` matrix-free: `(M u)_i = sum_{f ni i} A_f / 12 (u_i +
     sum_{k in f} u_k)` (`A_f/6` on the diagonal, `A_f/12` off it, as `ddgjax.laplacian.mass_matrix(
     mesh, mass="galerkin")`). Zero on padded vertices. libigl: `massmatrix(V, F, type) @ u`.
+
+    Args:
+        batch: `MeshBatch`.
+        u: `(B, nvp)` or `(B, nvp, k)` padded vertex values (`pad_vertex_values`; positional-only).
+        mass: one of `ddgjax.MASS_MATRICES`: `"voronoi"` (default), `"barycentric"` or `"galerkin"` (keyword-only).
+
+    Returns:
+        `M u` per mesh, the shape of `u`; 0 on padded vertices.
     """
     check_mass(mass)
     batch = require_batch("batch", batch)
@@ -413,6 +460,13 @@ def gradient(batch: AnyBatch, u: Float[ArrayLike, "B nvp"], /) -> Float[Array, "
     `(grad u)_f = sum_k u[F[f, k]] grad phi_k`, `grad phi_k = (N x e_k) / (2 A)` (`ddgjax.mesh.face_hat_gradients`);
     zero on zero-area and padding faces. Reference: Crane et al., *The heat method* (2017), eq. (2).
     libigl: `igl.grad(V, F) @ u`; gpytoolbox: `grad(V, F) @ u`.
+
+    Args:
+        batch: `MeshBatch`.
+        u: `(B, nvp)` padded vertex values (`pad_vertex_values`; one column; positional-only).
+
+    Returns:
+        `(B, nfp, 3)` gradient vectors, one per face; zero on zero-area and padded faces.
     """
     batch = require_batch("batch", batch)
     return _gradient(batch, _vertex_values(batch, u, columns=False))

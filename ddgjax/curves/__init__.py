@@ -1,4 +1,4 @@
-"""Plane curves: the `Curve` type, the reading report's four discrete curvatures, invariants and flows.
+r"""Plane curves: the `Curve` type, the reading report's four discrete curvatures, invariants and flows.
 
 Every function is a pure JAX function of `curve.points` (jit, grad, vmap). Conventions: DESIGN.md,
 Plane curves, and the docstring of `ddgjax.curves._curvature`. Options are keyword-only
@@ -11,6 +11,8 @@ self-intersection and non-finite states through `ddgjax.RESULTS`: it raises by d
 Modules, one concept each: `_curve` (the type), `_curvature`, `_invariants` (global quantities,
 simplicity), `_shapes` (built-in polygons), `_flow_step` (one flow step and its closed-form
 derivative), `_flow_certificate` (simplicity certified at every step), `_flow` (the driver).
+
+$$\sum_i \theta_i = 2\pi \cdot \text{turning number}, \qquad p_i \leftarrow p_i + \tau \kappa_i N_i$$
 """
 
 from .._results import RESULTS as RESULTS

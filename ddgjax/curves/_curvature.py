@@ -70,7 +70,14 @@ def _vertex_edges(points: Float[Array, "n 2"]):
 
 @takes_curve
 def interior_vertex_mask(curve: Curve) -> Bool[Array, " n"]:
-    """`(n,)` booleans: true where a vertex has a turning angle (all of a closed curve; not the endpoints of an open one)."""
+    """`(n,)` booleans: true where a vertex has a turning angle (all of a closed curve; not the endpoints of an open one).
+
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        `(n,)` booleans, a host-known pattern (all true when closed, false at the two endpoints when open).
+    """
     return jnp.asarray(_interior_mask(curve.n_points, curve.closed))
 
 
@@ -85,6 +92,12 @@ def edge_lengths(curve: Curve) -> Float[Array, " ne"]:
 
     `|p_{i+1} - p_i|`, with value and gradient 0 (not NaN) at coincident points.
     Equivalent: `curvey.Curve.edge_length`.
+
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        `(n,)` (closed) or `(n - 1,)` (open) edge lengths, in the points' dtype.
     """
     return _edge_lengths(curve.points, curve.closed)
 
@@ -97,6 +110,12 @@ def length(curve: Curve) -> Float[Array, ""]:
     turning angle, `jax.grad(lambda P: length(Curve(P)))(P)[i] == -kappa^B_i N_i`
     (`-curvature_vectors(curve, kind="B")`); at the endpoints of an open curve it is the unit edge
     pointing away from the curve. Equivalent: `curvey.Curve.length`.
+
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        The total length, a scalar `()` in the points' dtype.
     """
     return jnp.sum(edge_lengths(curve))
 
@@ -108,6 +127,12 @@ def vertex_dual_lengths(curve: Curve) -> Float[Array, " n"]:
     The length of the curve that vertex `i` stands for; the dual lengths sum to `length(curve)`.
     At the endpoints of an open curve it is half the one incident edge.
     Equivalent: `curvey.Curve.dual_edge_length`.
+
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        `(n,)` dual lengths, in the points' dtype.
     """
     lengths = edge_lengths(curve)
     if curve.closed:
@@ -129,6 +154,13 @@ def turning_angles(curve: Curve) -> Float[Array, " n"]:
     turns are positive. Integrated curvature `kappa^A`. 0 at the endpoints of an open curve and at
     coincident points (finite gradients). An exact reversal of direction gives `pi` or `-pi` by the
     sign of the zero cross product. Equivalent: `curvey.Curve.turning_angle`.
+
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        `(n,)` turning angles in radians (integrated curvature), in the points' dtype; 0 at the endpoints of an
+        open curve.
     """
     return _turning_angles(curve.points, curve.closed)
 
@@ -139,6 +171,12 @@ def total_curvature(curve: Curve) -> Float[Array, ""]:
 
     `2 pi * turning_number` on a closed curve (discrete Gauss-Bonnet for plane curves); the
     net rotation of the tangent from the first to the last edge on an open curve.
+
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        The sum of the turning angles in radians, a scalar `()` in the points' dtype.
     """
     return jnp.sum(turning_angles(curve))
 
@@ -148,6 +186,12 @@ def turning_number(curve: Curve) -> Array:
     """Turning number of a closed curve, the integer `round(total_curvature / (2 pi))` (int32 scalar).
 
     +1 for a simple counterclockwise curve, -1 clockwise. Not differentiable (an integer).
+
+    Args:
+        curve: a closed plane curve.
+
+    Returns:
+        The turning number, an int32 scalar `()`.
 
     Raises:
         DDGInputError: on an open curve, whose tangent need not return to its start.
@@ -196,17 +240,17 @@ def _to_form(curve: Curve, kind: str, kappa: Float[Array, " n"], pointwise: bool
 @takes_curve
 @kernel(static_argnames=("kind", "pointwise"))
 def curvature(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, " n"]:
-    """Discrete curvature of `kind` (`"A"`, `"B"`, `"C"` or `"D"`) at every vertex, `(n,)`, signed.
+    r"""Discrete curvature of `kind` (`"A"`, `"B"`, `"C"` or `"D"`) at every vertex, `(n,)`, signed.
 
-    With `theta_i` the turning angle (`turning_angles`) and `d_i` the dual length
+    With $\theta_i$ the turning angle (`turning_angles`) and $d_i$ the dual length
     (`vertex_dual_lengths`):
 
-    - `"A"`: `theta_i` (turning angle; integrated),
-    - `"B"`: `2 sin(theta_i / 2)` (length variation; integrated),
-    - `"C"`: `2 tan(theta_i / 2)` (offset by extended edges; integrated; unbounded as
-      `|theta| -> pi`),
-    - `"D"`: `2 sin(theta_i) / |p_{i+1} - p_{i-1}|` = `1 / R_i`, the inverse circumradius of
-      `p_{i-1}, p_i, p_{i+1}` (pointwise; 0 on collinear vertices).
+    - `"A"`: $\theta_i$ (turning angle; integrated),
+    - `"B"`: $2 \sin(\theta_i / 2)$ (length variation; integrated),
+    - `"C"`: $2 \tan(\theta_i / 2)$ (offset by extended edges; integrated; unbounded as
+      $\lvert\theta\rvert \to \pi$),
+    - `"D"`: $2 \sin\theta_i / \lVert p_{i+1} - p_{i-1} \rVert = 1 / R_i$, the inverse circumradius of
+      $p_{i-1}, p_i, p_{i+1}$ (pointwise; 0 on collinear vertices).
 
     Args:
         curve: the curve.
@@ -248,6 +292,13 @@ def curvature_normals(curve: Curve, *, kind: str) -> Float[Array, "n 2"]:
     counterclockwise convex curve). D: the unit vector along the circumradius, the left normal of
     `|v|^2 u + |u|^2 v` (the circumcircle's tangent at `p_i`), so that `kappa^D N^D` points to the
     circumcentre. Zero at the endpoints of an open curve. For equal edge lengths the two normals agree.
+
+    Args:
+        curve: a closed or open plane curve.
+        kind: `"A"`, `"B"`, `"C"` or `"D"` (keyword-only, static; `KINDS`, module docstring).
+
+    Returns:
+        `(n, 2)` unit normals, in the points' dtype; zero rows at the endpoints of an open curve.
     """
     check_choice("kind", kind, KINDS)
     return _curvature_and_normals(curve.points, curve.closed, kind)[1]
@@ -258,9 +309,19 @@ def curvature_normals(curve: Curve, *, kind: str) -> Float[Array, "n 2"]:
 def curvature_vectors(curve: Curve, *, kind: str, pointwise: bool | None = None) -> Float[Array, "n 2"]:
     """Curvature vector `kappa_i N_i` of `kind`, `(n, 2)`: the velocity of the curve-shortening flow.
 
-    `pointwise` as in `curvature`. The integrated B vector is minus the length gradient (the
+    The integrated B vector is minus the length gradient (the
     reading report's length variation): `kappa^B_i N_i = v/|v| - u/|u| =
     -jax.grad(lambda P: length(Curve(P)))(P)[i]` at every vertex with a turning angle.
+
+    Args:
+        curve: a closed or open plane curve.
+        kind: `"A"`, `"B"`, `"C"` or `"D"` (keyword-only, static; `KINDS`, module docstring).
+        pointwise: `None` (default) gives the natural form of `kind` (A, B, C integrated, D pointwise); `True`
+            the pointwise vector (divided by the dual length `d_i`), `False` the integrated one (keyword-only,
+            static; as in `curvature`).
+
+    Returns:
+        `(n, 2)` curvature vectors `kappa_i N_i`, in the points' dtype; zero rows at the endpoints of an open curve.
     """
     check_choice("kind", kind, KINDS)
     kappa, normals = _curvature_and_normals(curve.points, curve.closed, kind)

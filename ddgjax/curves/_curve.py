@@ -15,7 +15,7 @@ from .._errors import DDGInputError, check_finite, check_float_array, check_floa
 
 
 class Curve(Domain):
-    """A polygonal plane curve: points in order, joined by straight edges.
+    r"""A polygonal plane curve: points in order, joined by straight edges.
 
     Every quantity in `ddgjax.curves` is a pure JAX function of `curve.points`; differentiate with
 
@@ -24,7 +24,7 @@ class Curve(Domain):
     and batch with `jax.vmap(lambda P: curvature(Curve(P), kind="A"))(Ps)` for `Ps` of shape `(b, n, 2)`.
 
     Conventions (DESIGN.md, Plane curves): a closed curve traversed counterclockwise has positive
-    turning angles and total curvature `2 pi * turning number`. Edge `i` of a closed curve joins
+    turning angles and total curvature $2\pi \cdot \text{turning number}$. Edge `i` of a closed curve joins
     point `i` to point `(i + 1) mod n` (`n` edges); an open curve has the `n - 1` edges `i -> i + 1`
     and no turning angle, curvature or normal at its two endpoints (those entries are 0; see
     `interior_vertex_mask`).
@@ -131,7 +131,18 @@ def unchecked_curve(points: Float[Array, "n 2"], closed: bool) -> Curve:
 
 
 def require_curve(name: str, value) -> Curve:
-    """`value` if it is a `Curve`, else `DDGInputError` naming the argument and saying how to make one."""
+    """`value` if it is a `Curve`, else `DDGInputError` naming the argument and saying how to make one.
+
+    Args:
+        name: the argument's name, for the error message.
+        value: the object to check.
+
+    Returns:
+        `value` itself, when it is a `Curve`.
+
+    Raises:
+        DDGInputError: `value` is not a `Curve`.
+    """
     return Curve.require(name, value)
 
 

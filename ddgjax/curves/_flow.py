@@ -209,7 +209,9 @@ def curve_shortening_flow(
     progress: bool = False,
     throw: bool = True,
 ) -> CurveFlowResult:
-    """Evolve a curve by the discrete curve-shortening flow of `kind`: `p_i <- p_i + tau kappa_i N_i`.
+    r"""Evolve a curve by the discrete curve-shortening flow of `kind`: `p_i <- p_i + tau kappa_i N_i`.
+
+    $$p_i \leftarrow p_i + \tau \kappa_i N_i$$
 
     `kappa_i N_i` is `curvature_vectors(curve, kind=kind)` in the reading report's natural form
     (integrated for `"A"`, `"B"`, `"C"`; pointwise for `"D"`), a weighted second difference of the
@@ -222,7 +224,7 @@ def curve_shortening_flow(
     (under `vmap`, `check_simple="saved"`: see below).
 
     What the report says each flow keeps (and the tests measure): A keeps the total curvature
-    `2 pi`; B keeps the vertex centroid; D tends to a cyclic polygon; none keeps all three, and
+    $2\pi$; B keeps the vertex centroid; D tends to a cyclic polygon; none keeps all three, and
     none is guaranteed to stay simple. Endpoints of an open curve stay fixed (they have no
     curvature).
 
@@ -237,7 +239,7 @@ def curve_shortening_flow(
 
     Stability: explicit A, B, C need `tau` below about half the shortest edge; explicit D needs
     `tau` below about `(shortest edge)^2 / 4`; above it the curve tangles (self-intersects; the
-    NaN-safe weights keep it finite). `method="semi-implicit"` solves `(I - tau L(p)) p_new = p` with
+    NaN-safe weights keep it finite). `method="semi-implicit"` solves $(I - \tau L(p))\, p^\mathrm{new} = p$ with
     the curvature weights frozen at the current curve (Dziuk 1994): stable for steps far beyond the
     explicit limit.
 

@@ -23,6 +23,12 @@ from ._curve import Curve, takes_curve
 def centroid(curve: Curve) -> Float[Array, "2"]:
     """Vertex centroid `(1/n) sum_i p_i`, `(2,)`: the centre of mass the reading report's B-flow keeps.
 
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        `(2,)` mean of the points, in their dtype.
+
     Equivalent: `curvey.Curve.center`.
     """
     return jnp.mean(curve.points, axis=0)
@@ -43,6 +49,12 @@ def enclosed_area(curve: Curve) -> Float[Array, ""]:
     Positive for counterclockwise curves; for a self-intersecting curve, the sum over regions of
     area times winding number. Translation invariant (computed relative to the vertex centroid).
     Open curves are closed by their chord. Equivalent: `curvey.Curve.signed_area`.
+
+    Args:
+        curve: a closed or open plane curve (an open one is closed by its chord).
+
+    Returns:
+        The signed area, a scalar `()` in the points' dtype; positive when counterclockwise.
     """
     return 0.5 * jnp.sum(_shoelace_terms(curve.points)[3])
 
@@ -53,6 +65,12 @@ def area_centroid(curve: Curve) -> Float[Array, "2"]:
 
     Falls back to the vertex centroid when the signed area is exactly 0 (finite gradients there).
     Open curves are closed by their chord. Equivalent: `curvey.Curve.centroid`.
+
+    Args:
+        curve: a closed or open plane curve (an open one is closed by its chord).
+
+    Returns:
+        `(2,)` centroid of the enclosed region, in the points' dtype.
     """
     origin, relative, following, cross = _shoelace_terms(curve.points)
     moment = jnp.sum((relative + following) * cross[:, None], axis=0) / 6
@@ -65,6 +83,12 @@ def isoperimetric_ratio(curve: Curve) -> Float[Array, ""]:
 
     `A` is `enclosed_area`, `L` the perimeter; an open curve is closed by its chord (in both).
     Scale and rigid-motion invariant. The inverse of `curvey.Curve.roundness`.
+
+    Args:
+        curve: a closed or open plane curve (an open one is closed by its chord).
+
+    Returns:
+        The ratio, a dimensionless scalar `()` in `[0, 1]`, in the points' dtype.
     """
     perimeter = jnp.sum(_edge_lengths(curve.points, closed=True))
     return safe_div(4 * jnp.pi * jnp.abs(enclosed_area(curve)), perimeter**2)
@@ -79,6 +103,12 @@ def cyclic_residual(curve: Curve) -> Float[Array, ""]:
     mean `m`, solves the 2x2 system `S (c - m) = (1/2) sum_i q_i |q_i|^2` (`q_i = p_i - m`,
     `S = sum_i q_i q_i^T`). 0 exactly for a cyclic polygon (all vertices on one circle), scale and
     rigid-motion invariant. Collinear points (`det S = 0`) use `c = m`.
+
+    Args:
+        curve: a closed or open plane curve.
+
+    Returns:
+        The relative spread of the distances to the fitted centre, a dimensionless scalar `() >= 0`.
 
     Reference: I. Kasa, "A circle fitting procedure and its error analysis", IEEE Trans. Instrum.
     Meas. 1976.
@@ -266,5 +296,13 @@ def is_simple(curve: Curve, *, block: int = 128) -> Bool[Array, ""]:
     `16 eps max|coordinate| (1 + |w| / |d|)` count as touching. O(n^2) work in blocks of
     `block` edges against all edges (O(block * n) memory). Equivalent: `curvey.Curve.is_simple`
     (shapely, which uses exact predicates on the rounded coordinates).
+
+    Args:
+        curve: a closed or open plane curve.
+        block: how many edges are tested against all the others at a time (keyword-only, static, default
+            128); it trades memory for fewer loop steps and does not change the answer.
+
+    Returns:
+        Boolean scalar `()`: whether the curve is simple.
     """
     return _edge_pair_sweep(curve, block, with_clearance=False)[0]

@@ -1,4 +1,4 @@
-"""Discrete exterior calculus on triangle meshes.
+r"""Discrete exterior calculus on triangle meshes.
 
 Discrete k-forms are arrays of integrals over k-simplices: 0-forms `(nv,)` on vertices, 1-forms
 `(ne,)` on the edges of `mesh.edges` (run from the lower to the higher vertex index), 2-forms `(nf,)`
@@ -33,12 +33,14 @@ Dual mesh: the Hodge stars, the codifferential and the Hodge Laplacians take the
 The default is the dual without negative areas that the rest of ddgjax uses; pass `dual=` to match a
 reference that uses another (the DDG exercises' `*0` is barycentric).
 
-Sign conventions (DESIGN.md): `(d0 u)_e = u[head] - u[tail]`; `d0^T *1 d0 = L`, the PSD cotan
+Sign conventions (DESIGN.md): `(d0 u)_e = u[head] - u[tail]`; $d_0^\top \star_1 d_0 = L$, the PSD cotan
 Laplacian (Voronoi and circumcentric duals); the codifferential is the adjoint of `d`
-(`delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`), so the weak Hodge Laplacians are symmetric, and PSD wherever
+($\delta_k = \star_{k-1}^{-1} d_{k-1}^\top \star_k$), so the weak Hodge Laplacians are symmetric, and PSD wherever
 the stars are positive (always for the barycentric dual; for the others on Delaunay meshes);
 `divergence(gradient(u)) = -L u`.
 Degenerate (zero-area) faces contribute nothing and keep values and gradients finite; zero star entries invert to zero.
+
+$$L = d_0^\top \star_1 d_0, \qquad \delta_k = \star_{k-1}^{-1} d_{k-1}^\top \star_k, \qquad \Delta_k = d\,\delta + \delta\, d.$$
 
 Reference: Crane, de Goes, Desbrun, Schroeder, *Digital Geometry Processing with Discrete Exterior
 Calculus* (SIGGRAPH course 2013); Desbrun, Hirani, Leok, Marsden, *Discrete Exterior Calculus* (2005).

@@ -52,12 +52,19 @@ def _evaluate(name: str, function: Callable, points: Float[Array, "q 3"], traili
 def integrate_0form(mesh: Mesh, f: Callable[[Float[Array, "3"]], Float[Array, ""]], /) -> Float[Array, " nv"]:
     """De Rham map of a 0-form: `f` sampled at the vertices, `u_i = f(p_i)`, `(nv,)`.
 
-    `f` maps one position `(3,)` to a scalar `()` (it is `vmap`ped over the vertices; it must be a JAX
-    function). A 0-form is integrated over points, i.e. evaluated: there is no quadrature and no
-    orientation, so it works on every mesh (unreferenced vertices are sampled too).
-    `d0 @ integrate_0form(f) == integrate_1form(grad f)` exactly (Stokes' theorem on each edge, up to
-    the quadrature error of the right-hand side). Reference: Desbrun et al., *Discrete Exterior
-    Calculus* (2005), section 3 (the de Rham map). libigl / gpytoolbox: `f(V)` evaluated on the rows of `V`.
+    A 0-form is integrated over points, i.e. evaluated: there is no quadrature and no orientation, so it works
+    on every mesh (unreferenced vertices are sampled too). `d0 @ integrate_0form(f) == integrate_1form(grad f)`
+    exactly (Stokes' theorem on each edge, up to the quadrature error of the right-hand side). Reference:
+    Desbrun et al., *Discrete Exterior Calculus* (2005), section 3 (the de Rham map). libigl / gpytoolbox:
+    `f(V)` evaluated on the rows of `V`.
+
+    Args:
+        mesh: any triangle mesh.
+        f: a JAX function of one position `(3,)` returning a scalar `()` (it is `vmap`ped over the vertices;
+            positional-only).
+
+    Returns:
+        `(nv,)` 0-form, `f` at every vertex (unreferenced ones included).
     """
     mesh = require_mesh("mesh", mesh)
     return _evaluate("f", f, mesh.vertices, ())
@@ -68,10 +75,18 @@ def integrate_1form(
 ) -> Float[Array, " ne"]:
     """De Rham map of a 1-form: `int_e alpha` along each edge from its lower to its higher vertex, `(ne,)`.
 
-    `int_e alpha = int_0^1 alpha(p_t + s (p_h - p_t)) . (p_h - p_t) ds` by Gauss-Legendre quadrature
-    with `degree // 2 + 1` nodes: exact when `alpha` is a polynomial of degree <= `degree` in the
-    position. `alpha` maps one position `(3,)` to a covector `(3,)` (module docstring). Works on any
-    mesh. Reference: Desbrun et al., *Discrete Exterior Calculus* (2005), section 3.
+    `int_e alpha = int_0^1 alpha(p_t + s (p_h - p_t)) . (p_h - p_t) ds` by Gauss-Legendre quadrature with
+    `degree // 2 + 1` nodes: exact when `alpha` is a polynomial of degree <= `degree` in the position. Works on
+    any mesh. Reference: Desbrun et al., *Discrete Exterior Calculus* (2005), section 3.
+
+    Args:
+        mesh: any triangle mesh.
+        alpha: a JAX function of one position `(3,)` returning the covector `(3,)` there (module docstring).
+        degree: the polynomial degree in the position the quadrature integrates exactly, `>= 0` (keyword-only,
+            default 4).
+
+    Returns:
+        `(ne,)` 1-form on `mesh.edges`: the integrals along each edge, low -> high.
     """
     mesh = require_mesh("mesh", mesh)
     degree = check_count("degree", degree, minimum=0)
@@ -88,15 +103,23 @@ def integrate_2form(
 ) -> Float[Array, " nf"]:
     """De Rham map of a 2-form: the flux `int_f omega . n dA` through each face, `(nf,)`.
 
-    `omega` maps one position `(3,)` to the vector field whose flux is the 2-form (module docstring);
     `n` is the unit normal of the face's vertex order. Quadrature: the collapsed (Duffy) product of
-    Gauss-Legendre rules, `(degree + 3) // 2` nodes per direction, exact when `omega` is a polynomial of
-    degree <= `degree` in the position. Returns `(nf,)` integrated (not pointwise) values: divide by
-    the face areas (`hodge2`) for the mean density. Needs consistently oriented faces
-    (`MeshDataError`): the sign of a face integral is relative to its orientation. Stokes:
-    `d1 @ integrate_1form(A) == integrate_2form(curl A)`. Reference: Desbrun et al., *Discrete
-    Exterior Calculus* (2005), section 3; quadrature: Duffy, "Quadrature over a pyramid or cube of
-    integrands with a singularity at a vertex" (1982). No libigl / gpytoolbox equivalent.
+    Gauss-Legendre rules, `(degree + 3) // 2` nodes per direction, exact when `omega` is a polynomial of degree
+    <= `degree` in the position. Needs consistently oriented faces (`MeshDataError`): the sign of a face
+    integral is relative to its orientation. Stokes: `d1 @ integrate_1form(A) == integrate_2form(curl A)`.
+    Reference: Desbrun et al., *Discrete Exterior Calculus* (2005), section 3; quadrature: Duffy, "Quadrature
+    over a pyramid or cube of integrands with a singularity at a vertex" (1982). No libigl / gpytoolbox
+    equivalent.
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+        omega: a JAX function of one position `(3,)` returning the vector `(3,)` whose flux is the 2-form (module
+            docstring).
+        degree: the polynomial degree in the position the quadrature integrates exactly, `>= 0` (keyword-only,
+            default 4).
+
+    Returns:
+        `(nf,)` 2-form: integrated (not pointwise) fluxes; divide by the face areas (`hodge2`) for the mean density.
     """
     mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.dec.integrate_2form")
@@ -128,6 +151,14 @@ def flat(mesh: Mesh, field: Float[ArrayLike, "n 3"], *, at: str = "faces") -> Fl
 
     Works on any mesh. Reference: Hirani, *Discrete Exterior Calculus* (2003), section 5. libigl /
     gpytoolbox have no flat (gpytoolbox's `dec_*` operators start from 1-forms).
+
+    Args:
+        mesh: any triangle mesh.
+        field: `(nf, 3)` one vector per face (`at="faces"`) or `(nv, 3)` one per vertex (`at="vertices"`).
+        at: where `field` lives, `"faces"` (default) or `"vertices"` (keyword-only).
+
+    Returns:
+        `(ne,)` 1-form on `mesh.edges` (integrals along low -> high).
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("at", at, _PLACES)

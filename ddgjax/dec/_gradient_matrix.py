@@ -26,6 +26,12 @@ def gradient_matrix(mesh: Mesh) -> SparseMatrix:
 
     Differentiable in the vertex positions, under `jit` and `vmap` (one compiled program per mesh size);
     the sparsity pattern is built once per connectivity.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(3 nf, nv)` `SparseMatrix`, row `3 f + c` the coordinate `c` of the gradient on face `f`.
     """
     mesh = require_mesh("mesh", mesh)
     pattern, slot = _gradient_pattern(mesh.topology)

@@ -47,6 +47,14 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array
       `|e*| = sum_f |c_f - m_e|`; always >= 0 (0 on a zero-length edge).
 
     Non-manifold edges get one term per face (`*1` itself needs no orientation).
+
+    Args:
+        mesh: any triangle mesh.
+        dual: the dual cells, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"` or
+            `"barycentric"` (keyword-only, static; see above).
+
+    Returns:
+        `(ne,)` ratios, in `mesh.edges` order and the vertices' dtype.
     """
     check_choice("dual", dual, DUAL_CELLS)
     if dual != "barycentric":
@@ -62,12 +70,20 @@ def edge_dual_length_ratios(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array
 def hodge_star_entries(mesh: Mesh, *, degree: int, dual: str = "voronoi", inverse: bool = False) -> Float[Array, " n"]:
     """Diagonal of the Hodge star `*_k` (or of its inverse) on primal `degree`-forms, as a vector.
 
-    `degree` 0, 1 or 2 (forms on a triangle mesh; keyword-only, as `codifferential`'s): vertex dual
-    areas `(nv,)`, `|e*| / |e|` `(ne,)`, `1 / area` `(nf,)`. `dual` picks the dual mesh: `"voronoi"` (default; mixed areas for `*0`, the
-    circumcentric `*1`: the pairing of libigl's cotan Laplacian with its Voronoi mass matrix),
-    `"circumcentric"` or `"barycentric"`. `*2` does not depend on `dual`. Zero entries invert to zero
-    (module docstring). See `hodge0`, `hodge1`, `hodge2` for the matrices and the orientation
-    requirement of `*2`.
+    Zero entries invert to zero (module docstring). See `hodge0`, `hodge1`, `hodge2` for the matrices and the
+    orientation requirement of `*2`.
+
+    Args:
+        mesh: any triangle mesh; consistently oriented for `degree=2` (`MeshDataError` otherwise).
+        degree: the degree of the primal forms, 0, 1 or 2 (keyword-only, as `codifferential`'s).
+        dual: the dual mesh, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default; mixed areas for `*0`, the
+            circumcentric `*1`: the pairing of libigl's cotan Laplacian with its Voronoi mass matrix),
+            `"circumcentric"` or `"barycentric"` (keyword-only). `*2` does not depend on it.
+        inverse: `True` for the diagonal of `*_k^{-1}` (keyword-only).
+
+    Returns:
+        The diagonal: vertex dual areas `(nv,)`, `|e*| / |e|` `(ne,)` or `1 / area` `(nf,)` for degree 0, 1, 2
+        (their reciprocals with `inverse=True`).
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("dual", dual, DUAL_CELLS)
@@ -84,28 +100,39 @@ def hodge_star_entries(mesh: Mesh, *, degree: int, dual: str = "voronoi", invers
 
 
 def hodge0(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> SparseMatrix:
-    """Hodge star on primal 0-forms, diagonal `(nv, nv)` with entries `|v*|`, the vertex dual areas.
+    r"""Hodge star on primal 0-forms, diagonal `(nv, nv)` with entries `|v*|`, the vertex dual areas.
 
-    `dual` picks the dual cell (`ddgjax.mesh.vertex_dual_areas`): `"voronoi"` (default; mixed area,
-    Meyer et al. 2003; always >= 0; libigl's Voronoi mass matrix, `ddgjax.laplacian.mass_matrix`),
-    `"circumcentric"` (the DEC dual of Desbrun et al. 2005; negative shares on obtuse faces, so an
-    entry can be <= 0) or `"barycentric"` (a third of each incident face: the DDG exercises'
-    `hodge0`, gpytoolbox `dec_h0`). Unreferenced vertices
-    get 0 (and 0 in the inverse). Works on every mesh. `inverse=True` gives `*0^{-1}`, zero entries
-    staying zero (module docstring). Reference: Crane et al., *Digital Geometry Processing with
-    Discrete Exterior Calculus* (2013), section 3.8.
+    $$(\star_0)_{ii} = \lvert v_i^\star \rvert$$
+
+    Unreferenced vertices get 0 (and 0 in the inverse). Works on every mesh. Reference: Crane et al., *Digital
+    Geometry Processing with Discrete Exterior Calculus* (2013), section 3.8.
+
+    Args:
+        mesh: any triangle mesh.
+        dual: the dual cell (`ddgjax.mesh.vertex_dual_areas`), one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default;
+            mixed area, Meyer et al. 2003; always >= 0; libigl's Voronoi mass matrix, `ddgjax.laplacian.mass_matrix`),
+            `"circumcentric"` (the DEC dual of Desbrun et al. 2005; negative shares on obtuse faces, so an entry can
+            be <= 0) or `"barycentric"` (a third of each incident face: the DDG exercises' `hodge0`, gpytoolbox
+            `dec_h0`) (keyword-only).
+        inverse: `True` for `*0^{-1}`, zero entries staying zero (module docstring; keyword-only).
+
+    Returns:
+        `(nv, nv)` diagonal `SparseMatrix`.
     """
     mesh = require_mesh("mesh", mesh)
     return diagonal_matrix(hodge_star_entries(mesh, degree=0, dual=dual, inverse=inverse))
 
 
 def hodge1(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> SparseMatrix:
-    """Hodge star on primal 1-forms, diagonal `(ne, ne)` with entries `|e*| / |e|`.
+    r"""Hodge star on primal 1-forms, diagonal `(ne, ne)` with entries `|e*| / |e|`.
 
-    Voronoi (default) and circumcentric: `(*1)_ee = (cot a_e + cot b_e) / 2`, the
-    cotan weight, so that the PSD cotan Laplacian is `L = d0^T *1 d0` (DESIGN.md). Barycentric: the
+    Voronoi (default) and circumcentric:
+
+    $$(\star_1)_{ee} = \frac{\lvert e^\star \rvert}{\lvert e \rvert} = \tfrac12 (\cot\alpha_e + \cot\beta_e),$$
+
+    the cotan weight, so that the PSD cotan Laplacian is $L = d_0^\top \star_1 d_0$ (DESIGN.md). Barycentric: the
     dual edge runs through the adjacent face barycentres and the edge midpoint (see
-    `edge_dual_length_ratios`). `inverse=True` gives `*1^{-1}`, zero entries staying zero (module
+    `edge_dual_length_ratios`). `inverse=True` gives $\star_1^{-1}$, zero entries staying zero (module
     docstring). Works on every mesh. Reference: Crane et al. 2013, section 3.8; Desbrun et al.,
     *Discrete Exterior Calculus* (2005). DDG exercises: `DEC::buildHodgeStar1Form`; gpytoolbox:
     `dec_h1` (circumcentric, its own edge order).
@@ -134,13 +161,22 @@ def hodge1(mesh: Mesh, *, dual: str = "voronoi", inverse: bool = False) -> Spars
 
 
 def hodge2(mesh: Mesh, *, inverse: bool = False) -> SparseMatrix:
-    """Hodge star on primal 2-forms, diagonal `(nf, nf)` with entries `1 / area_f`.
+    r"""Hodge star on primal 2-forms, diagonal `(nf, nf)` with entries `1 / area_f`.
 
-    The dual of a face is a point, so `*2` turns a face integral into a point value (the mean
-    density). Zero-area faces get 0 (pseudo-inverse, module docstring); `inverse=True` gives the face
-    areas. Needs consistently oriented faces, since the sign of a 2-form on a face is relative to the
-    face's orientation (raises `MeshDataError` otherwise). DDG exercises: `DEC::buildHodgeStar2Form`.
-    gpytoolbox's `dec_h2` is the face area, i.e. `hodge2(mesh, inverse=True)` (and `dec_h2inv` is ours).
+    $$(\star_2)_{ff} = 1 / \lvert f \rvert$$
+
+    The dual of a face is a point, so `*2` turns a face integral into a point value (the mean density).
+    Zero-area faces get 0 (pseudo-inverse, module docstring). Needs consistently oriented faces, since the
+    sign of a 2-form on a face is relative to the face's orientation (raises `MeshDataError` otherwise). DDG
+    exercises: `DEC::buildHodgeStar2Form`. gpytoolbox's `dec_h2` is the face area, i.e.
+    `hodge2(mesh, inverse=True)` (and `dec_h2inv` is ours).
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+        inverse: `True` for `*2^{-1}`, the face areas (keyword-only).
+
+    Returns:
+        `(nf, nf)` diagonal `SparseMatrix`.
     """
     mesh = require_mesh("mesh", mesh)
     return diagonal_matrix(hodge_star_entries(mesh, degree=2, inverse=inverse))

@@ -20,7 +20,9 @@ from ..sparse.internal import incidence_matrix
 def d0(mesh: Mesh) -> SparseMatrix:
     """Exterior derivative on 0-forms: the signed edge-vertex incidence matrix, `(ne, nv)`.
 
-    `(d0 u)_e = u[head] - u[tail]` for edge `e = (tail, head)` of `mesh.edges` (oriented low -> high).
+    $$(d_0 u)_e = u_h - u_t$$
+
+    for edge $e = (t, h)$, `(tail, head)` of `mesh.edges` (oriented low -> high).
     Works on every mesh (non-manifold or non-orientable too): it needs only the edges. Values are
     `-1, +1` in the vertex dtype. Reference: Crane et al., *Digital Geometry Processing with Discrete
     Exterior Calculus* (SIGGRAPH course 2013), section 3.6. DDG exercises:
@@ -57,6 +59,12 @@ def d1(mesh: Mesh) -> SparseMatrix:
     `topology.require_oriented`): on a non-orientable or inconsistently oriented mesh the result would
     depend on an arbitrary choice per face. DDG exercises: `DEC::buildExteriorDerivative1Form`;
     gpytoolbox: `dec_d1` (on its own edge order and orientation).
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+
+    Returns:
+        `(nf, ne)` `SparseMatrix` with entries `-1, +1` in the vertex dtype.
     """
     mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.dec.d1")

@@ -41,11 +41,20 @@ from ._operators import d0, d1
 
 
 def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"], /) -> Float[Array, "nf 3"]:
-    """Gradient of the piecewise-linear interpolant of `u`, one tangent vector per face, `(nf, 3)`.
+    r"""Gradient of the piecewise-linear interpolant of `u`, one tangent vector per face, `(nf, 3)`.
 
-    `(grad u)_f = sum_k u[F[f, k]] grad phi_k` (`ddgjax.mesh.face_hat_gradients`). Any mesh.
+    $$\nabla u = \sum_{i \in f} u_i \nabla\phi_i \quad \text{on each face } f$$
+
+    (`(grad u)_f = sum_k u[F[f, k]] grad phi_k`, `ddgjax.mesh.face_hat_gradients`). Any mesh.
     libigl: `igl.grad(V, F) @ u` reshaped `(3, nf).T`; gpytoolbox: `grad(V, F) @ u`, likewise.
     Reference: Crane et al., *The heat method for distance computation* (2017), eq. (2).
+
+    Args:
+        mesh: any triangle mesh.
+        u: `(nv,)` values at the vertices (positional-only).
+
+    Returns:
+        `(nf, 3)` gradient vectors, tangent to each face (units of `u` per length).
     """
     mesh = require_mesh("mesh", mesh)
     u = _as_array("u", u, mesh.n_vertices, "nv")
@@ -53,15 +62,24 @@ def gradient(mesh: Mesh, u: Float[ArrayLike, " nv"], /) -> Float[Array, "nf 3"]:
 
 
 def divergence(mesh: Mesh, field: Float[ArrayLike, "nf 3"]) -> Float[Array, " nv"]:
-    """Integrated divergence of a face vector field at each vertex, `(nv,)`.
+    r"""Integrated divergence of a face vector field at each vertex, `(nv,)`.
 
-    `(div X)_i = 1/2 sum_{f ni i} (cot theta_1 (e_1 . X_f) + cot theta_2 (e_2 . X_f))`, with `e_1, e_2`
-    the edges of `f` leaving `i` and `theta_1, theta_2` the angles opposite them; equivalently
-    `-sum_f area_f grad phi_i . X_f` (the weak divergence against the hat function `phi_i`). So
+    $$(\operatorname{div} X)(i) = \tfrac12 \sum_{f \ni i} \bigl(\cot\theta_1 \langle e_1, X_f \rangle + \cot\theta_2 \langle e_2, X_f \rangle\bigr),$$
+
+    with $e_1, e_2$
+    the edges of $f$ leaving $i$ and $\theta_1, \theta_2$ the angles opposite them; equivalently
+    $-\sum_f A_f \langle \nabla\phi_i, X_f \rangle$ (the weak divergence against the hat function `phi_i`). So
     `divergence(gradient(u)) == -L u` (DESIGN.md, `L` PSD) and a source field has positive divergence;
     divide by the vertex dual area for the pointwise value. Works on any mesh (zero-area faces
     contribute 0). Reference: Crane et al. 2017 (heat method), section 3.2.1; the DDG exercises' `div`
     in `test-heat-soln.txt` is `-divergence`.
+
+    Args:
+        mesh: any triangle mesh.
+        field: `(nf, 3)` one vector per face (components normal to the face are ignored).
+
+    Returns:
+        `(nv,)` integrated divergence at each vertex (weak form; divide by the dual areas for pointwise values).
     """
     mesh = require_mesh("mesh", mesh)
     field = _as_array("field", field, mesh.n_faces, "nf")
@@ -81,6 +99,13 @@ def curl(mesh: Mesh, field: Float[ArrayLike, "nf 3"]) -> Float[Array, " nv"]:
     at interior vertices (at a boundary vertex it is half the jump of `u` across its fan). Needs
     consistently oriented faces (`MeshDataError` otherwise). Reference: Polthier & Preuss,
     *Identifying vector field singularities using a discrete Hodge decomposition* (2003).
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+        field: `(nf, 3)` one vector per face (components normal to the face are ignored).
+
+    Returns:
+        `(nv,)` integrated curl at each vertex (weak form; divide by the dual areas for pointwise values).
     """
     mesh = require_mesh("mesh", mesh)
     mesh.topology.require_oriented("ddgjax.dec.curl")
@@ -122,13 +147,22 @@ def codifferential(
 ) -> Float[Array, "m *batch"]:
     """Codifferential `delta_k` of a primal `degree`-form (`degree` 1 or 2), a primal (k-1)-form.
 
-    `delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`, the adjoint of `d_{k-1}` for `<a, b>_k = a^T *_k b`
-    (module docstring); on surfaces this is the smooth `delta = -*d*` up to the discrete stars. So
-    `codifferential(d0 u, degree=1) = *0^{-1} L u` (minus the pointwise Laplace-Beltrami), and for a
-    1-form `delta alpha = -div(alpha^sharp)` pointwise. `form` is `(ne,)` or `(nf,)` (optionally with
-    trailing batch axes); `dual` picks the stars (`hodge_star_entries`; zero entries invert to zero).
-    Degree 2 needs consistently oriented faces. Reference: Desbrun et al. 2005, section 9; Crane et
-    al. 2013, section 6 (Hodge decomposition uses `*1^{-1} d1^T *2`).
+    `delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`, the adjoint of `d_{k-1}` for `<a, b>_k = a^T *_k b` (module
+    docstring); on surfaces this is the smooth `delta = -*d*` up to the discrete stars. So
+    `codifferential(d0 u, degree=1) = *0^{-1} L u` (minus the pointwise Laplace-Beltrami), and for a 1-form
+    `delta alpha = -div(alpha^sharp)` pointwise. Degree 2 needs consistently oriented faces. Reference: Desbrun
+    et al. 2005, section 9; Crane et al. 2013, section 6 (Hodge decomposition uses `*1^{-1} d1^T *2`).
+
+    Args:
+        mesh: any triangle mesh; consistently oriented for `degree=2` (`MeshDataError` otherwise).
+        form: the primal `degree`-form, `(ne,)` for degree 1 or `(nf,)` for degree 2, optionally with trailing
+            batch axes (transformed independently).
+        degree: the degree `k` of `form`, 1 or 2 (keyword-only).
+        dual: the dual cells of the stars, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"` or
+            `"barycentric"` (keyword-only; `hodge_star_entries`, zero entries invert to zero).
+
+    Returns:
+        The primal `(k-1)`-form `delta_k form`: `(nv, *batch)` for degree 1, `(ne, *batch)` for degree 2.
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("dual", dual, DUAL_CELLS)
@@ -150,16 +184,24 @@ def hodge_laplacian0(
 ) -> Float[Array, "nv *batch"]:
     """Hodge Laplacian on 0-forms, `Delta_0 u = delta_1 d0 u = *0^{-1} d0^T *1 d0 u`, `(nv, *batch)`.
 
-    `u` is `(nv,)` or `(nv, k)` (columns transformed independently). PSD convention: with the
-    Voronoi (default) or circumcentric dual, `d0^T *1 d0 = L`, the cotan Laplacian
-    (`ddgjax.laplacian.cotan_laplacian`), so `Delta_0 = *0^{-1} L` is minus the pointwise
-    Laplace-Beltrami operator (pointwise: divided by the dual areas). `weak=True` returns the
-    symmetric, integrated `*0 Delta_0 u = d0^T *1 d0 u` (no division by dual areas). `dual="barycentric"`
-    uses the barycentric `*0` and `*1` (`hodge_star_entries`). Works on any mesh; vertices with zero
-    dual area get 0 (pseudo-inverse). Reference: Desbrun et al., *Discrete Exterior Calculus* (2005);
-    Crane et al. 2013, section 6. Equivalents: `weak=True` is `-igl.cotmatrix(V, F) @ u` and
-    `gpytoolbox.cotangent_laplacian(V, F) @ u`; with the default `dual="voronoi"` the strong form is
-    `-(igl.cotmatrix(V, F) @ u) / M.diagonal()` with `M = igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI)`.
+    PSD convention: with the Voronoi (default) or circumcentric dual, `d0^T *1 d0 = L`, the cotan Laplacian
+    (`ddgjax.laplacian.cotan_laplacian`), so `Delta_0 = *0^{-1} L` is minus the pointwise Laplace-Beltrami
+    operator (pointwise: divided by the dual areas). Works on any mesh; vertices with zero dual area get 0
+    (pseudo-inverse). Reference: Desbrun et al., *Discrete Exterior Calculus* (2005); Crane et al. 2013,
+    section 6. Equivalents: `weak=True` is `-igl.cotmatrix(V, F) @ u` and `gpytoolbox.cotangent_laplacian(V, F) @ u`;
+    with the default `dual="voronoi"` the strong form is `-(igl.cotmatrix(V, F) @ u) / M.diagonal()` with
+    `M = igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI)`.
+
+    Args:
+        mesh: any triangle mesh.
+        u: `(nv,)` or `(nv, k)` 0-form (values at the vertices; columns transformed independently; positional-only).
+        dual: the dual cells of `*0` and `*1`, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"`
+            or `"barycentric"` (keyword-only; `hodge_star_entries`).
+        weak: `False` (default) for the pointwise `Delta_0 u`; `True` for the symmetric, integrated
+            `*0 Delta_0 u = d0^T *1 d0 u` (no division by dual areas; keyword-only).
+
+    Returns:
+        `(nv, *batch)` 0-form `Delta_0 u` (or `*0 Delta_0 u` with `weak=True`); 0 at vertices with zero dual area.
     """
     mesh = require_mesh("mesh", mesh)
     return _hodge_laplacian(mesh, "u", u, 0, dual, weak)
@@ -170,11 +212,22 @@ def hodge_laplacian1(
 ) -> Float[Array, "ne *batch"]:
     """Hodge Laplacian on 1-forms, `Delta_1 = d0 delta_1 + delta_2 d1`, `(ne, *batch)`.
 
-    `Delta_1 alpha = d0 *0^{-1} d0^T *1 alpha + *1^{-1} d1^T *2 d1 alpha` (PSD for positive stars).
-    `weak=True` returns the symmetric `*1 Delta_1 alpha = *1 d0 *0^{-1} d0^T *1 alpha + d1^T *2 d1 alpha`
-    (its second term needs no `*1^{-1}`, so it is exact where `*1` has zero entries). The kernel is
-    the harmonic 1-forms (dimension `2 * genus` on a closed surface, for positive stars). Needs
-    consistently oriented faces. Reference: Desbrun et al. 2005; Crane et al. 2013, section 6.
+    `Delta_1 alpha = d0 *0^{-1} d0^T *1 alpha + *1^{-1} d1^T *2 d1 alpha` (PSD for positive stars). The kernel
+    is the harmonic 1-forms (dimension `2 * genus` on a closed surface, for positive stars). Needs consistently
+    oriented faces. Reference: Desbrun et al. 2005; Crane et al. 2013, section 6.
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+        alpha: `(ne,)` or `(ne, k)` 1-form on `mesh.edges` (integrals along low -> high; columns transformed
+            independently).
+        dual: the dual cells of the stars, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"` or
+            `"barycentric"` (keyword-only; `hodge_star_entries`, zero entries invert to zero).
+        weak: `False` (default) for `Delta_1 alpha`; `True` for the symmetric
+            `*1 Delta_1 alpha = *1 d0 *0^{-1} d0^T *1 alpha + d1^T *2 d1 alpha` (its second term needs no `*1^{-1}`,
+            so it is exact where `*1` has zero entries; keyword-only).
+
+    Returns:
+        `(ne, *batch)` 1-form `Delta_1 alpha` (or `*1 Delta_1 alpha` with `weak=True`).
     """
     mesh = require_mesh("mesh", mesh)
     return _hodge_laplacian(mesh, "alpha", alpha, 1, dual, weak)
@@ -185,15 +238,25 @@ def hodge_laplacian2(
 ) -> Float[Array, "nf *batch"]:
     """Hodge Laplacian on 2-forms, `Delta_2 = d1 delta_2 = d1 *1^{-1} d1^T *2`, `(nf, *batch)`.
 
-    `omega` is `(nf,)` or `(nf, k)`, integrated over the faces (module docstring); so is the result.
-    `Delta_2 omega = d1 *1^{-1} d1^T *2 omega`: `*2` turns the face integrals into densities, `d1^T`
-    takes their jumps across the edges, `*1^{-1}` and `d1` sum the resulting dual fluxes around each
-    face. PSD for positive stars (barycentric always; Voronoi and circumcentric on Delaunay meshes);
-    on a closed surface its kernel is the constant density (`omega` proportional to the face areas).
-    `weak=True` returns the symmetric `*2 d1 *1^{-1} d1^T *2 omega`. Zero `*1` entries invert to 0. Needs
-    consistently oriented faces (`MeshDataError` otherwise). Reference: Desbrun et al., *Discrete
-    Exterior Calculus* (2005); Crane et al. 2013, section 6. gpytoolbox (its own edge order, which
-    cancels here): `dec_d1(F) @ dec_h1inv(V, F) @ dec_d1(F).T @ dec_h2inv(V, F) @ omega`.
+    `Delta_2 omega = d1 *1^{-1} d1^T *2 omega`: `*2` turns the face integrals into densities, `d1^T` takes their
+    jumps across the edges, `*1^{-1}` and `d1` sum the resulting dual fluxes around each face. PSD for positive
+    stars (barycentric always; Voronoi and circumcentric on Delaunay meshes); on a closed surface its kernel is
+    the constant density (`omega` proportional to the face areas). Zero `*1` entries invert to 0. Needs
+    consistently oriented faces (`MeshDataError` otherwise). Reference: Desbrun et al., *Discrete Exterior
+    Calculus* (2005); Crane et al. 2013, section 6. gpytoolbox (its own edge order, which cancels here):
+    `dec_d1(F) @ dec_h1inv(V, F) @ dec_d1(F).T @ dec_h2inv(V, F) @ omega`.
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+        omega: `(nf,)` or `(nf, k)` 2-form, integrated over the faces (module docstring; columns transformed
+            independently).
+        dual: the dual cells of the stars, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"` or
+            `"barycentric"` (keyword-only; `hodge_star_entries`, zero entries invert to zero).
+        weak: `False` (default) for `Delta_2 omega`; `True` for the symmetric `*2 d1 *1^{-1} d1^T *2 omega`
+            (keyword-only).
+
+    Returns:
+        `(nf, *batch)` 2-form `Delta_2 omega`, integrated over the faces (or `*2 Delta_2 omega` with `weak=True`).
     """
     mesh = require_mesh("mesh", mesh)
     return _hodge_laplacian(mesh, "omega", omega, 2, dual, weak)

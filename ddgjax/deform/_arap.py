@@ -88,9 +88,12 @@ def arap(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv 3"] | Solution:
-    """Deform `mesh` as rigidly as possible with the handles `fixed_vertices` moved to `fixed_values`.
+    r"""Deform `mesh` as rigidly as possible with the handles `fixed_vertices` moved to `fixed_values`.
 
-    Minimises the spokes energy `E(V') = sum_i sum_{j in N(i)} w_ij |(v'_i - v'_j) - R_i (v_i - v_j)|^2`
+    Minimises the spokes energy
+
+    $$E(V') = \sum_i \sum_{j \in N(i)} w_{ij} \lVert (v'_i - v'_j) - R_i (v_i - v_j) \rVert^2$$
+
     over the free positions and the per-vertex rotations `R_i` (cotan weights `w_ij` of the rest mesh,
     handles exact) by local-global iterations with one kept factorisation (module docstring).
     Differentiable (forward and reverse) in `fixed_values` and the rest positions by implicit

@@ -46,12 +46,14 @@ def biharmonic_deformation(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv 3"] | Solution:
-    """New vertex positions `V + D`, the displacement `D` k-harmonic away from the handles.
+    r"""New vertex positions `V + D`, the displacement `D` k-harmonic away from the handles.
 
-    `D` minimises `trace(D^T Q D)` with `Q = L (M^{-1} L)^{k-1}` (`L` the PSD cotan Laplacian, `M`
+    $$\min_D \operatorname{tr}(D^\top Q D), \qquad Q = L (M^{-1} L)^{k-1}$$
+
+    (`L` the PSD cotan Laplacian, `M`
     the lumped mass matrix `mass`) subject to `D[fixed_vertices] = fixed_values - V[fixed_vertices]`:
     `Q_ff D_f = -Q_fc D_c` on the free vertices `f`. `k = 1` is harmonic, `k = 2` (default)
-    biharmonic (the discrete Laplacian energy `int |Delta D|^2`, `C^1` at the handles), `k = 3`
+    biharmonic (the discrete Laplacian energy $\int \lVert \Delta D \rVert^2 \, dA$, `C^1` at the handles), `k = 3`
     triharmonic. Solving for the displacement rather than the positions keeps the surface's detail:
     `fixed_values = V[fixed_vertices]` returns `V`, and a translation of every handle translates the
     whole mesh (the constants are k-harmonic); a rotation of the handles is not reproduced exactly.

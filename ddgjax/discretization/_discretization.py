@@ -64,7 +64,9 @@ class Discretization(eqx.Module):
 def discretize(
     mesh: Mesh | TetMesh, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False, caller: str | None = None
 ) -> Discretization:
-    """`L`, `M` (and the intrinsic triangulation) of a triangle or tet mesh, checked as every problem checks them.
+    r"""`L`, `M` (and the intrinsic triangulation) of a triangle or tet mesh, checked as every problem checks them.
+
+    $$\Delta = -M^{-1} L, \qquad L \succeq 0,\ L \mathbf{1} = 0$$
 
     Args:
         mesh: a `ddgjax.Mesh` or a `ddgjax.volume.TetMesh`.

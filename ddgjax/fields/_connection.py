@@ -156,6 +156,9 @@ def edge_polar_angles(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Floa
         mesh: the mesh.
         boundary_scaling: `"geodesic"` (default; boundary angle sums rescaled to `pi`) or `"unscaled"`.
 
+    Returns:
+        `(ne, 2)` float array of angles in radians, in `[0, 2 pi)`.
+
     Reference: Knoeppel et al. 2013, section 5.1. geometry-central: `halfedgeVectorsInVertex` (as
     complex numbers `l exp(i theta)`).
     """
@@ -179,6 +182,9 @@ def edge_transport_angles(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> 
         mesh: the mesh.
         boundary_scaling: `"geodesic"` (default) or `"unscaled"` (module docstring).
 
+    Returns:
+        `(ne,)` float array of angles `rho_ij` in radians, in `[-pi, pi)`.
+
     Reference: Knoeppel et al. 2013, eq. (5); geometry-central `transportVectorsAlongHalfedge` (per
     halfedge, as the unit complex number `exp(i rho)`).
     """
@@ -194,7 +200,12 @@ def face_holonomies(mesh: Mesh, *, boundary_scaling: str = "geodesic") -> Float[
     (integrated Gaussian curvature, discrete Gauss-Bonnet); 0 on faces whose corners all have
     `s_i = 1` (flat interior vertices). Differentiable in the vertex positions.
 
-    `boundary_scaling`: `"geodesic"` (default) or `"unscaled"` (module docstring).
+    Args:
+        mesh: the mesh.
+        boundary_scaling: `"geodesic"` (default) or `"unscaled"` (module docstring).
+
+    Returns:
+        `(nf,)` float array of holonomy angles `Omega_f` in radians.
 
     Reference: Knoeppel et al. 2013, section 5.2 (the "angle defect of the rescaled angles").
     """
@@ -241,5 +252,11 @@ def tangent_bases(mesh: Mesh) -> TangentBases:
 
     Equivalent: potpourri3d `MeshVectorHeatSolver(V, F).get_tangent_frames()` (`basisX, basisY,
     basisN`; geometry-central `vertexTangentBasis`), with its own choice of reference edges.
+
+    Args:
+        mesh: the mesh (manifold, consistently oriented).
+
+    Returns:
+        `TangentBases(e1, e2, normal)`, three `(nv, 3)` float arrays of unit vectors.
     """
     return planned_tangent_bases(mesh, plan_of(mesh))

@@ -56,9 +56,11 @@ def _values(
 
 
 def connection_laplacian(mesh: Mesh, *, n: int = 1, boundary_scaling: str = "geodesic") -> SparseMatrix:
-    """The connection Laplacian `A` of `n`-direction fields, a complex Hermitian `SparseMatrix` on the vertex pattern.
+    r"""The connection Laplacian `A` of `n`-direction fields, a complex Hermitian `SparseMatrix` on the vertex pattern.
 
-    `u^H A u = sum_ij w_ij |u_j - exp(i n rho_ij) u_i|^2` (module docstring): the smoothness energy of
+    $$u^H A u = \sum_{ij} w_{ij} \lvert u_j - e^{i n \rho_{ij}} u_i \rvert^2$$
+
+    (module docstring): the smoothness energy of
     the field whose value at vertex `i` is `u_i`, the `n`-th power of its directions in `i`'s polar
     coordinates (`ddgjax.fields._connection`). Entries: `A_ii = sum_j w_ij`,
     `A_ij = -w_ij exp(-i n rho_ij)` with `rho_ij` the transport from `i` to `j` (equivalently
@@ -114,6 +116,13 @@ def connection_mass_matrix(mesh: Mesh, *, mass: str = "voronoi") -> SparseMatrix
     `"barycentric"`); `"galerkin"` is refused (`DDGInputError`): the consistent mass of tangent fields
     couples neighbouring vertices, whose vectors live in different tangent planes, so its off-diagonal
     entries would need the transport (`exp(i n rho_ij)`) too, which the scalar Galerkin mass does not have.
+
+    Args:
+        mesh: the mesh.
+        mass: `"voronoi"` (default) or `"barycentric"` (`LUMPED_MASS_MATRICES`; keyword-only).
+
+    Returns:
+        `(nv, nv)` real diagonal `SparseMatrix` of the vertex dual areas.
     """
     check_mass(mass, LUMPED_MASS_MATRICES)
     return mass_matrix(mesh, mass=mass)

@@ -54,9 +54,11 @@ def _indices(mesh: Mesh, plan: FieldPlan, field: Complex[Array, " nv"], n, *, bo
 def field_singularities(
     mesh: Mesh, field: Inexact[ArrayLike, " nv"], *, n: int, boundary_scaling: str = "geodesic"
 ) -> Float[Array, " nf"]:
-    """Index of an `n`-direction field around every face, `(nf,)`, multiples of `1 / n` (module docstring).
+    r"""Index of an `n`-direction field around every face, `(nf,)`, multiples of `1 / n` (module docstring).
 
-    `I_f = (sum_{edges ij of f} delta_ij + n Omega_f) / (2 pi n)`, rounded to the nearest multiple of
+    $$I_f = \frac{1}{2\pi n} \Bigl( \sum_{\text{edges } ij \text{ of } f} \delta_{ij} + n\, \Omega_f \Bigr),$$
+
+    rounded to the nearest multiple of
     `1 / n` (it is one up to round-off); non-zero faces are the singularities. On a closed mesh the
     indices sum to the Euler characteristic. Piecewise constant in the vertex positions (gradient 0).
 

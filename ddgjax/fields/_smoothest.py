@@ -85,11 +85,11 @@ def smoothest_field(
     solver: str = "auto",
     throw: bool = True,
 ) -> SmoothestField | Solution:
-    """The globally smoothest `n`-direction field on the vertices, optionally aligned to a guidance field.
+    r"""The globally smoothest `n`-direction field on the vertices, optionally aligned to a guidance field.
 
-    Without `alignment`: the eigenvector of the smallest eigenvalue of `A u = lambda M u` (module
+    Without `alignment`: the eigenvector of the smallest eigenvalue of $Au = \lambda M u$ (module
     docstring), with a deterministic phase (its entry of largest magnitude, the first on ties, is real
-    and positive). With `alignment = q`: the solution of `(A + s M) u = s M q`, `s = alignment_weight`
+    and positive). With `alignment = q`: the solution of $(A + sM)\, u = s M q$, $s$ = `alignment_weight`
     (Knoeppel's `lambda_t = -s`). `A` is `connection_laplacian(mesh, n=n, boundary_scaling=...)`, `M`
     `connection_mass_matrix(mesh, mass=mass)`. The field's value at a vertex is the `n`-th power of
     its directions in the vertex's tangent basis (`tangent_bases`, the polar coordinates of
@@ -225,8 +225,11 @@ def principal_curvature_alignment(mesh: Mesh, *, n: int = 4, boundary_scaling: s
 
     Args:
         mesh: the mesh.
-        n: an even number of directions (2 or 4 typically), keyword-only.
+        n: an even number of directions (2 or 4 typically; default 4), keyword-only.
         boundary_scaling: the polar coordinates' boundary convention (`ddgjax.fields._connection`).
+
+    Returns:
+        `(nv,)` complex array `|q| (q / |q|)^(n/2)`, in each vertex's polar coordinates.
 
     Reference: D. Cohen-Steiner, J.-M. Morvan, "Restricted Delaunay triangulations and normal cycle"
     (2003); Knoeppel et al. 2013, section 6 (curvature alignment with `q = (k1 - k2) exp(i n phi)`).

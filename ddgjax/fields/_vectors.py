@@ -64,6 +64,10 @@ def field_to_vectors(
         n: number of directions (keyword-only).
         at: `"vertices"` (default) or `"faces"`.
         boundary_scaling: the polar coordinates' convention the field was computed with.
+
+    Returns:
+        `(nv, n, 3)` (`at="vertices"`) or `(nf, n, 3)` (`at="faces"`) float array of unit vectors, 0 where the
+        field is 0.
     """
     mesh = require_mesh("mesh", mesh)
     n = check_degree(n)

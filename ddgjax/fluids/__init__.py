@@ -1,4 +1,4 @@
-"""Incompressible fluids on closed surfaces: vorticity - stream function Euler flow, differentiable end to end.
+r"""Incompressible fluids on closed surfaces: vorticity - stream function Euler flow, differentiable end to end.
 
 - `fluid_basis(mesh, k, *, mass="voronoi", robust=False) -> FluidBasis`: the first `k` Laplacian
   eigenpairs and the alternating advection tensor `W (k, k, k)` between them (Azencot et al. 2014),
@@ -11,8 +11,10 @@
   integrated by implicit midpoint steps solved to round-off, which conserve energy and enstrophy; one
   compiled, checkpointed `lax.scan` differentiated implicitly per step; outcomes as `ddgjax.RESULTS`
   (`max_steps_reached` where a step's Newton iteration does not converge: `tau` too large; `nonfinite`).
-- `stream_function_velocity(mesh, psi, *, at="faces")`: velocities `n x grad psi`, per face `(nf, 3)` or
+- `stream_function_velocity(mesh, psi, *, at="faces")`: velocities $u = n \times \nabla\psi$, per face `(nf, 3)` or
   averaged at the vertices `(nv, 3)`.
+
+$$\frac{\partial\omega}{\partial t} + u \cdot \nabla(\omega + 2\Omega z) = \nu \Delta\omega, \qquad u = n \times \nabla\psi, \qquad \Delta\psi = \omega$$
 
 Reference: O. Azencot, S. Weissmann, M. Ovsjanikov, M. Wardetzky, M. Ben-Chen, "Functional fluids on
 surfaces" (SGP 2014).

@@ -146,9 +146,11 @@ def fluid_basis(
     solver: str = "auto",
     throw: bool = True,
 ) -> FluidBasis | Solution:
-    """The first `k` Laplacian eigenpairs of a closed mesh and the advection tensor between them (module docstring).
+    r"""The first `k` Laplacian eigenpairs of a closed mesh and the advection tensor between them (module docstring).
 
-    `W_kij = -int phi_k J(phi_i, phi_j)` with `J(p, q) = n . (grad p x grad q)` (exact per-face
+    $$W_{kij} = -\int \phi_k \, J(\phi_i, \phi_j) \, dA, \qquad J(p, q) = n \cdot (\nabla p \times \nabla q)$$
+
+    (exact per-face
     quadrature of the piecewise linear eigenfunctions), replaced by its alternating part so that
     energy and enstrophy are conserved. Cost `O(nf k^3)` (`k = 64` on 20 k faces: a few seconds on
     two CPU cores); memory `O(nf k)`, also in reverse mode (the loop over `k` is checkpointed).

@@ -194,9 +194,11 @@ def euler_flow(
     progress: bool = False,
     throw: bool = True,
 ) -> EulerFlowResult:
-    """Incompressible (Navier-Stokes) Euler flow of a vorticity on a closed surface (module docstring).
+    r"""Incompressible (Navier-Stokes) Euler flow of a vorticity on a closed surface (module docstring).
 
-    `dw/dt + u . grad(w + 2 Omega z) = nu Delta w`, `u = n x grad psi`, `Delta psi = w`, reduced to
+    $$\frac{\partial w}{\partial t} + u \cdot \nabla(w + 2\Omega z) = \nu \Delta w, \qquad u = n \times \nabla\psi, \qquad \Delta\psi = w,$$
+
+    reduced to
     the first `k` Laplacian eigenfunctions (Azencot et al. 2014) and integrated by implicit midpoint
     steps (solved to round-off), which conserve energy and enstrophy of the inviscid,
     non-rotating flow to round-off. The step's nonlinear solve reaches up to `tau |N'| ~ 10`, `|N'|`

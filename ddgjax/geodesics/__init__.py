@@ -1,4 +1,4 @@
-"""The geodesic toolkit on triangle meshes: distance, transport, log map, centroids, signed distance, differentiable.
+r"""The geodesic toolkit on triangle meshes: distance, transport, log map, centroids, signed distance, differentiable.
 
 `heat_distance` and `heat_distance_solver` take a tetrahedral `ddgjax.volume.TetMesh` too (distance in a
 solid from vertex sources, the heat method in 3-D as in Crane et al. 2013).
@@ -19,6 +19,15 @@ solid from vertex sources, the heat method in 3-D as in Crane et al. 2013).
 - The signed heat method (Feng & Crane 2024): `signed_heat_distance(mesh, curves)` and
   `signed_heat_solver(mesh).distance(curves)` (`SignedHeatSolver`): the signed distance to oriented
   curves along mesh edges (closed loops or open pieces; positive on the left), robust to gaps.
+
+The heat method's three steps (`L` the PSD cotan Laplacian, `M` the mass matrix, $t = t_\mathrm{coef} h^2$):
+
+$$(M + tL)\, u = \delta, \qquad X = -\frac{\nabla u}{\lVert \nabla u \rVert}, \qquad L\phi = -\nabla \cdot X$$
+
+The vector heat method diffuses the source vector with the connection Laplacian `A`, and its
+magnitude and the source indicator with `L`:
+
+$$(M + tA)\, Y = Y_0, \qquad (M + tL)\, u = u_0, \qquad (M + tL)\, \varphi = \varphi_0, \qquad X = \frac{Y}{\lvert Y \rvert} \, \frac{u}{\varphi}$$
 """
 
 from ._heat import HeatDistanceSolver as HeatDistanceSolver

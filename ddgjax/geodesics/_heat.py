@@ -264,7 +264,9 @@ def heat_distance_solver(
     robust: bool | IntrinsicTriangulation = False,
     solver: str = "auto",
 ) -> HeatDistanceSolver:
-    """Factor the heat method's systems for `mesh` once (module docstring); query with `.distance(sources)`.
+    r"""Factor the heat method's systems for `mesh` once (module docstring); query with `.distance(sources)`.
+
+    $$(M + tL)\, u = \delta, \qquad X = -\frac{\nabla u}{\lVert \nabla u \rVert}, \qquad L\phi = -\nabla \cdot X$$
 
     Args:
         mesh: a triangle mesh (several components, boundaries, any genus, unreferenced vertices), or a
@@ -314,11 +316,13 @@ def heat_distance(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, " nv"] | Solution:
-    """Geodesic distance from `sources` to every vertex by the heat method (Crane, Weischedel & Wardetzky 2013), `(nv,)`.
+    r"""Geodesic distance from `sources` to every vertex by the heat method (Crane, Weischedel & Wardetzky 2013), `(nv,)`.
 
     With `L` the PSD cotan Laplacian, `M` the mass matrix and `h` the mean edge length:
 
-    1. `(M + t L) u = delta`, `t = t_coef * h^2`: one backward-Euler step of the heat flow from the
+    $$(M + tL)\, u = \delta, \qquad X = -\frac{\nabla u}{\lVert \nabla u \rVert}, \qquad L\phi = -\nabla \cdot X$$
+
+    1. `(M + t L) u = delta`, $t = t_\mathrm{coef} h^2$: one backward-Euler step of the heat flow from the
        sources (`delta`: the sources' hat-function weights);
     2. `X = -grad u / |grad u|` on each face (0 where `grad u = 0`);
     3. `L phi = -div X` (integrated divergence; one vertex pinned per connected component);

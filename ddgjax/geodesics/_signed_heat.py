@@ -216,14 +216,14 @@ def signed_heat_distance(
     level_set: str = "zero_set",
     throw: bool = True,
 ) -> Float[Array, " nv"] | Solution:
-    """Signed geodesic distance to oriented curves by the signed heat method (Feng & Crane 2024), `(nv,)`.
+    r"""Signed geodesic distance to oriented curves by the signed heat method (Feng & Crane 2024), `(nv,)`.
 
     With `A` the connection Laplacian, `L` the cotan Laplacian, `M` the mass and `h` the mean edge length:
 
     1. `Y0`: each segment's normal `N x (x_b - x_a)` split between its two vertices' tangent frames;
-    2. `(M + t A) Y = Y0`, `t = t_coef h^2`;
+    2. $(M + tA)\, Y = Y_0$, $t = t_\mathrm{coef} h^2$;
     3. `X` per face: the corners' vectors averaged, projected into the face, normalised;
-    4. `L phi = -div X` with `phi = 0` on the curves' vertices (`level_set="zero_set"`), or pinned
+    4. $L\phi = -\nabla \cdot X$ with $\phi = 0$ on the curves' vertices (`level_set="zero_set"`), or pinned
        and shifted to mean 0 along the curves (`"none"`).
 
     Convention: positive on the left of each curve (where `N x T` points, `N` the outward normal,

@@ -227,7 +227,9 @@ def vector_heat_solver(
     robust: bool | IntrinsicTriangulation = False,
     solver: str = "auto",
 ) -> VectorHeatSolver:
-    """Factor the vector heat method's systems for `mesh` once (module docstring); query `.transport`, `.log_map`.
+    r"""Factor the vector heat method's systems for `mesh` once (module docstring); query `.transport`, `.log_map`.
+
+    $$(M + tA)\, Y = Y_0, \qquad (M + tL)\, u = u_0, \qquad (M + tL)\, \varphi = \varphi_0, \qquad X = \frac{Y}{\lvert Y \rvert} \, \frac{u}{\varphi}$$
 
     Args:
         mesh: a manifold, consistently oriented triangle mesh with every vertex in a face (boundaries,
@@ -277,9 +279,9 @@ def parallel_transport(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv 3"] | Solution:
-    """Parallel transport of a tangent vector at a source vertex to every vertex along shortest geodesics, `(nv, 3)`.
+    r"""Parallel transport of a tangent vector at a source vertex to every vertex along shortest geodesics, `(nv, 3)`.
 
-    The vector heat method's Algorithm 1 (module docstring): `(M + t A) Y = Y_0`, the direction of `Y`
+    The vector heat method's Algorithm 1 (module docstring): $(M + tA)\, Y = Y_0$, the direction of $Y$
     with the source's magnitude (with several sources, the nearest source's: the diffused magnitudes
     over the diffused indicator). The result at vertex `i` is a world-coordinate vector in its
     tangent plane (`Re z e1_i + Im z e2_i`). Differentiable in the vertex positions and `vector`
@@ -323,14 +325,16 @@ def log_map(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv 2"] | Solution:
-    """The logarithmic map at a source vertex, `(nv, 2)` coordinates in the source's tangent frame.
+    r"""The logarithmic map at a source vertex, `(nv, 2)` coordinates in the source's tangent frame.
 
-    `log_s(x) = r(x) (R/H)(x) / |(R/H)(x)|` (module docstring): `R` the diffused radial field, `H` the
+    $$\log_s(x) = r(x) \, \frac{(R/H)(x)}{\lvert (R/H)(x) \rvert}$$
+
+    (module docstring): `R` the diffused radial field, `H` the
     source's `e1` transported, `r` the distance integrated from the unit radial field, `L r = b` with
     `b_a = -sum_b w_ab l_ab (<R_a, e_ab> - <R_b, e_ba>) / 2` over the edges `a -> b` (the component of
     `R` at the source along each of its edges taken as 1), shifted to 0 at the source (with
     `robust=True`, the heat method's distance); coordinates along `e1` and `e2` of
-    `ddgjax.fields.tangent_bases(mesh)` at the source. On the unit sphere `|log_s(x)| ~ arccos(x . s)`
+    `ddgjax.fields.tangent_bases(mesh)` at the source. On the unit sphere $\lvert \log_s(x) \rvert \approx \arccos \langle x, s \rangle$
     (mean relative error 0.47 % on icosphere(4), 0.29 % on icosphere(5)) and its direction is that of
     `x - s` projected on the tangent plane (tests). Differentiable in the vertex positions away from the
     source and the cut locus; `inf` on components without the source. For many queries keep the

@@ -44,7 +44,9 @@ class WeightedEdges(NamedTuple):
 def knn_graph(
     points: Float[ArrayLike, "n d"], *, n_neighbors: int = 10, sigma: float | Float[ArrayLike, ""] | None = None
 ) -> WeightedEdges:
-    """The symmetrised k-nearest-neighbour graph of a point set, with Gaussian edge weights (module docstring).
+    r"""The symmetrised k-nearest-neighbour graph of a point set, with Gaussian edge weights (module docstring).
+
+    $$w_{ij} = \exp\Bigl(-\frac{\lVert x_i - x_j \rVert^2}{2\sigma^2}\Bigr)$$
 
     `i` and `j` are joined when `j` is among the `n_neighbors` nearest other points of `i`, or `i`
     among those of `j`; each edge is listed once (`i < j`). A point is never its own neighbour, also

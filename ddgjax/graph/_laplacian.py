@@ -168,10 +168,12 @@ def check_weights(edge_weights, n_edges: int) -> Float[Array, " ne"]:
 def graph_laplacian(
     edges: Int[ArrayLike, "ne 2"], *, edge_weights: Float[ArrayLike, " ne"] | None = None, n_vertices: int
 ) -> SparseMatrix:
-    """The combinatorial graph Laplacian `L = D - W`, positive semidefinite, as a `SparseMatrix`.
+    r"""The combinatorial graph Laplacian `L = D - W`, positive semidefinite, as a `SparseMatrix`.
 
-    `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)`: off-diagonal `L_ij = -w_ij`, diagonal the weighted
-    degree `D_ii = sum_j w_ij`, so `L 1 = 0` and `u^T L u = sum_edges w_ij (u_i - u_j)^2`. The sign
+    $$\sum_j L_{ij} u_j = \sum_{j \sim i} w_{ij} (u_i - u_j), \qquad u^\top L u = \sum_{ij \in E} w_{ij} (u_i - u_j)^2:$$
+
+    off-diagonal $L_{ij} = -w_{ij}$, diagonal the weighted
+    degree $D_{ii} = \sum_j w_{ij}$, so $L\mathbf{1} = 0$. The sign
     is the mesh Laplacian's (docs/conventions.md): `L` is PSD, flagged symmetric positive
     semidefinite (so `ddgjax.solve` and `ddgjax.spectral` take it as it is). An edge listed more than
     once, in either orientation, counts once with the sum of its edge weights (networkx does the same for a

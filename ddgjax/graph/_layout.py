@@ -96,9 +96,11 @@ def tutte_layout(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "n 2"] | Solution:
-    """Tutte's barycentric embedding: the boundary cycle on a convex polygon, every other vertex the mean of its neighbours.
+    r"""Tutte's barycentric embedding: the boundary cycle on a convex polygon, every other vertex the mean of its neighbours.
 
-    `x = b` on `fixed_vertices` and `sum_j w_ij (x_i - x_j) = 0` elsewhere (`harmonic_interpolation` with
+    $$x_i = b_i \quad \text{at a fixed vertex } i, \qquad \sum_j w_{ij} (x_i - x_j) = 0 \quad \text{elsewhere},$$
+
+    with `b` the `fixed_values` (`harmonic_interpolation` with
     two columns): for a 3-connected planar graph with `fixed_vertices` a face cycle, positive edge weights and
     `fixed_values` a convex polygon in the cycle's order, no two edges cross (Tutte 1963,
     Floater 1997). A component without a boundary vertex is placed at the origin. Differentiable in

@@ -1,4 +1,4 @@
-"""The cotan Laplacian, mass matrices, the Dirichlet energy and converters, all assembled from squared edge lengths.
+r"""The cotan Laplacian, mass matrices, the Dirichlet energy and converters, all assembled from squared edge lengths.
 
 The intrinsic core (`cotan_laplacian_from_lengths_sq`, `mass_matrix_from_lengths_sq` on a
 `triangulation_plan`) serves the mesh's own operators (`cotan_laplacian`, `mass_matrix`, the
@@ -7,8 +7,11 @@ replayed in JAX); `laplacian_and_mass(mesh, mass=, robust=)` is the pair a solve
 (`robust=` picks the intrinsic ones).
 
 Conventions (DESIGN.md): `L` is the positive semidefinite weak (integrated) cotan Laplacian,
-`(L u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_i - u_j)`, so `L == -igl.cotmatrix(V, F)` and
-`L == gpytoolbox.cotangent_laplacian(V, F)`; the pointwise Laplace-Beltrami operator is `-M^{-1} L`.
+
+$$\sum_j L_{ij} u_j = \tfrac12 \sum_{j \sim i} (\cot\alpha_{ij} + \cot\beta_{ij})(u_i - u_j),$$
+
+with $\alpha_{ij}, \beta_{ij}$ the angles opposite edge $ij$, so `L == -igl.cotmatrix(V, F)` and
+`L == gpytoolbox.cotangent_laplacian(V, F)`; the pointwise Laplace-Beltrami operator is $\Delta = -M^{-1} L$.
 """
 
 from ._convert import from_pytorch3d_cot_laplacian as from_pytorch3d_cot_laplacian

@@ -42,18 +42,19 @@ from ._plan import TriangulationPlan, vertex_plan
 
 
 def cotan_laplacian(mesh: Mesh) -> SparseMatrix:
-    """The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on the mesh's vertex pattern.
+    r"""The cotan Laplacian `L` (PSD, weak / integrated), a `SparseMatrix` on the mesh's vertex pattern.
 
-    `L_ij = -(cot a_ij + cot b_ij) / 2` for an edge `ij`, `L_ii = -sum_{j != i} L_ij`, with the
-    cotangents from the squared edge lengths of each face, `cot a_k = (l_{k+1}^2 + l_{k+2}^2 - l_k^2)
-    / (4 A)`: the intrinsic core `cotan_laplacian_from_lengths_sq` applied to the mesh's
+    $$L_{ij} = -\tfrac12 (\cot\alpha_{ij} + \cot\beta_{ij}) \quad \text{for an edge } ij, \qquad L_{ii} = -\sum_{j \ne i} L_{ij},$$
+
+    with the cotangents from the squared edge lengths of each face,
+    $\cot\alpha_k = (\ell_{k+1}^2 + \ell_{k+2}^2 - \ell_k^2) / (4 A)$: the intrinsic core `cotan_laplacian_from_lengths_sq` applied to the mesh's
     `face_edge_lengths_sq`, on the storage plan cached for its connectivity
     (`ddgjax.laplacian._plan`), with the face areas from the embedding (`|e_1 x e_2| / 2`, as
     `ddgjax.mesh.corner_cotangents` takes them). It is the Galerkin stiffness matrix of
-    piecewise-linear hat functions, `L_ij = int <grad phi_i, grad phi_j>`, and equals the DEC
+    piecewise-linear hat functions, $L_{ij} = \int \langle \nabla\phi_i, \nabla\phi_j \rangle \, dA$, and equals the DEC
     `d0^T *1 d0` (`ddgjax.dec`) to round-off (tests). The per-corner values are gathered straight
     into the pattern's storage order and the diagonal is minus the off-diagonal row sum, so
-    `L 1 = 0` exactly.
+    $L \mathbf{1} = 0$ exactly.
 
     The result is flagged symmetric positive semidefinite (a Gram matrix of hat gradients, whatever
     the angles), so `cotan_laplacian(m).as_lineax_operator()` is tagged for `lineax.CG`, except on
@@ -98,10 +99,11 @@ def _values(mesh: Mesh, plan: TriangulationPlan) -> Float[Array, " nnz"]:
 
 
 def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"], /) -> Float[Array, "nv *k"]:
-    """Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (same convention as `cotan_laplacian`).
+    r"""Matrix-free `L u` for `u` of shape `(nv,)` or `(nv, k)` (same convention as `cotan_laplacian`).
 
-    `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)` with `w_ij = 1/2 (cot a_ij + cot b_ij)`, evaluated term by
-    term: the off-diagonal entries `cotan_laplacian` assembles (each corner's `-cot(alpha) / 2` from
+    $$\sum_j L_{ij} u_j = \sum_{j \sim i} w_{ij} (u_i - u_j), \qquad w_{ij} = \tfrac12 (\cot\alpha_{ij} + \cot\beta_{ij}),$$
+
+    evaluated term by term: the off-diagonal entries `cotan_laplacian` assembles (each corner's `-cot(alpha) / 2` from
     the squared edge lengths, gathered onto the directed edges `i -> j` leaving each vertex: the
     off-diagonal slots of the vertex pattern, which list them row by row) are multiplied by the edge
     differences `u_j - u_i` and summed per vertex. No diagonal and no `SparseMatrix` are formed, one
@@ -112,7 +114,7 @@ def laplacian_apply(mesh: Mesh, u: Float[Array, "nv *k"], /) -> Float[Array, "nv
     gather is `ddgjax.sparse.gather_sum`, whose transpose is a gather: differentiable in `u` and in
     the vertex positions, forward and reverse mode, under jit and vmap.
 
-    `laplacian_apply(mesh, mesh.vertices)` is the integrated mean curvature normal `2 H N A_i`, the
+    `laplacian_apply(mesh, mesh.vertices)` is the integrated mean curvature normal $2 H N A_i$, the
     gradient of the total area (outward on a convex closed mesh). Reference: Pinkall & Polthier
     (1993). libigl: `-igl.cotmatrix(V, F) @ u`; gpytoolbox: `cotangent_laplacian(V, F) @ u`.
 
@@ -168,9 +170,11 @@ _compiled_apply = kernel(_apply_laplacian)
 
 
 def dirichlet_energy(mesh: Mesh, u: Float[Array, "nv *k"], /) -> Float[Array, ""]:
-    """Dirichlet energy `E(u) = 1/2 u^T L u = 1/2 int |grad u|^2` of a piecewise-linear function (summed over columns).
+    r"""Dirichlet energy `E(u) = 1/2 u^T L u = 1/2 int |grad u|^2` of a piecewise-linear function (summed over columns).
 
-    `u` of shape `(nv,)` or `(nv, k)`. Differentiable in `u` (`grad_u E = L u`) and in the vertex
+    $$E(u) = \tfrac12 u^\top L u = \tfrac12 \int \lVert \nabla u \rVert^2 \, dA$$
+
+    `u` of shape `(nv,)` or `(nv, k)`. Differentiable in `u` ($\nabla_u E = L u$) and in the vertex
     positions, in forward and reverse mode and to second order (Hessian-vector products by
     forward-over-reverse, as optimistix / lineax Newton operators use them). The derivative in the
     vertex positions is written out (`_vertex_gradient`, a custom JVP): per face three scalars, the

@@ -146,20 +146,20 @@ class IntrinsicTriangulation(eqx.Module):
 
 
 def intrinsic_delaunay(mesh: Mesh, *, mollify_factor: float = 1e-5) -> IntrinsicTriangulation:
-    """Mollify `mesh`'s intrinsic metric, then flip its edges until every interior edge is Delaunay (host, NumPy).
+    r"""Mollify `mesh`'s intrinsic metric, then flip its edges until every interior edge is Delaunay (host, NumPy).
 
     First the edge lengths are mollified (module docstring): each raised by the smallest `delta >= 0`
     that gives every triangle a strict triangle inequality with margin `mollify_factor` times the
     mean edge length (`0` turns it off; nothing changes on a mesh without near-degenerate faces).
 
     An interior edge `ab` with triangles `(i, a, b)` and `(j, b, a)` is Delaunay when its opposite
-    angles satisfy `a_i + a_j <= pi`, i.e. `cot a_i + cot a_j >= 0` (up to rounding,
+    angles satisfy $\alpha_i + \alpha_j \le \pi$, i.e. $\cot\alpha_i + \cot\alpha_j \ge 0$ (up to rounding,
     `DELAUNAY_TOLERANCE`); boundary edges are always Delaunay. A non-Delaunay edge is replaced by
     the diagonal `ij` of the quad laid flat: with `n_i = l_ab^2 + l_ia^2 - l_ib^2`,
     `n_j = l_ab^2 + l_ja^2 - l_jb^2` (`2 l_ab` times the projections of `i` and `j` onto `ab`) and the
     areas `A_i`, `A_j` of the two triangles,
 
-        l_ij^2 = ((n_i - n_j)^2 + 16 (A_i + A_j)^2) / (4 l_ab^2).
+    $$\ell_{ij}^2 = \frac{(n_i - n_j)^2 + 16 (A_i + A_j)^2}{4 \ell_{ab}^2}.$$
 
     The flips change neither the vertices nor the (mollified) metric; only the edges. Flips run in rounds
     of independent flips (module docstring), recorded for the JAX replay. Once per vertex positions:

@@ -13,16 +13,18 @@ from ._plan import TriangulationPlan, vertex_plan
 
 
 def mass_matrix(mesh: Mesh, *, mass: str = "voronoi") -> SparseMatrix:
-    """Mass matrix `M` (integrates piecewise-linear functions: `u^T M v ~ int u v`), symmetric positive definite.
+    r"""Mass matrix `M` (integrates piecewise-linear functions: `u^T M v ~ int u v`), symmetric positive definite.
+
+    $$u^\top M v \approx \int u\, v \, dA, \qquad \sum_{ij} M_{ij} = \text{area}$$
 
     `mass` is one of `ddgjax.MASS_MATRICES`:
 
     - `"voronoi"` (default; mixed area of Meyer et al. 2003): diagonal, `M_ii` = the vertex's mixed
       Voronoi area (`vertex_dual_areas(mesh, dual="voronoi")`), as libigl `MASSMATRIX_TYPE_VORONOI`.
     - `"barycentric"`: diagonal, a third of the incident face areas (libigl `MASSMATRIX_TYPE_BARYCENTRIC`).
-    - `"galerkin"`: the consistent FEM mass matrix `M_ij = int phi_i phi_j` on the vertex pattern
-      (same pattern as the cotan Laplacian, so `L + t M` is defined): `A_f / 6` on the diagonal and
-      `A_f / 12` off it per face (libigl `MASSMATRIX_TYPE_FULL`; gpytoolbox `massmatrix(type="full")`).
+    - `"galerkin"`: the consistent FEM mass matrix $M_{ij} = \int \phi_i \phi_j \, dA$ on the vertex pattern
+      (same pattern as the cotan Laplacian, so `L + t M` is defined): $A_f / 6$ on the diagonal and
+      $A_f / 12$ off it per face (libigl `MASSMATRIX_TYPE_FULL`; gpytoolbox `massmatrix(type="full")`).
 
     Each is the intrinsic core (`mass_matrix_from_lengths_sq`: corner shares of the face areas from
     the squared edge lengths) on the mesh, with the face areas from the embedding. The lumped

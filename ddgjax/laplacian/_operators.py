@@ -48,13 +48,13 @@ class LaplacianAndMass(NamedTuple):
 
 
 def laplacian_and_mass(mesh: Mesh, *, mass: str = "voronoi", robust: bool | IntrinsicTriangulation = False) -> LaplacianAndMass:
-    """`(L, M)`: the cotan Laplacian and the mass matrix of `mesh`, or of its intrinsic Delaunay triangulation.
+    r"""`(L, M)`: the cotan Laplacian and the mass matrix of `mesh`, or of its intrinsic Delaunay triangulation.
 
     `robust=False`: `cotan_laplacian(mesh)` and `mass_matrix(mesh, mass=mass)`, refused
     (`MeshDataError`) on concrete positions with faces of zero or near-zero area; otherwise
     `intrinsic_delaunay_laplacian` and `intrinsic_delaunay_mass_matrix` of one (mollified)
     triangulation, which work on every mesh, non-manifold and non-oriented ones included (the tufted
-    cover; module docstring). `-M^{-1} L` is the pointwise Laplace-Beltrami operator.
+    cover; module docstring). $\Delta = -M^{-1} L$ is the pointwise Laplace-Beltrami operator.
 
     Args:
         mesh: the mesh.

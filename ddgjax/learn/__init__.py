@@ -1,4 +1,4 @@
-"""Operators for learning on meshes: what a diffusion network precomputes per shape, and its layers' operations.
+r"""Operators for learning on meshes: what a diffusion network precomputes per shape, and its layers' operations.
 
 - `diffusion_operators(mesh, k, *, mass="voronoi", robust=True, cache_dir=None, throw=True)` ->
   `DiffusionOperators(mass, values, vectors, frames, gradient_neighbors, gradient_weights)`: the lumped
@@ -8,14 +8,16 @@
   `diffusion_operators_of_meshes(meshes, k, ..., progress=True)` for a dataset.
 - `stack_diffusion_operators(operators, *, n_vertices=None, degree=None)`: a batch of meshes of
   different sizes, padded to `ddgjax.batch.bucket` sizes; `jax.vmap` the operations below over it.
-- `spectral_diffusion(x, operators, times)`: `Phi diag(exp(-lambda t_c)) Phi^T M x_c` per channel.
+- `spectral_diffusion(x, operators, times)`: $\Phi \operatorname{diag}(e^{-\lambda t_c}) \Phi^\top M x_c$ per channel.
 - `spatial_gradients(x, operators)` -> `(nv, C, 2)` tangent gradients;
-  `spatial_gradient_features(gradients, a_real, a_imag)`: `tanh(Re(conj(g) (A g)))`, rotation invariant.
+  `spatial_gradient_features(gradients, a_real, a_imag)`: $\tanh(\mathrm{Re}(\bar g \, (A g)))$, rotation invariant.
 - `DiffusionNetBlock`, `DiffusionNet`: the network built from them with equinox, a worked example
   (`notebooks/11_learning.ipynb` trains one on a batch of meshes of different sizes).
 
 Reference: Sharp, Attaiki, Crane, Ovsjanikov, "DiffusionNet: Discretization Agnostic Learning on
 Surfaces" (ACM TOG 2022).
+
+$$L\phi_i = \lambda_i M\phi_i, \qquad h_t(x) = \Phi \operatorname{diag}(e^{-\lambda t}) \Phi^\top M x$$
 """
 
 from ._diffusion import spatial_gradient_features as spatial_gradient_features

@@ -68,6 +68,13 @@ def spatial_gradients(x: Float[ArrayLike, "..."], /, operators: DiffusionOperato
     least-squares one-ring fit, DiffusionNet's `gradX + i gradY`), in the coordinates of the vertex's
     frame `(operators.frames.e1, operators.frames.e2)`; the 3D vector is `g0 e1 + g1 e2`. Exact for
     functions linear on a flat one-ring. A gather: no sparse matrix.
+
+    Args:
+        x: `(nv,)` or `(nv, C)` vertex features (positional-only).
+        operators: the shape's `DiffusionOperators` (its `gradient_neighbors`, `gradient_weights`).
+
+    Returns:
+        Float array of `x`'s shape plus a last axis of 2: the gradient's `(e1, e2)` coordinates.
     """
     x = jnp.asarray(x)
     _check_features(x, operators)
@@ -88,6 +95,14 @@ def spatial_gradient_features(
     product, squashed by `tanh` (Sharp et al. 2022, section 3.3). Rotating a vertex's frame
     multiplies all its `g_c` by one unit complex number, which cancels: the features do not depend on
     the choice of frames.
+
+    Args:
+        gradients: `(nv, C, 2)` tangent gradients of `C` channels (`spatial_gradients`).
+        a_real: `(C, C)` the real part of `A`.
+        a_imag: `(C, C)` the imaginary part of `A`.
+
+    Returns:
+        `(nv, C)` float array of features in `(-1, 1)`.
     """
     gradients, a_real, a_imag = jnp.asarray(gradients), jnp.asarray(a_real), jnp.asarray(a_imag)
     g_re, g_im = gradients[..., 0], gradients[..., 1]

@@ -73,7 +73,9 @@ class DiffusionNetBlock(eqx.Module):
 
 
 class DiffusionNet(eqx.Module):
-    """DiffusionNet: a per-vertex linear layer in, `n_blocks` `DiffusionNetBlock`s, a linear layer out.
+    r"""DiffusionNet: a per-vertex linear layer in, `n_blocks` `DiffusionNetBlock`s, a linear layer out.
+
+    $$x \mapsto x + \mathrm{MLP}\bigl(x, \ h_t(x), \ \tanh(\mathrm{Re}(\bar g \, (A g)))\bigr), \qquad h_t(x) = \Phi \operatorname{diag}(e^{-\lambda t}) \Phi^\top M x$$
 
     `model(x, operators)` maps `(nv, in_channels)` vertex features (positions, heat kernel signatures, ...)
     to `(nv, out_channels)`; `jax.vmap(model)(X, stacked_operators)` runs a padded batch (module docstring).

@@ -71,9 +71,9 @@ def diffusion_operators(
     cache_dir: str | os.PathLike | None = None,
     throw: bool = True,
 ) -> DiffusionOperators | Solution:
-    """`DiffusionOperators` of one mesh: lumped mass, `k` eigenpairs, tangent frames, spatial gradient weights.
+    r"""`DiffusionOperators` of one mesh: lumped mass, `k` eigenpairs, tangent frames, spatial gradient weights.
 
-    The eigenpairs are the `k` smallest of `L phi = lambda M phi` (`ddgjax.spectral.smallest_eigenpairs`),
+    The eigenpairs are the `k` smallest of $L\phi = \lambda M\phi$ (`ddgjax.spectral.smallest_eigenpairs`),
     `L` the PSD cotan Laplacian and `M` the lumped mass; the gradient is the per-vertex least-squares
     fit of the one-ring (`ddgjax.learn._gradient`), in the frames of `operators.frames`.
 
@@ -315,6 +315,15 @@ def diffusion_operators_of_meshes(
     A folder of files: `diffusion_operators_of_meshes(map(ddgjax.io.load_mesh, sorted(folder.glob("*.obj"))), k,
     cache_dir=folder / "operators")`. A host loop; batch the results with `stack_diffusion_operators`.
     A `cache_dir` that cannot be written gives one warning for the whole dataset.
+
+    Args:
+        meshes: the meshes, any iterable (consumed once, in order).
+        k: the number of eigenpairs of each, `1 <= k < nv`.
+        mass, robust, cache_dir, throw: as for `diffusion_operators` (keyword-only).
+        progress: `True` for a `tqdm` progress bar (keyword-only; default `False`).
+
+    Returns:
+        A list with one `DiffusionOperators` per mesh, in order (a `ddgjax.Solution` each with `throw=False`).
     """
     if progress:  # imported only when asked for: tqdm.auto warns in a Jupyter kernel without ipywidgets
         from tqdm.auto import tqdm

@@ -1,4 +1,4 @@
-"""Shape correspondence by functional maps, differentiable in the descriptors.
+r"""Shape correspondence by functional maps, differentiable in the descriptors.
 
 A pipeline in the bases of two `SpectralShape`s (`spectral_shape(mesh, k)`: lumped mass, `k`
 eigenpairs), source and target:
@@ -20,6 +20,12 @@ eigenpairs), source and target:
 
 Conventions as pyFM (`pyfmaps`): `C` maps source functions to target functions, a point map lists
 each target vertex's source vertex.
+
+The map $C$ takes spectral coefficients of the source to those of the target; at its core it fits the
+descriptors' coefficients $A$ (source) and $B$ (target) in the least-squares sense, with the Laplacian
+commutativity term:
+
+$$\min_C \ \lVert C A - B \rVert^2 + \mu \lVert C \Lambda_s - \Lambda_t C \rVert^2.$$
 """
 
 from ._descriptors import descriptors as descriptors

@@ -31,7 +31,7 @@ def descriptors(
 ) -> Float[Array, "nv d"]:
     """Multiscale WKS or HKS descriptors of a shape, each column of unit M-norm, `(nv, d)`.
 
-    With `Phi, lambda` the first `k` eigenpairs (all of the shape's by default) and `s` the
+    With `Phi, lambda` the first `k` eigenpairs and `s` the
     `n_descriptors` scales, column `s` is `f_s(x) = sum_i w_i(s) phi_i(x)^2 / sum_i w_i(s)`:
 
     - `kind="wks"` (Aubry et al. 2011): `w_i(e) = exp(-(e - log lambda_i)^2 / (2 sigma^2))` on pyFM's
@@ -39,7 +39,7 @@ def descriptors(
     - `kind="hks"` (Sun et al. 2009): `w_i(t) = exp(-t lambda_i)` at `n_descriptors` times spaced
       geometrically on `[4 ln 10 / lambda_max, 4 ln 10 / lambda_1]` (pyFM's `auto_HKS`).
 
-    `landmarks`: `(p,)` vertex indices; then `p * n_descriptors` columns follow, the landmark
+    With `p` `landmarks`, `p * n_descriptors` columns follow, the landmark
     signatures `f_{l,s}(x) = sum_i w_i(s) phi_i(l) phi_i(x) / sum_i w_i(s)`, ordered landmark-major
     (column `n_descriptors + l * n_descriptors + s`). Finally every column is divided by
     `sqrt(f^T M f)`, so `d = n_descriptors (1 + p)`.
@@ -47,6 +47,17 @@ def descriptors(
     Differentiable in the shape's eigenpairs and mass (a plain JAX function), under `jit` too.
     pyFM: `FunctionalMapping(m1, m2).preprocess(n_descr=n_descriptors, descr_type="WKS", landmarks=...,
     k_descr=k)`'s `descr1` (pyFM's defaults: `k_descr=128`, no subsampling).
+
+    Args:
+        shape: the `SpectralShape` (`spectral_shape(mesh, k)`).
+        kind: `"wks"` (default) or `"hks"` (keyword-only).
+        n_descriptors: the number of scales, `>= 1` (keyword-only; default 100).
+        landmarks: `(p,)` vertex indices whose landmark signatures are appended (keyword-only); `None` (default):
+            none, `p = 0`.
+        k: the number of eigenpairs used, `2 <= k <= shape.k` (keyword-only); `None` (default): all the shape's.
+
+    Returns:
+        `(nv, n_descriptors (1 + p))` float array, each column of unit M-norm.
     """
     shape = require_spectral_shape("shape", shape)
     kind = check_choice("kind", kind, DESCRIPTOR_KINDS)

@@ -56,13 +56,12 @@ def functional_map(
     max_steps: int = 1000,
     throw: bool = True,
 ) -> Float[Array, "k_target k_source"] | Solution:
-    """The functional map `C` `(k_target, k_source)` minimising pyFM's `fit` energy, by one linear solve.
+    r"""The functional map `C` `(k_target, k_source)` minimising pyFM's `fit` energy, by one linear solve.
 
     With `A = Phi_s^T M_s F_s` `(k_s, d)` and `B = Phi_t^T M_t F_t` `(k_t, d)` the descriptors' spectral
     coefficients, `C` minimises
 
-        E(C) = mu_d/2 ||C A - B||^2 + mu_l/2 sum_ij R_ij C_ij^2
-             + mu_c/2 sum_p ||C P_p - Q_p C||^2 + mu_o/2 sum_p ||C G_p - s H_p C||^2
+    $$E(C) = \frac{\mu_d}{2} \lVert C A - B \rVert^2 + \frac{\mu_l}{2} \sum_{ij} R_{ij} C_{ij}^2 + \frac{\mu_c}{2} \sum_p \lVert C P_p - Q_p C \rVert^2 + \frac{\mu_o}{2} \sum_p \lVert C G_p - s H_p C \rVert^2$$
 
     over the maps whose first column is `(sign sqrt(area_t / area_s), 0, ..., 0)` (constants map to
     constants; `sign` that of `phi^s_0 phi^t_0` at vertex 0, as pyFM fixes it), where

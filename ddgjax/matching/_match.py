@@ -65,7 +65,9 @@ def match_shapes(
     robust: bool = False,
     throw: bool = True,
 ) -> MatchResult:
-    """Match two shapes: for each target vertex its source vertex, by functional maps refined with ZoomOut.
+    r"""Match two shapes: for each target vertex its source vertex, by functional maps refined with ZoomOut.
+
+    $$\min_C \ \lVert C A - B \rVert^2 + \mu \lVert C \Lambda_s - \Lambda_t C \rVert^2 + \dots, \qquad \text{target vertex } y \mapsto \operatorname*{argmin}_x \lVert C \Phi_s(x) - \Phi_t(y) \rVert$$
 
     The pipeline (pyFM's `FunctionalMapping` preprocess / fit / zoomout_refine / get_p2p):
 
@@ -80,7 +82,7 @@ def match_shapes(
 
     The defaults (k = 50 for the fit, 100 WKS, ZoomOut to 100) are pyFM's usual pipeline; they match
     near-isometric pairs of a few thousand vertices to a mean geodesic error under 0.03 of
-    `sqrt(area)` (tests/test_matching_pipeline.py).
+    $\sqrt{\text{area}}$ (tests/test_matching_pipeline.py).
 
     Supported: two connected surfaces (one connected component each, vertices joined by edges),
     near-isometric, either may have a boundary. A mesh of several components is refused

@@ -45,11 +45,21 @@ def spectral_shape(
 ) -> SpectralShape | Solution:
     """`SpectralShape` of a mesh: its lumped mass and `k` eigenpairs (`ddgjax.spectral.eigenpairs`).
 
-    `mass`: `"voronoi"` (default) or `"barycentric"` (lumped: point maps and descriptors weigh vertices
-    by their areas). `robust=True` uses the intrinsic Delaunay Laplacian and mass (meshes with
-    degenerate faces). Differentiable in the vertex positions (`ddgjax.spectral.smallest_eigenpairs`).
-    `throw`: a failed eigensolve raises (default) or, with `throw=False`, the shape comes in a
-    `ddgjax.Solution`. pyFM: `TriMesh(V, F).process(k, intrinsic=robust)`.
+    Differentiable in the vertex positions (`ddgjax.spectral.smallest_eigenpairs`). pyFM:
+    `TriMesh(V, F).process(k, intrinsic=robust)`.
+
+    Args:
+        mesh: the mesh.
+        k: the number of eigenpairs, fewer than `nv`.
+        mass: `"voronoi"` (default) or `"barycentric"` (keyword-only; lumped: point maps and descriptors
+            weigh vertices by their areas).
+        robust: `False` (default): the mesh's cotan operators; `True`: the intrinsic Delaunay Laplacian and
+            mass (meshes with degenerate faces); or an `IntrinsicTriangulation` (keyword-only).
+        throw: `True` (default): a failed eigensolve raises; `False`: the shape comes in a `ddgjax.Solution`
+            (keyword-only).
+
+    Returns:
+        The `SpectralShape` (in a `ddgjax.Solution` with `throw=False`).
     """
     mesh = require_mesh("mesh", mesh)
     check_mass(mass, LUMPED_MASS_MATRICES)

@@ -1,15 +1,20 @@
-"""Triangle meshes: the `Mesh` type, its NumPy-built topology, differentiable geometry and curvature.
+r"""Triangle meshes: the `Mesh` type, its NumPy-built topology, differentiable geometry and curvature.
 
 - `Mesh`, `MeshTopology`: vertices (differentiable) plus connectivity built once in NumPy.
 - Geometry (jit / grad / vmap over `mesh.vertices`): edge lengths, face areas and normals, corner
   angles and cotangents, cotan weights, vertex normals, dual areas, dihedral angles, area, volume.
-- Curvature: angle defects (integrated K), integrated mean curvature (scalar from dihedral angles,
+- Curvature: angle defects (integrated $K$), integrated mean curvature (scalar from dihedral angles,
   normal from `L V`), Gauss curvature normals, total mean curvature; pointwise Gaussian / mean
   curvature and mean curvature normals (`vertex_pointwise_*`), principal curvatures.
 - Built-in shapes: `icosphere`, `uv_sphere`, `torus`, `cylinder`, `disk`, `grid`.
 - Checks: `check_mesh` -> `MeshReport` (zero-area faces and zero-length edges among them; the policy
   for degenerate geometry, refused by the plain cotan route and handled by `robust=True`, is in
   `ddgjax.mesh._check`).
+
+Discrete Gauss-Bonnet is an identity on every triangle mesh: the angle defects $K_i$ sum to $2\pi$ times
+the Euler characteristic,
+
+$$\sum_i K_i = 2\pi\chi, \qquad \chi = V - E + F.$$
 """
 
 from ._check import MeshReport as MeshReport

@@ -127,15 +127,25 @@ class MeshReport:
 def check_mesh(mesh: Mesh, *, area_tol: float | None = None) -> MeshReport:
     """Topology and data checks of a mesh, with counts and the offending indices.
 
-    Topology comes from `mesh.topology` (built once). Duplicate faces are found on the host in NumPy
-    by sorting each face's vertex indices and looking for repeated rows, so a copy with reversed
-    orientation counts too (a face and its reversed copy form a closed, oriented two-face "pillow"
-    that no edge check flags). Zero-area faces are measured at the current vertex positions: a face
-    is flagged when `A_f <= area_tol * l_max^2` (`l_max` its longest edge), a scale-invariant test
-    that also catches collinear corners; `area_tol=None` (default) is `default_area_tol` of the
-    vertices' dtype (`1e-12` in float64), the tolerance below which the operators refuse a face
-    (module docstring). Zero-length edges join two coincident vertices. This is a host-side
-    function (not for use under jit).
+    Topology comes from `mesh.topology` (built once). Duplicate faces are found on the host in NumPy by
+    sorting each face's vertex indices and looking for repeated rows, so a copy with reversed orientation
+    counts too (a face and its reversed copy form a closed, oriented two-face "pillow" that no edge check
+    flags). Zero-area faces are measured at the current vertex positions: a face is flagged when
+    `A_f <= area_tol * l_max^2` (`l_max` its longest edge), a scale-invariant test that also catches collinear
+    corners; the default tolerance (`1e-12` in float64) is the one below which the operators refuse a face
+    (module docstring). Zero-length edges join two coincident vertices. This is a host-side function (not for
+    use under jit).
+
+    Args:
+        mesh: any triangle mesh, with concrete (not traced) vertices.
+        area_tol: a face is flagged zero-area when `A_f <= area_tol * l_max^2` (keyword-only, a
+            nonnegative number); `None` (default) is `default_area_tol` of the vertices' dtype.
+
+    Returns:
+        `MeshReport` with the counts, flags (manifold, oriented, closed) and offending indices.
+
+    Raises:
+        DDGInputError: `area_tol` is not a nonnegative finite number, or the vertices are traced.
 
     Equivalents: libigl `is_edge_manifold`, `is_vertex_manifold`, `euler_characteristic`,
     `boundary_loop`, `unique_simplices`; trimesh `Trimesh.is_watertight` / `is_winding_consistent`;

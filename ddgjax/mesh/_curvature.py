@@ -54,22 +54,25 @@ def _operation(name: str) -> str:
 
 @kernel
 def vertex_angle_defects(mesh: Mesh) -> Float[Array, " nv"]:
-    """Integrated Gaussian curvature: the angle defect at each vertex, `(nv,)`.
+    r"""Integrated Gaussian curvature: the angle defect at each vertex, `(nv,)`.
 
-    `K_i = 2 pi - sum_{corners at i} theta` at interior vertices and `pi - sum theta` at boundary
-    vertices. In general `K_i = 2 pi - sum theta - pi/2 sum_{edges e at i} (2 - c_e)`, with `c_e` the
-    number of faces of edge `e`: the same on manifolds (a boundary vertex has two one-face edges) and
-    it makes discrete Gauss-Bonnet, `sum_i K_i = 2 pi chi` (`chi = V - E + F`, referenced vertices),
+    $K_i = 2\pi - \sum_{\text{corners at } i} \theta$ at interior vertices and $\pi - \sum \theta$ at boundary
+    vertices. In general
+
+    $$K_i = 2\pi - \sum \theta - \frac{\pi}{2} \sum_{\text{edges } e \text{ at } i} (2 - c_e),$$
+
+    with $c_e$ the number of faces of edge $e$: the same on manifolds (a boundary vertex has two one-face edges) and
+    it makes discrete Gauss-Bonnet, $\sum_i K_i = 2\pi\chi$ ($\chi = V - E + F$, referenced vertices),
     an identity on **every** triangle mesh, non-manifold included. Unreferenced vertices get 0.
     Since the total is topological, its gradient with respect to the vertices is 0.
 
-    Degenerate faces keep the identity: the angles of every face sum to `pi`. A collinear face has
-    angles `0, 0, pi`; a corner at a zero-length edge (coincident vertices) has no angle, and the
-    corners without one share what the others leave of `pi` (`_face_corner_angles`), so merging two
-    vertices of a sphere still sums to `4 pi`.
+    Degenerate faces keep the identity: the angles of every face sum to $\pi$. A collinear face has
+    angles $0, 0, \pi$; a corner at a zero-length edge (coincident vertices) has no angle, and the
+    corners without one share what the others leave of $\pi$ (`_face_corner_angles`), so merging two
+    vertices of a sphere still sums to $4\pi$.
 
-    Converters: `igl.gaussian_curvature(V, F)` is `2 pi - sum theta` everywhere, so it equals this on
-    interior vertices and this minus `pi` on boundary vertices; `gpytoolbox.angle_defect(V, F)` is
+    Converters: `igl.gaussian_curvature(V, F)` is $2\pi - \sum \theta$ everywhere, so it equals this on
+    interior vertices and this minus $\pi$ on boundary vertices; `gpytoolbox.angle_defect(V, F)` is
     this on interior vertices and 0 on boundary vertices
     (`jnp.where(boundary, 0, vertex_angle_defects(mesh))`). Pointwise:
     `vertex_pointwise_gaussian_curvatures`.
@@ -132,6 +135,14 @@ def vertex_pointwise_gaussian_curvatures(mesh: Mesh, *, dual: str = "voronoi") -
     Reference: Meyer et al. 2003. libigl tutorial:
     `igl.gaussian_curvature(V, F) / igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI).diagonal()`
     (equal on interior vertices; libigl's defect omits the boundary's `-pi`).
+
+    Args:
+        mesh: any triangle mesh.
+        dual: the dual cell `A_i` divides by, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default),
+            `"circumcentric"`, `"barycentric"` (keyword-only, static).
+
+    Returns:
+        `(nv,)` pointwise Gaussian curvatures (units of 1 / length^2), in the vertices' dtype.
     """
     return safe_div(vertex_angle_defects(mesh), vertex_dual_areas(mesh, dual=dual))
 
@@ -154,6 +165,12 @@ def vertex_mean_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     diffusion and curvature flow" (1999); Meyer et al. 2003. libigl:
     `-igl.cotmatrix(V, F) @ V / 2` (the libigl tutorial's `HN = -Minv L V` is the pointwise `2 H N`
     with the opposite sign of `L`); gpytoolbox: `cotangent_laplacian(V, F) @ V / 2`.
+
+    Args:
+        mesh: any triangle mesh (no orientation needed).
+
+    Returns:
+        `(nv, 3)` integrated mean curvature normals (units of length), in the vertices' dtype.
     """
     corner_terms = 0.25 * jnp.cross(face_normals(mesh)[:, None, :], face_edge_vectors(mesh))
     return scatter_corners_to_vertices(mesh, corner_terms)
@@ -167,6 +184,14 @@ def vertex_pointwise_mean_curvature_normals(mesh: Mesh, *, dual: str = "voronoi"
     radius r); 0 where the dual area is 0. Works on every mesh (no orientation needed). Reference:
     Meyer et al. 2003 (their mean curvature normal operator `K(x_i) = 2 H N`). libigl tutorial: `HN = -Minv @ (L @ V)` with `L = igl.cotmatrix`,
     `M` the Voronoi mass matrix, equals `2 H N` here.
+
+    Args:
+        mesh: any triangle mesh (no orientation needed).
+        dual: the dual cell `A_i` divides by, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default),
+            `"circumcentric"`, `"barycentric"` (keyword-only, static).
+
+    Returns:
+        `(nv, 3)` pointwise mean curvature normals `H N` (units of 1 / length), in the vertices' dtype.
     """
     return safe_div(vertex_mean_curvature_normals(mesh), vertex_dual_areas(mesh, dual=dual)[:, None])
 
@@ -183,6 +208,12 @@ def vertex_mean_curvatures(mesh: Mesh) -> Float[Array, " nv"]:
     (`MeshDataError` otherwise; module docstring). Pointwise: `vertex_pointwise_mean_curvatures`.
     Reference: Crane 2020, "Discrete curvature II" (Steiner formula). libigl and gpytoolbox have no
     dihedral-angle mean curvature (libigl's tutorial uses the unsigned `|L V|`).
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+
+    Returns:
+        `(nv,)` integrated mean curvatures `H_i` (units of length), in the vertices' dtype.
     """
     edge_terms = 0.25 * edge_lengths(mesh) * edge_dihedral_angles(mesh)
     return jax.ops.segment_sum(jnp.repeat(edge_terms, 2), mesh.edges.reshape(-1), num_segments=mesh.n_vertices)
@@ -196,6 +227,12 @@ def total_mean_curvature(mesh: Mesh) -> Float[Array, ""]:
     by Schlaefli's formula `sum_e l_e d(theta_e) = 0`, only the edge lengths' variation remains.
     Signed: needs consistently oriented faces (`MeshDataError` otherwise). Reference: Crane 2020,
     "Discrete curvature II".
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+
+    Returns:
+        The total mean curvature, a scalar `()` (units of length) in the vertices' dtype.
     """
     return 0.5 * jnp.sum(edge_lengths(mesh) * edge_dihedral_angles(mesh))
 
@@ -210,6 +247,12 @@ def vertex_gauss_curvature_normals(mesh: Mesh) -> Float[Array, "nv 3"]:
     function follows the gradient. Zero-length edges contribute 0. Signed dihedral angles: needs
     consistently oriented faces (`MeshDataError` otherwise). Reference: Crane 2020, "Discrete
     curvature II". No libigl / gpytoolbox equivalent.
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+
+    Returns:
+        `(nv, 3)` integrated Gauss curvature normals (dimensionless), in the vertices' dtype.
     """
     vectors = take_rows(mesh.vertices, mesh.edges[:, 0]) - take_rows(mesh.vertices, mesh.edges[:, 1])
     terms = 0.5 * safe_div(edge_dihedral_angles(mesh), safe_norm(vectors))[:, None] * vectors
@@ -227,6 +270,14 @@ def vertex_pointwise_mean_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Fl
     with outward normals; 0 where the dual area is 0. Needs consistently oriented faces
     (`MeshDataError` otherwise). Reference: Crane 2020, "Discrete curvature II". libigl's tutorial
     computes the unsigned `|H|` from `L V` instead (see `vertex_pointwise_mean_curvature_normals`).
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+        dual: the dual cell `A_i` divides by, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default),
+            `"circumcentric"`, `"barycentric"` (keyword-only, static).
+
+    Returns:
+        `(nv,)` pointwise signed mean curvatures `H` (units of 1 / length), in the vertices' dtype.
     """
     return safe_div(vertex_mean_curvatures(mesh), vertex_dual_areas(mesh, dual=dual))
 
@@ -242,6 +293,14 @@ def vertex_principal_curvatures(mesh: Mesh, *, dual: str = "voronoi") -> Float[A
     it `O(h)`. Needs consistently oriented faces, like `H` (`MeshDataError` otherwise). Reference:
     Meyer et al. 2003, section 6. libigl's `principal_curvature` fits quadrics instead (and also
     returns directions).
+
+    Args:
+        mesh: a consistently oriented triangle mesh (`MeshDataError` otherwise).
+        dual: the dual cell `A_i` divides by, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default),
+            `"circumcentric"`, `"barycentric"` (keyword-only, static).
+
+    Returns:
+        `(nv, 2)` pointwise principal curvatures, column 0 `k1`, column 1 `k2 <= k1` (units of 1 / length).
     """
     h = vertex_pointwise_mean_curvatures(mesh, dual=dual)
     root = safe_sqrt(h * h - vertex_pointwise_gaussian_curvatures(mesh, dual=dual))

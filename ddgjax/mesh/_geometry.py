@@ -34,7 +34,14 @@ from ._mesh import Mesh
 
 
 def face_vertex_positions(mesh: Mesh) -> Float[Array, "nf 3 3"]:
-    """`(nf, 3, 3)` corner positions `V[F]` (one gather; everything per face starts here)."""
+    """`(nf, 3, 3)` corner positions `V[F]` (one gather; everything per face starts here).
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3, 3)` positions, indexed `[face, corner, coordinate]`, in the vertices' dtype.
+    """
     return take_rows(mesh.vertices, mesh.faces)
 
 
@@ -43,6 +50,12 @@ def face_edge_vectors(mesh: Mesh) -> Float[Array, "nf 3 3"]:
 
     Counterclockwise around a counterclockwise face (`e_0 + e_1 + e_2 = 0`). libigl / gpytoolbox have
     no per-face edge vectors; `V[F[:, [2, 0, 1]]] - V[F[:, [1, 2, 0]]]` in NumPy.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3, 3)` edge vectors, indexed `[face, opposite corner, coordinate]`, in the vertices' dtype.
     """
     corners = face_vertex_positions(mesh)
     return jnp.roll(corners, -2, axis=1) - jnp.roll(corners, -1, axis=1)
@@ -74,7 +87,14 @@ def face_geometry_from_corners(
 
 @kernel
 def face_edge_lengths_sq(mesh: Mesh) -> Float[Array, "nf 3"]:
-    """Squared length of the edge opposite each corner, `(nf, 3)` (libigl `squared_edge_lengths`)."""
+    """Squared length of the edge opposite each corner, `(nf, 3)` (libigl `squared_edge_lengths`).
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3)` squared lengths; entry `k` of a row is that of the edge opposite corner `k`.
+    """
     return face_geometry_from_corners(face_vertex_positions(mesh))[1]
 
 
@@ -86,6 +106,12 @@ def edge_lengths(mesh: Mesh) -> Float[Array, " ne"]:
     length 0 with a zero (finite) gradient (`ddgjax._numerics.safe_norm`). Equivalents: libigl
     `igl.edge_lengths(V, F)` and gpytoolbox `halfedge_lengths(V, F)` give the same values per face
     corner, `(nf, 3)`, not per global edge (see `face_edge_lengths_sq` for that layout).
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(ne,)` edge lengths, in `mesh.edges` order and the vertices' dtype.
     """
     return safe_norm(take_rows(mesh.vertices, mesh.edges[:, 1]) - take_rows(mesh.vertices, mesh.edges[:, 0]))
 
@@ -100,6 +126,12 @@ def face_area_vectors(mesh: Mesh) -> Float[Array, "nf 3"]:
     `sum_f (A_f N_f) . p0 / 3` is the enclosed volume (`enclosed_volume`). Equivalents: libigl
     `igl.per_face_normals(V, F, ...) * igl.doublearea(V, F)[:, None] / 2`; gpytoolbox
     `per_face_normals(V, F) * doublearea(V, F)[:, None] / 2`.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3)` vector areas `A_f N_f` (length: the face area), in the vertices' dtype.
     """
     corners = face_vertex_positions(mesh)
     return 0.5 * jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
@@ -136,7 +168,14 @@ def face_areas(mesh: Mesh) -> Float[Array, " nf"]:
 
 @kernel
 def face_normals(mesh: Mesh) -> Float[Array, "nf 3"]:
-    """Unit face normals (right-hand rule of the face order); the zero vector on zero-area faces."""
+    """Unit face normals (right-hand rule of the face order); the zero vector on zero-area faces.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3)` unit normals, in the vertices' dtype; zero rows on zero-area faces.
+    """
     return safe_normalize(face_area_vectors(mesh))
 
 
@@ -147,6 +186,12 @@ def face_areas_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Array,
     sorted lengths; accurate for needle and cap triangles where plain Heron cancels. Violations of the
     triangle inequality give area 0. Reference: W. Kahan, "Miscalculating area and angles of a
     needle-like triangle" (2014). libigl: `doublearea(l) / 2`.
+
+    Args:
+        lengths_sq: `(nf, 3)` squared length of the edge opposite each corner (`face_edge_lengths_sq`).
+
+    Returns:
+        `(nf,)` areas, in the dtype of `lengths_sq`; 0 where the lengths violate the triangle inequality.
     """
     lengths = safe_sqrt(lengths_sq)
     a = jnp.max(lengths, axis=-1)
@@ -167,9 +212,16 @@ def corner_cotangents_from_lengths_sq(
     """Cotangent of each corner angle from the squared lengths of the opposite edges, `(nf, 3)`.
 
     `cot(alpha_k) = (l_{k+1}^2 + l_{k+2}^2 - l_k^2) / (4 A)` (law of cosines over twice the area).
-    `areas` (keyword-only, `(nf,)`) defaults to Kahan's formula; the extrinsic wrappers
-    (`corner_cotangents`, `ddgjax.laplacian.cotan_laplacian`) pass the cross-product area. Zero-area
-    faces get cotangent 0 (module policy). libigl: `cotmatrix_entries` (times 2).
+    Zero-area faces get cotangent 0 (module policy). libigl: `cotmatrix_entries` (times 2).
+
+    Args:
+        lengths_sq: `(nf, 3)` squared length of the edge opposite each corner (`face_edge_lengths_sq`).
+        areas: `(nf,)` face areas (keyword-only); `None` (default) computes them by Kahan's formula
+            (`face_areas_from_lengths_sq`); the extrinsic wrappers (`corner_cotangents`,
+            `ddgjax.laplacian.cotan_laplacian`) pass the cross-product area.
+
+    Returns:
+        `(nf, 3)` cotangents `cot(alpha_k)` of the corner angles; 0 on zero-area faces.
     """
     if areas is None:
         areas = face_areas_from_lengths_sq(lengths_sq)
@@ -182,7 +234,14 @@ def corner_cotangents_from_lengths_sq(
 
 @kernel
 def corner_cotangents(mesh: Mesh) -> Float[Array, "nf 3"]:
-    """Cotangent of each corner angle, `(nf, 3)` (extrinsic lengths and area; see the core)."""
+    """Cotangent of each corner angle, `(nf, 3)` (extrinsic lengths and area; see the core).
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3)` cotangents of the corner angles, in the vertices' dtype; 0 on zero-area faces.
+    """
     return corner_cotangents_from_lengths_sq(face_edge_lengths_sq(mesh), areas=face_areas(mesh))
 
 
@@ -191,6 +250,12 @@ def corner_angles_from_lengths_sq(lengths_sq: Float[Array, "nf 3"]) -> Float[Arr
 
     Uses `atan2` of (twice the doubled area, law-of-cosines numerator), never `arccos`, so it is exact
     near 0 and pi with finite gradients. libigl: `internal_angles_using_squared_edge_lengths`.
+
+    Args:
+        lengths_sq: `(nf, 3)` squared length of the edge opposite each corner (`face_edge_lengths_sq`).
+
+    Returns:
+        `(nf, 3)` interior angles in radians, in `[0, pi]`; entry `k` is the angle at corner `k`.
     """
     numerators = _cosine_numerators(lengths_sq)
     # 4 A = 2 l_{k+1} l_{k+2} sin(alpha_k), the sine counterpart of the numerator at every corner.
@@ -206,6 +271,12 @@ def corner_angles(mesh: Mesh) -> Float[Array, "nf 3"]:
     pi with finite gradients, unlike `arccos` (DESIGN.md, Numerics); 0 at a corner with a zero-length
     edge. Agrees with `corner_angles_from_lengths_sq(face_edge_lengths_sq(mesh))` to round-off.
     libigl: `internal_angles`; gpytoolbox: `tip_angles`.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3)` interior angles in radians, in the vertices' dtype; entry `k` is the angle at corner `k`.
     """
     corners = face_vertex_positions(mesh)
     return unsigned_angle(jnp.roll(corners, -1, axis=1) - corners, jnp.roll(corners, -2, axis=1) - corners)
@@ -215,6 +286,14 @@ def edge_cotan_weights_from_corner_cotangents(mesh: Mesh, cotangents: Float[Arra
     """`w_ij = 1/2 sum cot(opposite angles)` per global edge, gathered (no scatter) from corners.
 
     A boundary edge has one term, a non-manifold edge one per face.
+
+    Args:
+        mesh: the triangle mesh whose edges are weighted (only its topology is read).
+        cotangents: `(nf, 3)` cotangent of each corner angle, from the embedding (`corner_cotangents`) or
+            from intrinsic lengths (`corner_cotangents_from_lengths_sq`).
+
+    Returns:
+        `(ne,)` cotan weights, in `mesh.edges` order.
     """
     flat = cotangents.reshape(-1)
     slots = mesh.edge_faces * 3 + mesh.edge_face_corners
@@ -229,6 +308,12 @@ def edge_cotan_weights(mesh: Mesh) -> Float[Array, " ne"]:
     Equals the circumcentric dual/primal length ratio `|e*| / |e|` (the diagonal of the DEC Hodge star
     on 1-forms) and minus the off-diagonal entry of libigl's `cotmatrix`. Reference: Pinkall &
     Polthier 1993.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(ne,)` cotan weights, in `mesh.edges` order and the vertices' dtype; negative across obtuse angles.
     """
     return edge_cotan_weights_from_corner_cotangents(mesh, corner_cotangents(mesh))
 
@@ -239,6 +324,13 @@ def scatter_corners_to_vertices(mesh: Mesh, corner_values: Float[Array, "nf 3 *d
     `out_i = sum_{corners (f, k) with F[f, k] = i} corner_values[f, k]`, one `segment_sum`. NumPy
     equivalent for scalars: `np.bincount(F.ravel(), weights=corner_values.ravel(), minlength=nv)`
     (libigl and gpytoolbox have no per-corner sum; libigl's `average_onto_vertices` averages faces).
+
+    Args:
+        mesh: the triangle mesh whose faces map corners to vertices (only its topology is read).
+        corner_values: `(nf, 3, *d)` one value per face corner, in the order of `mesh.faces`.
+
+    Returns:
+        `(nv, *d)` per-vertex sums, in the dtype of `corner_values`.
     """
     flat = corner_values.reshape((-1,) + corner_values.shape[2:])
     return jax.ops.segment_sum(flat, mesh.faces.reshape(-1), num_segments=mesh.n_vertices)
@@ -297,7 +389,16 @@ def corner_dual_areas_from_lengths_sq(
 
 @kernel(static_argnames=("dual",))
 def corner_dual_areas(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, "nf 3"]:
-    """Per-corner dual areas, `(nf, 3)`, from the embedding (see `corner_dual_areas_from_lengths_sq`)."""
+    """Per-corner dual areas, `(nf, 3)`, from the embedding (see `corner_dual_areas_from_lengths_sq`).
+
+    Args:
+        mesh: any triangle mesh.
+        dual: the dual cell, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"`,
+            `"barycentric"` (keyword-only, static).
+
+    Returns:
+        `(nf, 3)` corner dual areas (each row sums to the face area), in the vertices' dtype.
+    """
     return corner_dual_areas_from_lengths_sq(face_edge_lengths_sq(mesh), dual=dual, areas=face_areas(mesh))
 
 
@@ -310,6 +411,14 @@ def vertex_dual_areas(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, " nv
     dual cell; see `corner_dual_areas_from_lengths_sq` for the formulas. Every dual sums to the
     total surface area. Unreferenced vertices get 0. Dividing an integrated quantity (e.g. the angle
     defect) by these areas gives the pointwise one.
+
+    Args:
+        mesh: any triangle mesh.
+        dual: the dual cell, one of `ddgjax.DUAL_CELLS`: `"voronoi"` (default), `"circumcentric"`,
+            `"barycentric"` (keyword-only, static).
+
+    Returns:
+        `(nv,)` dual areas, in the vertices' dtype; 0 at unreferenced vertices.
 
     Equivalents: `igl.massmatrix(V, F, igl.MASSMATRIX_TYPE_VORONOI / _BARYCENTRIC).diagonal()`;
     gpytoolbox `massmatrix(V, F, type="voronoi" / "barycentric").diagonal()`. Each dual is the
@@ -327,11 +436,19 @@ def vertex_normals(mesh: Mesh, *, weighting: str = "area", normalize: bool = Tru
 
     `n_i = sum_{f ni i} w_f N_f`, with `w_f` the face area `A_f` (`"area"`, default), the corner angle
     of `f` at `i` (`"angle"`, Thuermer & Wuethrich 1998) or 1 (`"uniform"`); then normalised to unit
-    length unless `normalize=False`. `weighting=` (keyword-only, like `normalize`) weights the faces
-    around a vertex; it is not the `weights=` of ddgjax's vocabulary (uniform or cotan edge weights
-    of a graph Laplacian, `ddgjax.LAPLACIAN_WEIGHTS`), and takes libigl's names for its choices. The unnormalised area-weighted sum `sum_f A_f N_f` is the
+    length unless `normalize=False`. The unnormalised area-weighted sum `sum_f A_f N_f` is the
     gradient of the enclosed volume times 3 (see `enclosed_volume`). Zero-area faces contribute
     nothing; vertices with a zero sum (unreferenced, or cancelling normals) get the zero vector.
+
+    Args:
+        mesh: any triangle mesh.
+        weighting: how the faces around a vertex are weighted: `"area"` (default), `"angle"` or
+            `"uniform"` (keyword-only, static; libigl's names). Not the `weights=` of ddgjax's
+            vocabulary (uniform or cotan edge weights of a graph Laplacian, `ddgjax.LAPLACIAN_WEIGHTS`).
+        normalize: whether to scale each sum to unit length (default `True`; keyword-only, static).
+
+    Returns:
+        `(nv, 3)` vertex normals, in the vertices' dtype; zero rows where the sum vanishes.
 
     Equivalent: `igl.per_vertex_normals(V, F, igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA / _ANGLE /
     _UNIFORM)` (libigl returns NaN or an arbitrary vector where the sum vanishes).
@@ -360,6 +477,13 @@ def edge_dihedral_angles(mesh: Mesh) -> Float[Array, " ne"]:
     follows the first face's orientation and means nothing. Computed with `atan2` of area-weighted
     normals, so it is exact near 0 and pi, with finite gradients on degenerate faces (value 0 there).
 
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(ne,)` signed dihedral angles in radians, in `(-pi, pi]`, in `mesh.edges` order; 0 on boundary
+        and non-manifold edges.
+
     Reference: K. Crane, "Discrete Differential Geometry: An Applied Introduction" (2020), "Discrete
     curvature II" (dihedral angle). libigl has no signed per-edge equivalent.
     """
@@ -387,6 +511,12 @@ def total_area(mesh: Mesh) -> Float[Array, ""]:
     `grad_{p_i} A = 1/2 sum_j (cot a_ij + cot b_ij)(p_i - p_j)`. Reference: Pinkall & Polthier,
     "Computing discrete minimal surfaces and their conjugates" (1993). libigl:
     `igl.doublearea(V, F).sum() / 2`; gpytoolbox: `doublearea(V, F).sum() / 2`.
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        The total area, a scalar `()` in the vertices' dtype.
     """
     return jnp.sum(face_areas(mesh))
 
@@ -404,6 +534,12 @@ def enclosed_volume(mesh: Mesh) -> Float[Array, ""]:
     is `1/3 sum_{f ni i} A_f N_f`, i.e. `vertex_normals(mesh, weighting="area", normalize=False) / 3`.
     Reference: the divergence theorem, `V = 1/3 int_S p . N dA`. libigl: `igl.volume` of the
     tetrahedra to the origin, summed; trimesh: `Trimesh.volume`.
+
+    Args:
+        mesh: a closed, consistently oriented triangle mesh (any mesh is accepted; see above).
+
+    Returns:
+        The signed enclosed volume, a scalar `()` in the vertices' dtype; positive for outward-oriented faces.
     """
     corners = face_vertex_positions(mesh) - jax.lax.stop_gradient(jnp.mean(mesh.vertices, axis=0))
     return jnp.sum(corners[:, 0] * jnp.cross(corners[:, 1], corners[:, 2])) / 6.0
@@ -415,6 +551,12 @@ def face_hat_gradients(mesh: Mesh) -> Float[Array, "nf 3 3"]:
 
     `e_k` is the edge vector opposite corner `k` (face order), `N` the unit normal, `A` the area;
     zero on zero-area faces. Reference: Crane 2020, section 6.2 ("the gradient of a hat function").
+
+    Args:
+        mesh: any triangle mesh.
+
+    Returns:
+        `(nf, 3, 3)` gradients, indexed `[face, corner, coordinate]` (units of 1 / length); zero on zero-area faces.
     """
     area_vectors = face_area_vectors(mesh)
     double_areas = 2.0 * safe_norm(area_vectors)

@@ -15,7 +15,7 @@ from ._topology import MeshTopology, build_topology, validate_simplices
 
 
 class Mesh(Domain):
-    """A triangle mesh: vertex positions (differentiable) and connectivity (fixed).
+    r"""A triangle mesh: vertex positions (differentiable) and connectivity (fixed).
 
     Make one with `Mesh.from_arrays(vertices, faces)` or `ddgjax.io.load_mesh(path)`. Every geometric
     quantity in ddgjax is a pure JAX function of `mesh.vertices`; differentiate with
@@ -28,6 +28,9 @@ class Mesh(Domain):
     (the same mesh loaded twice reuses the program) and moving vertices never recompiles. The storage
     plans of operators (sparsity patterns, slot maps) are not part of a mesh: the package that uses
     one builds it on first use and caches it per connectivity (e.g. `ddgjax.laplacian`).
+
+    A mesh is the pair $(V, F)$: positions $V \in \mathbb{R}^{n_v \times 3}$ (`vertices`) and triangles
+    $F \in \mathbb{N}^{n_f \times 3}$ (`faces`, three vertex indices per row).
 
     Attributes:
         vertices: `(nv, 3)` positions, in the caller's float dtype.
@@ -167,7 +170,18 @@ def _assemble(**fields) -> Mesh:
 
 
 def require_mesh(name: str, value) -> Mesh:
-    """`value` if it is a `Mesh`, else `DDGInputError` naming the argument and saying how to make one."""
+    """`value` if it is a `Mesh`, else `DDGInputError` naming the argument and saying how to make one.
+
+    Args:
+        name: the argument's name, for the error message.
+        value: the object to check.
+
+    Returns:
+        `value` itself, when it is a `Mesh`.
+
+    Raises:
+        DDGInputError: `value` is not a `Mesh`.
+    """
     return Mesh.require(name, value)
 
 

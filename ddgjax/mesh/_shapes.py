@@ -19,13 +19,13 @@ from ._mesh import Mesh
 
 
 def icosphere(subdivisions=3, *, radius=1.0, dtype=None) -> Mesh:
-    """Geodesic sphere: an icosahedron, each face split into four `subdivisions` times.
+    r"""Geodesic sphere: an icosahedron, each face split into four `subdivisions` times.
 
-    Every new vertex is the midpoint of an edge pushed onto the sphere `|p| = radius` (centred at
+    Every new vertex is the midpoint of an edge pushed onto the sphere $\lVert p \rVert = r$, $r$ = `radius` (centred at
     the origin), so all vertices lie on it. Returns a closed genus-0 `Mesh` with outward normals:
     vertices `(10 * 4**s + 2, 3)`, faces `(20 * 4**s, 3)`, `30 * 4**s` edges; every angle is
-    between about 54 and 72 degrees (no obtuse faces). Area tends to `4 pi radius^2` at rate `O(h^2)`
-    (`h ~ 2^-s`). `radius` and `dtype` (float dtype of the vertices, default JAX's default float)
+    between about 54 and 72 degrees (no obtuse faces). Area tends to $4\pi r^2$ at rate $O(h^2)$
+    ($h \sim 2^{-s}$). `radius` and `dtype` (float dtype of the vertices, default JAX's default float)
     are keyword-only.
     Reference: J. R. Baumgardner, P. O. Frederickson, "Icosahedral discretization of the two-sphere"
     (SIAM J. Numer. Anal., 1985). Equivalents: `trimesh.creation.icosphere(s, radius)` (the same faces up to
@@ -122,16 +122,24 @@ def _split_faces(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
 
 
 def uv_sphere(n_lat=16, n_lon=32, *, radius=1.0, dtype=None) -> Mesh:
-    """Latitude-longitude sphere: two poles and `n_lat - 1` rings of `n_lon` vertices.
+    r"""Latitude-longitude sphere: two poles and `n_lat - 1` rings of `n_lon` vertices.
 
     Returns a closed genus-0 `Mesh` with outward normals: vertices `((n_lat - 1) n_lon + 2, 3)`,
     faces `(2 (n_lat - 1) n_lon, 3)` (fans at the poles, each band of quads split along one
     diagonal). Vertex 0 is the north pole `(0, 0, radius)`, the last the south pole; ring `k` (polar
     angle `pi k / n_lat`) holds vertices `1 + (k - 1) n_lon ...`. Faces near the poles are thin
-    (angles `O(1 / n_lon)`). Area tends to `4 pi radius^2` at rate `O(h^2)`. `radius` and `dtype`
-    (as for `icosphere`) are keyword-only.
+    (angles `O(1 / n_lon)`). Area tends to $4\pi r^2$ ($r$ = `radius`) at rate $O(h^2)$.
     Equivalent: `trimesh.creation.uv_sphere(radius, count=...)`, a latitude-longitude sphere with
     its own counts convention, numbering and pole treatment.
+
+    Args:
+        n_lat: the number of latitude bands, `>= 2` (default 16): `n_lat - 1` rings between the poles.
+        n_lon: the number of vertices per ring, `>= 3` (default 32).
+        radius: the sphere's radius, `> 0` (keyword-only).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `Mesh` with vertices `((n_lat - 1) n_lon + 2, 3)` and faces `(2 (n_lat - 1) n_lon, 3)`.
     """
     check_count("n_lat", n_lat, 2)
     check_count("n_lon", n_lon, 3)
@@ -159,10 +167,23 @@ def torus(*, major_radius=1.0, minor_radius=0.25, n_major=48, n_minor=16, dtype=
     `v = 2 pi j / n_minor`; `n_major n_minor` vertices, twice as many faces: vertices
     `(n_major n_minor, 3)`, faces `(2 n_major n_minor, 3)`, closed, genus 1, outward normals. Area
     tends to `4 pi^2 R r` at rate `O(h^2)`. Exact curvatures (for tests): Gaussian
-    `cos v / (r (R + r cos v))`, mean `(R + 2 r cos v) / (2 r (R + r cos v))`. Every argument is
-    keyword-only; `dtype` as for `icosphere`. (`../shared/meshes/torus.obj` is the same surface with
-    the axis along y.) Equivalents: `gpytoolbox.torus(n_major, n_minor, R=R, r=r)`,
-    `trimesh.creation.torus(R, r, n_major, n_minor)` (other vertex numberings).
+    `cos v / (r (R + r cos v))`, mean `(R + 2 r cos v) / (2 r (R + r cos v))`.
+    (`../shared/meshes/torus.obj` is the same surface with the axis along y.) Equivalents:
+    `gpytoolbox.torus(n_major, n_minor, R=R, r=r)`, `trimesh.creation.torus(R, r, n_major, n_minor)`
+    (other vertex numberings).
+
+    Args:
+        major_radius: `R`, the radius of the tube's centre circle, `> 0` (keyword-only).
+        minor_radius: `r`, the tube's radius, `0 < r < R` (keyword-only).
+        n_major: the number of vertices around the z axis (`u`), `>= 3` (keyword-only).
+        n_minor: the number of vertices around the tube (`v`), `>= 3` (keyword-only).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `Mesh` with vertices `(n_major n_minor, 3)` and faces `(2 n_major n_minor, 3)`.
+
+    Raises:
+        DDGInputError: a count or size out of range, or `minor_radius >= major_radius`.
     """
     check_count("n_major", n_major, 3)
     check_count("n_minor", n_minor, 3)
@@ -192,8 +213,17 @@ def cylinder(n_around=32, n_along=8, *, radius=1.0, height=2.0, dtype=None) -> M
     / n_along)` with `u = 2 pi j / n_around`: `(n_along + 1) n_around` vertices, `2 n_along n_around`
     faces, outward normals; two boundary loops, the rings `i = 0` (vertices `0 .. n_around - 1`) and
     `i = n_along` (the last `n_around`). Genus 0 with two holes: Euler characteristic 0. The start of a
-    minimal surface between two rings (the catenoid). `radius`, `height` and `dtype` (as for
-    `icosphere`) are keyword-only. Equivalent: `trimesh.creation.cylinder` (capped).
+    minimal surface between two rings (the catenoid). Equivalent: `trimesh.creation.cylinder` (capped).
+
+    Args:
+        n_around: the number of vertices per ring, `>= 3` (default 32).
+        n_along: the number of bands between the `n_along + 1` rings, `>= 1` (default 8).
+        radius: the cylinder's radius, `> 0` (keyword-only).
+        height: its length along z, `> 0` (keyword-only).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `Mesh` with vertices `((n_along + 1) n_around, 3)` and faces `(2 n_along n_around, 3)`.
     """
     check_count("n_around", n_around, 3)
     check_count("n_along", n_along, 1)
@@ -210,16 +240,23 @@ def cylinder(n_around=32, n_along=8, *, radius=1.0, height=2.0, dtype=None) -> M
 
 
 def disk(n_rings=8, *, radius=1.0, dtype=None) -> Mesh:
-    """Flat disk in z = 0: a centre vertex and `n_rings` concentric rings, ring `k` with `6k` vertices.
+    r"""Flat disk in z = 0: a centre vertex and `n_rings` concentric rings, ring `k` with `6k` vertices.
 
     Ring `k` has radius `k radius / n_rings`; consecutive rings are zipped together by angle, giving nearly
     equilateral triangles (exactly the hexagonal lattice for `n_rings = 1`), faces counterclockwise
     seen from `+z`. Vertices `(3 n (n + 1) + 1, 3)` (vertex 0 the centre), faces `(6 n^2, 3)`, one
     boundary loop (the outer ring, counterclockwise). Area (of the inscribed polygon) tends to
-    `pi radius^2` at rate `O(h^2)`, `h = radius / n_rings`. `radius` and `dtype` (as for
-    `icosphere`) are keyword-only. libigl / gpytoolbox
+    $\pi r^2$ ($r$ = `radius`) at rate $O(h^2)$, $h = r / n_\mathrm{rings}$. libigl / gpytoolbox
     build disks by triangulating a boundary polygon instead (`gpytoolbox.regular_circle_polyline` +
     `gpytoolbox.triangulate`), with other interior points.
+
+    Args:
+        n_rings: the number `n` of rings around the centre, `>= 1` (default 8).
+        radius: the disk's radius, `> 0` (keyword-only).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `Mesh` with vertices `(3 n (n + 1) + 1, 3)` and faces `(6 n^2, 3)`.
     """
     check_count("n_rings", n_rings, 1)
     check_positive("radius", radius)
@@ -261,9 +298,17 @@ def grid(nx=8, ny=8, *, size=1.0, dtype=None) -> Mesh:
     every cell is cut along its diagonal from `(i, j)` to `(i+1, j+1)`, faces counterclockwise seen
     from `+z`. Vertices `((nx+1)(ny+1), 3)`, faces `(2 nx ny, 3)`, one boundary loop; right
     triangles, so the circumcentric cotan weight of every diagonal is 0. Area exactly `size^2`.
-    `size` and `dtype` (as for `icosphere`) are keyword-only. Equivalents: `igl.triangulated_grid(nx + 1, ny + 1)` and
-    `gpytoolbox.regular_square_mesh(nx + 1, ny + 1)` (on `[0, 1]^2` and `[-1, 1]^2`, 2-D vertices,
-    possibly other diagonals).
+    Equivalents: `igl.triangulated_grid(nx + 1, ny + 1)` and `gpytoolbox.regular_square_mesh(nx + 1, ny + 1)`
+    (on `[0, 1]^2` and `[-1, 1]^2`, 2-D vertices, possibly other diagonals).
+
+    Args:
+        nx: the number of cells along x, `>= 1` (default 8).
+        ny: the number of cells along y, `>= 1` (default 8).
+        size: the side length of the square, `> 0` (keyword-only).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `Mesh` with vertices `((nx + 1)(ny + 1), 3)` and faces `(2 nx ny, 3)`.
     """
     check_count("nx", nx, 1)
     check_count("ny", ny, 1)

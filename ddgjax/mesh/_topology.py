@@ -251,7 +251,16 @@ def index_mask(indices: np.ndarray, size: int) -> np.ndarray:
 
 
 def build_topology(faces: np.ndarray, n_vertices: int) -> MeshTopology:
-    """All connectivity of a validated `(nf, 3)` face array (see module docstring for conventions)."""
+    """All connectivity of a validated `(nf, 3)` face array (see module docstring for conventions).
+
+    Args:
+        faces: `(nf, 3)` host int32 vertex indices, already validated (`validate_simplices`: in range, no
+            repeated vertex in a face).
+        n_vertices: the number of vertices, unreferenced ones included.
+
+    Returns:
+        `MeshTopology` of the faces (NumPy arrays, host data).
+    """
     nf = faces.shape[0]
     n_corners = 3 * nf
     # Half-edge opposite corner k runs faces[:, k+1] -> faces[:, k+2].

@@ -1,4 +1,4 @@
-"""Shape optimisation: objectives, the Large Steps reparametrisation, and a compiled optimisation driver.
+r"""Shape optimisation: objectives, the Large Steps reparametrisation, and a compiled optimisation driver.
 
 - Objectives (plain scalar JAX functions, differentiable in the vertex positions): `willmore_energy`;
   `chamfer_distance` (SciPy k-d trees on a CPU, chunked brute force on accelerators) with `sample_points` (area-uniform samples of a mesh; with
@@ -9,7 +9,7 @@
   `enclosed_volume` (`ddgjax.mesh`), `dirichlet_energy`, `poisson_energy` (`ddgjax.pde`),
   `conformal_energy_matrix` and `map_distortion` (a map's energies, `ddgjax.param`), `eigenpairs`
   (`ddgjax.spectral`), `heat_distance` (`ddgjax.geodesics`).
-- `large_steps(mesh, *, lambda_, weights=, fixed_vertices=, solver=)`: `U = (I + lambda L) V` and
+- `large_steps(mesh, *, lambda_, weights=, fixed_vertices=, solver=)`: $U = (I + \lambda L) V$ and
   back with one kept factorisation (Nicolet, Jacobson, Jakob 2021); `adam_uniform` /
   `scale_by_adam_uniform`, the paper's optimiser, as optax transformations.
 - `minimize_energy(energy, x0, *, mesh=, fixed_vertices=, fixed_values=)`: Newton's method with the
@@ -19,6 +19,8 @@
   progress bar (`ddgjax._loop`, the loop the flows share), fixed vertices, a volume constraint or
   bounds; `ShapeOptimizationResult` with `.value` (the final vertices), `.result` and
   `first_failure_step` (docs/conventions.md, Outcomes).
+
+$$W = \sum_i H_i^2 A_i, \qquad U = (I + \lambda L) V$$
 """
 
 from ..geodesics import heat_distance as heat_distance

@@ -232,7 +232,9 @@ def minimize_shape(
     progress: bool = False,
     throw: bool = True,
 ) -> ShapeOptimizationResult:
-    """Minimise `loss(mesh)` over the vertex positions `V` `(nv, 3)` by a first-order optimiser (module docstring).
+    r"""Minimise `loss(mesh)` over the vertex positions `V` `(nv, 3)` by a first-order optimiser (module docstring).
+
+    $$U \leftarrow U + \mathrm{update}\bigl(\nabla_U \, \mathrm{loss}(V(U))\bigr), \qquad U = (I + \lambda L)\, V$$
 
     Each step is `U <- U + optimizer_update(grad_U loss(mesh(V(U))))` with `U` the parameters: the
     Large Steps parameters `U = (I + lambda L) V` (Nicolet et al. 2021) or the free vertices, then

@@ -151,7 +151,9 @@ def minimize_energy(
     solver: str = "auto",
     throw: bool = True,
 ) -> optx.Solution:
-    """Minimise `energy(x, *args)` over vertex values `x` by Newton's method with the sparse Hessian (module docstring).
+    r"""Minimise `energy(x, *args)` over vertex values `x` by Newton's method with the sparse Hessian (module docstring).
+
+    $$\nabla^2 E(x_k)\, \Delta x = -\nabla E(x_k), \qquad x_{k+1} = x_k + \Delta x$$
 
     Example (a harmonic function with boundary values: one factorisation, the direct solve's answer):
 

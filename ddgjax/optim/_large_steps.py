@@ -100,7 +100,9 @@ def large_steps(
     fixed_vertices: Int[ArrayLike, " k"] | Sequence[int] | None = None,
     solver: str = "auto",
 ) -> LargeSteps:
-    """Build the Large Steps map `U = (I + lambda L) V` of `mesh` and factorise it once (module docstring).
+    r"""Build the Large Steps map `U = (I + lambda L) V` of `mesh` and factorise it once (module docstring).
+
+    $$U = (I + \lambda L)\, V, \qquad V = (I + \lambda L)^{-1} U$$
 
     `L` is a PSD Laplacian of the initial mesh (`L 1 = 0`; the cotan one is `-igl.cotmatrix`), so
     `I + lambda L` is symmetric positive definite; with fixed vertices, its free block `A_ff` is
@@ -202,6 +204,14 @@ def scale_by_adam_uniform(b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8)
     Plain Adam divides entrywise by `sqrt(v_hat)`, which rescales each vertex's step separately and
     so undoes a smooth parametrisation; the maximum keeps the direction of `m_hat` (Nicolet et al.
     2021, section 5: `AdamUniform`). Chain with a learning rate (`adam_uniform`).
+
+    Args:
+        b1: the decay rate of the first moment (default 0.9, Adam's).
+        b2: the decay rate of the second moment (default 0.999).
+        eps: added to the denominator `sqrt(max v_hat)` (default `1e-8`).
+
+    Returns:
+        An `optax.GradientTransformation` whose state is a `ScaleByAdamUniformState`.
     """
 
     def init(params):
@@ -228,5 +238,13 @@ def adam_uniform(
     learning_rate: float | optax.Schedule, *, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8
 ) -> optax.GradientTransformation:
     """The Large Steps paper's optimiser (`AdamUniform`) as an optax transformation: `scale_by_adam_uniform`
-    then `-learning_rate` (a float or an optax schedule). Use with `large_steps` parameters or any others."""
+    then `-learning_rate`. Use with `large_steps` parameters or any others.
+
+    Args:
+        learning_rate: the step size, a float or an optax schedule.
+        b1, b2, eps: as for `scale_by_adam_uniform` (keyword-only; defaults 0.9, 0.999, `1e-8`).
+
+    Returns:
+        An `optax.GradientTransformation`.
+    """
     return optax.chain(scale_by_adam_uniform(b1=b1, b2=b2, eps=eps), optax.scale_by_learning_rate(learning_rate))

@@ -32,13 +32,15 @@ from ..mesh import (
 
 
 def willmore_energy(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, ""]:
-    """Discrete Willmore energy `W = sum_i H_i^2 A_i = sum_i |(H N A)_i|^2 / A_i`, a scalar `()`.
+    r"""Discrete Willmore energy `W = sum_i H_i^2 A_i = sum_i |(H N A)_i|^2 / A_i`, a scalar `()`.
+
+    $$W = \sum_i H_i^2 A_i = \sum_i \frac{\lVert (H N A)_i \rVert^2}{A_i}, \qquad (H N A)_i = \tfrac12 (L V)_i$$
 
     `(H N A)_i = (L V)_i / 2` is the integrated mean curvature normal
     (`ddgjax.mesh.vertex_mean_curvature_normals`), `A_i` the dual area of vertex `i`
     (`vertex_dual_areas(mesh, dual=dual)`, the mixed Voronoi area by default), so that
-    `H_i = |L V|_i / (2 A_i)` is the pointwise mean curvature. Smooth counterpart: `W = int H^2 dA`
-    with `H = (k1 + k2) / 2`: `4 pi` for every round sphere (its minimum over closed surfaces) and
+    `H_i = |L V|_i / (2 A_i)` is the pointwise mean curvature. Smooth counterpart: $W = \int H^2 \, dA$
+    with $H = (\kappa_1 + \kappa_2) / 2$: $4\pi$ for every round sphere (its minimum over closed surfaces) and
     `pi^2 c^2 / sqrt(c^2 - 1)` for the torus of revolution with radii ratio `c = R / r` (`2 pi^2`,
     the Clifford torus, at `c = sqrt 2`); it is invariant under scaling. Some authors integrate
     `(k1 - k2)^2 / 4 = H^2 - K` instead, which differs by `2 pi chi` on a closed surface (Gauss-Bonnet).
@@ -50,6 +52,13 @@ def willmore_energy(mesh: Mesh, *, dual: str = "voronoi") -> Float[Array, ""]:
     Reference: M. Meyer, M. Desbrun, P. Schroeder, A. Barr, "Discrete differential-geometry operators
     for triangulated 2-manifolds" (2003); T. J. Willmore, "Note on embedded surfaces" (1965).
     libigl: `HN = -Minv @ igl.cotmatrix(V, F) @ V / 2`, then `sum(|HN|^2 * Mdiag)`.
+
+    Args:
+        mesh: the mesh.
+        dual: the dual cell of the areas `A_i`, `ddgjax.DUAL_CELLS` (keyword-only; default `"voronoi"`).
+
+    Returns:
+        Scalar float array `()`, `>= 0`.
     """
     mesh = require_mesh("mesh", mesh)
     normals = vertex_mean_curvature_normals(mesh)
@@ -64,6 +73,13 @@ def edge_length_loss(mesh: Mesh, *, target_length: float | Float[Array, ""] = 0.
     With the default `t = 0` it is the mean squared edge length (computed without a square root),
     which pulls a mesh together evenly. PyTorch3D: `mesh_edge_loss(meshes, target_length)` (one mesh;
     the same formula).
+
+    Args:
+        mesh: the mesh.
+        target_length: the target edge length `t` (keyword-only; default 0), a number or a scalar array.
+
+    Returns:
+        Scalar float array `()`, `>= 0`.
     """
     mesh = require_mesh("mesh", mesh)
     heads = take_rows(mesh.vertices, mesh.edges[:, 1])
@@ -81,6 +97,12 @@ def normal_consistency_loss(mesh: Mesh) -> Float[Array, ""]:
     give finite gradients). Boundary and non-manifold edges are left out of the mean. 0 for a flat
     sheet; `1 - cos` is about `theta^2 / 2` on smooth meshes. PyTorch3D: `mesh_normal_consistency`
     (which also counts every pair of faces at a non-manifold edge).
+
+    Args:
+        mesh: the mesh.
+
+    Returns:
+        Scalar float array `()` in `[0, 2]` (0 without interior edges).
     """
     mesh = require_mesh("mesh", mesh)
     interior = _interior_edge_mask(mesh)
@@ -92,12 +114,10 @@ def laplacian_smoothing_loss(mesh: Mesh, *, weights: str = "uniform") -> Float[A
     """Mean over vertices of `|v_i - sum_j w_ij v_j / sum_j w_ij|`, a scalar `()`: PyTorch3D's `mesh_laplacian_smoothing`.
 
     The distance from each vertex to the weighted mean of its neighbours (not squared, as in
-    PyTorch3D). `weights` is one of `ddgjax.LAPLACIAN_WEIGHTS`: `"uniform"`: `w_ij = 1` (the graph
-    Laplacian; topology only); `"cotan"`: the cotan weights `w_ij = (cot a_ij + cot b_ij) / 2`
-    (`ddgjax.mesh.edge_cotan_weights`), held fixed under differentiation as PyTorch3D does (its
+    PyTorch3D). The cotan weights are held fixed under differentiation as PyTorch3D does (its
     weights come from a `no_grad` block): the gradient then moves vertices towards the weighted
-    mean, whereas the gradient through the weights would reward collapsing triangles. Then the term
-    is `|(L V)_i| / L_ii` with `L` the cotan Laplacian (the factor 1/2 PyTorch3D omits cancels).
+    mean, whereas the gradient through the weights would reward collapsing triangles. With them the
+    term is `|(L V)_i| / L_ii` with `L` the cotan Laplacian (the factor 1/2 PyTorch3D omits cancels).
     A vertex without neighbours (or a zero weight sum) contributes 0. PyTorch3D's `method=` is this
     `weights=` (`"uniform"`, `"cot"`); its third method,
     `"cotcurv"`, is the pointwise mean curvature normal: use `willmore_energy` or
@@ -105,6 +125,14 @@ def laplacian_smoothing_loss(mesh: Mesh, *, weights: str = "uniform") -> Float[A
 
     Reference: PyTorch3D `pytorch3d.loss.mesh_laplacian_smoothing`; Nealen et al., "Laplacian mesh
     optimization" (2006).
+
+    Args:
+        mesh: the mesh.
+        weights: `ddgjax.LAPLACIAN_WEIGHTS` (keyword-only): `"uniform"` (default; `w_ij = 1`, the graph
+            Laplacian: topology only) or `"cotan"` (`w_ij = (cot a_ij + cot b_ij) / 2`, `ddgjax.mesh.edge_cotan_weights`).
+
+    Returns:
+        Scalar float array `()`.
     """
     mesh = require_mesh("mesh", mesh)
     check_weights(weights)

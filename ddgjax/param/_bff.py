@@ -90,9 +90,11 @@ def boundary_first_flattening(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv 2"] | Solution:
-    """Conformal flattening of a disk-topology mesh by Boundary First Flattening (module docstring), `(nv, 2)`.
+    r"""Conformal flattening of a disk-topology mesh by Boundary First Flattening (module docstring), `(nv, 2)`.
 
-    Give at most one of `boundary_scale`, `boundary_angles`, `shape`; with none, `u = 0` on the
+    $$\tilde\ell_{ij} = e^{(u_i + u_j)/2} \, \ell_{ij}, \qquad \tilde\kappa = \kappa - \partial u / \partial n$$
+
+    Give at most one of `boundary_scale`, `boundary_angles`, `shape`; with none, $u = 0$ on the
     boundary: the conformal map that keeps boundary lengths (least area distortion along the
     boundary; on a hemisphere, the stereographic projection).
 

@@ -103,11 +103,19 @@ def conformal_plan(mesh: Mesh, disk: DiskTopology) -> ConformalPlan:
 
 
 def conformal_energy_matrix(mesh: Mesh) -> SparseMatrix:
-    """The conformal energy `E_C = E_D - A = 1/2 x^T Q x` as the `(2 nv, 2 nv)` `SparseMatrix` `Q` (module docstring).
+    r"""The conformal energy `E_C = E_D - A = 1/2 x^T Q x` as the `(2 nv, 2 nv)` `SparseMatrix` `Q` (module docstring).
+
+    $$E_C(u, v) = E_D(u, v) - \mathcal{A}(u, v) = \tfrac12 x^\top Q x, \qquad E_D = \tfrac12 (u^\top L u + v^\top L v), \qquad x = [u; v]$$
 
     `x = [u; v]` stacks the two coordinates of the map (`uv[:, 0]` then `uv[:, 1]`). Symmetric
     positive semidefinite (flagged so), differentiable in the vertex positions. For a disk-topology
     mesh only (`DDGInputError` otherwise). libigl: the second output of `igl.lscm(V, F, b, bc)`.
+
+    Args:
+        mesh: a mesh of disk topology.
+
+    Returns:
+        `(2 nv, 2 nv)` symmetric positive semidefinite `SparseMatrix` `Q`, in the vertex dtype.
     """
     disk = require_disk(mesh, "conformal_energy_matrix")
     return _conformal_matrix(mesh, conformal_plan(mesh, disk), on_device(disk, "loop"))
@@ -139,9 +147,13 @@ def lscm(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv 2"] | Solution:
-    """Least squares conformal map of a disk-topology mesh (Levy et al. 2002; module docstring), `(nv, 2)`.
+    r"""Least squares conformal map of a disk-topology mesh (Levy et al. 2002; module docstring), `(nv, 2)`.
 
-    Minimises `E_C = E_D - A` over all maps with `uv[fixed_vertices] = fixed_values` (the pins); the
+    Minimises
+
+    $$E_C(u, v) = E_D(u, v) - \mathcal{A}(u, v) = \tfrac12 x^\top Q x, \qquad E_D = \tfrac12 (u^\top L u + v^\top L v), \qquad x = [u; v]$$
+
+    ($\mathcal{A}$ the signed area of the image) over all maps with `uv[fixed_vertices] = fixed_values` (the pins); the
     boundary is free.
 
     Args:
@@ -241,9 +253,9 @@ def spectral_conformal_map(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv 2"] | Solution:
-    """Spectral conformal parametrisation without pins (Mullen et al. 2008; module docstring), `(nv, 2)`.
+    r"""Spectral conformal parametrisation without pins (Mullen et al. 2008; module docstring), `(nv, 2)`.
 
-    The smallest non-trivial generalised eigenvector of `Q x = lambda B_eps x` (conformal energy
+    The smallest non-trivial generalised eigenvector of $Q x = \lambda B_\varepsilon x$ (conformal energy
     against the regularised boundary mass), centred, rotated so that `loop[0]` lies on the `+x` axis
     and scaled to the surface's area.
 

@@ -50,7 +50,9 @@ from ._disk import (
 def tutte_embedding(
     mesh: Mesh, *, weights: str = "uniform", shape="circle", solver: str = "auto", throw: bool = True
 ) -> Float[Array, "nv 2"] | Solution:
-    """Tutte's barycentric embedding of a disk-topology mesh into the plane (module docstring), `(nv, 2)`.
+    r"""Tutte's barycentric embedding of a disk-topology mesh into the plane (module docstring), `(nv, 2)`.
+
+    $$\sum_{j \sim i} w_{ij} (x_i - x_j) = 0 \quad \text{at every interior vertex } i, \qquad x_b \text{ given on the boundary}$$
 
     Args:
         mesh: a topological disk (else `DDGInputError`, `ddgjax.param._disk`).
@@ -98,9 +100,13 @@ def tutte_embedding(
 
 
 def harmonic_map(mesh: Mesh, *, shape="circle", solver: str = "auto", throw: bool = True) -> Float[Array, "nv 2"] | Solution:
-    """The harmonic map of a disk with a fixed boundary: `tutte_embedding(mesh, weights="cotan", ...)`, `(nv, 2)`.
+    r"""The harmonic map of a disk with a fixed boundary: `tutte_embedding(mesh, weights="cotan", ...)`, `(nv, 2)`.
 
-    Minimises the Dirichlet energy `1/2 (u^T L u + v^T L v)` (`L` the PSD cotan Laplacian) with the
+    Minimises the Dirichlet energy
+
+    $$E_D(u, v) = \tfrac12 (u^\top L u + v^\top L v)$$
+
+    (`L` the PSD cotan Laplacian) with the
     boundary loop on `shape` (`"circle"` by default, arc-length spacing; see `tutte_embedding`, whose
     `solver` and `throw` it takes too). Can flip triangles on meshes with obtuse angles
     (`map_distortion`). libigl: `igl.harmonic(V, F, bnd, igl.map_vertices_to_circle(V, bnd), 1)`.

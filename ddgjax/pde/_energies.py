@@ -57,7 +57,9 @@ from ..sparse import SparseMatrix
 def screened_dirichlet_energy(
     mesh: Mesh, phi: Float[ArrayLike, "nv *k"], screening: Real[ArrayLike, ""], *, mass: str = "voronoi"
 ) -> Float[Array, ""]:
-    """Screened Dirichlet energy `1/2 phi^T (L + s M) phi = 1/2 int |grad phi|^2 + s/2 int phi^2`.
+    r"""Screened Dirichlet energy `1/2 phi^T (L + s M) phi = 1/2 int |grad phi|^2 + s/2 int phi^2`.
+
+    $$E(\phi) = \tfrac12 \phi^\top (L + s M) \phi = \tfrac12 \int \lVert \nabla\phi \rVert^2 \, dA + \frac{s}{2} \int \phi^2 \, dA$$
 
     Its gradient in `phi` is `(L + s M) phi`, the operator of the screened Poisson equation
     `(L + s M) phi = M f` and of a backward-Euler heat step `(M + t L) u = M u_0` (`s = 1 / t`).
@@ -88,7 +90,9 @@ def screened_dirichlet_energy(
 def poisson_energy(
     mesh: Mesh, phi: Float[ArrayLike, "nv *k"], rho: Float[ArrayLike, "nv *k"], *, mass: str = "voronoi"
 ) -> Float[Array, ""]:
-    """Poisson energy `1/2 phi^T L phi + phi^T M rho`, minimised by the solution of `Delta phi = rho`.
+    r"""Poisson energy `1/2 phi^T L phi + phi^T M rho`, minimised by the solution of `Delta phi = rho`.
+
+    $$E(\phi) = \tfrac12 \phi^\top L \phi + \phi^\top M \rho, \qquad \nabla_\phi E = L\phi + M\rho = -M(\Delta\phi - \rho)$$
 
     Its gradient in `phi` is `L phi + M rho = -M (Delta phi - rho)` with `Delta = -M^{-1} L`: it
     vanishes exactly where `L phi = -M rho`, the report's Poisson problem `Delta phi = rho` (the sign is

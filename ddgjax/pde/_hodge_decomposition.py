@@ -113,7 +113,9 @@ def hodge_decomposition(
     solver: str = "auto",
     throw: bool = True,
 ) -> HodgeDecomposition | Solution:
-    """Split a 1-form into its exact, co-exact and harmonic parts, `omega = d alpha + delta beta + gamma`.
+    r"""Split a 1-form into its exact, co-exact and harmonic parts, `omega = d alpha + delta beta + gamma`.
+
+    $$\omega = d\alpha + \delta\beta + \gamma, \qquad d_0^\top \star_1 d_0 \, \alpha = d_0^\top \star_1 \omega, \qquad \delta\beta = \star_1^{-1} d_1^\top \tilde\beta$$
 
     `d alpha` minimises `|omega - d alpha|_{*1}` over 0-forms (`d0^T *1 d0 alpha = d0^T *1 omega`),
     `delta beta = *1^{-1} d1^T beta~` solves `d1 delta beta = d1 omega`, and `gamma` is the rest,

@@ -147,11 +147,13 @@ def mean_curvature_flow(
     progress: bool = False,
     throw: bool = True,
 ) -> MeanCurvatureFlowResult:
-    """Backward Euler mean curvature flow: `steps` solves of `(M + tau L) f' = M f` (module docstring).
+    r"""Backward Euler mean curvature flow: `steps` solves of `(M + tau L) f' = M f` (module docstring).
+
+    $$(M + \tau L) f' = M f$$
 
     `L` is the PSD cotan Laplacian (`L == -igl.cotmatrix`), `M` the mass matrix `mass`, `f` the
     `(nv, 3)` positions; `tau` is smooth time (a round sphere of radius `r` follows
-    `r(t)^2 = r_0^2 - 4 t`). The whole run is one compiled `lax.scan` (over saved chunks of
+    $r(t)^2 = r_0^2 - 4 t$). The whole run is one compiled `lax.scan` (over saved chunks of
     `save_every` steps), differentiable in the initial positions and `tau` (reverse mode):
 
         jax.grad(lambda V: loss(mean_curvature_flow(mesh.with_vertices(V), tau=1e-3, steps=10).value))(V)

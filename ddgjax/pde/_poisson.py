@@ -73,10 +73,12 @@ def solve_poisson(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv *k"] | Solution:
-    """Solve the Poisson problem `Delta phi = rho`, i.e. `L phi = -M rho`, with Dirichlet values where given.
+    r"""Solve the Poisson problem `Delta phi = rho`, i.e. `L phi = -M rho`, with Dirichlet values where given.
+
+    $$\Delta\phi = \rho, \quad \Delta = -M^{-1} L, \qquad\text{i.e.}\qquad L\phi = -M\rho$$
 
     `L` is the PSD cotan Laplacian and `M` the mass matrix (`Delta = -M^{-1} L`, docs/conventions.md),
-    so `phi` minimises `poisson_energy(mesh, phi, rho) = 1/2 phi^T L phi + phi^T M rho` with
+    so $\phi$ minimises `poisson_energy(mesh, phi, rho)` $= \tfrac12 \phi^\top L \phi + \phi^\top M \rho$ with
     `phi = fixed_values` on `fixed_vertices` and natural Neumann conditions elsewhere. Components
     without a fixed vertex get a compatible `rho` and a zero-mean `phi` (module docstring).
     Differentiable in `rho`, `fixed_values` and the vertex positions; one compiled program per
@@ -193,9 +195,13 @@ def harmonic_interpolation(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, "nv *k"] | Solution:
-    """The report's smoothest interpolant: `L phi = 0` away from `fixed_vertices`, `phi = fixed_values` on them.
+    r"""The report's smoothest interpolant: `L phi = 0` away from `fixed_vertices`, `phi = fixed_values` on them.
 
-    The minimiser of the Dirichlet energy `1/2 int |grad phi|^2 = 1/2 phi^T L phi` with the given
+    The minimiser of the Dirichlet energy
+
+    $$\tfrac12 \int \lVert \nabla\phi \rVert^2 \, dA = \tfrac12 \phi^\top L \phi$$
+
+    with the given
     values (natural Neumann boundary elsewhere): `solve_poisson` with `rho = 0`. A component without
     a fixed vertex gets 0 (its harmonic functions are the constants; the zero-mean one).
     Differentiable in `fixed_values` and the vertex positions.

@@ -16,22 +16,44 @@ from ._view import OBLIQUE_VIEW, TOP_VIEW, UP_ROTATIONS, is_flat, view_rotation
 
 
 def polyline(points: ArrayLike, closed: bool = True) -> np.ndarray:
-    """The `(n, 2)` points as a NumPy array to draw, with the first repeated at the end when `closed`."""
+    """The `(n, 2)` points as a NumPy array to draw, with the first repeated at the end when `closed`.
+
+    Args:
+        points: `(n, 2)` points in order.
+        closed: whether to repeat the first point at the end (default `True`).
+
+    Returns:
+        `(n + 1, 2)` NumPy array when `closed`, else the `(n, 2)` points.
+    """
     points = np.asarray(points)
     return np.vstack([points, points[:1]]) if closed else points
 
 
 def plot_curve(axes, curve: Curve, **style) -> list:
-    """Draw `curve` as a polygon (with its closing edge when closed); `style` goes to `axes.plot`.
+    """Draw `curve` as a polygon (with its closing edge when closed).
 
-    Returns the matplotlib lines.
+    Args:
+        axes: matplotlib `Axes` to draw on.
+        curve: the curve.
+        **style: keyword arguments of `axes.plot` (colour, line width, ...).
+
+    Returns:
+        The list of matplotlib `Line2D` objects `axes.plot` made.
     """
     curve = require_curve("curve", curve)
     return axes.plot(*polyline(curve.points, curve.closed).T, **style)
 
 
 def snapshot_indices(result: CurveFlowResult, snapshots: int) -> np.ndarray:
-    """Indices of `snapshots` saved states of `result` spread evenly from the first to the last."""
+    """Indices of `snapshots` saved states of `result` spread evenly from the first to the last.
+
+    Args:
+        result: a curve flow's result, with its saved states `result.points`.
+        snapshots: how many states to pick (fewer come back when the flow saved fewer).
+
+    Returns:
+        Sorted, distinct integer NumPy array of indices into `result.points`.
+    """
     return np.unique(np.linspace(0, result.points.shape[0] - 1, snapshots).round().astype(int))
 
 
@@ -40,8 +62,16 @@ def plot_flow(axes, result: CurveFlowResult, *, snapshots: int = 6, color="tab:b
 
     The initial curve is drawn black and dashed; later snapshots in `color`, lighter early and full
     colour (thicker, with its vertices as dots) at the end; the centroid's path runs from `+` to `x`.
-    The axes get an equal aspect ratio. Returns the indices of the saved states drawn
-    (`snapshot_indices(result, snapshots)`).
+    The axes get an equal aspect ratio.
+
+    Args:
+        axes: matplotlib `Axes` to draw on.
+        result: a curve flow's result (`curve_shortening_flow`), with its saved states and centroids.
+        snapshots: how many saved states to draw, spread from the first to the last (keyword-only; default 6).
+        color: a matplotlib colour of the later snapshots (keyword-only; default `"tab:blue"`).
+
+    Returns:
+        The indices of the saved states drawn, `snapshot_indices(result, snapshots)`.
     """
     points = np.asarray(result.points)
     chosen = snapshot_indices(result, snapshots)

@@ -25,6 +25,13 @@ def view_rotation(azimuth: Real, elevation: Real) -> np.ndarray:
 
     The camera turns by `azimuth` degrees about `z`, then looks down by `elevation` degrees; `(0, 90)`
     looks from `+z` with `x` to the right and `y` up, `(0, 0)` from `-y` with `z` up.
+
+    Args:
+        azimuth: the turn about `z`, in degrees.
+        elevation: the angle the camera looks down, in degrees.
+
+    Returns:
+        `(3, 3)` float64 NumPy rotation matrix.
     """
     a, e = np.radians(azimuth), np.radians(elevation)
     about_z = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
@@ -33,7 +40,14 @@ def view_rotation(azimuth: Real, elevation: Real) -> np.ndarray:
 
 
 def is_flat(mesh: Mesh) -> bool:
-    """Whether every vertex of `mesh` lies in one plane `z = const` (to 1e-12 of its extent)."""
+    """Whether every vertex of `mesh` lies in one plane `z = const` (to 1e-12 of its extent).
+
+    Args:
+        mesh: the mesh (concrete vertices: read on the host).
+
+    Returns:
+        A Python `bool`.
+    """
     return points_are_flat(np.asarray(mesh.vertices))
 
 

@@ -1,4 +1,4 @@
-"""Operators on point clouds: the Laplacian of Sharp & Crane 2020, PCA normals, geodesic distance, transport, log map.
+r"""Operators on point clouds: the Laplacian of Sharp & Crane 2020, PCA normals, geodesic distance, transport, log map.
 
 - `point_cloud_triangulation(points, n_neighbors=30)`: the tufted intrinsic Delaunay triangulation of
   the points' local Delaunay triangulations, built once on the host (`PointCloudTriangulation`),
@@ -15,6 +15,11 @@
   oriented along the cloud): the vector heat method with the connection Laplacian of the minimal
   rotations between neighbouring PCA normals, as potpourri3d's `transport_tangent_vector`,
   `compute_log_map`, `get_tangent_frames`.
+
+The Laplacian is the cotan Laplacian of that triangulation, with the pointwise operator
+$\Delta = -M^{-1} L$; the heat method solves with it
+
+$$(M + tL)\, u = \delta, \qquad X = -\frac{\nabla u}{\lVert \nabla u \rVert}, \qquad L\phi = -\nabla \cdot X$$
 """
 
 from ._heat import PointCloudHeatSolver as PointCloudHeatSolver

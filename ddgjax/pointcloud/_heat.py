@@ -183,7 +183,9 @@ def point_cloud_heat_solver(
     solver: str = "auto",
     vector_heat: bool = True,
 ) -> PointCloudHeatSolver:
-    """Factor the heat method's systems for a point cloud once (module docstring); query with `.distance(sources)`.
+    r"""Factor the heat method's systems for a point cloud once (module docstring); query with `.distance(sources)`.
+
+    $$(M + tL)\, u = \delta, \qquad X = -\frac{\nabla u}{\lVert \nabla u \rVert}, \qquad L\phi = -\nabla \cdot X$$
 
     Args:
         points: `(n, 3)` finite positions.
@@ -257,7 +259,9 @@ def point_cloud_heat_distance(
     solver: str = "auto",
     throw: bool = True,
 ) -> Float[Array, " n"] | Solution:
-    """Geodesic distance on a point cloud from source points, by the heat method on its tufted triangulation, `(n,)`.
+    r"""Geodesic distance on a point cloud from source points, by the heat method on its tufted triangulation, `(n,)`.
+
+    $$(M + tL)\, u = \delta, \qquad X = -\frac{\nabla u}{\lVert \nabla u \rVert}, \qquad L\phi = -\nabla \cdot X$$
 
     `point_cloud_heat_solver(points, ...).distance(sources)` (module docstring): first-order
     accurate in the point spacing; `>= 0` with minimum 0 on each component holding a source, `inf`

@@ -43,16 +43,16 @@ def point_cloud_laplacian(
     mollify_factor: float = 1e-5,
     triangulation: PointCloudTriangulation | None = None,
 ) -> LaplacianAndMass:
-    """The point-cloud Laplacian `L` and lumped mass `M` of Sharp & Crane 2020 (robust_laplacian's construction).
+    r"""The point-cloud Laplacian `L` and lumped mass `M` of Sharp & Crane 2020 (robust_laplacian's construction).
 
     `L` is the cotan Laplacian and `M` the barycentric lumped mass (a third of each triangle's area to
     each corner) of the mollified tufted intrinsic Delaunay triangulation of the points' local
     Delaunay triangulations (`point_cloud_triangulation`), both divided by 6 (the cover holds each
     local triangle twice, and each about three times), as robust_laplacian. `L` is positive
-    semidefinite with non-negative edge weights (the maximum principle), `L 1 = 0`; robust_laplacian's
+    semidefinite with non-negative edge weights (the maximum principle), $L\mathbf{1} = 0$; robust_laplacian's
     `L` has the same sign, so `L == robust_laplacian.point_cloud_laplacian(P)[0]` where the local
     triangulations agree (they differ only on nearly co-circular neighbourhoods: `_triangulation`).
-    `-M^{-1} L` approximates the Laplace-Beltrami operator of the sampled surface. Differentiable in
+    $\Delta = -M^{-1} L$ approximates the Laplace-Beltrami operator of the sampled surface. Differentiable in
     `points` for the fixed neighbourhood graph and flips: build `triangulation` once, then call this
     inside `jit` / `grad` with it.
 

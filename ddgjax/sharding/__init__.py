@@ -1,4 +1,4 @@
-"""Scale-out across devices and hosts with JAX's own sharding (`jax.sharding`, `jax.shard_map`, `jax.distributed`).
+r"""Scale-out across devices and hosts with JAX's own sharding (`jax.sharding`, `jax.shard_map`, `jax.distributed`).
 
 Two ways to use several devices, each a thin layer over JAX (no scheduler of ddgjax's own):
 
@@ -13,7 +13,7 @@ Two ways to use several devices, each a thin layer over JAX (no scheduler of ddg
   the conjugate gradient keeps every vector sharded (`ddgjax.sharding._partition`, `_operator`).
   Its preconditioner is Jacobi or algebraic multigrid (`sharded_cg(..., preconditioner="amg")`,
   `partition_amg`, `sharded_amg_hierarchy`, `ShardedAMG`): the finest level sharded like the vectors
-  (its smoother the sharded product, `P_0^T r` summed across devices), the coarse levels' V-cycle
+  (its smoother the sharded product, $P_0^\top r$ summed across devices), the coarse levels' V-cycle
   replicated on every device (`ddgjax.sharding._amg`).
 
 Several hosts: call `jax.distributed.initialize()` on every process before anything else;

@@ -59,7 +59,14 @@ def batch_sharding(*, n_devices: int | None = None, devices: Sequence[jax.Device
 
 
 def replicated(sharding: NamedSharding) -> NamedSharding:
-    """A copy of every array on every device of `sharding`'s device mesh (`P()`), e.g. for per-batch constants."""
+    """A copy of every array on every device of `sharding`'s device mesh (`P()`), e.g. for per-batch constants.
+
+    Args:
+        sharding: a sharding whose device mesh to use (e.g. `batch_sharding()`).
+
+    Returns:
+        A `NamedSharding` on `sharding.mesh` with the empty partition spec `P()`.
+    """
     return NamedSharding(sharding.mesh, P())
 
 

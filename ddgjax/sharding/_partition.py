@@ -143,6 +143,13 @@ def locality_order(mesh: Mesh, *, ordering: str = "rcm") -> np.ndarray:
     Contiguous blocks of this order are what `partition_vertices` gives each device; a small
     bandwidth means small halos. Host-side, once per connectivity. SciPy:
     `scipy.sparse.csgraph.reverse_cuthill_mckee(adjacency, symmetric_mode=True)`.
+
+    Args:
+        mesh: the mesh (its edges are read on the host).
+        ordering: `"rcm"` (default, reverse Cuthill-McKee) or `"none"` (the mesh's own order) (keyword-only).
+
+    Returns:
+        `(nv,)` integer NumPy array, a permutation of the vertex indices: position `p` holds the old index.
     """
     mesh = require_mesh("mesh", mesh)
     check_choice("ordering", ordering, ORDERS)

@@ -1,4 +1,4 @@
-"""Sparse linear algebra: differentiable solves of symmetric (Hermitian) positive definite systems.
+r"""Sparse linear algebra: differentiable solves of symmetric (Hermitian) positive definite systems.
 
 - `linear_solve(A, b, *, solver=...)` and `factorize(A, *, solver=...).solve(b)`: symmetric (or
   complex Hermitian) positive definite `SparseMatrix` systems, by a host sparse Cholesky (CHOLMOD
@@ -15,6 +15,11 @@
 
 The geometry problems that solve with these (Poisson, harmonic interpolation, Hodge decomposition,
 mean curvature flow) are in `ddgjax.pde`; there too `solver=` names the backend.
+
+Each solve returns $x = A^{-1} b$ for $A = A^\top \succ 0$ (or $A = A^{H} \succ 0$), and its derivative
+is implicit: for a loss $f(x)$, with $\bar x = \partial f / \partial x$ (real case),
+
+$$\bar b = A^{-1} \bar x, \qquad \bar A = -\bar b\, x^\top.$$
 """
 
 from ._amg import AMGHierarchy as AMGHierarchy

@@ -288,8 +288,13 @@ def amg_v_cycle(hierarchy: AMGHierarchy, r: Float[ArrayLike, " n *k"], /) -> Flo
 def amg_preconditioner(hierarchy: AMGHierarchy) -> lx.FunctionLinearOperator:
     """`r -> amg_v_cycle(hierarchy, r)` as a lineax operator tagged symmetric positive semidefinite.
 
-    For `lineax.CG(...)` with `options={"preconditioner": amg_preconditioner(hierarchy)}`, on `(n,)`
-    vectors of the hierarchy's dtype.
+    For `lineax.CG(...)` with `options={"preconditioner": amg_preconditioner(hierarchy)}`.
+
+    Args:
+        hierarchy: the `AMGHierarchy` of an `(n, n)` matrix (`amg_hierarchy`).
+
+    Returns:
+        A `lineax.FunctionLinearOperator` on `(n,)` vectors of the hierarchy's dtype.
     """
     structure = jax.ShapeDtypeStruct((hierarchy.shape[0],), hierarchy.coarse_inverse.dtype)
     return lx.FunctionLinearOperator(

@@ -192,7 +192,9 @@ def linear_solve(
     residual_tolerance: float = 1e-6,
     throw: bool = True,
 ) -> LinearSolution:
-    """Solve `A x = b` for a symmetric (or complex Hermitian) positive definite `SparseMatrix` `A`, differentiably.
+    r"""Solve `A x = b` for a symmetric (or complex Hermitian) positive definite `SparseMatrix` `A`, differentiably.
+
+    $$A x = b, \qquad A = A^{H} \succ 0$$
 
     Args:
         A: `(n, n)` `SparseMatrix` flagged symmetric, or complex and flagged Hermitian (e.g.
@@ -332,7 +334,9 @@ def factorize(
     max_steps: int | None = None,
     residual_tolerance: float = 1e-6,
 ) -> Factorization:
-    """Factor a symmetric (Hermitian) positive definite `SparseMatrix` once, for `Factorization.solve(b)` many times.
+    r"""Factor a symmetric (Hermitian) positive definite `SparseMatrix` once, for `Factorization.solve(b)` many times.
+
+    $$A = R^{H} R \quad \text{(the Cholesky backend)}, \qquad x = R^{-1} R^{-H} b \quad \text{per right-hand side}$$
 
     Options as in `linear_solve`. Works inside `jit` (the factor is made when the program runs; an
     AMG preconditioner needs concrete values, or a hierarchy passed in) and differentiably (through

@@ -1,4 +1,4 @@
-"""Fixed-pattern sparse matrices: the positions built once on the host, the values JAX arrays.
+r"""Fixed-pattern sparse matrices: the positions built once on the host, the values JAX arrays.
 
 - `SparsityPattern`: the stored positions of a matrix and the storage order of its values (ELL, CSR
   or COO layout), built once per connectivity with NumPy. `SparseMatrix`: values on a pattern, with
@@ -8,7 +8,7 @@
   `>= 0`, so that `M + nonnegative(t) * L` keeps its positive semidefinite flag under `jit`.
 - `dirichlet_plan` / `dirichlet_blocks`: the free-free and free-fixed blocks of a Dirichlet problem
   (libigl's `min_quad_with_fixed` split), one fixed gather each.
-- `congruence_plan` / `congruence`: `D^T diag(w) D` on a given pattern (the DEC Laplacians).
+- `congruence_plan` / `congruence`: $D^\top \operatorname{diag}(w) D$ on a given pattern (the DEC Laplacians).
 - `gather_sum`: a fixed gather-and-sum whose reverse pass is a gather too (assembly without scatters).
 
 Inside `jit` only values move: no sort, search or deduplication; every operation is differentiable in

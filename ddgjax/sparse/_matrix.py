@@ -387,8 +387,15 @@ class SparseMatrix(eqx.Module):
 def diagonal_matrix(values: Float[ArrayLike, " n"], *, positive_semidefinite: bool = False) -> SparseMatrix:
     """Diagonal `SparseMatrix` (Hodge stars, lumped mass): `A @ x = values * x`, `A.T = A`.
 
-    Flagged symmetric; `positive_semidefinite=True` is the caller's promise that `values >= 0`.
-    SciPy: `scipy.sparse.diags(values)`.
+    Flagged symmetric. SciPy: `scipy.sparse.diags(values)`.
+
+    Args:
+        values: `(n,)` the diagonal.
+        positive_semidefinite: the caller's promise that `values >= 0`, flagged on the result (keyword-only;
+            default `False`).
+
+    Returns:
+        `(n, n)` diagonal `SparseMatrix` in `values`' dtype.
     """
     values = device_array(values)
     if values.ndim != 1:
@@ -403,7 +410,14 @@ def identity(n: int, *, dtype=None) -> SparseMatrix:
 
     So `A + s * identity(n)` is `A + s I` on `A`'s pattern (the diagonal is added onto it) and keeps
     `A`'s PSD flag for a concrete `s >= 0` or `nonnegative(s)`; `A.shifted(s)` is the same without
-    building the diagonal. `dtype`: JAX's default float when `None`. SciPy: `scipy.sparse.identity(n)`.
+    building the diagonal. SciPy: `scipy.sparse.identity(n)`.
+
+    Args:
+        n: the size, `>= 1`.
+        dtype: the element type (keyword-only); `None` (default): JAX's default float.
+
+    Returns:
+        `(n, n)` diagonal `SparseMatrix` of ones.
     """
     n = check_count("n", n, minimum=1)
     return diagonal_matrix(jnp.ones(n, dtype), positive_semidefinite=True)
@@ -414,8 +428,15 @@ def from_scipy(matrix: sp.spmatrix, *, positive_semidefinite: bool = False) -> S
 
     `symmetric` is set when the matrix equals its transpose exactly, and for a complex matrix
     `hermitian` when it equals its conjugate transpose exactly (checked on the host; a real matrix is
-    not flagged `hermitian`, its `symmetric` flag says it). `positive_semidefinite=True` is the
-    caller's promise: it needs a symmetric real matrix or a Hermitian complex one.
+    not flagged `hermitian`, its `symmetric` flag says it).
+
+    Args:
+        matrix: a SciPy sparse matrix or array, any format (read on the host).
+        positive_semidefinite: the caller's promise that the matrix is positive semidefinite, flagged on the
+            result (keyword-only; default `False`); it needs a symmetric real matrix or a Hermitian complex one.
+
+    Returns:
+        `SparseMatrix` of `matrix`'s shape, its values in JAX's canonical dtype of `matrix`'s.
     """
     coo = sp.coo_matrix(matrix)
     pattern, slot = SparsityPattern.from_coo(coo.row, coo.col, coo.shape)

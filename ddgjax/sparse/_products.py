@@ -43,6 +43,9 @@ def congruence_plan(d_cols: np.ndarray, pattern: SparsityPattern) -> CongruenceP
             (e.g. `mesh.topology.edges` for `ddgjax.dec.d0`, whose rows are `[tail, head]`).
         pattern: the `(n, n)` target pattern, with concrete arrays.
 
+    Returns:
+        The `CongruencePlan` to pass to `congruence`.
+
     Raises `DDGInputError` when the pattern lacks a position the product needs.
     """
     d_cols = np.asarray(d_cols)

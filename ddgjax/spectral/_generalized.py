@@ -118,7 +118,9 @@ def smallest_eigenpairs(
     hermitian_real_form: bool = False,
     throw: bool = True,
 ) -> Eigenpairs | Solution:
-    """The `k` smallest eigenpairs of `L phi = lambda M phi` (module docstring), differentiable in both matrices' values.
+    r"""The `k` smallest eigenpairs of `L phi = lambda M phi` (module docstring), differentiable in both matrices' values.
+
+    $$L\phi = \lambda M\phi, \qquad \frac{\partial\lambda_i}{\partial L} = \phi_i \phi_i^\top, \quad \frac{\partial\lambda_i}{\partial M} = -\lambda_i \phi_i \phi_i^\top$$
 
     Args:
         L: `(n, n)` symmetric positive semidefinite `SparseMatrix`.

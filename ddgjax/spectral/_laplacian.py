@@ -57,7 +57,9 @@ def eigenpairs(
     preconditioner: str | AMGHierarchy | None = None,
     throw: bool = True,
 ) -> Eigenpairs | Solution:
-    """The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
+    r"""The `k` smallest eigenpairs of the mesh's Laplacian, `L phi = lambda M phi` (module docstring).
+
+    $$L\phi = \lambda M\phi, \qquad \phi_i^\top M \phi_j = \delta_{ij}$$
 
     Args:
         mesh: a triangle mesh, or a `ddgjax.volume.TetMesh` (a solid: `ddgjax.volume.cotan_laplacian`
@@ -130,13 +132,30 @@ def eigenpairs(
 def spectral_coefficients(
     vectors: Float[ArrayLike, "nv k"], M: SparseMatrix, f: Float[ArrayLike, "nv *m"], /
 ) -> Float[Array, "k *m"]:
-    """`c = Phi^T M f`: the coordinates of `f` in an M-orthonormal eigenbasis (the discrete `int f phi_i dA`)."""
+    """`c = Phi^T M f`: the coordinates of `f` in an M-orthonormal eigenbasis (the discrete `int f phi_i dA`).
+
+    Args:
+        vectors: `(nv, k)` the M-orthonormal basis `Phi` (`eigenpairs(mesh, k).vectors`).
+        M: `(nv, nv)` the mass matrix the basis is orthonormal in.
+        f: `(nv,)` or `(nv, m)` functions at the vertices.
+
+    Returns:
+        `(k,)` or `(k, m)` float array of coefficients `c`.
+    """
     vectors, f = _basis("vectors", vectors, M), _functions("f", f, M)
     return vectors.T @ (M @ f)
 
 
 def spectral_reconstruction(vectors: Float[ArrayLike, "nv k"], coefficients: Float[ArrayLike, "k *m"]) -> Float[Array, "nv *m"]:
-    """`Phi c`: the function with coordinates `c` (its projection onto the basis, for `c = Phi^T M f`)."""
+    """`Phi c`: the function with coordinates `c` (its projection onto the basis, for `c = Phi^T M f`).
+
+    Args:
+        vectors: `(nv, k)` the basis `Phi`.
+        coefficients: `(k,)` or `(k, m)` coordinates `c` (`spectral_coefficients`).
+
+    Returns:
+        `(nv,)` or `(nv, m)` float array `Phi c`.
+    """
     vectors, coefficients = jnp.asarray(vectors), jnp.asarray(coefficients)
     if vectors.ndim != 2 or coefficients.ndim not in (1, 2) or coefficients.shape[0] != vectors.shape[1]:
         raise DDGInputError(
@@ -158,11 +177,21 @@ def spectral_filter(
     """`Phi g(Lambda) Phi^T M f`: `f` filtered by the frequency response `g` (a JAX function of the eigenvalues).
 
     E.g. `response=lambda lam: lam < 50` keeps the low frequencies (smoothing), `jnp.exp(-t lam)` is
-    heat diffusion for time `t` restricted to the basis. `values, vectors` as `eigenpairs` returns
-    them (`spectral_filter(*pairs, M, f, response=...)`), `M` the mass matrix they are orthonormal in,
-    `f` of shape `(nv,)` or `(nv, m)`; the result has `f`'s shape. Differentiable in every argument.
+    heat diffusion for time `t` restricted to the basis: `spectral_filter(*eigenpairs(mesh, k), M, f,
+    response=...)`. Differentiable in every argument.
 
     Reference: B. Vallet, B. Levy, "Spectral geometry processing with manifold harmonics" (2008), section 4.
+
+    Args:
+        values: `(k,)` eigenvalues, as `eigenpairs` returns them.
+        vectors: `(nv, k)` their eigenvectors, M-orthonormal.
+        M: `(nv, nv)` the mass matrix they are orthonormal in.
+        f: `(nv,)` or `(nv, m)` functions at the vertices.
+        response: the frequency response `g`, a JAX function of the `(k,)` eigenvalues returning `(k,)` gains
+            (booleans too; keyword-only).
+
+    Returns:
+        Float array of `f`'s shape, `Phi g(Lambda) Phi^T M f`.
     """
     values = jnp.asarray(values)
     coefficients = spectral_coefficients(vectors, M, f)
@@ -173,12 +202,12 @@ def spectral_filter(
 def heat_kernel(
     values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], sources: Int[ArrayLike, " n_sources"], *, t: float
 ) -> Float[Array, "nv n_sources"]:
-    """The heat kernel `k_t(x, y)` of the surface, truncated to an eigenbasis, from each source vertex `y` to every vertex `x`.
+    r"""The heat kernel `k_t(x, y)` of the surface, truncated to an eigenbasis, from each source vertex `y` to every vertex `x`.
 
-    The solution of the heat equation `du/dt = Delta u` (`Delta = -M^{-1} L`, the pointwise
+    The solution of the heat equation $\partial u / \partial t = \Delta u$ ($\Delta = -M^{-1} L$, the pointwise
     Laplace-Beltrami operator) started from a unit of heat concentrated at `y` is
 
-        k_t(x, y) = sum_i exp(-lambda_i t) phi_i(x) phi_i(y),
+    $$k_t(x, y) = \sum_i e^{-\lambda_i t} \phi_i(x) \phi_i(y),$$
 
     summed over the eigenpairs of `L phi = lambda M phi` (`eigenpairs`), whose eigenvectors are
     M-orthonormal, so `k_t` is a density per unit area: `1^T M k_t(., y) = 1` on a closed
@@ -214,7 +243,9 @@ def heat_kernel(
 def heat_kernel_signature(
     values: Float[ArrayLike, " k"], vectors: Float[ArrayLike, "nv k"], *, t: Float[ArrayLike, " *n_times"] | float
 ) -> Float[Array, "nv n_times"]:
-    """The heat kernel signature `HKS(x, t) = k_t(x, x) = sum_i exp(-lambda_i t) phi_i(x)^2` (Sun et al. 2009), `(nv, n_times)`.
+    r"""The heat kernel signature `HKS(x, t) = k_t(x, x) = sum_i exp(-lambda_i t) phi_i(x)^2` (Sun et al. 2009), `(nv, n_times)`.
+
+    $$\mathrm{HKS}(x, t) = k_t(x, x) = \sum_i e^{-\lambda_i t} \phi_i(x)^2$$
 
     `t` is one time or a `(n_times,)` array of times (keyword-only); one column per time.
     Invariant within clusters of equal eigenvalues (a sum of `phi_i^2` over an eigenspace does not
@@ -258,15 +289,25 @@ def wave_kernel_signature(
 
     Default grid (pyFM's `auto_WKS`): with `l_0 <= l_1 <= ... <= l_{k-1}` the sorted `|lambda|`, `e_min = log l_1` (the
     second smallest), `e_max = log l_{k-1}`, `sigma = 7 (e_max - e_min) / n_energies` and
-    `n_energies` log-energies evenly spaced on `[e_min + 2 sigma, e_max - 2 sigma]`. Pass `energies`
-    (log-energies) and/or `sigma` to choose them; a missing `sigma` is the default one for
-    `len(energies)` energies. Eigenvalues are expected ascending (as `eigenpairs` returns them).
+    `n_energies` log-energies evenly spaced on `[e_min + 2 sigma, e_max - 2 sigma]`. Eigenvalues are
+    expected ascending (as `eigenpairs` returns them).
 
     A plain JAX function of the eigenpairs: under `jit`, differentiable (away from repeated
     eigenvalues it is smooth; like the HKS it is invariant within eigenspaces).
     pyFM: `pyFM.signatures.auto_WKS(values, vectors, n_energies)` (and `WKS(..., scaled=True)`).
     Reference: M. Aubry, U. Schlickewei & D. Cremers, "The wave kernel signature: a quantum mechanical
     approach to shape analysis" (2011).
+
+    Args:
+        values: `(k,)` eigenvalues, ascending (`eigenpairs(mesh, k).values`).
+        vectors: `(nv, k)` their M-orthonormal eigenvectors.
+        energies: `(n_energies,)` log-energies `e` (keyword-only); `None` (default): the default grid.
+        n_energies: the size of the default grid (keyword-only; default 100; ignored when `energies` is given).
+        sigma: the band's width in log-eigenvalue (keyword-only); `None` (default): the default one for
+            `len(energies)` energies.
+
+    Returns:
+        `(nv, n_energies)` float array, one column per energy.
     """
     values, vectors = jnp.asarray(values), jnp.asarray(vectors)
     if energies is None:

@@ -1,4 +1,4 @@
-"""Tetrahedral meshes: the volume counterpart of `ddgjax.mesh`, `ddgjax.laplacian` and `ddgjax.dec`.
+r"""Tetrahedral meshes: the volume counterpart of `ddgjax.mesh`, `ddgjax.laplacian` and `ddgjax.dec`.
 
 - `TetMesh`, `TetTopology`: vertex positions (differentiable) plus tetrahedral connectivity built
   once in NumPy; `tet_mesh.boundary_mesh()` is the boundary surface as a `ddgjax.Mesh`.
@@ -14,9 +14,11 @@
 - The problem layer takes a `TetMesh` where it takes a `Mesh`: `ddgjax.pde.solve_poisson`,
   `harmonic_interpolation`, `ddgjax.spectral.eigenpairs`, `ddgjax.geodesics.heat_distance`.
 
+$$L_{ij} = -\frac16 \sum_{t \ni ij} \ell_{kl} \cot\theta_{kl}, \qquad L_{ij} = \int \langle \nabla\phi_i, \nabla\phi_j \rangle \, dV, \qquad M_{ij} \approx \int \phi_i \phi_j \, dV$$
+
 Conventions (docs/conventions.md): local edge order `TET_EDGES` (libigl's), triangle `k` of a tet
 opposite vertex `k` and oriented outward (`TET_TRIANGLES`), tets positively oriented
-(`det(b - a, c - a, d - a) > 0`), global edges low -> high, global triangles sorted triples.
+($\det(b - a, c - a, d - a) > 0$), global edges low -> high, global triangles sorted triples.
 """
 
 from ._check import TetMeshReport as TetMeshReport

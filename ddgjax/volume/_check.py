@@ -103,13 +103,19 @@ def check_tet_mesh(tet_mesh: TetMesh, *, volume_tol: float | None = None) -> Tet
     Topology comes from `tet_mesh.topology` (built once); the boundary surface's manifold check is
     `check_mesh`'s, on `tet_mesh.boundary_mesh()`. Degenerate and inverted tets are measured on the
     host in float64 at the current positions with the scale-invariant test `|vol| <= volume_tol *
-    l_max^3` (`l_max` the tet's longest edge; a regular tet has `vol / l^3 = 0.118`);
-    `volume_tol=None` (default) is `default_volume_tol` of the vertices' dtype (`1e-12` in float64).
-    Duplicate tets are found by sorting each tet's vertex indices. A host-side function (not for use
-    under jit).
+    l_max^3` (`l_max` the tet's longest edge; a regular tet has `vol / l^3 = 0.118`). Duplicate tets
+    are found by sorting each tet's vertex indices. A host-side function (not for use under jit).
 
     Equivalents: libigl `boundary_facets`, `volume` (signed volumes) and TetGen's `-d` (no report
     object); gpytoolbox has none.
+
+    Args:
+        tet_mesh: the tet mesh, with its topology (not under `jit`) and concrete vertices.
+        volume_tol: the relative tolerance of the degenerate-tet test, `>= 0` (keyword-only); `None`
+            (default): `default_volume_tol` of the vertices' dtype (`1e-12` in float64).
+
+    Returns:
+        A `TetMeshReport` of counts and NumPy index arrays.
     """
     topology = require_tet_mesh("tet_mesh", tet_mesh).topology
     if topology is None:

@@ -159,6 +159,12 @@ def d0(tet_mesh: TetMesh) -> SparseMatrix:
     Values `-1, +1` in the vertex dtype. The same matrix as `ddgjax.dec.d0` on a surface's edges.
     Reference: Crane et al., *Digital Geometry Processing with Discrete Exterior Calculus* (2013),
     section 3.6 (the signed incidence matrices). libigl: the edges of `igl.edges(T)` (no `d0`).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(ne, nv)` `SparseMatrix`.
     """
     return exterior_derivative(tet_mesh, 0)
 
@@ -168,6 +174,12 @@ def d1(tet_mesh: TetMesh) -> SparseMatrix:
 
     `(d1 a)_f = a_ij + a_jk - a_ik` (edges low -> high; `TRIANGLE_EDGE_SIGNS`). `d1 @ d0 == 0` exactly.
     Reference: Crane et al. (2013), section 3.6; Desbrun et al., *Discrete Exterior Calculus* (2005).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(ntri, ne)` `SparseMatrix` with entries `-1, +1`.
     """
     return exterior_derivative(tet_mesh, 1)
 
@@ -178,6 +190,12 @@ def d2(tet_mesh: TetMesh) -> SparseMatrix:
     `s_tk = tet_triangle_signs[t, k]`, +1 where the outward orientation of the tet's triangle `k` is
     the global one. `d2 @ d1 == 0` exactly. Reference: Desbrun et al., *Discrete Exterior Calculus*
     (2005), section 3 (the coboundary of a simplicial 3-complex).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt, ntri)` `SparseMatrix` with entries `-1, +1`.
     """
     return exterior_derivative(tet_mesh, 2)
 
@@ -213,14 +231,21 @@ def _triangle_star(tet_mesh: TetMesh, incidence: TetIncidence, *, dual: str) -> 
 def hodge_star_entries(tet_mesh: TetMesh, *, degree: int, dual: str = "voronoi", inverse: bool = False) -> Float[Array, " n"]:
     """Diagonal of the Hodge star `*_degree` of a tet mesh (or of its inverse), as a vector.
 
-    `degree` 0..3 (keyword-only): vertex dual volumes `(nv,)`, dual face area over edge length
-    `(ne,)`, dual edge length over triangle area `(ntri,)`, `1 / volume` `(nt,)` (module docstring).
-    `dual` (`TET_DUALS`): `"voronoi"` (default), `"circumcentric"`, `"barycentric"`; `*3` does not
-    depend on it, and `"voronoi"` differs from `"circumcentric"` in `*0` only. Zero entries invert
-    to zero. Differentiable in the vertex positions. The surface counterpart is
+    Zero entries invert to zero. Differentiable in the vertex positions. The surface counterpart is
     `ddgjax.dec.hodge_star_entries`. Reference: Desbrun, Hirani, Leok, Marsden, *Discrete Exterior
     Calculus* (2005), section 4; libigl has no tet Hodge stars (its `massmatrix` is `*0`, `-cotmatrix`
     is `d0^T *1 d0`).
+
+    Args:
+        tet_mesh: the tet mesh.
+        degree: 0..3 (keyword-only): vertex dual volumes, dual face area over edge length, dual edge
+            length over triangle area, `1 / volume` (module docstring).
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (`TET_DUALS`; keyword-only); `*3` does
+            not depend on it, and `"voronoi"` differs from `"circumcentric"` in `*0` only.
+        inverse: `True` for the entries of the inverse star (keyword-only; default `False`).
+
+    Returns:
+        Float array of shape `(nv,)`, `(ne,)`, `(ntri,)` or `(nt,)` for `degree` 0, 1, 2 or 3.
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     check_choice("dual", dual, TET_DUALS)
@@ -241,8 +266,15 @@ def hodge0(tet_mesh: TetMesh, *, dual: str = "voronoi", inverse: bool = False) -
     """Hodge star on 0-forms, diagonal `(nv, nv)`: the vertex dual volumes (`vertex_dual_volumes`).
 
     `"voronoi"` (default) is libigl's Voronoi mass matrix (`mass_matrix(tet_mesh)`), `"barycentric"`
-    its barycentric one; `"circumcentric"` entries can be negative. `inverse=True`: `*0^{-1}`, zero
-    entries staying zero.
+    its barycentric one; `"circumcentric"` entries can be negative.
+
+    Args:
+        tet_mesh: the tet mesh.
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (`TET_DUALS`; keyword-only).
+        inverse: `True` for `*0^{-1}`, zero entries staying zero (keyword-only; default `False`).
+
+    Returns:
+        `(nv, nv)` diagonal `SparseMatrix`.
     """
     return diagonal_matrix(hodge_star_entries(tet_mesh, degree=0, dual=dual, inverse=inverse))
 
@@ -252,7 +284,15 @@ def hodge1(tet_mesh: TetMesh, *, dual: str = "voronoi", inverse: bool = False) -
 
     Voronoi (default) and circumcentric: the summed cotan weight `sum_t l_kl cot(theta_kl) / 6` of
     each edge, so `d0^T *1 d0 == cotan_laplacian` (`== -igl.cotmatrix(V, T)`); barycentric: through
-    the face and tet centroids (module docstring). `inverse=True`: `*1^{-1}`, zero entries staying zero.
+    the face and tet centroids (module docstring).
+
+    Args:
+        tet_mesh: the tet mesh.
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (`TET_DUALS`; keyword-only).
+        inverse: `True` for `*1^{-1}`, zero entries staying zero (keyword-only; default `False`).
+
+    Returns:
+        `(ne, ne)` diagonal `SparseMatrix`.
     """
     return diagonal_matrix(hodge_star_entries(tet_mesh, degree=1, dual=dual, inverse=inverse))
 
@@ -261,8 +301,15 @@ def hodge2(tet_mesh: TetMesh, *, dual: str = "voronoi", inverse: bool = False) -
     """Hodge star on 2-forms, diagonal `(ntri, ntri)`: dual edge length over triangle area.
 
     Voronoi (default) and circumcentric: signed circumcentre-to-circumcentre distances; barycentric:
-    centroid distances (module docstring). `inverse=True`: `*2^{-1}`, zero entries staying zero.
-    Reference: Desbrun et al., *Discrete Exterior Calculus* (2005), section 4.
+    centroid distances (module docstring). Reference: Desbrun et al., *Discrete Exterior Calculus* (2005), section 4.
+
+    Args:
+        tet_mesh: the tet mesh.
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (`TET_DUALS`; keyword-only).
+        inverse: `True` for `*2^{-1}`, zero entries staying zero (keyword-only; default `False`).
+
+    Returns:
+        `(ntri, ntri)` diagonal `SparseMatrix`.
     """
     return diagonal_matrix(hodge_star_entries(tet_mesh, degree=2, dual=dual, inverse=inverse))
 
@@ -271,5 +318,12 @@ def hodge3(tet_mesh: TetMesh, *, inverse: bool = False) -> SparseMatrix:
     """Hodge star on 3-forms, diagonal `(nt, nt)`: `1 / volume` (a tet's dual is a point); `inverse=True` the volumes.
 
     Zero-volume tets get 0 (pseudo-inverse). Reference: Desbrun et al., *Discrete Exterior Calculus* (2005).
+
+    Args:
+        tet_mesh: the tet mesh.
+        inverse: `True` for `*3^{-1}`, the tet volumes (keyword-only; default `False`).
+
+    Returns:
+        `(nt, nt)` diagonal `SparseMatrix`.
     """
     return diagonal_matrix(hodge_star_entries(tet_mesh, degree=3, inverse=inverse))

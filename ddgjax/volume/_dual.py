@@ -117,9 +117,16 @@ def tet_edge_dual_volumes_from_lengths_sq(
     `x_ij = V / 2 (beta_k gamma_k[l] + beta_l gamma_l[k])` (module docstring, `dual` picks the
     centres); the dual volume of local vertex `i` in the tet is `sum_{j != i} x_ij`
     (`tet_vertex_dual_volumes_from_lengths_sq`), the four summing to `V`. Edges in the local order
-    `TET_EDGES`. `volumes` default to the lengths' own (`tet_volumes_from_lengths_sq`). Reference:
-    Desbrun et al., *Discrete Exterior Calculus* (2005) (circumcentric dual); libigl `voronoi_mass`
-    (the snapped centres of `"voronoi"`).
+    `TET_EDGES`. Reference: Desbrun et al., *Discrete Exterior Calculus* (2005) (circumcentric dual);
+    libigl `voronoi_mass` (the snapped centres of `"voronoi"`).
+
+    Args:
+        lengths_sq: `(nt, 6)` squared edge lengths of each tet in the local order `TET_EDGES`.
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (`TET_DUALS`; keyword-only): the centres.
+        volumes: `(nt,)` tet volumes (keyword-only); default `None`: `tet_volumes_from_lengths_sq(lengths_sq)`.
+
+    Returns:
+        `(nt, 6)` float array, column `k` the share `x_ij` of the local edge `TET_EDGES[k]`.
     """
     check_choice("dual", dual, TET_DUALS)
     if volumes is None:
@@ -137,6 +144,14 @@ def tet_vertex_dual_volumes_from_lengths_sq(
 
     The intrinsic core of `vertex_dual_volumes` (module docstring for `dual`); each row sums to the
     tet's volume. libigl: the per-tet terms of `voronoi_mass` (`"voronoi"`).
+
+    Args:
+        lengths_sq: `(nt, 6)` squared edge lengths of each tet in the local order `TET_EDGES`.
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (`TET_DUALS`; keyword-only).
+        volumes: `(nt,)` tet volumes (keyword-only); default `None`: `tet_volumes_from_lengths_sq(lengths_sq)`.
+
+    Returns:
+        `(nt, 4)` float array, column `k` the share of local vertex `k`.
     """
     return _vertex_shares(tet_edge_dual_volumes_from_lengths_sq(lengths_sq, dual=dual, volumes=volumes))
 
@@ -150,15 +165,22 @@ def _vertex_dual_volumes(tet_mesh: TetMesh, plan: TetPlan, *, dual: str) -> Floa
 def vertex_dual_volumes(tet_mesh: TetMesh, *, dual: str = "voronoi") -> Float[Array, " nv"]:
     """`(nv,)` the volume of each vertex's dual cell (the Hodge star `*0`); they sum to the solid's volume.
 
-    `dual` (keyword-only, `TET_DUALS`; module docstring): `"voronoi"` (default; libigl's hybrid
-    Voronoi volume, never negative), `"circumcentric"` (the circumcentric dual cell, signed:
-    negative next to tets and triangles that do not contain their circumcentre) or `"barycentric"`
-    (a quarter of each incident tet). Unreferenced vertices get 0. Differentiable in the vertex positions
-    (piecewise for `"voronoi"`: its snapping switches where a circumcentre crosses a face or edge);
-    zero-volume tets contribute 0 with finite gradients.
+    Unreferenced vertices get 0. Differentiable in the vertex positions (piecewise for `"voronoi"`: its
+    snapping switches where a circumcentre crosses a face or edge); zero-volume tets contribute 0 with
+    finite gradients.
 
     libigl: `igl.massmatrix(V, T, igl.MASSMATRIX_TYPE_VORONOI).diagonal()` (`"voronoi"`),
     `MASSMATRIX_TYPE_BARYCENTRIC` (`"barycentric"`); `ddgjax.volume.mass_matrix(mass=)` wraps the two.
+
+    Args:
+        tet_mesh: the tet mesh.
+        dual: the dual cell (keyword-only, `TET_DUALS`; module docstring): `"voronoi"` (default; libigl's hybrid
+            Voronoi volume, never negative), `"circumcentric"` (the circumcentric dual cell, signed: negative next
+            to tets and triangles that do not contain their circumcentre) or `"barycentric"` (a quarter of each
+            incident tet).
+
+    Returns:
+        `(nv,)` float array of dual volumes, summing to the solid's volume.
     """
     check_choice("dual", dual, TET_DUALS)
     return _vertex_dual_volumes(tet_mesh, tet_plan(tet_mesh), dual=dual)

@@ -38,7 +38,14 @@ from ._topology import TET_EDGES, TET_TRIANGLES
 
 @kernel
 def tet_corner_positions(tet_mesh: TetMesh) -> Float[Array, "nt 4 3"]:
-    """`(nt, 4, 3)` the positions of each tet's four vertices (libigl `V[T]`)."""
+    """`(nt, 4, 3)` the positions of each tet's four vertices (libigl `V[T]`).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt, 4, 3)` array in the vertices' dtype: row `t` holds `vertices[tets[t]]`.
+    """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     return take_rows(tet_mesh.vertices, tet_mesh.tets)
 
@@ -49,6 +56,12 @@ def tet_signed_volumes(tet_mesh: TetMesh) -> Float[Array, " nt"]:
 
     A tet that a move of the vertices turned inside out gets a negative volume. libigl: `igl.volume(V, T)`
     (opposite sign convention).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt,)` float array of signed volumes, negative for inverted tets.
     """
     p = tet_corner_positions(tet_mesh)
     e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
@@ -60,13 +73,26 @@ def tet_volumes(tet_mesh: TetMesh) -> Float[Array, " nt"]:
     """`(nt,)` unsigned tet volumes `|det(b - a, c - a, d - a)| / 6`; `sum` is the solid's volume.
 
     libigl: `abs(igl.volume(V, T))`. Zero for a flat tet (finite gradients: the derivative of `|x|` at 0 is taken as 0).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt,)` float array of nonnegative volumes.
     """
     return jnp.abs(tet_signed_volumes(tet_mesh))
 
 
 @kernel
 def tet_edge_lengths_sq(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
-    """`(nt, 6)` squared lengths of each tet's edges in the local order `TET_EDGES` (libigl `edge_lengths(V, T)**2`)."""
+    """`(nt, 6)` squared lengths of each tet's edges in the local order `TET_EDGES` (libigl `edge_lengths(V, T)**2`).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt, 6)` float array of squared lengths, column `k` the local edge `TET_EDGES[k]`.
+    """
     p = tet_corner_positions(tet_mesh)
     vectors = p[:, TET_EDGES[:, 1]] - p[:, TET_EDGES[:, 0]]
     return jnp.sum(vectors * vectors, axis=-1)
@@ -78,6 +104,12 @@ def edge_lengths(tet_mesh: TetMesh) -> Float[Array, " ne"]:
 
     Zero-length edges have zero gradient (`safe_norm`). libigl: `igl.edge_lengths` per tet; per global edge,
     `np.linalg.norm(V[E[:, 1]] - V[E[:, 0]], axis=1)` with `E = igl.edges(T)`.
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(ne,)` float array, entry `e` the length of `tet_mesh.edges[e]`.
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     vectors = take_rows(tet_mesh.vertices, tet_mesh.edges[:, 1]) - take_rows(tet_mesh.vertices, tet_mesh.edges[:, 0])
@@ -90,6 +122,12 @@ def triangle_areas(tet_mesh: TetMesh) -> Float[Array, " ntri"]:
 
     Finite gradients on collinear triangles (`safe_norm`). libigl: `igl.face_areas(V, T)` per tet
     (its four faces), `igl.doublearea(V, F) / 2` on a triangle list.
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(ntri,)` float array, entry `f` the area of `tet_mesh.triangles[f]`.
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     p = take_rows(tet_mesh.vertices, tet_mesh.triangles)
@@ -118,6 +156,12 @@ def tet_volumes_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Float[Array
     Euclidean tet has (`det G < 0`) give 0, with finite gradients. Reference: L. M. Blumenthal, *Theory
     and Applications of Distance Geometry* (1953), the Cayley-Menger determinant. libigl: the C++
     `igl::volume(L, vol)` overload from edge lengths (not in the Python bindings).
+
+    Args:
+        lengths_sq: `(nt, 6)` squared edge lengths of each tet in the local order `TET_EDGES`.
+
+    Returns:
+        `(nt,)` float array of nonnegative volumes (0 where the lengths admit no tet).
     """
     determinant, _ = _gram_adjugate(lengths_sq)
     return safe_sqrt(jnp.maximum(determinant, 0.0)) / 6.0
@@ -130,10 +174,16 @@ def tet_cotan_weights_from_lengths_sq(
 
     `theta_kl` is the dihedral angle at the opposite edge `kl` (local edge `k + 3 mod 6`). Summed over
     the tets of an edge this is minus the off-diagonal entry of the cotan Laplacian (`cotan_laplacian`).
-    Negative where the opposite dihedral angle is obtuse. `volumes` default to the lengths' own
-    (`tet_volumes_from_lengths_sq`); a zero-volume tet gives 0 (finite gradients).
+    Negative where the opposite dihedral angle is obtuse. A zero-volume tet gives 0 (finite gradients).
 
     Reference: module docstring. libigl: `cotmatrix_entries(V, T)` (its tet edge order is the same).
+
+    Args:
+        lengths_sq: `(nt, 6)` squared edge lengths of each tet in the local order `TET_EDGES`.
+        volumes: `(nt,)` tet volumes (keyword-only); default `None`: `tet_volumes_from_lengths_sq(lengths_sq)`.
+
+    Returns:
+        `(nt, 6)` float array of cotan weights `w_ij`, column `k` the local edge `TET_EDGES[k]`.
     """
     determinant, numerators = _gram_adjugate(lengths_sq)
     if volumes is None:
@@ -143,7 +193,14 @@ def tet_cotan_weights_from_lengths_sq(
 
 @kernel
 def tet_cotan_weights(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
-    """`(nt, 6)` `tet_cotan_weights_from_lengths_sq` on the embedding (volumes `tet_volumes`, as libigl takes them)."""
+    """`(nt, 6)` `tet_cotan_weights_from_lengths_sq` on the embedding (volumes `tet_volumes`, as libigl takes them).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt, 6)` float array of cotan weights, column `k` the local edge `TET_EDGES[k]`.
+    """
     return tet_cotan_weights_from_lengths_sq(tet_edge_lengths_sq(tet_mesh), volumes=tet_volumes(tet_mesh))
 
 
@@ -153,6 +210,12 @@ def tet_dihedral_angles_from_lengths_sq(lengths_sq: Float[Array, "nt 6"]) -> Flo
     `theta_m = atan2(6 V l_m, 36 V w_k)` with `k` the edge opposite `m` (module docstring): no
     division, so finite values and gradients on flat tets too. The six angles of a regular tet are
     `arccos(1/3)`. libigl: `dihedral_angles_intrinsic(L, A)` (another edge order; tests map it).
+
+    Args:
+        lengths_sq: `(nt, 6)` squared edge lengths of each tet in the local order `TET_EDGES`.
+
+    Returns:
+        `(nt, 6)` float array of angles in radians, in `[0, pi]`, column `k` at the local edge `TET_EDGES[k]`.
     """
     determinant, numerators = _gram_adjugate(lengths_sq)
     volumes = safe_sqrt(jnp.maximum(determinant, 0.0)) / 6.0
@@ -167,6 +230,12 @@ def tet_dihedral_angles(tet_mesh: TetMesh) -> Float[Array, "nt 6"]:
     `tet_dihedral_angles_from_lengths_sq` on the embedding's squared edge lengths (local order `TET_EDGES`):
     `theta_m = atan2(6 V l_m, 36 V w_k)`, finite with finite gradients on flat tets. libigl:
     `igl.tet_dihedral_angles(V, T)[0]` (the same order; tests).
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt, 6)` float array of angles in radians, in `[0, pi]`, column `k` at the local edge `TET_EDGES[k]`.
     """
     return tet_dihedral_angles_from_lengths_sq(tet_edge_lengths_sq(tet_mesh))
 
@@ -179,6 +248,12 @@ def tet_hat_gradients(tet_mesh: TetMesh) -> Float[Array, "nt 4 3"]:
     twice its outward area vector, `V` the signed volume; the four gradients sum to zero and
     `grad u = sum_k u_k grad phi_k` is the gradient of a piecewise-linear function (`gradient`).
     Zero on a zero-volume tet (finite gradients). libigl: `igl.grad(V, T)`.
+
+    Args:
+        tet_mesh: the tet mesh.
+
+    Returns:
+        `(nt, 4, 3)` float array, `[t, k]` the gradient of local vertex `k`'s hat function in tet `t`.
     """
     p = tet_corner_positions(tet_mesh)
     corners = p[:, TET_TRIANGLES]  # (nt, 4, 3, 3)

@@ -114,6 +114,13 @@ def save_tet_mesh(path: str | os.PathLike, tet_mesh: TetMesh) -> None:
     it was); for TetGen both `stem.node` and `stem.ele` are written, whichever of the two `path` names,
     and replaced together: a failure leaves both old files, never a new `.node` beside an old `.ele`.
 
+    Args:
+        path: the target file, its extension the format (`.msh`, `.vtk`, `.vtu`, `.mesh`, `.meshb`, `.node`, `.ele`).
+        tet_mesh: the tet mesh to write.
+
+    Returns:
+        None; the file (for TetGen, the `.node` and `.ele` pair) is written.
+
     Raises `DDGInputError`, before anything is written, for another extension, anything but a
     `TetMesh`, or vertices with NaN or inf coordinates; `OSError` when a file cannot be written.
     Equivalents: `meshio.write(path, meshio.Mesh(V, [("tetra", T)]))`; `igl.write_mesh` (medit).

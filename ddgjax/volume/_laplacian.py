@@ -40,11 +40,13 @@ def _laplacian_values(tet_mesh: TetMesh, plan: TetPlan) -> Float[Array, " nnz"]:
 
 
 def cotan_laplacian(tet_mesh: TetMesh) -> SparseMatrix:
-    """The cotan Laplacian `L` of a tet mesh (PSD, weak / integrated), a `SparseMatrix` on its vertex pattern.
+    r"""The cotan Laplacian `L` of a tet mesh (PSD, weak / integrated), a `SparseMatrix` on its vertex pattern.
 
-    `L_ij = -sum_t l_kl cot(theta_kl) / 6` over the tets of edge `ij` (`theta_kl` the dihedral angle at
-    the opposite edge), `L_ii = -sum_{j != i} L_ij` (module docstring): the Galerkin stiffness matrix
-    `int grad phi_i . grad phi_j` of the linear hat functions, and the DEC `d0^T *1 d0`
+    $$L_{ij} = -\frac16 \sum_{t \ni ij} \ell_{kl} \cot\theta_{kl}, \qquad L_{ii} = -\sum_{j \ne i} L_{ij}$$
+
+    over the tets of edge $ij$ ($\theta_{kl}$ the dihedral angle at
+    the opposite edge $kl$; module docstring): the Galerkin stiffness matrix
+    $\int \langle \nabla\phi_i, \nabla\phi_j \rangle \, dV$ of the linear hat functions, and the DEC `d0^T *1 d0`
     (`ddgjax.volume.d0`, `hodge1`). Flagged symmetric positive semidefinite (`as_lineax_operator()`
     is tagged for `lineax.CG`). One compiled program per mesh size; differentiable in the vertex
     positions.
@@ -80,7 +82,9 @@ def _galerkin_values(tet_mesh: TetMesh, plan: TetPlan) -> Float[Array, " nnz"]:
 
 
 def mass_matrix(tet_mesh: TetMesh, *, mass: str = "voronoi") -> SparseMatrix:
-    """Mass matrix `M` of a tet mesh (`u^T M v ~ int u v dV`), symmetric positive (semi)definite.
+    r"""Mass matrix `M` of a tet mesh (`u^T M v ~ int u v dV`), symmetric positive (semi)definite.
+
+    $$u^\top M v \approx \int u\, v \, dV, \qquad \sum_{ij} M_{ij} = \text{volume}$$
 
     `mass` is one of `ddgjax.MASS_MATRICES`, with the meaning each has on tetrahedra in libigl:
 
@@ -89,7 +93,7 @@ def mass_matrix(tet_mesh: TetMesh, *, mass: str = "voronoi") -> SparseMatrix:
       `voronoi_mass`). libigl's *default* on tets is barycentric.
     - `"barycentric"`: diagonal, a quarter of the volume of each incident tet (libigl
       `MASSMATRIX_TYPE_BARYCENTRIC`, its default for tets).
-    - `"galerkin"`: the consistent FEM matrix `int phi_i phi_j`: `V / 10` on the diagonal and `V / 20`
+    - `"galerkin"`: the consistent FEM matrix $\int \phi_i \phi_j \, dV$: $V / 10$ on the diagonal and $V / 20$
       off it per tet (libigl `MASSMATRIX_TYPE_FULL`), on the Laplacian's pattern.
 
     Each sums to the solid's volume (`sum(M) == sum(tet_volumes)`); unreferenced vertices get zero
@@ -126,6 +130,13 @@ def laplacian_apply(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"], /) -> Float
     `(L u)_i = sum_{j ~ i} w_ij (u_i - u_j)`, the per-tet weights gathered onto the directed edges and
     applied to the edge differences: no diagonal and no `SparseMatrix` formed. Equals
     `cotan_laplacian(tet_mesh) @ u` to round-off. libigl: `-igl.cotmatrix(V, T) @ u`.
+
+    Args:
+        tet_mesh: the tet mesh.
+        u: `(nv,)` or `(nv, k)` values at the vertices (positional-only).
+
+    Returns:
+        Float array of `u`'s shape, `L u`.
     """
     return _apply(tet_mesh, tet_plan(tet_mesh), _vertex_values("u", tet_mesh, u))
 
@@ -140,6 +151,13 @@ def dirichlet_energy(tet_mesh: TetMesh, u: Float[ArrayLike, "nv *k"], /) -> Floa
 
     Differentiable in `u` (`grad_u E = L u`) and in the vertex positions (forward and reverse mode,
     to second order). libigl: `0.5 * u @ (-igl.cotmatrix(V, T) @ u)`.
+
+    Args:
+        tet_mesh: the tet mesh.
+        u: `(nv,)` or `(nv, k)` values at the vertices (positional-only).
+
+    Returns:
+        Scalar float array, summed over the columns of `u`.
     """
     u = _vertex_values("u", tet_mesh, u)
     return 0.5 * jnp.sum(u * _apply(tet_mesh, tet_plan(tet_mesh), u))

@@ -40,6 +40,9 @@ def tetrahedralize(mesh: Mesh, *, edge_length=None, epsilon=1e-3) -> TetMesh:
         edge_length: the target tet edge length in the mesh's units; default `d / 20`.
         epsilon: the envelope's half-width relative to `d` (default `1e-3`, fTetWild's).
 
+    Returns:
+        A positively oriented `TetMesh` of the solid, its vertices in `mesh.vertices`' dtype.
+
     Raises `DDGInputError` for an open mesh, bad options, or when `pytetwild` is not installed
     (saying which extra to install). Equivalents: `pytetwild.tetrahedralize(V, F)`, the
     `FloatTetwild_bin` command line; `igl.copyleft.tetgen` / `tetgen.TetGen(V, F).tetrahedralize()`

@@ -54,6 +54,12 @@ def tet_plan(tet_mesh: TetMesh) -> TetPlan:
     `ddgjax.laplacian`'s plans (`edge_slot_maps`), with the local tet edges `6 t + k` as the
     "corners"; cached per `TetTopology` (weakly: it goes with the last mesh of that connectivity).
     libigl and gpytoolbox build their matrices from triplets on every call and have no plan.
+
+    Args:
+        tet_mesh: the tet mesh; it needs its topology (not under a compiled kernel).
+
+    Returns:
+        The cached `TetPlan`: the `(nv, nv)` sparsity pattern and the slot maps.
     """
     topology = require_tet_mesh("tet_mesh", tet_mesh).topology
     if topology is None:

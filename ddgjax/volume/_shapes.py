@@ -23,7 +23,7 @@ from ._tet_mesh import TetMesh
 
 
 def tet_ball(n_layers=8, *, radius=1.0, dtype=None) -> TetMesh:
-    """Solid ball `|x| <= radius`: the icosahedron's 20 cones from its centre, each cut into `n_layers^3` tets, on the sphere.
+    r"""Solid ball `|x| <= radius`: the icosahedron's 20 cones from its centre, each cut into `n_layers^3` tets, on the sphere.
 
     The 20 tets joining the centre to the faces of an icosahedron inscribed in the unit sphere are
     nearly regular; each is split by the edgewise (Freudenthal) subdivision into `n^3` tets (`n =
@@ -35,10 +35,10 @@ def tet_ball(n_layers=8, *, radius=1.0, dtype=None) -> TetMesh:
     every dihedral angle in about [37, 130] degrees.
 
     Convergence (measured, libigl's cotan Laplacian and barycentric mass, `n = 8, 12, 16, 24`): the
-    Poisson problem `-Delta u = 1`, `u = 0` on the sphere, against `(1 - r^2) / 6` at the vertices,
+    Poisson problem $-\Delta u = 1$, $u = 0$ on the sphere, against $(1 - r^2) / 6$ at the vertices,
     rate 2.0 in the mass-weighted L2 norm and 1.5 -> 1.7 in the max norm (`2.5e-3` at `n = 8`); the
-    first Dirichlet eigenvalue `pi^2` with error `0.13, 0.031` at `n = 8, 16` (rate 2); volume
-    `4/3 pi` at rate 2. `radius` and `dtype` (float dtype of the vertices, default JAX's default
+    first Dirichlet eigenvalue $\pi^2$ with error `0.13, 0.031` at `n = 8, 16` (rate 2); volume
+    $\tfrac43 \pi$ at rate 2. `radius` and `dtype` (float dtype of the vertices, default JAX's default
     float) are keyword-only.
     Reference: H. Freudenthal, "Simplizialzerlegungen von beschränkter Flachheit" (Ann. Math., 1942);
     H. Edelsbrunner, D. R. Grayson, "Edgewise subdivision of a simplex" (DCG, 2000). No libigl
@@ -74,9 +74,17 @@ def tet_shell(n_layers=8, *, inner_radius=0.5, radius=1.0, dtype=None) -> TetMes
     affinely from `[radius k0 / n_layers, radius]` onto `[inner_radius, radius]`, so both boundary
     spheres hold their vertices exactly (no stretch when `inner_radius / radius = k0 / n_layers`).
     `n_layers - k0` layers through the thickness; Betti numbers `(1, 0, 1, 0)`, Euler characteristic
-    2; two boundary components. `inner_radius`, `radius` and `dtype` (as for `tet_ball`) are
-    keyword-only; `0 < inner_radius < radius`. Reference: as `tet_ball`. No libigl equivalent
-    (TetGen / fTetWild mesh a shell from its two spheres: `tetrahedralize`).
+    2; two boundary components. Reference: as `tet_ball`. No libigl equivalent (TetGen / fTetWild mesh
+    a shell from its two spheres: `tetrahedralize`).
+
+    Args:
+        n_layers: the number of shells of the ball it is cut from, `>= 2` (default 8).
+        inner_radius: the radius of the inner sphere, `0 < inner_radius < radius` (keyword-only; default 0.5).
+        radius: the radius of the outer sphere, `> 0` (keyword-only; default 1).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `TetMesh` of the shell: the tets of `tet_ball(n_layers)` on its shells `k >= k0`.
     """
     n = check_count("n_layers", n_layers, 2)
     check_positive("inner_radius", inner_radius)
@@ -158,14 +166,21 @@ def _kuhn_cells(cells: np.ndarray) -> np.ndarray:
 def tet_box(nx=8, ny=None, nz=None, *, size=1.0, dtype=None) -> TetMesh:
     """Cube `[-size/2, size/2]^3` split into `nx ny nz` cells of six tets each (the Kuhn / Freudenthal subdivision).
 
-    `ny` and `nz` default to `nx` (so `tet_box(n)` is the `n^3` cube). Vertex `(i, j, k)` (index `(k (ny
-    + 1) + j) (nx + 1) + i`) is at `-size/2 + size (i/nx, j/ny, k/nz)`; each cell is cut into the six
-    tets along the paths from its lowest to its highest corner (all sharing that diagonal), so the tets
-    of neighbouring cells match and, when `nx = ny = nz`, every tet is congruent (dihedral angles 45, 60
-    and 90 degrees). Vertices `((nx+1)(ny+1)(nz+1), 3)`, tets `(6 nx ny nz, 4)`, Euler characteristic 1,
-    volume exactly `size^3`. `size` and `dtype` (as for `tet_ball`) are keyword-only. The volume
-    analogue of `ddgjax.mesh.grid`. Equivalents:
-    gpytoolbox `regular_cube_mesh(n)` (`[-1, 1]^3`, its own split of each cell).
+    Vertex `(i, j, k)` (index `(k (ny + 1) + j) (nx + 1) + i`) is at `-size/2 + size (i/nx, j/ny, k/nz)`;
+    each cell is cut into the six tets along the paths from its lowest to its highest corner (all sharing
+    that diagonal), so the tets of neighbouring cells match and, when `nx = ny = nz`, every tet is
+    congruent (dihedral angles 45, 60 and 90 degrees). Euler characteristic 1, volume exactly `size^3`. The volume analogue of
+    `ddgjax.mesh.grid`. Equivalents: gpytoolbox `regular_cube_mesh(n)` (`[-1, 1]^3`, its own split of
+    each cell).
+
+    Args:
+        nx: the number of cells along x, `>= 1` (default 8).
+        ny, nz: the numbers of cells along y and z, `>= 1`; default `None`: `nx` (so `tet_box(n)` is the `n^3` cube).
+        size: the cube's edge length, `> 0` (keyword-only; default 1).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `TetMesh` with vertices `((nx+1)(ny+1)(nz+1), 3)` and tets `(6 nx ny nz, 4)`.
     """
     counts = np.array(
         [check_count(name, nx if count is None else count, 1) for name, count in (("nx", nx), ("ny", ny), ("nz", nz))]
@@ -191,9 +206,18 @@ def tet_solid_torus(*, major_radius=1.0, minor_radius=0.25, n_major=48, n_rings=
     dihedral angles in about [18, 130] degrees at the default sizes). Vertices `(n_major nd, 3)`, tets
     `(18 n_major n_rings^2, 4)`; the outer rings lie on the torus surface of `ddgjax.mesh.torus` with
     the same radii. Betti numbers `(1, 1, 0, 0)`, Euler characteristic 0; volume tends to `2 pi^2 R
-    r^2`. Every argument is keyword-only; `dtype` as for `tet_ball`.
-    Reference: J. Dompierre, P. Labbé, M.-G. Vallet, R. Camarero, "How to subdivide pyramids, prisms
+    r^2`. Reference: J. Dompierre, P. Labbé, M.-G. Vallet, R. Camarero, "How to subdivide pyramids, prisms
     and hexahedra into tetrahedra" (8th International Meshing Roundtable, 1999).
+
+    Args:
+        major_radius: `R`, the radius of the centre circle, `> 0` (keyword-only; default 1).
+        minor_radius: `r`, the tube's radius, `0 < r < R` (keyword-only; default 0.25).
+        n_major: the number of copies of the cross-section around the circle, `>= 3` (keyword-only; default 48).
+        n_rings: the number of rings of the cross-section `ddgjax.mesh.disk`, `>= 1` (keyword-only; default 4).
+        dtype: the float dtype of the vertices (keyword-only; default JAX's default float).
+
+    Returns:
+        `TetMesh` with vertices `(n_major nd, 3)` and tets `(18 n_major n_rings^2, 4)`.
     """
     check_count("n_major", n_major, 3)
     check_count("n_rings", n_rings, 1)

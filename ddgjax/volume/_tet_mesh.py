@@ -226,5 +226,13 @@ def _require_topology(tet_mesh: TetMesh) -> TetTopology:
 
 
 def require_tet_mesh(name: str, value) -> TetMesh:
-    """`value` if it is a `TetMesh`, else `DDGInputError` naming the argument and saying how to make one."""
+    """`value` if it is a `TetMesh`, else `DDGInputError` naming the argument and saying how to make one.
+
+    Args:
+        name: the argument's name, for the error message.
+        value: the object to check.
+
+    Returns:
+        `value` itself, when it is a `TetMesh`.
+    """
     return TetMesh.require(name, value)

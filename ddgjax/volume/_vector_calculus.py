@@ -45,6 +45,13 @@ def gradient(tet_mesh: TetMesh, u: Float[ArrayLike, " nv"], /) -> Float[Array, "
 
     `(grad u)_t = sum_k u[T[t, k]] grad phi_k` (`tet_hat_gradients`); exact for linear `u`; 0 on a
     zero-volume tet. libigl: `igl.grad(V, T) @ u` reshaped `(3, nt).T`.
+
+    Args:
+        tet_mesh: the tet mesh.
+        u: `(nv,)` values at the vertices (positional-only).
+
+    Returns:
+        `(nt, 3)` float array, one gradient vector per tet.
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     return _gradient(tet_mesh, _as_array("u", u, tet_mesh.n_vertices, "nv", trailing=()))
@@ -64,6 +71,13 @@ def divergence(tet_mesh: TetMesh, field: Float[ArrayLike, "nt 3"]) -> Float[Arra
     has positive divergence inside. Divide by the vertex dual volume for the pointwise value. The
     sign of `ddgjax.dec.divergence` on surfaces. libigl: `-igl.grad(V, T).T @ (vol * X)` with `vol`
     the tet volumes repeated per component. Reference: Crane et al. 2017 (heat method).
+
+    Args:
+        tet_mesh: the tet mesh.
+        field: `(nt, 3)` one vector per tet.
+
+    Returns:
+        `(nv,)` float array of integrated divergences.
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     field = _as_array("field", field, tet_mesh.n_tets, "nt", trailing=(3,))
@@ -103,9 +117,18 @@ def codifferential(
     """Codifferential `delta_k` of a primal `degree`-form (`degree` 1, 2 or 3), a primal (k-1)-form.
 
     `delta_k = *_{k-1}^{-1} d_{k-1}^T *_k`, the adjoint of `d_{k-1}` for `<a, b>_k = a^T *_k b`
-    (module docstring); `codifferential(d0 u, degree=1) = *0^{-1} L u`. `form` is `(ne,)`, `(ntri,)`
-    or `(nt,)`, optionally with trailing batch axes; `dual` picks the stars (`hodge_star_entries`;
-    zero entries invert to zero). Reference: Desbrun et al. 2005, section 9.
+    (module docstring); `codifferential(d0 u, degree=1) = *0^{-1} L u`. Reference: Desbrun et al. 2005,
+    section 9.
+
+    Args:
+        tet_mesh: the tet mesh.
+        form: `(ne,)`, `(ntri,)` or `(nt,)` primal form, optionally with trailing batch axes.
+        degree: the degree `k` of `form`, 1, 2 or 3 (keyword-only).
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (keyword-only): the stars
+            (`hodge_star_entries`; zero entries invert to zero).
+
+    Returns:
+        Float array of the (k-1)-form, `(nv,)`, `(ne,)` or `(ntri,)` with `form`'s trailing axes.
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     check_choice("dual", dual, TET_DUALS)
@@ -118,15 +141,24 @@ def hodge_laplacian(
 ) -> Float[Array, "n *batch"]:
     """Hodge Laplacian `Delta_k = d_{k-1} delta_k + delta_{k+1} d_k` on primal `degree`-forms of a tet mesh.
 
-    `degree` 0..3 (keyword-only); `form` is `(nv,)`, `(ne,)`, `(ntri,)` or `(nt,)`, optionally with
-    trailing batch axes (columns transformed independently, so `hodge_laplacian(m, eye(n), ...)` is
-    the dense matrix). `weak=True` returns the symmetric integrated form
+    The columns of a batch are transformed independently, so `hodge_laplacian(m, eye(n), ...)` is the dense matrix.
+    `weak=True` returns the symmetric integrated form
     `*_k Delta_k = *_k d_{k-1} *_{k-1}^{-1} d_{k-1}^T *_k + d_k^T *_{k+1} d_k` (its second term needs no
     inverse star). PSD where the stars are positive (`dual="barycentric"` always); its kernel is the
     harmonic forms, of dimension the Betti number `b_k` (module docstring). `Delta_0` with the
     Voronoi (default) or circumcentric dual is `*0^{-1} L` (`weak=True`: `L = cotan_laplacian`,
     `-igl.cotmatrix(V, T)`). The surface counterparts are `ddgjax.dec.hodge_laplacian0/1/2`.
     Reference: Desbrun et al., *Discrete Exterior Calculus* (2005); Crane et al. 2013, section 6.
+
+    Args:
+        tet_mesh: the tet mesh.
+        form: `(nv,)`, `(ne,)`, `(ntri,)` or `(nt,)` primal form, optionally with trailing batch axes.
+        degree: the degree `k` of `form`, 0..3 (keyword-only).
+        dual: `"voronoi"` (default), `"circumcentric"` or `"barycentric"` (keyword-only): the stars.
+        weak: `True` for the integrated form `*_k Delta_k` (keyword-only; default `False`).
+
+    Returns:
+        Float array of `form`'s shape: `Delta_k form` (`*_k Delta_k form` when `weak`).
     """
     tet_mesh = require_tet_mesh("tet_mesh", tet_mesh)
     check_choice("dual", dual, TET_DUALS)
