@@ -93,50 +93,74 @@ def _write_large_mesh(seed: pathlib.Path, target: pathlib.Path) -> None:
 def sphere_obj(tmp_path_factory) -> str:
     """The unit icosphere of 162 vertices (`icosphere(2)`) as an OBJ file, as a user's mesh file (the CLI tests)."""
     from ddgjax.io import save_mesh
-    from ddgjax.mesh import icosphere
 
     path = tmp_path_factory.mktemp("meshes") / "sphere.obj"
-    save_mesh(path, icosphere(2))
+    save_mesh(path, unit_icosphere(2))
     return str(path)
 
 
-def _icosphere(subdivisions: int):
+@functools.cache
+def unit_icosphere(subdivisions: int):
+    """`ddgjax.mesh.icosphere(subdivisions)`, built once per process: the object the `icosphere<n>` fixtures share
+    (for a module's helper that builds on one; a test takes the fixture)."""
     from ddgjax.mesh import icosphere
 
     return icosphere(subdivisions)
 
 
+@functools.cache
+def load_data_mesh(name: str):
+    """`load_mesh(data_path("meshes", name))`, read once per process: the object the `data_mesh` fixture gives."""
+    from ddgjax.io import load_mesh
+
+    return load_mesh(data_path("meshes", name))
+
+
 # The suite's common meshes, built once per session: a `Mesh` is immutable, so tests share one. Each unit
-# icosphere is the subdivided icosahedron of `ddgjax.mesh.icosphere` (a convergence study that varies the level
-# calls `icosphere` itself).
+# icosphere is the subdivided icosahedron of `ddgjax.mesh.icosphere`; the real meshes are the files of
+# `tests/data/meshes` as `load_mesh` reads them.
+@pytest.fixture(scope="session")
+def icospheres():
+    """`icospheres(n)`: the unit icosphere of `n` subdivisions, one object per level for the session (the
+    fixtures `icosphere0` ... `icosphere4` are the same ones), for the tests that loop over levels."""
+    return unit_icosphere
+
+
+@pytest.fixture(scope="session")
+def data_mesh():
+    """`data_mesh(name)`: `load_mesh(data_path("meshes", name))` (`"spot.obj"`, `"camelhead.off"`, ...), each file
+    read once per session. A test of reading itself calls `load_mesh`."""
+    return load_data_mesh
+
+
 @pytest.fixture(scope="session")
 def icosphere0():
     """The icosahedron inscribed in the unit sphere: 12 vertices, 20 faces."""
-    return _icosphere(0)
+    return unit_icosphere(0)
 
 
 @pytest.fixture(scope="session")
 def icosphere1():
     """The unit icosphere of 42 vertices and 80 faces."""
-    return _icosphere(1)
+    return unit_icosphere(1)
 
 
 @pytest.fixture(scope="session")
 def icosphere2():
     """The unit icosphere of 162 vertices and 320 faces."""
-    return _icosphere(2)
+    return unit_icosphere(2)
 
 
 @pytest.fixture(scope="session")
 def icosphere3():
     """The unit icosphere of 642 vertices and 1280 faces."""
-    return _icosphere(3)
+    return unit_icosphere(3)
 
 
 @pytest.fixture(scope="session")
 def icosphere4():
     """The unit icosphere of 2562 vertices and 5120 faces."""
-    return _icosphere(4)
+    return unit_icosphere(4)
 
 
 @pytest.fixture

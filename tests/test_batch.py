@@ -24,9 +24,9 @@ from ddgjax import batch as db
 from ddgjax import laplacian as dl
 from ddgjax import mesh as dm
 
-from conftest import REPO
+from conftest import REPO, unit_icosphere
 
-MESHES = (dm.icosphere(2), dm.torus(n_major=12, n_minor=6), dm.disk(4), dm.grid(5, 7))
+MESHES = (unit_icosphere(2), dm.torus(n_major=12, n_minor=6), dm.disk(4), dm.grid(5, 7))
 
 
 def _jittered(mesh: Mesh, seed: int) -> Mesh:
@@ -294,7 +294,7 @@ def _with_fins(mesh: Mesh, n_fins: int) -> Mesh:
 @pytest.fixture(scope="module")
 def structures():
     """A regular icosphere, one with three and one with four faces on an edge, a double cone of valence 24."""
-    sphere = _jittered(dm.icosphere(2), 20)
+    sphere = _jittered(unit_icosphere(2), 20)
     return {
         "regular": sphere,
         "three faces on an edge": _with_fins(sphere, 1),

@@ -255,6 +255,7 @@ def test_coincident_points_give_finite_values_and_gradients_under_jit(wobbly):
         assert np.isfinite(float(value)) and np.isfinite(np.asarray(gradient)).all()
 
 
+# rtol: central differences are good to ~1e-10 relative here (the docstring)
 def assert_matches_central_differences(f, derivative, x, *, eps=1e-6, rtol=1e-7, directions=4):
     """`derivative(x, v)` against `(f(x + eps v) - f(x - eps v)) / (2 eps)` along random directions.
 

@@ -62,6 +62,7 @@ def test_matches_libigl_spokes_converged():
     other = np.asarray(mesh.vertices) * np.array([1.0, 1.0, 1.1])
     ours = arap(mesh, fixed_vertices=handles, fixed_values=values, initial=other, rtol=1e-12, max_steps=5000)
     other[handles] = values
+    # libigl's single-precision rotations again: ~1e-7 of the diagonal apart.
     np.testing.assert_allclose(np.asarray(ours), _libigl_arap(mesh, handles, values, other, 1000), atol=1e-6 * _diagonal(mesh))
 
 
@@ -124,9 +125,9 @@ def test_gradients_match_finite_differences():
     fd_rest = central_difference(lambda r: loss(values, r), rest, d_rest, eps=1e-5)
     # Finite differences: O(eps^2) truncation at eps = 1e-5, measured 2.7e-9 (rest) and 8.7e-11 (handles).
     np.testing.assert_allclose(float(jnp.sum(grad_values * d_values)), float(fd_values), rtol=1e-7)
-    np.testing.assert_allclose(float(jnp.sum(grad_rest * d_rest)), float(fd_rest), rtol=1e-7)
+    np.testing.assert_allclose(float(jnp.sum(grad_rest * d_rest)), float(fd_rest), rtol=1e-7)  # measured 2.7e-9
     _, tangent = jax.jvp(lambda v: loss(v, rest), (jnp.asarray(values),), (jnp.asarray(d_values),))
-    np.testing.assert_allclose(float(tangent), float(fd_values), rtol=1e-7)
+    np.testing.assert_allclose(float(tangent), float(fd_values), rtol=1e-7)  # the handles' FD: measured 8.7e-11
 
 
 def test_bad_input_raises(without_type_checker):

@@ -15,8 +15,9 @@ from jax.test_util import check_grads
 
 from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax.deform import biharmonic_deformation
-from ddgjax.mesh import Mesh, disk, icosphere
+from ddgjax.mesh import Mesh, disk
 
+from conftest import unit_icosphere
 from mesh_union import disjoint_union
 
 
@@ -35,7 +36,7 @@ def _curved_disk() -> tuple[Mesh, np.ndarray, np.ndarray]:
 
 def _sphere() -> tuple[Mesh, np.ndarray, np.ndarray]:
     """A closed mesh with two handle regions: the north cap pulled up and sideways, the south cap held."""
-    mesh = icosphere(2)
+    mesh = unit_icosphere(2)
     V = np.asarray(mesh.vertices)
     north, south = np.flatnonzero(V[:, 2] > 0.7), np.flatnonzero(V[:, 2] < -0.7)
     b = np.concatenate([north, south])

@@ -19,16 +19,17 @@ from ddgjax import DDGInputError, MeshDataError
 from ddgjax.discretization import Discretization, discretize
 from ddgjax.discretization import _discretization as discretization_module
 from ddgjax.laplacian import intrinsic_delaunay
-from ddgjax.mesh import Mesh, icosphere
+from ddgjax.mesh import Mesh
 from ddgjax.volume import tet_ball
 
+from conftest import unit_icosphere
 from finite_differences import central_difference, random_direction
 
 jax.config.update("jax_enable_x64", True)
 
 
 def _jittered_sphere() -> Mesh:
-    mesh = icosphere(2, dtype=np.float64)
+    mesh = unit_icosphere(2)
     V = np.asarray(mesh.vertices) * (1.0 + 0.15 * random_direction((mesh.n_vertices, 1), seed=3))
     return mesh.with_vertices(V)
 

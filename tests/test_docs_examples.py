@@ -103,6 +103,8 @@ def test_page_code_blocks_run(page, tmp_path, monkeypatch):
             try:
                 exec(program, namespace)
             except Exception:
-                pytest.fail(f"{page.relative_to(DOCS.parent)}, block at line {line} failed:\n{traceback.format_exc()}", pytrace=False)
+                pytest.fail(
+                    f"{page.relative_to(DOCS.parent)}, block at line {line} failed:\n{traceback.format_exc()}", pytrace=False
+                )
     finally:
         jax.config.update("jax_enable_x64", x64)

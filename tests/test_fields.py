@@ -27,11 +27,9 @@ from ddgjax.fields import (
     smoothest_field,
     tangent_bases,
 )
-from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian
-from ddgjax.mesh import disk, edge_cotan_weights, icosphere
+from ddgjax.mesh import disk, edge_cotan_weights
 
-from conftest import data_path
 from finite_differences import central_difference
 
 
@@ -82,9 +80,9 @@ def _cylinder(n_around: int, n_along: int) -> Mesh:
     return Mesh.from_arrays(V, np.array(faces))
 
 
-def _ellipsoid() -> Mesh:
-    """A slightly jittered ellipsoid: no symmetry, so the smallest eigenvalue of the connection Laplacian is simple."""
-    sphere = icosphere(2)
+def _ellipsoid(sphere: Mesh) -> Mesh:
+    """`sphere` (the unit icosphere(2)) made a slightly jittered ellipsoid: no symmetry, so the smallest eigenvalue
+    of the connection Laplacian is simple."""
     rng = np.random.default_rng(3)
     V = np.asarray(sphere.vertices) * np.array([1.0, 1.3, 0.8]) + 0.01 * rng.standard_normal((sphere.n_vertices, 3))
     return sphere.with_vertices(jnp.asarray(V))
@@ -99,11 +97,9 @@ def _dense(matrix) -> np.ndarray:
 
 @pytest.mark.parametrize("name", ["disk(5)", "icosphere(2)", "small_disk.obj", "sphere_small.ply"])
 @pytest.mark.slow
-def test_connection_laplacian_equals_potpourri3d_up_to_a_change_of_tangent_bases(name):
+def test_connection_laplacian_equals_potpourri3d_up_to_a_change_of_tangent_bases(name, icosphere2, data_mesh):
     pp3d = pytest.importorskip("potpourri3d")
-    mesh = {"disk(5)": lambda: disk(5), "icosphere(2)": lambda: icosphere(2)}.get(
-        name, lambda: load_mesh(data_path("meshes", name))
-    )()
+    mesh = {"disk(5)": lambda: disk(5), "icosphere(2)": lambda: icosphere2}.get(name, lambda: data_mesh(name))()
     A = _dense(connection_laplacian(mesh))
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     reference = sp.csr_matrix(pp3d.MeshVectorHeatSolver(V, F, use_intrinsic_delaunay=False).get_connection_laplacian()).toarray()
@@ -117,8 +113,8 @@ def test_connection_laplacian_equals_potpourri3d_up_to_a_change_of_tangent_bases
 
 @pytest.mark.parametrize("name", ["sphere.obj", "torus.obj", "double-torus.obj", "hemisphere.obj"])
 @pytest.mark.slow
-def test_holonomy_is_the_transport_around_each_face_and_sums_to_two_pi_chi(name):
-    mesh = load_mesh(data_path("meshes", name))
+def test_holonomy_is_the_transport_around_each_face_and_sums_to_two_pi_chi(name, data_mesh):
+    mesh = data_mesh(name)
     rho = np.asarray(edge_transport_angles(mesh))
     holonomy = np.asarray(face_holonomies(mesh))
     around = np.sum(np.asarray(mesh.face_edge_signs) * rho[np.asarray(mesh.face_edges)], axis=1)
@@ -142,8 +138,8 @@ def test_polar_angles_are_the_edges_angles_in_the_tangent_frame_on_a_flat_disk()
 
 
 @pytest.mark.slow
-def test_tangent_frames_are_orthonormal_with_e1_along_the_reference_edge():
-    mesh = load_mesh(data_path("meshes", "spot.obj"))
+def test_tangent_frames_are_orthonormal_with_e1_along_the_reference_edge(data_mesh):
+    mesh = data_mesh("spot.obj")
     e1, e2, normal = (np.asarray(x) for x in tangent_bases(mesh))
     frames = np.stack([e1, e2, normal], axis=1)
     np.testing.assert_allclose(frames @ frames.transpose(0, 2, 1), np.broadcast_to(np.eye(3), frames.shape), atol=1e-12)
@@ -160,8 +156,8 @@ def test_tangent_frames_are_orthonormal_with_e1_along_the_reference_edge():
 
 
 @pytest.mark.parametrize("n", [1, 3])
-def test_connection_laplacian_is_hermitian_psd_and_its_energy_is_the_transport_mismatch(n):
-    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
+def test_connection_laplacian_is_hermitian_psd_and_its_energy_is_the_transport_mismatch(n, data_mesh):
+    mesh = data_mesh("sphere_small.ply")
     A = _dense(connection_laplacian(mesh, n=n))
     np.testing.assert_array_equal(A, A.conj().T)
     # PSD: every cotan weight of this mesh is positive (Delaunay), so A is a sum of squares.
@@ -204,8 +200,8 @@ def test_flat_disk_carries_a_constant_field_with_zero_energy_and_no_singularitie
 
 @pytest.mark.parametrize("name", ["sphere.obj", "torus.obj", "double-torus.obj", "icosphere(2)"])
 @pytest.mark.slow
-def test_poincare_hopf_indices_are_multiples_of_one_over_n_and_sum_to_chi(name):
-    mesh = icosphere(2) if name == "icosphere(2)" else load_mesh(data_path("meshes", name))
+def test_poincare_hopf_indices_are_multiples_of_one_over_n_and_sum_to_chi(name, icosphere2, data_mesh):
+    mesh = icosphere2 if name == "icosphere(2)" else data_mesh(name)
     chi = mesh.topology.euler_characteristic
     for n in (1, 2, 4):
         result = smoothest_field(mesh, n=n)
@@ -255,8 +251,8 @@ def test_cube_cross_field_is_parallel_off_the_corners_with_a_quarter_singularity
 
 
 @pytest.mark.slow
-def test_phase_is_deterministic_and_the_field_is_an_eigenvector():
-    mesh = _ellipsoid()
+def test_phase_is_deterministic_and_the_field_is_an_eigenvector(icosphere2):
+    mesh = _ellipsoid(icosphere2)
     result = smoothest_field(mesh, n=2)
     A, M = _dense(connection_laplacian(mesh, n=2)), np.asarray(connection_mass_matrix(mesh).values)
     u = np.asarray(result.solution)
@@ -265,7 +261,7 @@ def test_phase_is_deterministic_and_the_field_is_an_eigenvector():
     # The eigensolver's residual: round-off with ARPACK (a CPU's "auto"; measured 1e-15 and 0 in the
     # eigenvalue), up to 1e-10 of the largest Ritz value with the subspace iteration (elsewhere).
     np.testing.assert_allclose(A @ u, float(result.energy) * M * u, atol=1e-8)
-    assert float(result.energy) == pytest.approx(smallest, rel=1e-9)
+    assert float(result.energy) == pytest.approx(smallest, rel=1e-9)  # ARPACK's round-off or 1e-10 residual
     largest = np.argmax(np.abs(u))
     assert abs(u[largest].imag) <= 1e-15 * abs(u[largest]) and u[largest].real > 0  # rotated by its own phase: round-off
 
@@ -286,8 +282,8 @@ def test_principal_curvature_alignment_points_around_a_cylinder():
 
 
 @pytest.mark.slow
-def test_alignment_weight_trades_smoothness_for_alignment():
-    mesh = _ellipsoid()
+def test_alignment_weight_trades_smoothness_for_alignment(icosphere2):
+    mesh = _ellipsoid(icosphere2)
     q = principal_curvature_alignment(mesh, n=4)
     energies, distances = [], []
     for weight in (0.01, 1.0, 100.0):
@@ -311,8 +307,8 @@ def test_interpolation_from_one_vertex_of_a_flat_disk_is_the_constant_field():
 
 
 @pytest.mark.slow
-def test_interpolation_solves_the_dirichlet_problem_of_the_connection_laplacian():
-    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
+def test_interpolation_solves_the_dirichlet_problem_of_the_connection_laplacian(data_mesh):
+    mesh = data_mesh("sphere_small.ply")
     fixed, values = np.array([0, 7, 20]), jnp.array([1.0 + 0j, 1j, -0.5 + 0.5j])
     u = np.asarray(interpolate_field(mesh, fixed_vertices=fixed, fixed_values=values, n=2))
     A = _dense(connection_laplacian(mesh, n=2))
@@ -357,8 +353,8 @@ def test_interpolated_transport_agrees_with_potpourri3d_vector_heat_near_the_sou
 
 
 @pytest.mark.slow
-def test_energy_and_phase_fixed_field_gradients_match_finite_differences():
-    mesh = _ellipsoid()
+def test_energy_and_phase_fixed_field_gradients_match_finite_differences(icosphere2):
+    mesh = _ellipsoid(icosphere2)
     V = mesh.vertices
     direction = jnp.asarray(np.random.default_rng(1).standard_normal(V.shape))
     weights = jnp.linspace(0.0, 1.0, mesh.n_vertices)
@@ -380,12 +376,12 @@ def test_energy_and_phase_fixed_field_gradients_match_finite_differences():
         # Central differences with h = 1e-6: truncation error ~1e-7 relative (measured: 7e-10, 7e-9, 2e-7;
         # they fall as h^2 down to 1e-6, so the gradients are right).
         expected = central_difference(loss, V, direction, eps=1e-6)
-        assert float(jnp.sum(gradient * direction)) == pytest.approx(float(expected), rel=1e-6)
+        assert float(jnp.sum(gradient * direction)) == pytest.approx(float(expected), rel=1e-6)  # measured <= 2e-7 (above)
 
 
 @pytest.mark.slow
-def test_connection_laplacian_values_pass_check_grads():
-    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
+def test_connection_laplacian_values_pass_check_grads(data_mesh):
+    mesh = data_mesh("sphere_small.ply")
     rng = np.random.default_rng(2)
     u = jnp.asarray(rng.standard_normal(mesh.n_vertices) + 1j * rng.standard_normal(mesh.n_vertices))
 
@@ -397,8 +393,8 @@ def test_connection_laplacian_values_pass_check_grads():
 
 
 @pytest.mark.slow
-def test_jit_and_vmap_equal_eager():
-    mesh = load_mesh(data_path("meshes", "sphere_small.ply"))
+def test_jit_and_vmap_equal_eager(data_mesh):
+    mesh = data_mesh("sphere_small.ply")
     V = mesh.vertices
     eager = smoothest_field(mesh, n=2)
     jitted = jax.jit(lambda V: smoothest_field(mesh.with_vertices(V), n=2))(V)

@@ -11,7 +11,7 @@ import pytest
 import ddgjax
 from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax.fluids import EulerFlowResult, FluidBasis, euler_flow, fluid_basis, stream_function_velocity
-from ddgjax.mesh import Mesh, disk, icosphere, torus
+from ddgjax.mesh import Mesh, disk, torus
 
 from finite_differences import central_difference
 
@@ -134,7 +134,7 @@ def test_dye(fine_sphere):
     assert np.linalg.norm(turning.dye[-1]) == pytest.approx(np.linalg.norm(turning.dye[0]), rel=1e-4)
 
 
-def test_stream_function_velocity(sphere):
+def test_stream_function_velocity(sphere, icospheres):
     mesh, _ = sphere
     velocity = np.asarray(stream_function_velocity(mesh, -mesh.vertices[:, 2]))
     corners = np.asarray(mesh.vertices)[np.asarray(mesh.faces)]
@@ -146,7 +146,7 @@ def test_stream_function_velocity(sphere):
     # mostly the area-weighted vertex normal's tilt from the radius, along which the mean is made tangent.
     errors = []
     for level in (3, 4):
-        sphere_mesh = icosphere(level)
+        sphere_mesh = icospheres(level)
         points = np.asarray(sphere_mesh.vertices)
         at_vertices = np.asarray(stream_function_velocity(sphere_mesh, -points[:, 2], at="vertices"))
         errors.append(np.max(np.linalg.norm(at_vertices - np.cross([0.0, 0.0, 1.0], points), axis=1)))
@@ -363,7 +363,7 @@ def test_torus_gradient_through_the_harmonic_exchange(ring):
     gradient_w, gradient_c = jax.jit(jax.grad(loss, argnums=(0, 1)))(jnp.asarray(w0), c0)
     rng = np.random.default_rng(3)
     dw, dc = rng.normal(size=w0.shape), rng.normal(size=2)
-    fd = central_difference(lambda t: loss(w0 + t * dw, c0 + t * dc), 0.0, 1.0, eps=1e-5)
+    fd = central_difference(loss, (w0, c0), (dw, dc), eps=1e-5)
     # Finite differences: O(eps^2) = 1e-10 truncation times the loss's third derivative, plus round-off / eps.
     assert float(gradient_w @ dw + gradient_c @ dc) == pytest.approx(float(fd), rel=1e-7)
 

@@ -12,10 +12,9 @@ import pytest
 
 from ddgjax import DDGInputError
 from ddgjax.geodesics import heat_distance, heat_distance_solver
-from ddgjax.io import load_mesh
-from ddgjax.mesh import Mesh, disk, edge_lengths, icosphere
+from ddgjax.mesh import Mesh, disk, edge_lengths
 
-from conftest import data_path, read_ddg_reference
+from conftest import read_ddg_reference
 from finite_differences import central_difference
 
 
@@ -24,19 +23,19 @@ def test_every_step_matches_the_ddg_reference():
     data = read_ddg_reference("test-heat-soln.txt")
     mesh = Mesh.from_arrays(data["v"], data["f"].astype(np.int64) - 1)
     sources = np.flatnonzero(data["delta"][:, 0])
-    # The reference uses the barycentric mass and adds 1e-8 I to L; the course accepts ~1e-5.
     steps = heat_distance_solver(mesh, mass="barycentric").steps(sources)
+    # The reference uses the barycentric mass and adds 1e-8 I to L; the course accepts ~1e-5.
     np.testing.assert_allclose(steps.field, data["X"], rtol=0, atol=1e-5)
-    np.testing.assert_allclose(-steps.divergence, data["div"][:, 0], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(-steps.divergence, data["div"][:, 0], rtol=0, atol=1e-5)  # the reference's shift
     distance = np.asarray(steps.distance)
-    np.testing.assert_allclose(distance - distance.min(), data["phi"][:, 0], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(distance - distance.min(), data["phi"][:, 0], rtol=0, atol=1e-5)  # the reference's shift
     assert distance[sources[0]] == 0
 
 
 @pytest.mark.parametrize("name", ["spot.obj", "camelhead.off"])
 @pytest.mark.slow
-def test_matches_potpourri3d(name):
-    mesh = load_mesh(data_path("meshes", name))
+def test_matches_potpourri3d(name, data_mesh):
+    mesh = data_mesh(name)
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     # geometry-central: lumped barycentric mass, Neumann heat flow; `use_robust=False` keeps the mesh's
     # own cotan Laplacian (its default is the intrinsic Delaunay one).
@@ -48,10 +47,10 @@ def test_matches_potpourri3d(name):
 
 
 @pytest.mark.slow
-def test_sphere_great_circle_distance_error_falls_under_refinement():
+def test_sphere_great_circle_distance_error_falls_under_refinement(icospheres):
     errors, sizes = [], []
     for subdivisions in (2, 3, 4):
-        mesh = icosphere(subdivisions)
+        mesh = icospheres(subdivisions)
         V = np.asarray(mesh.vertices)
         exact = np.arccos(np.clip(V @ V[0], -1.0, 1.0))
         errors.append(np.abs(np.asarray(heat_distance(mesh, [0])) - exact).mean())
@@ -128,8 +127,8 @@ def test_bad_input(without_type_checker, icosphere1):
 
 
 @pytest.mark.slow
-def test_robust_laplacian_brings_camelhead_distances_near_potpourri3d_robust_mode():
-    mesh = load_mesh(data_path("meshes", "camelhead.off"))
+def test_robust_laplacian_brings_camelhead_distances_near_potpourri3d_robust_mode(data_mesh):
+    mesh = data_mesh("camelhead.off")
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     expected = pp3d.MeshHeatMethodDistanceSolver(V, F).compute_distance(7)  # potpourri3d's default: robust
     options = {"mass": "barycentric", "boundary": "neumann"}

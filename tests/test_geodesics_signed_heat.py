@@ -13,10 +13,8 @@ from scipy.sparse.csgraph import dijkstra
 
 from ddgjax import RESULTS, DDGInputError, Solution
 from ddgjax.geodesics import SignedHeatSolver, signed_heat_distance, signed_heat_solver
-from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, disk, uv_sphere
 
-from conftest import data_path
 from finite_differences import central_difference
 
 
@@ -140,11 +138,11 @@ def test_icosphere_loop_matches_the_latitude(icosphere4):
 
 
 @pytest.mark.slow
-def test_matches_potpourri3d_on_spot():
+def test_matches_potpourri3d_on_spot(data_mesh):
     """A loop of 114 edges around spot (2,930 vertices): correlation above 0.9995 (measured 0.99985) and
     largest difference under 2% of the bounding box's diagonal (measured 1.5%) against potpourri3d, which
     diffuses on edge midpoints (Crouzeix-Raviart) where ddgjax diffuses on vertices."""
-    mesh = load_mesh(data_path("meshes", "spot.obj"))
+    mesh = data_mesh("spot.obj")
     loop = _section_loop(mesh, 0)
     V, F = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces)
     ours = np.asarray(signed_heat_distance(mesh, [loop]))

@@ -14,7 +14,6 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddgjax import DDGInputError, MeshDataError
-from ddgjax.io import load_mesh
 from ddgjax.laplacian import (
     IntrinsicTriangulation,
     cotan_laplacian,
@@ -27,13 +26,13 @@ from ddgjax.laplacian import (
     mass_matrix_from_lengths_sq,
     triangulation_plan,
 )
-from ddgjax.mesh import Mesh, check_mesh, icosphere
+from ddgjax.mesh import Mesh, check_mesh
 from ddgjax.mesh.internal import degenerate_faces
 from ddgjax.pde import harmonic_interpolation, solve_poisson
 from ddgjax.sparse import dirichlet_blocks
 from ddgjax.spectral import eigenpairs
 
-from conftest import data_path
+from conftest import load_data_mesh, unit_icosphere
 from finite_differences import central_difference
 
 REAL_MESHES = ["beetle.off", "camelhead.off", "nefertiti.obj"]
@@ -61,7 +60,7 @@ def _n_negative_weights(L_psd: sp.spmatrix) -> int:
 @functools.cache
 def _prepared(name: str):
     """`(mesh, triangulation, L)` of a shared mesh, built once for all the tests that use it."""
-    mesh = load_mesh(data_path("meshes", name))
+    mesh = load_data_mesh(name)
     triangulation = intrinsic_delaunay(mesh)
     return mesh, triangulation, intrinsic_delaunay_laplacian(mesh, triangulation=triangulation)
 
@@ -220,7 +219,7 @@ def test_delaunay_mesh_needs_no_flips_and_gives_the_cotan_laplacian(icosphere3):
 
 def _jittered_sphere(subdivisions: int, amount: float, seed: int = 0) -> Mesh:
     """Icosphere with vertices moved tangentially by `amount` edge lengths, back onto the sphere (obtuse faces)."""
-    mesh = icosphere(subdivisions)
+    mesh = unit_icosphere(subdivisions)
     V = np.asarray(mesh.vertices)
     noise = np.random.default_rng(seed).standard_normal(V.shape) * amount * 1.1 / 2**subdivisions
     noise -= np.sum(noise * V, axis=1, keepdims=True) * V
@@ -257,20 +256,20 @@ def test_gradients_match_finite_differences_of_the_flipped_operator(jittered):
     # Against central differences of the true intrinsic Delaunay energy, the flips recomputed at every
     # point: steps of 1e-6 keep the same flips (checked), so these are derivatives of the fixed
     # triangulation. Truncation ~1e-11 (step^2 times third derivatives), rounding ~1e-10 relative.
-    step = 1e-6
+
+    def retriangulated(W):
+        """The energy and squared lengths of `W` on its own intrinsic Delaunay triangulation, checked to be `V`'s."""
+        moved = mesh.with_vertices(W)
+        flipped = intrinsic_delaunay(moved)
+        np.testing.assert_array_equal(flipped.faces, triangulation.faces)
+        return _energy(moved, flipped, u, w), flipped.face_lengths_sq(moved)
+
     for direction in np.random.default_rng(2).standard_normal((3,) + V.shape):
-        values = []
-        for sign in (1, -1):
-            moved = mesh.with_vertices(V + sign * step * direction)
-            retriangulated = intrinsic_delaunay(moved)
-            np.testing.assert_array_equal(retriangulated.faces, triangulation.faces)
-            values.append((_energy(moved, retriangulated, u, w), retriangulated.face_lengths_sq(moved)))
-        (energy_plus, lengths_plus), (energy_minus, lengths_minus) = values
-        np.testing.assert_allclose(jnp.vdot(gradient(V), direction), (energy_plus - energy_minus) / (2 * step), rtol=1e-8)
-        scale = np.abs(lengths_plus - lengths_minus).max() / (2 * step)
-        np.testing.assert_allclose(
-            derivative(V, jnp.asarray(direction)), (lengths_plus - lengths_minus) / (2 * step), atol=1e-8 * scale
-        )
+        energy_change, length_change = central_difference(retriangulated, V, direction, eps=1e-6)
+        # Rounding ~1e-10 relative over the step 1e-6 (above); the lengths' too, relative to their largest change.
+        np.testing.assert_allclose(jnp.vdot(gradient(V), direction), energy_change, rtol=1e-8)
+        scale = np.abs(length_change).max()  # the lengths' rounding is relative to their largest change
+        np.testing.assert_allclose(derivative(V, jnp.asarray(direction)), length_change, atol=1e-8 * scale)
 
 
 @pytest.mark.slow
@@ -293,8 +292,8 @@ def test_jit_and_vmap_equal_eager(jittered):
     np.testing.assert_allclose(M_batch, jnp.stack([M, 0.25 * M, 4.0 * M]), rtol=1e-13)
 
 
-def test_higher_genus_matches_libigl():
-    mesh = load_mesh(data_path("meshes", "double-torus.obj"))  # genus 2
+def test_higher_genus_matches_libigl(data_mesh):
+    mesh = data_mesh("double-torus.obj")  # genus 2
     V, F = _vertices_and_faces(mesh)
     triangulation = intrinsic_delaunay(mesh)
     assert triangulation.n_flips == 1076
@@ -390,7 +389,7 @@ def test_degenerate_faces_give_finite_values_and_gradients(jittered):
 def _degenerate_sphere() -> Mesh:
     """icosphere(2) with face 0 collinear (a corner moved onto the midpoint of its opposite edge) and
     vertex `F[5, 1]` moved onto `F[5, 0]` (a zero-length edge: faces 5 and 41 collapse)."""
-    mesh = icosphere(2)
+    mesh = unit_icosphere(2)
     V, F = np.asarray(mesh.vertices).copy(), np.asarray(mesh.faces)
     V[F[0, 2]] = 0.5 * (V[F[0, 0]] + V[F[0, 1]])
     V[F[5, 1]] = V[F[5, 0]]
@@ -510,7 +509,7 @@ def _mixed() -> Mesh:
 
 
 def _moebius() -> Mesh:
-    return load_mesh(data_path("meshes", "moebius.obj"))
+    return load_data_mesh("moebius.obj")
 
 
 @pytest.mark.parametrize("make", [_moebius, _fins, _flipped_sphere, _mixed])
@@ -536,12 +535,12 @@ def test_non_manifold_and_non_oriented_meshes_match_robust_laplacian(make):
     # robust=True takes the same route, and the total mass is the area (mollification aside: 1e-5 margins).
     L_true = laplacian_and_mass(mesh, mass="barycentric", robust=True).laplacian
     assert abs(L_true.to_scipy() - L).max() == 0
-    np.testing.assert_allclose(M.sum(), igl.doublearea(V, F).sum() / 2, rtol=1e-4)
+    np.testing.assert_allclose(M.sum(), igl.doublearea(V, F).sum() / 2, rtol=1e-4)  # lengths mollified by 1e-5
 
 
-def test_manifold_oriented_meshes_keep_the_flat_path():
+def test_manifold_oriented_meshes_keep_the_flat_path(data_mesh):
     """An edge-manifold, oriented mesh is flipped as it is (`sheets=1`), boundary edges kept."""
-    mesh = load_mesh(data_path("meshes", "hexagon.obj"))
+    mesh = data_mesh("hexagon.obj")
     triangulation = intrinsic_delaunay(mesh)
     assert triangulation.sheets == 1 and triangulation.faces.shape == (mesh.n_faces, 3)
 

@@ -22,14 +22,14 @@ from ddgjax.learn import (
     spectral_diffusion,
     stack_diffusion_operators,
 )
-from ddgjax.mesh import disk, grid, icosphere
+from ddgjax.mesh import disk, grid
 
-from conftest import data_path
+from conftest import unit_icosphere
 
 
 def _bumpy_sphere(subdivisions: int = 2, seed: int = 0):
     """An icosphere with every vertex moved radially at random: no symmetry, so no repeated eigenvalues."""
-    mesh = icosphere(subdivisions)
+    mesh = unit_icosphere(subdivisions)
     V = np.asarray(mesh.vertices)
     scale = 1 + 0.05 * np.random.default_rng(seed).standard_normal((V.shape[0], 1))
     return mesh.with_vertices(jnp.asarray(V * scale))
@@ -91,8 +91,8 @@ def test_eigenpairs_match_robust_laplacian_on_a_built_in_mesh():
 
 
 @pytest.mark.slow
-def test_eigenpairs_match_robust_laplacian_on_a_mesh_with_slivers():
-    _check_against_robust_laplacian(load_mesh(data_path("meshes", "camelhead.off")), 16)  # near-degenerate triangles
+def test_eigenpairs_match_robust_laplacian_on_a_mesh_with_slivers(data_mesh):
+    _check_against_robust_laplacian(data_mesh("camelhead.off"), 16)  # near-degenerate triangles
 
 
 @pytest.mark.slow
@@ -127,10 +127,10 @@ def test_spatial_gradient_is_exact_for_linear_functions_on_a_flat_mesh():
 
 
 @pytest.mark.slow
-def test_spatial_gradient_converges_on_a_sphere():
+def test_spatial_gradient_converges_on_a_sphere(icospheres):
     errors, spacings = [], []
     for level in (3, 4, 5):  # level 1 is too symmetric: its error is round-off
-        mesh = icosphere(level)
+        mesh = icospheres(level)
         ops = diffusion_operators(mesh, 4)
         V = np.asarray(mesh.vertices)
         tangent = np.array([0.0, 0.0, 1.0]) - V[:, 2:3] * V  # grad of z on the unit sphere

@@ -16,14 +16,15 @@ import pytest
 import ddgjax.learn._operators as operators_module
 from ddgjax.learn import diffusion_operators, diffusion_operators_of_meshes
 from ddgjax.learn._operators import cache_key
-from ddgjax.mesh import icosphere
+
+from conftest import unit_icosphere
 
 K = 8
 
 
 def _bumpy(seed: int):
     """icosphere(1) moved radially at random: 42 vertices, no repeated eigenvalues (deterministic eigenvectors)."""
-    mesh = icosphere(1)
+    mesh = unit_icosphere(1)
     V = np.asarray(mesh.vertices)
     return mesh.with_vertices(jnp.asarray(V * (1 + 0.05 * np.random.default_rng(seed).standard_normal((len(V), 1)))))
 
@@ -70,7 +71,7 @@ def _stored_key(path):
     "planted",
     ["fewer_eigenpairs", "another_mesh", pytest.param("a_larger_mesh", marks=pytest.mark.slow)],  # compiles for 162 vertices
 )
-def test_a_planted_file_of_wrong_content_is_recomputed_and_rewritten(mesh, fresh, tmp_path, planted):
+def test_a_planted_file_of_wrong_content_is_recomputed_and_rewritten(mesh, fresh, tmp_path, planted, icosphere2):
     elsewhere, folder = tmp_path / "elsewhere", tmp_path / "cache"
     folder.mkdir()
     if planted == "fewer_eigenpairs":  # (42, 3) eigenvectors under the name of k = 8
@@ -80,7 +81,7 @@ def test_a_planted_file_of_wrong_content_is_recomputed_and_rewritten(mesh, fresh
     elif planted == "another_mesh":  # the same shapes and dtypes, another mesh's values
         source = _cached_file(elsewhere, _bumpy(1), K)
     else:
-        source = _cached_file(elsewhere, icosphere(2), K)
+        source = _cached_file(elsewhere, icosphere2, K)
     path = _target(folder, mesh)
     shutil.copyfile(source, path)
     ops = _no_warnings_call(mesh, folder)

@@ -8,11 +8,8 @@ import pytest
 
 import ddgjax.matching._match as match_module
 from ddgjax import RESULTS, DDGInputError
-from ddgjax.io import load_mesh
 from ddgjax.matching import descriptors, functional_map, match_shapes, spectral_shape
-from ddgjax.mesh import Mesh, icosphere
-
-from conftest import data_path
+from ddgjax.mesh import Mesh
 
 
 def _two_copies(mesh: Mesh, shift=(3.0, 0.0, 0.0)) -> Mesh:
@@ -32,20 +29,10 @@ def _touching_at_a_vertex(mesh: Mesh) -> Mesh:
     return Mesh.from_arrays(np.concatenate([V, mirrored[others]]), np.concatenate([F, index[F][:, ::-1]]))
 
 
-@pytest.fixture(scope="module")
-def sphere():
-    return icosphere(3)
-
-
-@pytest.fixture(scope="module")
-def spot():
-    return load_mesh(data_path("meshes", "spot.obj"))
-
-
 @pytest.mark.parametrize("which", ["target", "source", "both"])
 @pytest.mark.parametrize("shape", ["icosphere", "spot"])
-def test_a_mesh_of_two_components_is_refused_before_anything_is_computed(sphere, spot, monkeypatch, which, shape):
-    one = sphere if shape == "icosphere" else spot
+def test_a_mesh_of_two_components_is_refused_before_anything_is_computed(icosphere3, data_mesh, monkeypatch, which, shape):
+    one = icosphere3 if shape == "icosphere" else data_mesh("spot.obj")
     two = _two_copies(one)
 
     def refuse(*args, **kwargs):
@@ -60,11 +47,11 @@ def test_a_mesh_of_two_components_is_refused_before_anything_is_computed(sphere,
 
 
 @pytest.mark.parametrize("which", ["source", "target"])
-def test_functional_map_called_directly_refuses_a_shape_of_two_components(which):
+def test_functional_map_called_directly_refuses_a_shape_of_two_components(which, icosphere1):
     """The refusal also guards a direct `functional_map` call: the two spheres' two zero eigenvalues
     (measured without the refusal: map entries of 50 to 500 at k = 10 to 30 in the rows of the
     target's zero eigenvalues, where a map between isometric shapes has entries of at most 1)."""
-    sphere = icosphere(1)
+    sphere = icosphere1
     one, two = spectral_shape(sphere, 8), spectral_shape(_two_copies(sphere), 8)
     assert np.all(np.abs(np.asarray(two.values[:2])) < 1e-10) and two.values[2] > 1  # two zero eigenvalues
     source, target = (two, one) if which == "source" else (one, two)
@@ -75,9 +62,9 @@ def test_functional_map_called_directly_refuses_a_shape_of_two_components(which)
 
 
 @pytest.mark.slow
-def test_components_that_share_a_vertex_are_one_and_are_matched(sphere):
+def test_components_that_share_a_vertex_are_one_and_are_matched(icosphere2):
     """A bowtie's two spheres are joined through their shared vertex: one zero eigenvalue, not refused."""
-    bowtie = _touching_at_a_vertex(icosphere(2))
+    bowtie = _touching_at_a_vertex(icosphere2)
     assert bowtie.topology.n_components == 2  # two edge-connected components of faces ...
     rng = np.random.default_rng(0)
     moved = bowtie.with_vertices(

@@ -16,15 +16,15 @@ from scipy.spatial import cKDTree
 
 from ddgjax import RESULTS, DDGInputError, Mesh, Solution
 from ddgjax.matching import descriptors, functional_map, spectral_shape
-from ddgjax.mesh import icosphere
 from ddgjax.spectral import wave_kernel_signature
 
+from conftest import unit_icosphere
 from finite_differences import central_difference
 
 
 def _noisy_sphere(seed: int, *, mirror: bool = False) -> Mesh:
     """An icosphere with random vertex noise: no symmetry left, or (`mirror`) only the x -> -x reflection."""
-    base = icosphere(2)
+    base = unit_icosphere(2)
     V, F = np.asarray(base.vertices), np.asarray(base.faces)
     noise = 0.08 * np.random.default_rng(seed).standard_normal(V.shape)
     if mirror:
@@ -283,14 +283,13 @@ def test_functional_map_bad_input(pair):
 
 
 @pytest.mark.slow
-def test_a_flat_energy_still_gives_a_finite_map():
+def test_a_flat_energy_still_gives_a_finite_map(icosphere2):
     """An ellipsoid matched to itself: its mirror symmetries leave the energy flat along the sign of
     every antisymmetric eigenfunction (no descriptor sees it), and the dense Hessian singular; the
     map stays finite and a minimiser (its descriptor term as small as CG's)."""
     from ddgjax.matching import descriptors, functional_map, spectral_shape
-    from ddgjax.mesh import icosphere
 
-    mesh = icosphere(2, dtype=np.float64)
+    mesh = icosphere2
     mesh = mesh.with_vertices(np.asarray(mesh.vertices) * np.array([1.0, 1.3, 0.8]))
     shape = spectral_shape(mesh, 10)
     d = descriptors(shape, n_descriptors=20)

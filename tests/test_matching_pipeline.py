@@ -12,7 +12,7 @@ from ddgjax.deform import arap
 from ddgjax.matching import MatchResult, geodesic_error, match_shapes
 from ddgjax.mesh import Mesh, icosphere
 
-from conftest import data_path
+from conftest import data_path, unit_icosphere
 
 pp3d = pytest.importorskip("potpourri3d")
 igl = pytest.importorskip("igl")
@@ -37,7 +37,7 @@ def _bent_and_shuffled(mesh: Mesh) -> tuple[Mesh, np.ndarray]:
     low, high = np.flatnonzero(V[:, 2] < np.quantile(V[:, 2], 0.05)), np.flatnonzero(V[:, 2] > np.quantile(V[:, 2], 0.95))
     fixed = np.concatenate([low, high])
     values = V[fixed] + np.where(np.isin(fixed, high), 0.3, 0.0)[:, None] * np.array([1.0, 0.0, 0.0])
-    W = np.asarray(arap(mesh, fixed_vertices=fixed, fixed_values=values, rtol=1e-5))
+    W = np.asarray(arap(mesh, fixed_vertices=fixed, fixed_values=values, rtol=1e-5))  # a bent target, not ARAP's minimum
     perm = np.random.default_rng(0).permutation(len(V))
     return Mesh.from_arrays(W[perm], np.argsort(perm)[F]), perm
 
@@ -206,7 +206,7 @@ def _with_slivers(mesh: Mesh, n: int) -> tuple[Mesh, np.ndarray]:
 @pytest.fixture(scope="module")
 def bumpy_sphere() -> Mesh:
     """A 162-vertex sphere with random radii (no symmetry)."""
-    mesh = icosphere(2, dtype=np.float64)
+    mesh = unit_icosphere(2)
     radii = 1.0 + 0.1 * np.random.default_rng(0).standard_normal(mesh.n_vertices)
     return mesh.with_vertices(np.asarray(mesh.vertices) * radii[:, None])
 
@@ -235,7 +235,7 @@ def test_match_shapes_on_slivers_with_robust_laplacian_is_finite_and_reports_its
     assert geodesic_error(bumpy_sphere, point_map, np.arange(bumpy_sphere.n_vertices)) < 0.05
 
 
-def test_bad_input(spot, without_type_checker):
+def test_bad_input(spot, without_type_checker, icosphere1):
     with pytest.raises(DDGInputError, match="true_point_map"):
         geodesic_error(spot, np.arange(5), np.arange(6))
     with pytest.raises(DDGInputError, match="point_map"):
@@ -257,7 +257,7 @@ def test_bad_input(spot, without_type_checker):
     with pytest.raises(DDGInputError, match="source_mesh"):
         match_shapes((np.zeros((3, 3)), np.zeros((1, 3), int)), spot)
     with pytest.raises(DDGInputError, match="source_mesh"):
-        match_shapes(icosphere(1, dtype=np.float64), spot, k=50)
+        match_shapes(icosphere1, spot, k=50)
 
 
 @pytest.mark.slow

@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from ddgjax import RESULTS, DDGInputError, Solution
-from ddgjax.io import load_mesh
 from ddgjax.matching import SpectralShape, functional_map_from_point_map, icp_refine, point_map, spectral_shape, zoomout_refine
 
-from conftest import data_path
+from conftest import load_data_mesh
 
 pyFM_spectral = pytest.importorskip("pyFM.spectral")
 pyFM_refine = pytest.importorskip("pyFM.refine")
@@ -20,7 +19,7 @@ pyFM_refine = pytest.importorskip("pyFM.refine")
 @pytest.fixture(scope="module")
 def shape() -> SpectralShape:
     """A 162-vertex sphere with 40 eigenpairs."""
-    return spectral_shape(load_mesh(data_path("meshes", "sphere_small.ply")), 40)
+    return spectral_shape(load_data_mesh("sphere_small.ply"), 40)
 
 
 @pytest.fixture(scope="module")

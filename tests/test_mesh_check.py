@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 
 from ddgjax import DDGInputError, MeshDataError
 from ddgjax.cli import main
-from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, check_mesh, face_areas
 from ddgjax.mesh.internal import default_area_tol
 
@@ -105,11 +104,11 @@ def test_with_vertices_passes_traced_vertices_through():
     assert jnp.issubdtype(mesh.with_vertices(TET_V.astype(int)).vertices.dtype, jnp.floating)
 
 
-def test_operators_needing_a_manifold_refuse_clearly():
-    topology = load_mesh(data_path("meshes", "triple_vierbein.obj")).topology
+def test_operators_needing_a_manifold_refuse_clearly(data_mesh):
+    topology = data_mesh("triple_vierbein.obj").topology
     with pytest.raises(MeshDataError, match=r"my operator needs an edge-manifold mesh; edges \["):
         topology.require_manifold("my operator")
-    moebius = load_mesh(data_path("meshes", "moebius.obj")).topology
+    moebius = data_mesh("moebius.obj").topology
     with pytest.raises(MeshDataError, match="consistently oriented"):
         moebius.require_oriented("d1")
 
@@ -117,30 +116,30 @@ def test_operators_needing_a_manifold_refuse_clearly():
 # ---------------------------------------------------------------- check_mesh
 
 
-def test_check_mesh_on_clean_and_problem_meshes():
+def test_check_mesh_on_clean_and_problem_meshes(data_mesh):
     clean = check_mesh(Mesh.from_arrays(TET_V, TET_F))
     assert clean.is_clean and clean.is_closed and clean.genus == 0 and clean.euler_characteristic == 2
     assert "Euler characteristic 2  genus 0" in str(clean)
 
-    hourglass = check_mesh(load_mesh(data_path("meshes", "hourglass_ico.obj")))
+    hourglass = check_mesh(data_mesh("hourglass_ico.obj"))
     assert hourglass.nonmanifold_vertices.tolist() == [22] and not hourglass.is_manifold and hourglass.genus is None
     assert "non-manifold vertices (2+ fans): [22] (1 in all)" in str(hourglass)
     assert "non-manifold edges (3+ faces): none" in str(hourglass)
 
-    vierbein = check_mesh(load_mesh(data_path("meshes", "triple_vierbein.obj")))
+    vierbein = check_mesh(data_mesh("triple_vierbein.obj"))
     assert vierbein.nonmanifold_edges.size == 20 and not vierbein.is_oriented
 
-    moebius = check_mesh(load_mesh(data_path("meshes", "moebius.obj")))
+    moebius = check_mesh(data_mesh("moebius.obj"))
     assert moebius.is_manifold and not moebius.is_oriented and moebius.boundary_loop_lengths == (112,)
 
-    bunny = check_mesh(load_mesh(data_path("meshes", "stanford-bunny.obj")))
+    bunny = check_mesh(data_mesh("stanford-bunny.obj"))
     assert bunny.unreferenced_vertices.size == 1113 and bunny.n_boundary_loops == 5
     assert bunny.duplicate_faces.size == 0
     assert "unreferenced vertices: [8, 16, 18, 72, 86, 99, 104, 117, 157, 177], ... (1113 in all)" in str(bunny)
     assert "boundary loops: 5 (vertices per loop: [22, 42, 39, 40, 80])" in str(bunny)
 
 
-def test_check_mesh_names_duplicate_faces():
+def test_check_mesh_names_duplicate_faces(data_mesh):
     """A face whose three vertices repeat an earlier face's, in any order or orientation, is named as a
     duplicate (the later copies), not only through the non-manifold edges it creates."""
     assert check_mesh(Mesh.from_arrays(TET_V, TET_F)).duplicate_faces.size == 0
@@ -159,10 +158,10 @@ def test_check_mesh_names_duplicate_faces():
 
     # Real meshes: none of tests/data/meshes has duplicate faces (checked for all 20); triple_vierbein's
     # 20 non-manifold edges come from distinct faces. bob with one face appended reversed names it.
-    vierbein = check_mesh(load_mesh(data_path("meshes", "triple_vierbein.obj")))
+    vierbein = check_mesh(data_mesh("triple_vierbein.obj"))
     assert vierbein.nonmanifold_edges.size == 20 and vierbein.duplicate_faces.size == 0
     assert "duplicate faces (same three vertices as an earlier face): none" in str(vierbein)
-    bob = load_mesh(data_path("meshes", "bob_small.ply"))
+    bob = data_mesh("bob_small.ply")
     faces = np.asarray(bob.faces)
     doubled = check_mesh(Mesh.from_arrays(np.asarray(bob.vertices), np.vstack([faces, faces[7, ::-1]])))
     assert doubled.duplicate_faces.tolist() == [faces.shape[0]] and check_mesh(bob).is_clean
@@ -191,7 +190,7 @@ def test_check_mesh_finds_zero_area_faces_at_current_positions(icosphere0):
     # A needle of aspect 1e-4 is not zero-area at the default tolerance, but is at area_tol=1e-3.
     V[4] += 1e-4 * np.cross(V[9] - V[3], [0.0, 0.0, 1.0])
     assert 10 not in check_mesh(sphere.with_vertices(V)).zero_area_faces
-    assert 10 in check_mesh(sphere.with_vertices(V), area_tol=1e-3).zero_area_faces
+    assert 10 in check_mesh(sphere.with_vertices(V), area_tol=1e-3).zero_area_faces  # area / l^2 ~ 1e-4 / 2
     with pytest.raises(DDGInputError, match="area_tol"):
         check_mesh(sphere, area_tol=-1.0)
 
@@ -219,9 +218,9 @@ def test_info_on_a_file(capsys):
 @pytest.mark.parametrize(
     "name, problem", [("moebius.obj", "inconsistently oriented edges"), ("triple_vierbein.obj", "non-manifold edges")]
 )
-def test_info_says_signed_curvatures_are_undefined_without_an_orientation(capsys, name, problem):
+def test_info_says_signed_curvatures_are_undefined_without_an_orientation(capsys, name, problem, data_mesh):
     """No statistics of H, k1, k2 where their sign means nothing; K and Gauss-Bonnet still reported."""
-    topology = load_mesh(data_path("meshes", name)).topology
+    topology = data_mesh(name).topology
     assert main(["info", str(data_path("meshes", name))]) == 0
     out = capsys.readouterr().out
     count = (topology.inconsistent_edges if problem.startswith("inconsistently") else topology.nonmanifold_edges).size

@@ -15,7 +15,7 @@ import pytest
 from jax.test_util import check_grads
 
 from ddgjax import DDGInputError, MeshDataError
-from ddgjax.io import _read_obj, _read_with_trimesh, load_mesh
+from ddgjax.io import _read_obj, _read_with_trimesh
 from ddgjax.laplacian import laplacian_apply
 from ddgjax.mesh import (
     Mesh,
@@ -37,7 +37,7 @@ from ddgjax.mesh import (
     vertex_principal_curvatures,
 )
 
-from conftest import data_path
+from conftest import data_path, load_data_mesh, unit_icosphere
 from mesh_union import disjoint_union
 
 
@@ -102,7 +102,7 @@ REAL_NAMES = ["camelhead.off", "torus.obj"]
 @pytest.fixture(scope="module")
 def real() -> dict:
     """camelhead (boundary, slivers) and torus.obj (R=1, r=1/4 about y), evaluated as one union."""
-    meshes = [load_mesh(data_path("meshes", name)) for name in REAL_NAMES]
+    meshes = [load_data_mesh(name) for name in REAL_NAMES]
     union = disjoint_union([arrays(mesh) for mesh in meshes])
     values = jax.tree_util.tree_map(np.asarray, curvatures(union.mesh))
     return {
@@ -116,7 +116,7 @@ def real() -> dict:
 # same connectivity with degenerate positions (vertex 11 onto vertex 0: faces 0 and 4 get zero area;
 # vertex 4 onto the midpoint of 3-9: face 10 collinear). Reusing one Mesh object (with_vertices)
 # reuses the compiled functions; a new Mesh would compile anew.
-SMALL = icosphere(0)
+SMALL = unit_icosphere(0)
 SMALL = SMALL.with_vertices(SMALL.vertices * jnp.array([1.0, 1.2, 0.8]) + 0.05 * jnp.cos(2.0 * SMALL.vertices))
 DEGENERATE_VERTICES = SMALL.vertices.at[11].set(SMALL.vertices[0]).at[4].set(0.5 * (SMALL.vertices[3] + SMALL.vertices[9]))
 
@@ -126,7 +126,7 @@ def bumpy_union() -> tuple[Mesh, int]:
 
     Returns the mesh and the number of vertices of the closed part (which come first).
     """
-    sphere, patch = icosphere(1), disk(2)
+    sphere, patch = unit_icosphere(1), disk(2)
     V_sphere = np.asarray(sphere.vertices) * [1.0, 1.3, 0.7] + 0.1 * np.sin(3.0 * np.asarray(sphere.vertices))
     V_disk = np.asarray(patch.vertices) + [3.0, 0.0, 0.0]
     V_disk[:, 2] = 0.3 * np.cos(2.0 * V_disk[:, 0])
@@ -205,10 +205,10 @@ SIGNED = {
     "name, problem",
     [("moebius.obj", "consistently oriented faces"), ("triple_vierbein.obj", "edge-manifold")],
 )
-def test_signed_curvatures_refuse_meshes_without_an_orientation(name, problem):
+def test_signed_curvatures_refuse_meshes_without_an_orientation(name, problem, data_mesh):
     """Signed dihedral angles are arbitrary without a consistent orientation: the signed curvatures
     refuse (also under jit: the check reads the host topology); the unsigned ones still work."""
-    mesh = load_mesh(data_path("meshes", name))
+    mesh = data_mesh(name)
     for function_name, function in SIGNED.items():
         for call in (function, jax.jit(function)):
             with pytest.raises(MeshDataError, match=rf"ddgjax\.mesh\.{function_name} .*needs .*{problem}"):

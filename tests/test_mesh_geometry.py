@@ -14,7 +14,6 @@ import pytest
 from jax.test_util import check_grads
 
 from ddgjax import DDGInputError
-from ddgjax.io import load_mesh
 from ddgjax.mesh import (
     Mesh,
     corner_angles,
@@ -28,13 +27,12 @@ from ddgjax.mesh import (
     face_areas_from_lengths_sq,
     face_edge_lengths_sq,
     face_normals,
-    icosphere,
     total_area,
     vertex_dual_areas,
     vertex_normals,
 )
 
-from conftest import data_path
+from conftest import load_data_mesh, unit_icosphere
 from mesh_union import disjoint_union
 
 
@@ -66,7 +64,7 @@ REAL_NAMES = ["beetle.off", "nefertiti.obj", "camelhead.off", "stanford-bunny.ob
 @pytest.fixture(scope="module")
 def real():
     """The four real meshes as one union, their arrays, and every geometric quantity of the union."""
-    meshes = [load_mesh(data_path("meshes", name)) for name in REAL_NAMES]
+    meshes = [load_data_mesh(name) for name in REAL_NAMES]
     arrays = {name: (np.asarray(m.vertices), np.asarray(m.faces)) for name, m in zip(REAL_NAMES, meshes)}
     union = disjoint_union(list(arrays.values()))
     values = jax.tree_util.tree_map(np.asarray, geometry(union.mesh))
@@ -86,7 +84,7 @@ def part(real, name: str, key: str) -> np.ndarray:
 
 # Synthetic cases, also one union: a level-2 icosphere (largest angle ~72 degrees) and one triangle
 # that the closed-form tests re-position with `with_vertices` (no recompilation).
-SPHERE = icosphere(2)
+SPHERE = unit_icosphere(2)
 SYNTHETIC = disjoint_union([(np.asarray(SPHERE.vertices), np.asarray(SPHERE.faces)), (np.eye(3), np.array([[0, 1, 2]]))])
 TRIANGLE_VERTICES = SYNTHETIC.vertices_of(1)
 
@@ -109,7 +107,7 @@ def triangle_dual_areas(points) -> dict:
 # the same connectivity with degenerate positions: vertex 11 moved onto vertex 0 (faces 0 and 4 get
 # zero area, edge 0-11 zero length) and vertex 4 onto the midpoint of 3-9 (face 10 collinear, a
 # 180-degree corner). Sharing the connectivity shares the compiled functions.
-ICOSAHEDRON = icosphere(0)
+ICOSAHEDRON = unit_icosphere(0)
 SMALL = ICOSAHEDRON.with_vertices(ICOSAHEDRON.vertices * jnp.array([1.0, 1.3, 0.7]) + 0.1 * jnp.sin(3.0 * ICOSAHEDRON.vertices))
 DEGENERATE_VERTICES = SMALL.vertices.at[11].set(SMALL.vertices[0]).at[4].set(0.5 * (SMALL.vertices[3] + SMALL.vertices[9]))
 

@@ -13,7 +13,6 @@ import pytest
 from jax.test_util import check_grads
 
 from ddgjax import DDGInputError
-from ddgjax.io import load_mesh
 from ddgjax.mesh import Mesh, disk
 from ddgjax.param import (
     boundary_first_flattening,
@@ -25,7 +24,7 @@ from ddgjax.param import (
     tutte_embedding,
 )
 
-from conftest import data_path
+from conftest import load_data_mesh
 
 DISK_MESHES = ("small_disk.obj", "disk.obj", "hemisphere.obj", "hexagon.obj", "camelhead.off")
 
@@ -64,7 +63,7 @@ def _fitted_rate(hs, errors):
 
 @pytest.fixture(scope="module")
 def hemisphere():
-    return load_mesh(data_path("meshes", "hemisphere.obj"))
+    return load_data_mesh("hemisphere.obj")
 
 
 def test_harmonic_map_equals_igl_harmonic_up_to_a_similarity(hemisphere):
@@ -149,9 +148,9 @@ def test_conformal_maps_of_the_hemisphere_converge():
 
 @pytest.mark.parametrize("name", DISK_MESHES)
 @pytest.mark.slow
-def test_tutte_has_no_flipped_triangles(name):
+def test_tutte_has_no_flipped_triangles(name, data_mesh):
     """Positive weights and a convex boundary: every triangle keeps a positive area (Floater 1997)."""
-    mesh = load_mesh(data_path("meshes", name))
+    mesh = data_mesh(name)
     uv = tutte_embedding(mesh)
     distortion = map_distortion(mesh, uv)
     assert int(distortion.n_flipped) == 0

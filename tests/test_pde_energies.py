@@ -264,6 +264,7 @@ def test_vertex_gradients_against_finite_differences(icosphere1):
     finite = central_difference(energies, V, tangent, eps)
     # Central differences of step 1e-4: O(eps^2) ~1e-8 relative truncation; check_grads' float64 tolerance.
     np.testing.assert_allclose(forward, finite, rtol=1e-5, atol=1e-5)
+    # Reverse mode against the same differences: the same tolerance.
     np.testing.assert_allclose(jnp.vdot(reverse, tangent), jnp.vdot(cotangent, finite), rtol=1e-5, atol=1e-5)
 
 

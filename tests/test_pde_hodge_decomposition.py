@@ -56,7 +56,7 @@ def test_matches_the_ddg_exercises_reference(reference):
     assert mesh.topology.genus == 2
     # The reference's shift 1e-8 I moves its d alpha and gamma by ~1.5e-7 (docstring).
     for ours, tag in ((parts.exact, "dAlpha"), (parts.coexact, "deltaBeta"), (parts.harmonic, "gamma")):
-        np.testing.assert_allclose(np.asarray(ours)[index, 0] * sign, data[tag][:, 0], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(ours)[index, 0] * sign, data[tag][:, 0], rtol=0, atol=1e-6)  # the shift's 1.5e-7
     np.testing.assert_allclose(np.asarray(parts.coexact)[index, 0] * sign, data["deltaBeta"][:, 0], rtol=0, atol=1e-12)
 
 

@@ -65,6 +65,7 @@ def test_sphere_shrinks_at_the_discrete_and_the_smooth_rate(icosphere3):
     # The cotan L is scale invariant: on a round sphere the plain and modified flows shrink alike (up to
     # the icosphere's spatial error; its vertices also slide a little, differently in each).
     modified = mean_curvature_flow(mesh, tau=tau, steps=steps, save_every=every, modified=True)
+    # the icosphere's spatial error, as for the radii above
     np.testing.assert_allclose(np.linalg.norm(np.asarray(modified.vertices), axis=-1), radii, rtol=0, atol=5e-5)
 
 

@@ -12,12 +12,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ddgjax import RESULTS, DDGInputError, Solution
-from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import Mesh, disk, grid, icosphere
 from ddgjax.pde import harmonic_interpolation, solve_poisson
 
-from conftest import data_path, read_ddg_reference
+from conftest import read_ddg_reference
 from finite_differences import central_difference
 from mesh_union import disjoint_union
 
@@ -72,12 +71,12 @@ def test_unit_disk_converges_to_the_analytic_solution_at_second_order():
 
 
 @pytest.mark.slow
-def test_sphere_with_spherical_harmonic_right_hand_sides():
+def test_sphere_with_spherical_harmonic_right_hand_sides(icospheres):
     """On the unit sphere Delta Y_l = -l (l + 1) Y_l, so Delta phi = Y_l gives phi = -Y_l / (l (l + 1)).
     Measured rate 2.02 (2.00 from one subdivision more). The three spheres are solved as one mesh, their
     disjoint union (one compilation): each closed component is solved on its own
     (test_each_closed_component_is_made_compatible_and_zero_mean)."""
-    union = disjoint_union([(np.asarray(m.vertices), np.asarray(m.faces)) for m in (icosphere(k) for k in (1, 2, 3))])
+    union = disjoint_union([(np.asarray(m.vertices), np.asarray(m.faces)) for m in map(icospheres, (1, 2, 3))])
     x, y, z = np.asarray(union.mesh.vertices).T
     block = np.stack([z, x * y, 3 * z**2 - 1], axis=1)  # l = 1, 2, 2
     phi = np.asarray(solve_poisson(union.mesh, block))
@@ -120,8 +119,8 @@ def test_each_closed_component_is_made_compatible_and_zero_mean(icosphere2):
         assert abs(np.sum((M @ phi)[rows])) < 1e-13
 
 
-def test_dirichlet_problem_matches_libigl_min_quad_with_fixed():
-    mesh = load_mesh(data_path("meshes", "camelhead.off"))
+def test_dirichlet_problem_matches_libigl_min_quad_with_fixed(data_mesh):
+    mesh = data_mesh("camelhead.off")
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     boundary = mesh.topology.boundary_vertices
     rho = np.sin(4 * V[:, 0]) + V[:, 1] ** 2
@@ -133,8 +132,8 @@ def test_dirichlet_problem_matches_libigl_min_quad_with_fixed():
 
 
 @pytest.mark.slow
-def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_flat_meshes():
-    mesh = load_mesh(data_path("meshes", "camelhead.off"))
+def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_flat_meshes(data_mesh):
+    mesh = data_mesh("camelhead.off")
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     boundary = mesh.topology.boundary_vertices
     values = V[boundary] ** 2  # three columns at once
@@ -152,7 +151,7 @@ def test_harmonic_interpolation_matches_libigl_and_is_exact_for_linear_data_on_f
 
 
 @pytest.mark.slow  # the fast tier's time limit (its checks run in the full suite)
-def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_elsewhere():
+def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_elsewhere(data_mesh):
     """A harmonic function lies between its boundary extremes on a Delaunay mesh (non-negative cotan
     weights); the obtuse slivers of beetle break it, and the result shows it rather than hiding it."""
     mesh = _jittered_disk(6)
@@ -160,7 +159,7 @@ def test_maximum_principle_holds_on_delaunay_meshes_and_its_failure_is_visible_e
     values = np.sin(5 * np.arctan2(np.asarray(mesh.vertices)[rim, 1], np.asarray(mesh.vertices)[rim, 0]))
     u = harmonic_interpolation(mesh, fixed_vertices=rim, fixed_values=values)
     assert values.min() - 1e-12 <= float(u.min()) and float(u.max()) <= values.max() + 1e-12
-    beetle = load_mesh(data_path("meshes", "beetle.off"))
+    beetle = data_mesh("beetle.off")
     weights = -cotan_laplacian(beetle).to_scipy()
     weights.setdiag(0)
     assert weights.min() < 0  # negative cotan weights: the discrete maximum principle is not guaranteed

@@ -23,6 +23,8 @@ from ddgjax.pointcloud import (
 )
 from ddgjax.pointcloud._triangulation import local_triangles, nearest_neighbor_graph
 
+from conftest import unit_icosphere
+
 robust_laplacian = pytest.importorskip("robust_laplacian")
 pp3d = pytest.importorskip("potpourri3d")
 
@@ -34,7 +36,7 @@ def _sphere_samples(n: int, seed: int = 0) -> np.ndarray:
 
 def _jittered_icosphere(level: int, scale: float = 1e-3) -> np.ndarray:
     """Icosphere vertices moved a little (off the co-circular neighbourhoods of the exact icosphere), on the sphere."""
-    points = np.asarray(ddgjax.mesh.icosphere(level).vertices)
+    points = np.asarray(unit_icosphere(level).vertices)
     points = points + scale * np.random.default_rng(0).normal(size=points.shape)
     return points / np.linalg.norm(points, axis=1, keepdims=True)
 

@@ -13,17 +13,16 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-import ddgjax
 from ddgjax.pointcloud import point_cloud_laplacian
 
-from conftest import data_path
+from conftest import load_data_mesh, unit_icosphere
 
 robust_laplacian = pytest.importorskip("robust_laplacian")
 
 
 def _surface_samples(name: str, n: int, seed: int) -> np.ndarray:
     """`n` points uniform by area on a stored mesh."""
-    mesh = ddgjax.io.load_mesh(data_path("meshes", name))
+    mesh = load_data_mesh(name)
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     rng = np.random.default_rng(seed)
     areas = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
@@ -50,7 +49,7 @@ def _assert_mass_equal(M, M_ref):
 
 
 def _jittered_icosphere(level: int, scale: float = 1e-3) -> np.ndarray:
-    points = np.asarray(ddgjax.mesh.icosphere(level).vertices)
+    points = np.asarray(unit_icosphere(level).vertices)
     points = points + scale * np.random.default_rng(0).normal(size=points.shape)
     return points / np.linalg.norm(points, axis=1, keepdims=True)
 
@@ -67,9 +66,9 @@ def test_jittered_icosphere():
     _assert_mass_equal(M, M_ref)
 
 
-def test_mesh_vertices_as_the_cloud():
+def test_mesh_vertices_as_the_cloud(data_mesh):
     # Mesh vertices tie in distance and angle where the mesh is regular: nanoflann's and std::sort's orders.
-    points = np.asarray(ddgjax.io.load_mesh(data_path("meshes", "spot.obj")).vertices)
+    points = np.asarray(data_mesh("spot.obj").vertices)
     L, M, L_ref, M_ref = _both(points)
     _assert_laplacian_equal(L, L_ref)
     _assert_mass_equal(M, M_ref)

@@ -14,15 +14,16 @@ import pytest
 from ddgjax import RESULTS
 from ddgjax.geodesics import heat_distance, log_map, parallel_transport, signed_heat_distance
 from ddgjax.laplacian import intrinsic_delaunay, laplacian_and_mass
-from ddgjax.mesh import Mesh, icosphere
+from ddgjax.mesh import Mesh
 from ddgjax.pde import solve_poisson
 from ddgjax.spectral import eigenpairs
 
+from conftest import unit_icosphere
 from finite_differences import central_difference, random_direction
 
 
 def _degenerate(kind: str) -> Mesh:
-    sphere = icosphere(2)
+    sphere = unit_icosphere(2)
     vertices, faces = np.array(sphere.vertices), np.asarray(sphere.faces)
     a, b, c = faces[7]
     if kind == "cap":

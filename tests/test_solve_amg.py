@@ -13,7 +13,6 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from ddgjax import DDGInputError
-from ddgjax.io import load_mesh
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
 from ddgjax.mesh import disk
 from ddgjax.solve import factorize, linear_solve
@@ -25,7 +24,7 @@ from ddgjax.solve._amg import (
 )
 from ddgjax.sparse import dirichlet_blocks, dirichlet_plan, from_scipy
 
-from conftest import data_path
+from conftest import load_data_mesh
 
 
 def _dirichlet_block(mesh):
@@ -38,7 +37,7 @@ def _dirichlet_block(mesh):
 @pytest.fixture(scope="module")
 def camelhead():
     """camelhead's Dirichlet block and its hierarchy (default options), built once for the module."""
-    block = _dirichlet_block(load_mesh(data_path("meshes", "camelhead.off")))
+    block = _dirichlet_block(load_data_mesh("camelhead.off"))
     return block, amg_hierarchy(block)
 
 

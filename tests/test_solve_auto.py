@@ -9,10 +9,11 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
-from ddgjax.mesh import icosphere
 from ddgjax.solve import _linear, linear_solve
 
-MESH = icosphere(2)
+from conftest import unit_icosphere
+
+MESH = unit_icosphere(2)
 A = mass_matrix(MESH) + 0.1 * cotan_laplacian(MESH)
 B = jnp.asarray(np.random.default_rng(0).standard_normal(MESH.n_vertices))
 
@@ -26,8 +27,8 @@ def test_auto_takes_cholmod_where_installed_else_superlu_then_pyamg_by_size(monk
     monkeypatch.setattr(_linear, "SUPERLU_LIMIT", MESH.n_vertices - 1)  # this system counts as large
     large = linear_solve(A, B)
     assert large.solver == "pyamg" and int(large.num_steps) > 0
-    # pyamg's CG stops at linear_solve's default relative residual 1e-10, times A's condition number.
     for solution in (small, large):
+        # pyamg's CG stops at linear_solve's default relative residual 1e-10, times A's condition number.
         np.testing.assert_allclose(solution.value, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
 
 

@@ -23,12 +23,13 @@ import scipy.sparse.linalg as spla
 
 from ddgjax import RESULTS, DDGInputError
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
-from ddgjax.mesh import icosphere
 from ddgjax.solve import PrecisionWarning, SparseCholesky, _linear, amg_hierarchy, factorize, linear_solve
 from ddgjax.sparse import SparseMatrix, SparsityPattern, from_scipy
 
+from conftest import unit_icosphere
+
 METHODS = ("cholesky", "superlu", "cg", "pyamg")
-MESH = icosphere(1)
+MESH = unit_icosphere(1)
 A = mass_matrix(MESH) + 0.1 * cotan_laplacian(MESH)
 B = jnp.asarray(np.random.default_rng(0).standard_normal(MESH.n_vertices))
 # The error bound of a solve against SciPy, relative to the solution's largest entry: CG (and pyamg's) stop at
@@ -198,10 +199,11 @@ def test_a_float32_system_warns_once():
     single = SparseMatrix(A.values.astype(jnp.float32), A.pattern, symmetric=True, positive_semidefinite=True)
     _linear._warn_low_precision.cache_clear()  # once per process: this test starts the count again
     with pytest.warns(PrecisionWarning, match="jax_enable_x64"):
+        # float32 round-off (eps 6e-8 times the condition number) cannot meet the float64 defaults.
         linear_solve(single, B.astype(jnp.float32), solver="superlu", residual_tolerance=1e-5)
     with warnings.catch_warnings():
         warnings.simplefilter("error", PrecisionWarning)
-        linear_solve(single, B.astype(jnp.float32), solver="cg", rtol=1e-6, residual_tolerance=1e-5)
+        linear_solve(single, B.astype(jnp.float32), solver="cg", rtol=1e-6, residual_tolerance=1e-5)  # float32 round-off
         linear_solve(A, B, solver="superlu")
 
 

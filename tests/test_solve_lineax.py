@@ -15,13 +15,15 @@ import scipy.sparse.linalg as spla
 from ddgjax import DDGInputError
 from ddgjax.dec import gradient
 from ddgjax.laplacian import cotan_laplacian, mass_matrix
-from ddgjax.mesh import face_areas, icosphere, torus
+from ddgjax.mesh import face_areas, torus
 from ddgjax.pde import screened_dirichlet_energy
 from ddgjax.solve import SparseCholesky, linear_solve
 from ddgjax.solve._lineax import column_colouring, matrix_from_products
 from ddgjax.sparse import from_scipy
 
-MESH = icosphere(3)
+from conftest import unit_icosphere
+
+MESH = unit_icosphere(3)
 L, M = cotan_laplacian(MESH), mass_matrix(MESH)
 RHO = jnp.asarray(np.random.default_rng(0).standard_normal(MESH.n_vertices))
 

@@ -137,9 +137,10 @@ def test_derivatives_in_the_vertex_positions_match_finite_differences():
         return volume.mass_matrix(small.with_vertices(V), mass="galerkin").values
 
     # Central differences of step 1e-5: O(eps^2) ~1e-10 truncation + round-off / eps ~1e-11 (all pass at 1e-9).
-    check_grads(energy, (small.vertices,), order=1, modes=("fwd", "rev"), eps=1e-5, atol=1e-8, rtol=1e-8)
-    check_grads(laplacian_values, (small.vertices,), order=1, modes=("fwd", "rev"), eps=1e-5, atol=1e-8, rtol=1e-8)
-    check_grads(dual, (small.vertices,), order=1, modes=("rev",), eps=1e-5, atol=1e-8, rtol=1e-8)
+    differences = dict(order=1, eps=1e-5, atol=1e-8, rtol=1e-8)
+    check_grads(energy, (small.vertices,), modes=("fwd", "rev"), **differences)
+    check_grads(laplacian_values, (small.vertices,), modes=("fwd", "rev"), **differences)
+    check_grads(dual, (small.vertices,), modes=("rev",), **differences)
 
 
 @pytest.mark.slow
