@@ -19,7 +19,7 @@ works offline and prints as it shows; code, preformatted text and scripts are le
 nbconvert's empty MathJax loader is dropped.
 
 Every public name written as code (`linear_solve`, `ddgjax.solve.linear_solve`, `solve.linear_solve`,
-`linear_solve()`) links to its entry in the API reference, on every page: guides, the conventions table,
+`linear_solve()`, or a call `linear_solve(A, b)`) links to its entry in the API reference, on every page: guides, the conventions table,
 notebooks' prose and the docstrings themselves (`crosslink`). A short name that two packages share
 (`cotan_laplacian` in `laplacian` and `volume`) links only where it is qualified, or on the reference
 page of a package that has it.
@@ -47,6 +47,7 @@ os.environ.setdefault("PLOTLY_RENDERER", "notebook_connected")
 _MATH = re.compile(r"\$\$(?P<display>.+?)\$\$|(?<![\\$])\$(?P<inline>[^\s$](?:[^$]*?[^\s\\$])?)\$(?!\$)", re.DOTALL)
 _LEAVE_ALONE = {"code", "pre", "script", "style", "textarea", "math"}
 _NOTEBOOK_SEARCH_BOOST = 0.25
+_CALL = re.compile(r"^-?\s*([A-Za-z_][\w.]*)\(")
 _PLOTLY_CDN = re.compile(r"^https://cdn\.plot\.ly/plotly-[\w.-]+\.min\.js$")
 _PLOTLY_COPY = "assets/javascripts/plotly.min.js"  # where the site keeps plotly.js, from its root
 
@@ -160,7 +161,8 @@ def crosslink(html: str, page_url: str) -> str:
             continue
         if code.find_parent(class_=["doc-signature", "doc-heading"]) is not None:
             continue
-        targets = names.get(text.removesuffix("()"))
+        call = _CALL.match(text)  # `name(...)`, a call as the guides' tables write it: the name's entry
+        targets = names.get(text.removesuffix("()")) or (names.get(call.group(1)) if call else None)
         if not targets:
             continue
         if len(targets) > 1:  # a short name several packages share: this page's own, else none

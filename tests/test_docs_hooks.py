@@ -52,6 +52,7 @@ def test_a_page_without_maths_or_foreign_scripts_is_left_byte_for_byte():
 def test_public_names_written_as_code_link_to_their_reference_entries():
     page = (
         "<article><p>Call <code>linear_solve</code>, <code>ddgjax.solve.factorize()</code> or <code>ddgjax.Mesh</code>;"
+        " a call <code>pde.solve_poisson(m, rho)</code>, <code>x(1)</code>;"
         " a shared name <code>cotan_laplacian</code>, a package <code>ddgjax.spectral</code>, not a name <code>x + 1</code>."
         '</p><pre><code>linear_solve</code></pre><a href="#"><code>factorize</code></a><h2><code>eigenpairs</code></h2></article>'
     )
@@ -62,6 +63,7 @@ def test_public_names_written_as_code_link_to_their_reference_entries():
         "ddgjax.solve.factorize()": "../../reference/solve/#ddgjax.solve.factorize",
         "ddgjax.Mesh": "../../reference/mesh/#ddgjax.mesh.Mesh",  # where it is documented, not where re-exported
         "ddgjax.spectral": "../../reference/spectral/",
+        "pde.solve_poisson(m, rho)": "../../reference/pde/#ddgjax.pde.solve_poisson",
     }  # the shared short name, code blocks, existing links and headings are left alone
     # On a reference page, a shared short name is that package's own.
     on_volume = bs4.BeautifulSoup(
