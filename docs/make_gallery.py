@@ -165,6 +165,14 @@ GALLERY = (
         "A sphere deformed to fit a target shape by Chamfer distance and PyTorch3D's regularisers. "
         "`ddgjax.optim.mesh_fitting_loss`.",
     ),
+    Entry(
+        "reconstruct",
+        "Poisson surface reconstruction",
+        ("reconstruct", "--depth", "6"),
+        "20,000 oriented points sampled from a torus, and the closed genus-1 surface reconstructed from them by a "
+        "screened spectral Poisson solve and marching cubes, coloured by the sample density at its vertices. "
+        "`ddgjax.reconstruct.poisson_reconstruction`.",
+    ),
 )
 
 

@@ -4,7 +4,7 @@ problem solved on a mesh, with a picture of the solution), `ddgjax geodesic` (a 
 field; a log map, parallel transport, a signed distance or a point-cloud distance), `ddgjax spectrum`
 (Laplacian eigenvalues and eigenfunctions), `ddgjax param` (flattenings), `ddgjax fields` (direction
 fields), `ddgjax optimize` (shape-optimisation examples), `ddgjax deform` (ARAP and k-harmonic
-deformation from handles), `ddgjax match` (a point map between two meshes), `ddgjax fluid`
+deformation from handles), `ddgjax match` (a point map between two meshes), `ddgjax reconstruct` (Poisson surface reconstruction from points), `ddgjax fluid`
 (incompressible Euler flow on a closed surface, frames or an animation written to disk) and `ddgjax
 warmup` (the common entry points compiled into the caches for a set of meshes, ahead of time).
 
@@ -34,7 +34,7 @@ from jax.experimental.compilation_cache import compilation_cache
 
 from .._program_store import SWITCH_VARIABLE as CACHE_VARIABLE
 from .._program_store import cache_root, switched_on
-from . import deform, fields, flow, fluid, geodesic, info, match, optimize, param, poisson, spectral, warmup
+from . import deform, fields, flow, fluid, geodesic, info, match, optimize, param, poisson, reconstruct, spectral, warmup
 
 # ddgjax's kernels compile in 0.05-0.5 s each, under JAX's default threshold of 1 s for caching a
 # program: cache every program, whatever its compile time and size.
@@ -189,6 +189,16 @@ def build_parser() -> argparse.ArgumentParser:
             "or a closed mesh file) or a Rossby-Haurwitz wave on the rotating sphere, with a passive dye; print energy and "
             "enstrophy drift (and the wave's measured rate against Haurwitz's closed form) and write a figure, one PNG "
             "per saved state or a GIF.",
+        )
+    )
+    reconstruct.add_arguments(
+        sub.add_parser(
+            "reconstruct",
+            parents=[common],
+            help="Poisson surface reconstruction of a point cloud (sampled from a mesh by default), drawn beside the points",
+            description="Reconstruct a closed surface from oriented points (a point file, or points sampled from a mesh "
+            "or the built-in torus) by a screened spectral Poisson solve and marching cubes; print the mesh's topology, "
+            "its distance to the sampled surface and the time, and draw the points beside the reconstruction.",
         )
     )
     warmup.add_arguments(

@@ -48,13 +48,21 @@ def orientation_tree(triangulation: PointCloudTriangulation) -> tuple[Int[Array,
     n = triangulation.n_points
     edges = np.asarray(triangulation.edges)
     graph = scipy.sparse.coo_matrix((np.ones(edges.shape[0]), (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+    parents, labels = forest_parents(graph)
+    return jnp.asarray(parents), jnp.asarray(labels)
+
+
+def forest_parents(graph: scipy.sparse.spmatrix) -> tuple[np.ndarray, np.ndarray]:
+    """`(parents, components)`, `(n,)` int32 each, on the host: a breadth-first spanning forest of an undirected
+    sparse graph (its stored entries are its edges), each tree rooted at its lowest-numbered vertex, which is its
+    own parent; `components[i]` is `i`'s tree's label."""
     _, labels = scipy.sparse.csgraph.connected_components(graph, directed=False)
-    parents = np.arange(n)
+    parents = np.arange(graph.shape[0])
     _, roots = np.unique(labels, return_index=True)
     for root in roots:
         order, predecessors = scipy.sparse.csgraph.breadth_first_order(graph, root, directed=False, return_predecessors=True)
         parents[order[1:]] = predecessors[order[1:]]
-    return jnp.asarray(parents.astype(np.int32)), jnp.asarray(labels.astype(np.int32))
+    return parents.astype(np.int32), labels.astype(np.int32)
 
 
 def oriented_frames(points, neighbors, parents, components) -> TangentBases:
