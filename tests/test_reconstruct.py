@@ -9,6 +9,11 @@ over samples of the truth), the Hausdorff error the larger of the two maxima, bo
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -61,11 +66,37 @@ def mesh_samples(vertices: np.ndarray, faces: np.ndarray, n: int, seed: int = 0)
     return points, cross[chosen] / area[chosen, None]
 
 
-def distance_to_mesh(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray) -> np.ndarray:
-    o3d = pytest.importorskip("open3d")
+# Open3D runs in a process of its own: loaded beside jaxlib in a test worker, the two libraries' native code crashed
+# XLA:CPU's compiler (a segfault in a later test's compilation, on both of two CI runs).
+_OPEN3D = """
+import sys, numpy as np, open3d as o3d
+data = dict(np.load(sys.argv[1]))
+if "queries" in data:
     scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
-    return scene.compute_distance(o3d.core.Tensor(queries.astype(np.float32))).numpy().astype(float)
+    scene.add_triangles(o3d.core.Tensor(data["vertices"].astype(np.float32)), o3d.core.Tensor(data["faces"].astype(np.uint32)))
+    out = {"distance": scene.compute_distance(o3d.core.Tensor(data["queries"].astype(np.float32))).numpy()}
+else:
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(data["points"]))
+    cloud.normals = o3d.utility.Vector3dVector(data["normals"])
+    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=int(data["depth"]), scale=1.1)
+    out = {"vertices": np.asarray(mesh.vertices), "faces": np.asarray(mesh.triangles)}
+np.savez(sys.argv[2], **out)
+"""
+
+
+def _in_open3d(**arrays) -> dict:
+    """Open3D's answer for `arrays` (`_OPEN3D`), computed in a fresh Python process."""
+    pytest.importorskip("open3d")
+    with tempfile.TemporaryDirectory() as folder:
+        inputs, outputs = os.path.join(folder, "in.npz"), os.path.join(folder, "out.npz")
+        np.savez(inputs, **arrays)
+        done = subprocess.run([sys.executable, "-c", _OPEN3D, inputs, outputs], capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr
+        return dict(np.load(outputs))
+
+
+def distance_to_mesh(vertices: np.ndarray, faces: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    return _in_open3d(vertices=vertices, faces=faces, queries=queries)["distance"].astype(float)
 
 
 def shape(name: str, n: int):
@@ -96,11 +127,8 @@ def errors(vertices, faces, truth, sampler, diagonal: float, m: int = 100_000) -
 
 
 def open3d_poisson(points, normals, depth: int):
-    o3d = pytest.importorskip("open3d")
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    cloud.normals = o3d.utility.Vector3dVector(normals)
-    mesh, _ = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(cloud, depth=depth, scale=1.1)
-    return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    answer = _in_open3d(points=np.asarray(points, float), normals=np.asarray(normals, float), depth=np.asarray(depth))
+    return answer["vertices"], answer["faces"]
 
 
 def test_sphere_gives_a_closed_genus_0_mesh_near_the_unit_sphere():
