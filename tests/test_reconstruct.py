@@ -164,6 +164,18 @@ def test_torus_gives_a_closed_genus_1_mesh():
     assert report.is_closed and report.is_manifold and report.genus == 1
 
 
+def test_float32_points_give_a_float32_reconstruction_like_the_float64_one():
+    points, normals = sphere_samples(3000)
+    single = poisson_reconstruction(points.astype(np.float32), normals.astype(np.float32), depth=5)
+    double = poisson_reconstruction(points, normals, depth=5)
+    assert single.indicator.values.dtype == np.float32 and single.value.vertices.dtype == np.float32
+    assert single.result == ddgjax.RESULTS.successful and check_mesh(single.value).genus == 0
+    radii = np.linalg.norm(np.asarray(single.value.vertices, dtype=np.float64), axis=1)
+    again = np.linalg.norm(np.asarray(double.value.vertices), axis=1)
+    # Both solves stop at rtol 1e-4, so the surfaces agree to far less than a cell (0.069 here), not to float32's 1e-7.
+    assert abs(radii.mean() - again.mean()) < 1e-3 * float(double.grid.spacing)
+
+
 def test_points_alone_estimated_normals_point_outward():
     points, _ = sphere_samples(2000)
     normals = np.asarray(estimate_normals(points, n_neighbors=15))
@@ -317,9 +329,10 @@ def test_noise_and_outliers_still_give_a_closed_manifold_of_the_right_genus(name
     kept = reconstruction.kept
     assert kept[:20_000].all() and reconstruction.stats["outliers_removed"] == int((~kept).sum()) > 500
     assert reconstruction.normals.shape == (int(kept.sum()), 3)
-    # Without the rejection the outliers leave spurious closed pieces (the check above fails on the sphere).
+    # Without the rejection the outliers leave spurious closed pieces on the sphere; on the torus, measured, they
+    # leave none at the default screening (60).
     unfiltered = check_mesh(poisson_reconstruction(cloud, None, depth=6, outlier_std_ratio=None).value)
-    assert unfiltered.n_components > 1 or unfiltered.genus != genus
+    assert (unfiltered.n_components > 1 or unfiltered.genus != genus) == (name == "sphere"), unfiltered
 
 
 def test_outlier_rejection_drops_far_points_and_keeps_gradients_for_the_kept():

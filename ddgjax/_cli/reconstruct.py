@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--depth", type=positive(int), default=7, help="2^depth grid nodes per axis (default 7)")
     parser.add_argument("--samples", type=positive(int), default=20_000, help="points sampled from a mesh (default 20000)")
     parser.add_argument("--noise", type=float, default=0.0, help="Gaussian noise added to the points, in units of the diagonal")
-    parser.add_argument("--screening", type=float, default=100.0, help="the screening weight (default 100; 0: none)")
+    parser.add_argument("--screening", type=float, default=60.0, help="the screening weight (default 60; 0: none)")
     parser.add_argument("--estimate-normals", action="store_true", help="ignore the input's normals and estimate them")
     add_output_argument(parser, "reconstruct")
     parser.add_argument("--no-plot", action="store_true", help="print the numbers only")

@@ -2,7 +2,7 @@
 
 - `poisson_reconstruction(points, normals)`: a triangle mesh through oriented points, the level set of
   their indicator function, solved spectrally on a regular grid (Shape As Points) with optional
-  screening (Kazhdan & Hoppe 2013), extracted by marching cubes (`PoissonReconstruction`: `value` the
+  screening (Kazhdan & Hoppe 2013; conjugate gradients with a multigrid V-cycle), extracted by marching cubes (`PoissonReconstruction`: `value` the
   mesh, `result`, `stats`, the indicator, its grid, the per-vertex sample density);
 - `poisson_indicator(points, normals, grid=...)`: the indicator alone (`Indicator(values, iso_value)`),
   a JAX function of the points and normals (jit, grad); `reconstruction_grid(points)` the grid;

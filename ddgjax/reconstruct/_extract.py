@@ -45,6 +45,8 @@ def extract_level_set(values: np.ndarray, level: float) -> tuple[np.ndarray, np.
             f"the indicator ({values.min():.3g} to {values.max():.3g}) never crosses its level {level:.3g}: the points' "
             "normals do not describe the boundary of a solid (check that they are not all zero or cancelling)"
         )
+    # scikit-image's float32 path takes a writable buffer, and a JAX array's host view is read-only.
+    values = np.require(values, requirements=["C", "W"])
     vertices, faces, _, _ = marching_cubes(values, level=level, allow_degenerate=False)
     if faces.shape[0] == 0:
         raise DDGInputError("the indicator's level set has no triangle at this depth: raise the depth")

@@ -21,10 +21,11 @@ from .._errors import DDGInputError, check_count, check_finite, check_float_shap
 #: The fewest points a reconstruction takes: fewer cannot describe a surface (and PCA normals need neighbours).
 MIN_POINTS = 10
 
-#: Grid-sized arrays held at once by the forward solve at its peak: the splatted normals (3), their
-#: transforms (3 half-size complex ones, as much as 3 real), the indicator's transform and the indicator.
-#: Measured with `benchmarks/reconstruct.py`'s peak resident memory; the gradient holds about twice this.
-GRID_ARRAYS = 10
+#: Grid-sized arrays held at once by a reconstruction at its peak: the splatted normals (3), their transforms (3
+#: half-size complex ones, as much as 3 real), the indicator, the conjugate-gradient vectors of the screened solve
+#: (5) and its V-cycle's (a half-size set), and the indicator's host copy. Measured from the peak resident memory
+#: (11.1 at depth 8); the gradient holds about twice this.
+GRID_ARRAYS = 12
 
 #: The relative thickness below which a cloud counts as flat (its smallest principal extent over its largest).
 FLAT_TOLERANCE = 1e-6

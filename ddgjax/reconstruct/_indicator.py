@@ -21,10 +21,13 @@ points, so the surface is its `1/2` level set and the solid is where it exceeds 
 Screening (Kazhdan & Hoppe 2013) adds `w sum_i (indicator(p_i) - 1/2)^2` to the Dirichlet energy
 `|grad chi - grad chi_0|^2` (`chi_0` the unscreened indicator), pulling the level set onto the points,
 with `w = alpha E_0 / n` (`alpha = screening`, `E_0` the unscreened Dirichlet energy: `alpha` is
-dimensionless). The normal equations `(L + w S^T S) chi = L chi_0 + w S^T 1 / 2` (`L` the spectral
-`-Delta`, `S` the trilinear evaluation at the points) are solved by conjugate gradients preconditioned
-by the spectral solve, differentiable by implicit differentiation (`jax.lax.custom_linear_solve`).
-Measured (benchmarks/README.md): `alpha = 100` brings the Chamfer error from 2-4x Open3D's to 0.5-0.8x.
+dimensionless). The correction `delta = chi - chi_0` solves the normal equations
+`(L_h + w S^T S) delta = w S^T (1/2 - S chi_0)` (`L_h` the 7-point `-Delta`, `S` the trilinear evaluation
+at the points), by conjugate gradients preconditioned by a multigrid V-cycle (`_multigrid`: 8-11 steps
+where the spectral preconditioner took 100-190), differentiable by implicit differentiation
+(`jax.lax.custom_linear_solve`). Measured (benchmarks/README.md): `alpha = 60` brings the Chamfer error
+from 2-4x Open3D's to 0.6-0.85x; the finite-difference energy is softer than the spectral one at the grid
+scale, and from `alpha = 100` on, outliers kept near a noisy surface raise bubbles of one node.
 
 Everything is a JAX function of the points and normals (the trilinear weights are differentiable in
 the positions; the cells they fall in are piecewise constant), compiled once per depth and padded
@@ -45,6 +48,7 @@ from .._compile import device_array, kernel
 from .._errors import DDGInputError, check_count, check_float_shape
 from ..batch import bucket
 from ._grid import ReconstructionGrid
+from ._multigrid import grid_laplacian, screened_system
 
 #: The corners of a grid cell, as offsets from its lowest node.
 _OFFSETS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.int32)
@@ -69,7 +73,7 @@ def poisson_indicator(
     /,
     *,
     grid: ReconstructionGrid,
-    screening: float = 100.0,
+    screening: float = 60.0,
     smoothing: float = 1.0,
     rtol: float = 1e-6,
     max_steps: int = 200,
@@ -85,7 +89,7 @@ def poisson_indicator(
         normals: `(n, 3)` outward normals (their lengths weigh the points: unit normals for uniform samples).
         grid: the `ReconstructionGrid` to solve on (keyword-only).
         screening: the screening weight `alpha >= 0`, relative to the unscreened Dirichlet energy (keyword-only;
-            default 100; 0: the plain spectral solve).
+            default 60; 0: the plain spectral solve).
         smoothing: the Gaussian's standard deviation in grid spacings (keyword-only; default 1).
         rtol: the screened solve's relative residual tolerance (keyword-only; unused without screening). The
             gradient is that of the exact solve (implicit differentiation): a looser tolerance makes it approximate.
@@ -227,48 +231,34 @@ def _indicator(points, normals, mask, origin, spacing, screening, smoothing, rto
     indicator = scaled(chi)
     stats = {"steps": jnp.asarray(0), "residual": jnp.asarray(0.0, points.dtype)}
     if screened:
-        indicator, stats = _screened(indicator, flat, weights, mask, count, k_sq, screening, rtol, max_steps)
+        indicator, stats = _screened(indicator, flat, weights, mask, count, screening, rtol, max_steps)
         indicator = scaled(indicator)
     iso_value = jnp.sum(mask * interpolate(flat, weights, indicator)) / count
     return indicator, iso_value, stats
 
 
-def _screened(indicator, flat, weights, mask, count, k_sq, screening, rtol, max_steps):
-    """The screened indicator (module docstring): CG on `(L + w S^T S) x = L x0 + w S^T 1 / 2`, `w = alpha E0 / n`.
-
-    `x0` is the unscreened (scaled) solution, so `L x0` is the divergence term in the indicator's units and
-    `E0 = x0 . L x0` its Dirichlet energy (which makes `alpha` independent of the depth and the points' scale).
-    The correction `x - x0` is solved from 0, preconditioned by `(L + w c)^{-1}` with `c` the mean diagonal of
-    `S^T S` (the spectral `L` is diagonal in Fourier space), to `rtol` or `max_steps`.
+def _screened(indicator, flat, weights, mask, count, screening, rtol, max_steps):
+    """The screened indicator `x0 + delta` (module docstring), `delta` by conjugate gradients on
+    `(L_h + w S^T S) delta = w S^T (1/2 - S x0)` preconditioned by a multigrid V-cycle (`_multigrid`), to `rtol` or
+    `max_steps`, with `w = alpha E0 / n` and `E0 = x0 . L_h x0` the unscreened solution's Dirichlet energy (which
+    makes `alpha` independent of the depth and the points' scale).
     """
     n = indicator.shape[0]
     weights = weights * mask[:, None]
-
-    def laplacian(x):
-        return jnp.fft.irfftn(jnp.fft.rfftn(x) * k_sq, s=(n, n, n))
-
-    gradient_term = laplacian(indicator)
-    # alpha is relative: the screening term's weight is alpha times the unscreened solution's Dirichlet energy.
-    per_point = screening * jnp.vdot(indicator, gradient_term) / count
-
-    def operator(x):
-        return laplacian(x) + per_point * splat(flat, weights, interpolate(flat, weights, x)[:, None], n)[..., 0]
-
-    shift = per_point * jnp.sum(weights * weights) / n**3
-
-    def preconditioner(r):
-        return jnp.fft.irfftn(jnp.fft.rfftn(r) / (k_sq + shift), s=(n, n, n))
-
-    rhs = gradient_term + per_point * 0.5 * splat(flat, weights, jnp.ones((flat.shape[0], 1), indicator.dtype), n)[..., 0]
+    # `L_h`, `w` and so `A` and `b` all scale as `1 / h^2`, and `delta` does not: solved in units of one spacing.
+    spacing = 1.0
+    flat_indicator = indicator.reshape(-1)
+    per_point = screening * jnp.vdot(flat_indicator, grid_laplacian(flat_indicator, n, spacing)) / count
+    operator, preconditioner = screened_system(flat, weights, per_point, n, spacing)
+    b = per_point * splat(flat, weights, (0.5 - interpolate(flat, weights, indicator))[:, None], n).reshape(-1)
 
     def solve(matvec, b):
         return _pcg(matvec, preconditioner, b, rtol, max_steps)
 
-    # Solved for the correction to the unscreened solution, from 0 (the adjoint solve of `grad` starts there too).
-    correction, steps = jax.lax.custom_linear_solve(operator, rhs - operator(indicator), solve, symmetric=True, has_aux=True)
-    b, x = jax.lax.stop_gradient(rhs - operator(indicator)), jax.lax.stop_gradient(correction)
-    residual = jnp.linalg.norm(b - operator(x)) / jnp.maximum(jnp.linalg.norm(b), jnp.finfo(b.dtype).tiny)
-    return indicator + correction, {"steps": steps, "residual": residual}
+    correction, steps = jax.lax.custom_linear_solve(operator, b, solve, symmetric=True, has_aux=True)
+    fixed_b, fixed_x = jax.lax.stop_gradient((b, correction))
+    residual = jnp.linalg.norm(fixed_b - operator(fixed_x)) / jnp.maximum(jnp.linalg.norm(fixed_b), jnp.finfo(b.dtype).tiny)
+    return indicator + correction.reshape(n, n, n), {"steps": steps, "residual": residual}
 
 
 def _pcg(matvec, preconditioner, b, rtol, max_steps: int):

@@ -1,9 +1,10 @@
 """Statistical outlier rejection of a point cloud before it is splatted: the points far from their neighbours.
 
-Each point's mean distance `d_i` to its `k` nearest other points (the k-d tree of `ddgjax.pointcloud`) is
-compared with their mean `mu` and standard deviation `sigma` over the cloud (`sigma` with `n - 1`); a point
-with `d_i > mu + std_ratio sigma` is an outlier (PCL's `StatisticalOutlierRemoval`, Open3D's
-`remove_statistical_outlier(nb_neighbors, std_ratio)`). Points sampled from a surface have neighbours at
+Each point's mean distance `d_i` to its `k` nearest other points (SciPy's `cKDTree` on every core: the
+mean distance does not depend on the order of ties, so the point-cloud package's slower nanoflann-ordered
+tree is not needed) is compared with their mean `mu` and standard deviation `sigma` over the cloud
+(`sigma` with `n - 1`); a point with `d_i > mu + std_ratio sigma` is an outlier (PCL's
+`StatisticalOutlierRemoval`, Open3D's `remove_statistical_outlier(nb_neighbors, std_ratio)`). Points sampled from a surface have neighbours at
 about the sampling distance; points scattered through the volume around it have their nearest ones much
 farther, so they stand out of the distribution. The selection is a host-side mask, piecewise constant in the
 points: what is computed from the kept points stays differentiable in them, with zero gradient to the dropped.
@@ -12,9 +13,9 @@ points: what is computed from the kept points stays differentiable in them, with
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .._errors import DDGInputError
-from ..pointcloud.internal import nearest_neighbor_graph
 
 
 def check_std_ratio(std_ratio) -> float | None:
@@ -30,7 +31,8 @@ def check_std_ratio(std_ratio) -> float | None:
 def statistical_inliers(points: np.ndarray, n_neighbors: int, std_ratio: float) -> np.ndarray:
     """`(n,)` bool: the points whose mean distance to their `n_neighbors` nearest others is at most
     `mu + std_ratio sigma` of those means (module docstring). `points` host `(n, 3)`, `n > n_neighbors`."""
-    neighbors = nearest_neighbor_graph(points, n_neighbors)
-    mean_distance = np.linalg.norm(points[neighbors] - points[:, None, :], axis=2).mean(axis=1)
+    # The point itself is its own nearest (at distance 0, as is any coincident twin it may swap with).
+    distances, _ = cKDTree(points).query(points, k=n_neighbors + 1, workers=-1)
+    mean_distance = distances[:, 1:].mean(axis=1)
     threshold = mean_distance.mean() + std_ratio * mean_distance.std(ddof=1)
     return mean_distance <= threshold

@@ -70,9 +70,9 @@ def poisson_reconstruction(
     *,
     depth: int = 8,
     scale: float = 1.1,
-    screening: float = 100.0,
+    screening: float = 60.0,
     smoothing: float = 1.0,
-    rtol: float = 1e-4,
+    rtol: float = 1e-3,
     max_steps: int = 200,
     n_neighbors: int = 30,
     outlier_std_ratio: float | None = 3.0,
@@ -86,8 +86,8 @@ def poisson_reconstruction(
 
         chi^(k) = G(k) i k . V^(k) / |k|^2,   G(k) = exp(-(smoothing h)^2 |k|^2 / 2),
 
-    optionally screened toward the points (`(L + alpha S^T S / n) chi = ...`, `alpha = screening`,
-    conjugate gradients preconditioned by the spectral solve), and scaled to 0 outside and `1/2` on
+    optionally screened toward the points (`(L_h + w S^T S) (chi - chi_0) = w S^T (1/2 - S chi_0)`,
+    `w = alpha E_0 / n`, `alpha = screening`, conjugate gradients preconditioned by a multigrid V-cycle), and scaled to 0 outside and `1/2` on
     average at the points. The surface is the indicator's level set at its mean at the points (the
     iso-value), by marching cubes (scikit-image, on the host): closed and manifold where the samples
     enclose a solid, open where it meets the grid's faces. The vertices are JAX functions of the
@@ -113,11 +113,12 @@ def poisson_reconstruction(
             in the memory available is refused with the bytes it needs.
         scale: the grid's side over the points' largest extent (keyword-only; default 1.1, Open3D's).
         screening: the screening weight `alpha >= 0`, relative to the unscreened indicator's Dirichlet energy
-            (keyword-only; default 100; 0: the plain spectral solve, whose Chamfer error is 2-4x Open3D's where the
-            screened one is 0.5-0.8x: benchmarks/README.md, "Poisson reconstruction").
+            (keyword-only; default 60; 0: the plain spectral solve, whose Chamfer error is 2-4x Open3D's where the
+            screened one is 0.6-0.85x; from 100 on, outliers kept near a noisy surface raise bubbles of one node:
+            benchmarks/README.md, "Poisson reconstruction").
         smoothing: the Gaussian's standard deviation in grid spacings (keyword-only; default 1).
-        rtol: the screened solve's relative residual tolerance (keyword-only; 1e-4 moves the surface by far less than
-            a grid spacing).
+        rtol: the screened solve's relative residual tolerance (keyword-only; default 1e-3: the Chamfer errors of
+            benchmarks/README.md are those of 1e-4 to 4 digits, in 6-8 steps instead of 9-11).
         max_steps: the most conjugate-gradient steps of the screened solve (keyword-only; more: `max_steps_reached`).
         n_neighbors: the neighbourhood size of the outlier rejection and of `estimate_normals` when `normals` is
             `None` (keyword-only; default 30; at most `n - 1`).
