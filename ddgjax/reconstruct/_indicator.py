@@ -23,8 +23,8 @@ Screening (Kazhdan & Hoppe 2013) adds `w sum_i (indicator(p_i) - 1/2)^2` to the 
 with `w = alpha E_0 / n` (`alpha = screening`, `E_0` the unscreened Dirichlet energy: `alpha` is
 dimensionless). The correction `delta = chi - chi_0` solves the normal equations
 `(L_h + w S^T S) delta = w S^T (1/2 - S chi_0)` (`L_h` the 7-point `-Delta`, `S` the trilinear evaluation
-at the points), by conjugate gradients preconditioned by a multigrid V-cycle (`_multigrid`: 8-11 steps
-where the spectral preconditioner took 100-190), differentiable by implicit differentiation
+at the points), by conjugate gradients preconditioned by a multigrid V-cycle (`_multigrid`: the screening
+makes the system too stiff near the points for a spectral preconditioner), differentiable by implicit differentiation
 (`jax.lax.custom_linear_solve`). Measured (benchmarks/README.md): `alpha = 60` brings the Chamfer error
 from 2-4x Open3D's to 0.6-0.85x; the finite-difference energy is softer than the spectral one at the grid
 scale, and from `alpha = 100` on, outliers kept near a noisy surface raise bubbles of one node.

@@ -14,8 +14,8 @@ axes it wraps to the next line (a helical boundary). It is still the Laplacian o
 extent away from those faces, and the stencil is one fused pass instead of three rolls of a 3-D array.
 
 `A` is badly conditioned for a spectral preconditioner: `w S^T S` is large on the band of nodes around
-the points and zero elsewhere, so a shift that suits the band does not suit the rest (the spectral
-preconditioner took 100-190 conjugate-gradient steps at 100k points to `rtol=1e-4`). A V-cycle fits both (8-11):
+the points and zero elsewhere, so a shift that suits the band does not suit the rest
+(benchmarks/README.md, "Poisson reconstruction"). A V-cycle fits both:
 
 - levels `N, N/2, ..., 8`; on the coarse ones `A_l = L_{2^l h} + diag(d_l)`, `d_{l+1} = P^T d_l / 8`,
   with `d_0 = w S^T 1` the lumped screening (row sums of `w S^T S`, since the weights of a point sum

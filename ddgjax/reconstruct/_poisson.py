@@ -117,8 +117,8 @@ def poisson_reconstruction(
             screened one is 0.6-0.85x; from 100 on, outliers kept near a noisy surface raise bubbles of one node:
             benchmarks/README.md, "Poisson reconstruction").
         smoothing: the Gaussian's standard deviation in grid spacings (keyword-only; default 1).
-        rtol: the screened solve's relative residual tolerance (keyword-only; default 1e-3: the Chamfer errors of
-            benchmarks/README.md are those of 1e-4 to 4 digits, in 6-8 steps instead of 9-11).
+        rtol: the screened solve's relative residual tolerance (keyword-only; default 1e-3: the surface of 1e-4 to 3-4
+            digits in fewer steps, benchmarks/README.md).
         max_steps: the most conjugate-gradient steps of the screened solve (keyword-only; more: `max_steps_reached`).
         n_neighbors: the neighbourhood size of the outlier rejection and of `estimate_normals` when `normals` is
             `None` (keyword-only; default 30; at most `n - 1`).
