@@ -263,6 +263,23 @@ def test_gradient_of_the_indicator_matches_finite_differences(screening):
     np.testing.assert_allclose(float(jnp.sum(grad_p * dp) + jnp.sum(grad_n * dn)), float(expected), rtol=1e-7)
 
 
+def test_coincident_points_and_points_on_grid_nodes_keep_finite_values_and_gradients():
+    points, normals = sphere_samples(300)
+    grid = reconstruction_grid(points, depth=4)
+    # Every point twice, and the first ten moved onto their nearest grid node (trilinear fractions exactly 0).
+    nodes = np.rint((points[:10] - np.asarray(grid.origin)) / float(grid.spacing))
+    points = np.concatenate([grid.origin + float(grid.spacing) * nodes, points[10:], points])
+    normals = np.concatenate([normals, normals])
+
+    def loss(p, n):
+        return jnp.sum(poisson_indicator(p, n, grid=grid, rtol=1e-10, max_steps=1000).values ** 2)
+
+    value, (grad_p, grad_n) = jax.value_and_grad(loss, argnums=(0, 1))(jnp.asarray(points), jnp.asarray(normals))
+    assert np.isfinite(float(value)) and np.isfinite(np.asarray(grad_p)).all() and np.isfinite(np.asarray(grad_n)).all()
+    report = check_mesh(poisson_reconstruction(points, normals, depth=5).value)
+    assert report.is_closed and report.is_manifold and report.genus == 0
+
+
 def test_gradient_of_the_extracted_vertices_matches_finite_differences():
     points, normals = sphere_samples(500)
     reconstruction = poisson_reconstruction(points, normals, depth=4, screening=10.0)
