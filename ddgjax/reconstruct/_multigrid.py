@@ -36,7 +36,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-#: The damping of the Jacobi smoother (below 2 / 2: the largest eigenvalue of `D^{-1} A` is at most 2).
+#: The damping of the Jacobi smoother: below 1, since the largest eigenvalue of `D^{-1} A` is at most 2.
 JACOBI_DAMPING = 0.8
 
 #: The nodes per axis of the coarsest level, solved directly (`8^3` unknowns).
