@@ -163,14 +163,27 @@ def test_an_unreadable_file_is_recomputed_without_an_error(mesh, fresh, tmp_path
     assert _stored_key(path) == path.stem
 
 
-def _unwritable(tmp_path, kind):
+def _make_read_only(folder, monkeypatch) -> None:
+    """Take write permission from `folder`. Root writes into read-only folders anyway, so for root the kernel's
+    refusal is played by `mkstemp`, the cache's one way of creating a file there."""
+    folder.chmod(0o555)
+    if os.geteuid() == 0:
+        create = operators_module.tempfile.mkstemp
+
+        def refuse_inside(*args, dir=None, **kwargs):
+            if dir is not None and os.path.realpath(dir).startswith(os.path.realpath(folder)):
+                raise PermissionError(13, "Permission denied", os.fspath(dir))
+            return create(*args, dir=dir, **kwargs)
+
+        monkeypatch.setattr(operators_module.tempfile, "mkstemp", refuse_inside)
+
+
+def _unwritable(tmp_path, kind, monkeypatch):
     """A `cache_dir` that takes no file, and the reason the warning gives."""
     if kind == "read_only_folder":
-        if os.geteuid() == 0:
-            pytest.skip("root writes into read-only folders; the regular-file cases cover it")
         folder = tmp_path / "read_only"
         folder.mkdir()
-        folder.chmod(0o555)
+        _make_read_only(folder, monkeypatch)
         return folder, "Permission denied"
     regular = tmp_path / "a_file"
     regular.write_text("not a folder")
@@ -182,8 +195,8 @@ def _unwritable(tmp_path, kind):
 
 
 @pytest.mark.parametrize("kind", ["read_only_folder", "regular_file", "below_a_regular_file", "nul_byte"])
-def test_an_unwritable_cache_dir_warns_once_and_returns_the_operators(mesh, fresh, tmp_path, kind):
-    folder, reason = _unwritable(tmp_path, kind)
+def test_an_unwritable_cache_dir_warns_once_and_returns_the_operators(mesh, fresh, tmp_path, monkeypatch, kind):
+    folder, reason = _unwritable(tmp_path, kind, monkeypatch)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -225,11 +238,9 @@ def test_an_os_error_while_writing_warns_and_leaves_no_temporary_file(mesh, fres
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_read_only_folder_with_the_files_already_there_is_used_without_a_warning(mesh, fresh, tmp_path):
-    if os.geteuid() == 0:
-        pytest.skip("root writes into read-only folders: the folder would not be read-only")
+def test_a_read_only_folder_with_the_files_already_there_is_used_without_a_warning(mesh, fresh, tmp_path, monkeypatch):
     _cached_file(tmp_path, mesh, K)
-    tmp_path.chmod(0o555)
+    _make_read_only(tmp_path, monkeypatch)
     try:
 
         def refuse(*args, **kwargs):
